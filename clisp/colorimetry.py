@@ -1,0 +1,49 @@
+"""Colour constants of the paper and the sRGB transfer functions (SPEC.md sections 0 and 2).
+
+All matrices map white-balanced camera values to linear sRGB (D65), column vectors.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+P_LMS = np.array([[4.73, -3.87, 0.14],
+                  [-0.60, 1.75, -0.16],
+                  [0.07, -0.26, 1.12]])
+"""Paper eq. (1): white-balanced LMS -> linear sRGB."""
+
+B_BAYER = np.array([[1.81, -0.53, -0.28],
+                    [-0.30, 1.38, -0.08],
+                    [-0.13, -0.33, 1.46]])
+"""The paper's typical Bayer matrix: white-balanced camera RGB -> linear sRGB."""
+
+WB_LMS = np.array([1.0000, 1.2191, 3.1397])
+"""Paper's LMS white-balance multipliers (applied to raw channels)."""
+
+WB_BAYER = np.array([1.8123, 1.0000, 1.8799])
+"""Paper's Bayer white-balance multipliers (applied to raw channels)."""
+
+XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
+                        [-0.9692660, 1.8760108, 0.0415560],
+                        [0.0556434, -0.2040259, 1.0572252]])
+"""CIE XYZ (D65) -> linear sRGB (IEC 61966-2-1)."""
+
+
+def camera_constants(kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """(colour matrix, WB multipliers) of the paper's simulated sensor for ``kind`` 'lms' or 'bayer'."""
+    if kind == "lms":
+        return P_LMS, WB_LMS
+    if kind == "bayer":
+        return B_BAYER, WB_BAYER
+    raise ValueError(f"unknown CFA kind {kind!r}")
+
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    """Linear -> sRGB-encoded (IEC 61966-2-1), after clipping to [0, 1]. Same shape and dtype."""
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(x.dtype)
+
+
+def srgb_decode(v: np.ndarray) -> np.ndarray:
+    """sRGB-encoded in [0, 1] -> linear (IEC 61966-2-1). Same shape and dtype."""
+    v = np.asarray(v)
+    return np.where(v <= 0.04045, v / 12.92, np.power((v + 0.055) / 1.055, 2.4)).astype(v.dtype)
