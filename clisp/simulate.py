@@ -1,0 +1,173 @@
+"""Raw simulation ("inverse ISP", SPEC.md section 3): linear sRGB scene -> CFA mosaic in DN.
+
+Steps, per image::
+
+    x_o  = K * x                             optics (Airy PSF or none), per channel; ground truth
+    raw  = k_exp (inv(M) x_o) / WB           camera raw, M and WB from colorimetry.camera_constants
+    k_exp = 1 / max_c raw_c(white)           sRGB white reaches full scale on the brightest channel
+    mosaic: keep channel cfa.channel_map(y, x) at each pixel
+    DN   = raw (WL - BL) + BL                noiseless (float32, no quantisation, no clipping), or
+    DN   = NoiseModel.sample(raw, gain)      noisy (uint16, quantised and clipped)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .cfa import CFA, cfa_from_name
+from .colorimetry import camera_constants
+from .errors import ClispError
+from .noise import NoiseModel, check_gain
+from .optics import airy_kernel, blur_channel
+from .rawimage import RawImage
+
+OPTICS_KINDS = ("airy", "none")
+
+
+@dataclass
+class SimResult:
+    """A simulated capture.
+
+    raw    the mosaic and its processing metadata (RawImage, source 'simulated').
+    truth  H x W x 3 float32 linear sRGB after the optics: the reference for metrics.
+    """
+
+    raw: RawImage
+    truth: np.ndarray
+
+
+def resolve_cfa(cfa: CFA | str) -> CFA:
+    """A CFA instance, or one parsed from a name accepted by ``cfa_from_name``."""
+    if isinstance(cfa, CFA):
+        return cfa
+    if isinstance(cfa, str):
+        return cfa_from_name(cfa)
+    raise ClispError(f"cfa must be a CFA or a name such as 'lms' or 'bayer-rggb', got {cfa!r}")
+
+
+def inverse_isp_matrix(kind: str) -> tuple[np.ndarray, float]:
+    """(A, k_exp) for CFA kind 'lms' or 'bayer': A (3 x 3) maps linear sRGB to exposed raw channels.
+
+    ``A = k_exp * diag(1/WB) @ inv(M)`` so that ``max_c (A @ [1, 1, 1])_c = 1``.
+    k_exp is 0.98951 for LMS and 1.0 for Bayer.
+    """
+    try:
+        matrix, wb = camera_constants(kind)
+    except ValueError as exc:
+        raise ClispError(f"no camera constants for CFA kind {kind!r}") from exc
+    a = np.linalg.inv(matrix) / np.asarray(wb, dtype=np.float64)[:, None]
+    k_exp = 1.0 / float(np.max(a @ np.ones(3)))
+    return a * k_exp, k_exp
+
+
+def _check_scene(scene: Any) -> np.ndarray:
+    """Validate an H x W x 3 finite real array (linear sRGB, white = 1.0) and return it."""
+    arr = np.asarray(scene)
+    if arr.dtype.kind not in "fiu":
+        raise ClispError(f"scene must be a real-valued array of linear sRGB, got dtype {arr.dtype}")
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ClispError(f"scene must be an H x W x 3 linear sRGB array, got shape {arr.shape}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ClispError("scene contains NaN or infinite values")
+    return arr
+
+
+def _optics_kernel(optics: str | None, r0: float) -> np.ndarray | None:
+    """The optics kernel for ``optics`` ('airy' or 'none'/None), or None for no blur."""
+    kind = "none" if optics is None else optics
+    if not isinstance(kind, str) or kind.strip().lower() not in OPTICS_KINDS:
+        raise ClispError(f"unknown optics {optics!r}; expected one of {', '.join(OPTICS_KINDS)}")
+    if kind.strip().lower() == "none":
+        return None
+    if isinstance(r0, bool) or not isinstance(r0, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(float(r0)) and float(r0) > 0):
+        raise ClispError(f"Airy first-zero radius r0 must be a positive number of pixels, got {r0!r}")
+    return airy_kernel(float(r0))
+
+
+def _check_seed(seed: Any) -> int | None:
+    """``seed`` as a non-negative int (or None for fresh entropy)."""
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:
+        raise ClispError(f"seed must be a non-negative integer or None, got {seed!r}")
+    return int(seed)
+
+
+def optics_and_mosaic(scene: np.ndarray, cfa: CFA, kernel: np.ndarray | None,
+                      a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Blur the scene and mosaic its raw values, one channel at a time to bound memory.
+
+    scene H x W x 3 linear sRGB; a 3 x 3 sRGB -> raw matrix. Returns (truth H x W x 3 float32,
+    raw mosaic H x W float64 normalised, 1.0 = white level).
+    """
+    height, width = scene.shape[:2]
+    channel_of = cfa.channel_map(height, width)
+    truth = np.empty((height, width, 3), dtype=np.float32)
+    raw = np.zeros((height, width), dtype=np.float64)
+    for j in range(3):
+        plane = np.asarray(scene[..., j], dtype=np.float64)
+        if kernel is not None:
+            plane = blur_channel(plane, kernel)
+        truth[..., j] = plane
+        raw += a[channel_of, j] * plane
+    return truth, raw
+
+
+def _metadata(cfa: CFA, gain: float | None, noise: NoiseModel, kernel: np.ndarray | None,
+              r0: float, seed: int | None, k_exp: float) -> dict[str, Any]:
+    """JSON-serialisable simulation facts kept in RawImage.metadata."""
+    return {
+        "cfa": cfa.name,
+        "gain": gain,
+        "noise": noise.to_dict(),
+        "full_scale_electrons": None if gain is None else float(noise.full_scale_electrons(gain)),
+        "optics": {"kind": "none", "r0": None} if kernel is None else {"kind": "airy", "r0": float(r0)},
+        "seed": seed,
+        "k_exp": float(k_exp),
+        "simulator": f"clisp {__version__}",
+    }
+
+
+def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = None,
+             optics: str | None = "airy", seed: int | None = 0, r0: float = 1.0,
+             noise: NoiseModel = NoiseModel()) -> SimResult:
+    """Simulate a raw capture of a linear sRGB scene (SPEC.md section 3).
+
+    scene  H x W x 3 linear sRGB, white = 1.0 (any real dtype; values above 1 are allowed).
+    cfa    a CFA or a name ('lms', 'lms@dy,dx', 'bayer', 'bayer-grbg', ...).
+    gain   analog gain in [1, 64]; None = noiseless (float32 DN, unquantised, unclipped).
+    optics 'airy' (pixel-integrated Airy PSF, first-zero radius r0 px) or 'none'.
+    seed   seed of np.random.default_rng for the noise; the same seed gives identical data.
+    noise  the sensor model (black/white level, read noise, conversion gain).
+    Returns SimResult(raw=RawImage with uint16 (noisy) or float32 (noiseless) H x W DN,
+    truth=H x W x 3 float32 blurred linear sRGB).
+    """
+    scene = _check_scene(scene)
+    cfa = resolve_cfa(cfa)
+    gain_value = None if gain is None else check_gain(gain)
+    kernel = _optics_kernel(optics, r0)
+    seed = _check_seed(seed)
+    if not isinstance(noise, NoiseModel):
+        raise ClispError(f"noise must be a NoiseModel, got {type(noise).__name__}")
+    matrix, wb = camera_constants(cfa.kind)
+    a, k_exp = inverse_isp_matrix(cfa.kind)
+    truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
+    if gain_value is None:
+        data = (raw * noise.range_dn + float(noise.black_level)).astype(np.float32)
+    else:
+        data = noise.sample(raw, gain_value, np.random.default_rng(seed))
+    del raw
+    image = RawImage(
+        data=data, cfa=cfa,
+        black_level=np.full(cfa.n_channels, float(noise.black_level)),
+        white_level=float(noise.white_level),
+        wb=np.array(wb, dtype=np.float64), colour_matrix=np.array(matrix, dtype=np.float64),
+        exposure=1.0 / k_exp, wb2=np.ones(3),
+        metadata=_metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp),
+        source="simulated")
+    return SimResult(raw=image, truth=truth)
