@@ -1,0 +1,229 @@
+"""Camera raws (CR2, CRW, NEF, DNG, KDC, ...) through rawpy / LibRaw.
+
+Only Bayer sensors are supported. The mosaic is LibRaw's *visible* area (``raw_image_visible``,
+margins removed; the DNG DefaultCrop is not applied but recorded in ``metadata["default_crop"]``).
+
+CFA phase: rawpy's ``raw_pattern`` is indexed from the top-left of the *full* raw
+(``raw_pattern[y, x] = COLOR(y - top_margin, x - left_margin)``), so the pattern of the visible area
+is ``raw_pattern`` rolled by (-top_margin, -left_margin). LibRaw's colour indices are positions in
+``color_desc`` (b'RGBG' for RGB Bayer cameras; index 3 is the second green).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .cfa import CFA, cfa_from_pattern
+from .colorimetry import XYZ_TO_SRGB
+from .errors import ClispError
+from .rawimage import RawImage
+
+CFA_LETTERS = "RGB"
+"""Our CFA channel order for Bayer raws."""
+
+
+def read_camera_raw(path: str | os.PathLike[str]) -> RawImage:
+    """Read a Bayer camera raw with rawpy.
+
+    Returns a RawImage with data = visible mosaic (H x W uint16 DN, copied), per-channel black level
+    and white level in DN, WB pass-1 multipliers normalised to G = 1, exposure 1 and a colour matrix
+    mapping WB-balanced camera RGB to linear sRGB. Raises ClispError naming the file on failure.
+    """
+    import rawpy
+
+    p = Path(path)
+    try:
+        with rawpy.imread(str(p)) as raw:
+            return _from_rawpy(raw, p)
+    except ClispError:
+        raise
+    except rawpy.LibRawError as exc:
+        raise ClispError(f"cannot read raw file '{p}': {_libraw_problem(exc)}") from exc
+    except (OSError, RuntimeError, NotImplementedError, ValueError, TypeError, MemoryError) as exc:
+        raise ClispError(f"cannot read raw file '{p}': {type(exc).__name__}: {_one_line(exc)}") from exc
+
+
+def _from_rawpy(raw: Any, p: Path) -> RawImage:
+    """Build the RawImage from an open rawpy.RawPy."""
+    sizes = raw.sizes
+    colours = _colour_letters(raw.color_desc)
+    pattern = visible_pattern(raw.raw_pattern, sizes.top_margin, sizes.left_margin, p)
+    try:
+        cfa = cfa_from_pattern(pattern, colours)
+    except ClispError as exc:
+        raise ClispError(f"cannot read raw file '{p}': {exc}") from exc
+    visible = raw.raw_image_visible
+    if visible is None or visible.ndim != 2:
+        raise ClispError(f"cannot read raw file '{p}': not a flat CFA raw ({raw.raw_type})")
+    data = np.array(visible, dtype=np.uint16, copy=True)
+    black = channel_values(raw.black_level_per_channel, pattern, colours, cfa)
+    wb, wb_source = pick_wb(raw.camera_whitebalance, raw.daylight_whitebalance, pattern, colours, cfa)
+    matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
+                                               np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
+    metadata = _camera_metadata(raw, p, wb_source, matrix_source)
+    return RawImage(data=data, cfa=cfa, black_level=black, white_level=float(raw.white_level),
+                    wb=wb, colour_matrix=matrix, exposure=1.0, metadata=metadata, source=str(p))
+
+
+def _colour_letters(color_desc: bytes) -> str:
+    """rawpy's colour description as letters, the second green (index 3 of 'RGBG') mapped to G."""
+    letters = bytes(color_desc).decode("ascii", "replace").rstrip("\0")
+    letters = (letters + "????")[:4]
+    if letters[:3] == "RGB" and letters[3] == "G":
+        letters = "RGBG"
+    return letters
+
+
+def visible_pattern(raw_pattern: np.ndarray | None, top_margin: int, left_margin: int,
+                    p: Path | str = "") -> np.ndarray:
+    """CFA pattern (colour indices) of the visible area from rawpy's full-raw ``raw_pattern``.
+
+    A 4 x 4 pattern that repeats with period 2 is reduced to 2 x 2. Raises ClispError naming the
+    file for raws without a CFA (linear DNG, Foveon, monochrome).
+    """
+    if raw_pattern is None:
+        raise ClispError(f"cannot read raw file '{p}': no CFA pattern (linear/demosaiced DNG or "
+                         f"layered sensor such as Foveon); only Bayer raws are supported")
+    pattern = np.asarray(raw_pattern)
+    if pattern.ndim != 2 or pattern.shape[0] != pattern.shape[1] or pattern.shape[0] < 2:
+        raise ClispError(f"cannot read raw file '{p}': unsupported CFA pattern of shape "
+                         f"{pattern.shape} (monochrome or unknown sensor); only Bayer raws are supported")
+    n = pattern.shape[0]
+    pattern = np.roll(pattern, shift=(-int(top_margin) % n, -int(left_margin) % n), axis=(0, 1))
+    if n == 4 and np.array_equal(np.tile(pattern[:2, :2], (2, 2)), pattern):
+        pattern = pattern[:2, :2]
+    return pattern.copy()
+
+
+def channel_values(values: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> np.ndarray:
+    """Per CFA channel mean of rawpy's per-colour-index ``values`` over the indices in ``pattern``.
+
+    Shape (cfa.n_channels,). For 'RGBG' the G entry averages indices 1 and 3 when both occur.
+    """
+    vals = np.asarray(values, dtype=np.float64)
+    out = np.zeros(cfa.n_channels)
+    for c, name in enumerate(cfa.channels):
+        idx = [int(i) for i in np.unique(pattern) if colours[int(i)] == name]
+        out[c] = float(np.mean(vals[idx]))
+    return out
+
+
+def pick_wb(camera: Any, daylight: Any, pattern: np.ndarray, colours: str,
+            cfa: CFA) -> tuple[np.ndarray, str]:
+    """WB pass-1 multipliers per CFA channel, normalised to G = 1, and where they came from.
+
+    Camera (as shot) first, then daylight, then ones. A candidate is rejected when any value for a
+    colour index used by the pattern is <= 0 or not finite (the Canon D30 CRW reports R = -1).
+    LibRaw stores 0 for the second green when it equals the first, so index 3 falls back to index 1.
+    """
+    for name, cand in (("camera", camera), ("daylight", daylight)):
+        wb = _wb_candidate(cand, pattern, colours, cfa)
+        if wb is not None:
+            return wb, name
+    return np.ones(cfa.n_channels), "none (unity)"
+
+
+def _wb_candidate(values: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> np.ndarray | None:
+    """Normalised multipliers from one rawpy 4-vector, or None when unusable."""
+    if values is None:
+        return None
+    vals = np.asarray(values, dtype=np.float64).copy()
+    if vals.shape != (4,):
+        return None
+    if vals[3] == 0 and colours[3] == colours[1]:
+        vals[3] = vals[1]
+    used = [int(i) for i in np.unique(pattern)]
+    if not np.all(np.isfinite(vals[used])) or np.any(vals[used] <= 0):
+        return None
+    wb = channel_values(vals, pattern, colours, cfa)
+    green = wb[list(cfa.channels).index("G")] if "G" in cfa.channels else wb.min()
+    return wb / green
+
+
+def pick_colour_matrix(rgb_cam: np.ndarray, cam_xyz: np.ndarray) -> tuple[np.ndarray, str]:
+    """3 x 3 matrix WB-balanced camera RGB -> linear sRGB, and its source.
+
+    ``rgb_cam`` is rawpy's ``color_matrix`` (3 x 4; LibRaw fills it for DNGs), ``cam_xyz`` is
+    ``rgb_xyz_matrix`` (4 x 3, XYZ -> camera). Falls back to dcraw's derivation from cam_xyz
+    (cam_rgb = cam_xyz @ sRGB->XYZ, rows normalised to sum 1, inverted), then to identity.
+    """
+    m = rgb_cam[:3, :3] if rgb_cam.ndim == 2 and rgb_cam.shape[0] >= 3 and rgb_cam.shape[1] >= 3 else None
+    if m is not None and np.all(np.isfinite(m)) and np.any(m != 0):
+        return m.copy(), "file (LibRaw rgb_cam)"
+    derived = rgb_cam_from_cam_xyz(cam_xyz[:3] if cam_xyz.ndim == 2 and cam_xyz.shape[0] >= 3 else None)
+    if derived is not None:
+        return derived, "derived from rgb_xyz_matrix (dcraw method)"
+    return np.eye(3), "identity (file has none)"
+
+
+def rgb_cam_from_cam_xyz(cam_xyz: np.ndarray | None) -> np.ndarray | None:
+    """dcraw's rgb_cam from a 3 x 3 XYZ -> camera matrix; None when absent or singular."""
+    if cam_xyz is None or cam_xyz.shape != (3, 3) or not np.all(np.isfinite(cam_xyz)) or not np.any(cam_xyz):
+        return None
+    cam_rgb = cam_xyz @ np.linalg.inv(XYZ_TO_SRGB)
+    sums = cam_rgb.sum(axis=1, keepdims=True)
+    if np.any(np.abs(sums) < 1e-12):
+        return None
+    try:
+        rgb_cam = np.linalg.inv(cam_rgb / sums)
+    except np.linalg.LinAlgError:
+        return None
+    return rgb_cam if np.all(np.isfinite(rgb_cam)) else None
+
+
+def _camera_metadata(raw: Any, p: Path, wb_source: str, matrix_source: str) -> dict[str, Any]:
+    """JSON-friendly facts about the camera raw kept in RawImage.metadata."""
+    s = raw.sizes
+    md: dict[str, Any] = {
+        "flip": int(s.flip),
+        "wb_source": wb_source,
+        "colour_matrix_source": matrix_source,
+        "camera_wb": [float(v) for v in raw.camera_whitebalance],
+        "daylight_wb": [float(v) for v in raw.daylight_whitebalance],
+        "raw_size": [int(s.raw_height), int(s.raw_width)],
+        "visible_origin": [int(s.top_margin), int(s.left_margin)],
+        "color_desc": bytes(raw.color_desc).decode("ascii", "replace").rstrip("\0"),
+    }
+    if int(s.crop_width) > 0 and int(s.crop_height) > 0:
+        md["default_crop"] = [int(s.crop_top_margin), int(s.crop_left_margin),
+                              int(s.crop_height), int(s.crop_width)]
+    md.update(_tiff_make_model(p))
+    return md
+
+
+def _tiff_make_model(p: Path) -> dict[str, str]:
+    """Make and Model from the TIFF IFD0 of TIFF-based raws (rawpy does not expose them); may be {}."""
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(p) as tif:
+            tags = tif.pages[0].tags
+            out = {}
+            for key, code in (("make", 271), ("model", 272)):
+                tag = tags.get(code)
+                if tag is not None and isinstance(tag.value, str) and tag.value.strip():
+                    out[key] = tag.value.strip("\0 ")
+            return out
+    except Exception:  # noqa: BLE001 - best effort only; CRW and others are not TIFF
+        return {}
+
+
+def _libraw_problem(exc: BaseException) -> str:
+    """A short description of a rawpy exception."""
+    text = _one_line(exc)
+    name = type(exc).__name__
+    if name == "LibRawFileUnsupportedError":
+        return f"not a raw file LibRaw can read ({text})"
+    if name in ("LibRawIOError", "LibRawDataError"):
+        return f"damaged or truncated raw data ({text})"
+    return f"{name}: {text}"
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line; rawpy passes bytes messages, which are decoded."""
+    args = [a.decode("utf-8", "replace") if isinstance(a, bytes) else str(a) for a in exc.args]
+    text = " ".join(" ".join(args).split()) if args else " ".join(str(exc).split())
+    return text or type(exc).__name__

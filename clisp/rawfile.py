@@ -1,0 +1,464 @@
+"""Reading and writing raw files.
+
+clisp writes its own raws as DNG-style TIFFs (one uncompressed CFA image in strips of
+``ROWS_PER_STRIP`` rows, so that rows can later be memory-mapped for tile streaming). Besides the
+standard DNG tags the file carries clisp's exact metadata as JSON in DNGPrivateData (tag 50740,
+prefixed with ``b"clisp\\0"``), so :func:`read_raw` rebuilds the :class:`RawImage` bit for bit.
+Any other file is handed to :func:`clisp.camera.read_camera_raw` (rawpy / LibRaw).
+
+Every failure surfaces as a one-line :class:`ClispError` that names the file.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+
+from .cfa import CFA, cfa_from_name
+from .colorimetry import XYZ_TO_SRGB
+from .errors import ClispError
+from .rawimage import RawImage
+
+ROWS_PER_STRIP = 16
+"""Rows per uncompressed strip in files we write."""
+
+PRIVATE_PREFIX = b"clisp\0"
+"""Start of our DNGPrivateData payload; the JSON follows."""
+
+FORMAT_NAME = "clisp-raw"
+FORMAT_VERSION = 1
+
+SOURCE_CLISP = "clisp-dng"
+SOURCE_CAMERA = "camera (rawpy)"
+
+D65_XYZ = np.array([0.95047, 1.0, 1.08883])
+"""CIE XYZ of the D65 white point with Y = 1."""
+
+# TIFF / DNG tag codes and TIFF field types.
+TAG_CFA_REPEAT_PATTERN_DIM = 33421
+TAG_CFA_PATTERN = 33422
+TAG_DNG_VERSION = 50706
+TAG_DNG_BACKWARD_VERSION = 50707
+TAG_UNIQUE_CAMERA_MODEL = 50708
+TAG_CFA_PLANE_COLOR = 50710
+TAG_CFA_LAYOUT = 50711
+TAG_BLACK_LEVEL_REPEAT_DIM = 50713
+TAG_BLACK_LEVEL = 50714
+TAG_WHITE_LEVEL = 50717
+TAG_COLOR_MATRIX1 = 50721
+TAG_AS_SHOT_NEUTRAL = 50728
+TAG_BASELINE_EXPOSURE = 50730
+TAG_DNG_PRIVATE_DATA = 50740
+TAG_CALIBRATION_ILLUMINANT1 = 50778
+PHOTOMETRIC_CFA = 32803
+ILLUMINANT_D65 = 21
+T_BYTE, T_ASCII, T_SHORT, T_LONG, T_RATIONAL, T_SRATIONAL = 1, 2, 3, 4, 5, 10
+
+_INT32_MAX = 2**31 - 1
+_UINT32_MAX = 2**32 - 1
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------------------------
+
+def write_raw(path: str | os.PathLike[str], raw: RawImage) -> None:
+    """Write ``raw`` as a DNG-style TIFF at ``path``, atomically.
+
+    The mosaic (H x W, uint16 DN or float32 DN for noiseless data) is stored uncompressed in
+    strips of ROWS_PER_STRIP rows with its dtype kept. The file appears only when complete: it is
+    written under a temporary name in the same folder and renamed; on any failure the temporary
+    file is removed and ClispError is raised (an existing file at ``path`` is left untouched).
+    """
+    target = Path(path)
+    data = _checked_data(raw, target)
+    tags = dng_tags(raw)
+    folder = target.parent if str(target.parent) else Path(".")
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
+    os.close(fd)
+    try:
+        tifffile.imwrite(tmp_name, data, photometric=PHOTOMETRIC_CFA, rowsperstrip=ROWS_PER_STRIP,
+                         subfiletype=0, compression=None, metadata=None, software="clisp",
+                         extratags=tags)
+        _chmod_default(tmp_name)
+        os.replace(tmp_name, target)
+    except BaseException as exc:
+        _remove_quietly(tmp_name)
+        if isinstance(exc, Exception):
+            raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
+        raise
+
+
+def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
+    """The DNG tags for ``raw`` as tifffile ``extratags`` tuples (code, type, count, value, once)."""
+    cfa = raw.cfa
+    p = cfa.period
+    is_float = raw.data.dtype == np.float32
+    black_tile = [float(raw.black_level[c]) for c in cfa.pattern.ravel()]
+    model = _model_name(cfa)
+    tags: list[tuple[int, int, int, Any, bool]] = [
+        (TAG_DNG_VERSION, T_BYTE, 4, bytes((1, 4, 0, 0)), True),
+        (TAG_DNG_BACKWARD_VERSION, T_BYTE, 4, bytes((1, 4, 0, 0) if is_float else (1, 1, 0, 0)), True),
+        (TAG_UNIQUE_CAMERA_MODEL, T_ASCII, 0, model, True),
+        (TAG_CFA_REPEAT_PATTERN_DIM, T_SHORT, 2, (p, p), True),
+        (TAG_CFA_PATTERN, T_BYTE, p * p, cfa.dng_pattern, True),
+        (TAG_CFA_PLANE_COLOR, T_BYTE, 3, bytes((0, 1, 2)), True),
+        (TAG_CFA_LAYOUT, T_SHORT, 1, 1, True),
+        (TAG_BLACK_LEVEL_REPEAT_DIM, T_SHORT, 2, (p, p), True),
+        (TAG_BLACK_LEVEL, T_RATIONAL, p * p, _rationals(black_tile, signed=False), True),
+        (TAG_WHITE_LEVEL, T_LONG, 1, _clamp_int(raw.white_level, 0, _UINT32_MAX), True),
+        (TAG_COLOR_MATRIX1, T_SRATIONAL, 9, _rationals(dng_colour_matrix(raw).ravel(), signed=True), True),
+        (TAG_CALIBRATION_ILLUMINANT1, T_SHORT, 1, ILLUMINANT_D65, True),
+        (TAG_AS_SHOT_NEUTRAL, T_RATIONAL, 3, _rationals(as_shot_neutral(raw), signed=False), True),
+        (TAG_BASELINE_EXPOSURE, T_SRATIONAL, 1, _rationals([_baseline_exposure(raw)], signed=True), True),
+    ]
+    private = PRIVATE_PREFIX + json.dumps(_metadata_json(raw), default=_json_default).encode("utf-8")
+    tags.append((TAG_DNG_PRIVATE_DATA, T_BYTE, len(private), private, True))
+    return tags
+
+
+def _model_name(cfa: CFA) -> str:
+    """UniqueCameraModel of our simulated sensors."""
+    return f"clisp {'LMS' if cfa.kind == 'lms' else 'Bayer'} simulated"
+
+
+def dng_colour_matrix(raw: RawImage) -> np.ndarray:
+    """DNG ColorMatrix1: XYZ (D65) -> camera native channels, 3 x 3.
+
+    camera_native = diag(1/wb) @ inv(colour_matrix) @ XYZ_TO_SRGB, scaled so that the D65 white
+    with Y = 1 maps to a largest channel value of 1 (as DNG expects).
+    """
+    wb = np.where(raw.wb > 0, raw.wb, 1.0)
+    try:
+        m = np.diag(1.0 / wb) @ np.linalg.inv(raw.colour_matrix) @ XYZ_TO_SRGB
+    except np.linalg.LinAlgError:
+        m = np.diag(1.0 / wb) @ XYZ_TO_SRGB
+    peak = float(np.max(m @ D65_XYZ))
+    return m / peak if np.isfinite(peak) and peak > 0 else m
+
+
+def as_shot_neutral(raw: RawImage) -> np.ndarray:
+    """DNG AsShotNeutral: 1/wb per CFA channel, scaled so the largest entry is 1, shape (3,)."""
+    wb = np.where(raw.wb > 0, raw.wb, 1.0)
+    neutral = 1.0 / wb
+    return neutral / neutral.max()
+
+
+def _baseline_exposure(raw: RawImage) -> float:
+    """DNG BaselineExposure in EV: log2(raw.exposure) (0 when the exposure is not positive)."""
+    return math.log2(raw.exposure) if raw.exposure > 0 and math.isfinite(raw.exposure) else 0.0
+
+
+def _checked_data(raw: RawImage, target: Path) -> np.ndarray:
+    """The mosaic as a C-contiguous native-endian uint16 or float32 H x W array."""
+    dtype = raw.data.dtype
+    if dtype.kind == "u" and dtype.itemsize == 2:
+        out_dtype = np.dtype(np.uint16)
+    elif dtype.kind == "f" and dtype.itemsize == 4:
+        out_dtype = np.dtype(np.float32)
+    else:
+        raise ClispError(f"cannot write raw file '{target}': data must be uint16 or float32, got {dtype}")
+    if raw.cfa.n_channels != 3:
+        raise ClispError(f"cannot write raw file '{target}': CFA {raw.cfa.name} has "
+                         f"{raw.cfa.n_channels} channels, DNG CFAPlaneColor needs 3")
+    return np.ascontiguousarray(raw.data, dtype=out_dtype)
+
+
+def _metadata_json(raw: RawImage) -> dict[str, Any]:
+    """Everything needed to rebuild ``raw`` exactly (except the pixels and ``source``)."""
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "dtype": str(np.dtype(raw.data.dtype).newbyteorder("=")),
+        "shape": list(raw.shape),
+        "cfa": {"name": raw.cfa.name, "kind": raw.cfa.kind, "channels": list(raw.cfa.channels),
+                "pattern": raw.cfa.pattern.tolist()},
+        "black_level": [float(v) for v in raw.black_level],
+        "white_level": float(raw.white_level),
+        "wb": [float(v) for v in raw.wb],
+        "exposure": float(raw.exposure),
+        "colour_matrix": raw.colour_matrix.tolist(),
+        "wb2": [float(v) for v in raw.wb2],
+        "metadata": raw.metadata,
+    }
+
+
+def _json_default(obj: Any) -> Any:
+    """JSON fallback for numpy values in ``raw.metadata`` (arrays become lists)."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (set, frozenset, tuple)):
+        return list(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"metadata value of type {type(obj).__name__} is not JSON serialisable")
+
+
+def _rationals(values: Any, signed: bool) -> tuple[int, ...]:
+    """Flatten ``values`` into TIFF (numerator, denominator) pairs; SRATIONAL when ``signed``."""
+    out: list[int] = []
+    for v in np.asarray(values, dtype=np.float64).ravel():
+        num, den = _rational(float(v), signed)
+        out += [num, den]
+    return tuple(out)
+
+
+def _rational(v: float, signed: bool) -> tuple[int, int]:
+    """Closest fraction to ``v`` whose terms fit a TIFF (S)RATIONAL."""
+    if not math.isfinite(v):
+        return (0, 1)
+    if not signed:
+        v = max(v, 0.0)
+    top = _INT32_MAX if signed else _UINT32_MAX
+    if abs(v) >= top:
+        return (top if v > 0 else -top, 1)
+    max_den = max(1, min(top, int(top / max(abs(v), 1.0))))
+    f = Fraction(v).limit_denominator(max_den)
+    return (int(f.numerator), int(f.denominator))
+
+
+def _clamp_int(v: float, lo: int, hi: int) -> int:
+    return int(min(max(round(v), lo), hi)) if math.isfinite(v) else hi
+
+
+def _chmod_default(name: str) -> None:
+    """Give the temporary file ordinary permissions (mkstemp makes it 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(name, 0o666 & ~umask)
+
+
+def _remove_quietly(name: str) -> None:
+    try:
+        os.unlink(name)
+    except OSError:
+        pass
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------------
+
+def read_raw(path: str | os.PathLike[str]) -> RawImage:
+    """Read a raw file: one of ours exactly (``source`` = str(path)), else a camera raw via rawpy."""
+    raw, _ = _load(path)
+    return raw
+
+
+def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Summary of a raw file for ``clisp info RAW``: sizes, CFA, levels (DN), WB, matrix, gain."""
+    raw, kind = _load(path)
+    md = raw.metadata
+    info: dict[str, Any] = {
+        "path": str(path),
+        "source_kind": kind,
+        "width": raw.shape[1],
+        "height": raw.shape[0],
+        "dtype": str(raw.data.dtype),
+        "cfa": raw.cfa.name,
+        "cfa_kind": raw.cfa.kind,
+        "channels": list(raw.cfa.channels),
+        "black_level": [float(v) for v in raw.black_level],
+        "white_level": float(raw.white_level),
+        "wb": [float(v) for v in raw.wb],
+        "exposure": float(raw.exposure),
+        "colour_matrix": raw.colour_matrix.tolist(),
+        "wb2": [float(v) for v in raw.wb2],
+        "gain": md.get("gain"),
+        "make": md.get("make", "clisp" if kind == SOURCE_CLISP else None),
+        "model": md.get("model", _model_name(raw.cfa) if kind == SOURCE_CLISP else None),
+    }
+    for key in ("wb_source", "colour_matrix_source", "flip"):
+        if key in md:
+            info[key] = md[key]
+    return info
+
+
+def _load(path: str | os.PathLike[str]) -> tuple[RawImage, str]:
+    """Read ``path`` and say whether it was one of ours (SOURCE_CLISP) or a camera raw."""
+    p = Path(path)
+    _check_readable(p)
+    ours, tiff_error = _try_read_clisp(p)
+    if ours is not None:
+        return ours, SOURCE_CLISP
+    from .camera import read_camera_raw
+    try:
+        return read_camera_raw(p), SOURCE_CAMERA
+    except ClispError as exc:
+        kind = _sniff_kind(p)
+        if kind is not None and kind != "TIFF":
+            article = "an" if kind[0] in "AEIOU" else "a"
+            raise ClispError(f"cannot read raw file '{p}': it is {article} {kind}, not a raw file") from exc
+        if kind == "TIFF" and tiff_error is not None:
+            raise ClispError(f"cannot read raw file '{p}': damaged or truncated TIFF ({tiff_error})") from exc
+        raise
+
+
+def _check_readable(p: Path) -> None:
+    """Raise ClispError for a missing, unreadable, non-regular or empty file."""
+    try:
+        st = p.stat()
+    except FileNotFoundError as exc:
+        raise ClispError(f"cannot read raw file '{p}': no such file") from exc
+    except OSError as exc:
+        raise ClispError(f"cannot read raw file '{p}': {_one_line(exc)}") from exc
+    if p.is_dir():
+        raise ClispError(f"cannot read raw file '{p}': it is a folder")
+    if st.st_size == 0:
+        raise ClispError(f"cannot read raw file '{p}': the file is empty")
+    if not os.access(p, os.R_OK):
+        raise ClispError(f"cannot read raw file '{p}': permission denied")
+
+
+def _try_read_clisp(p: Path) -> tuple[RawImage | None, str | None]:
+    """(RawImage, None) for one of our files; (None, tifffile's complaint or None) otherwise."""
+    try:
+        with tifffile.TiffFile(p) as tif:
+            if not tif.pages:
+                return None, "no images"
+            page = tif.pages[0]
+            meta = _private_metadata(page, p)
+            if meta is None:
+                return None, None
+            data = _read_pixels(page, p, meta)
+    except ClispError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
+        return None, _one_line(exc)
+    return _rebuild(meta, data, p), None
+
+
+def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:
+    """Our JSON from DNGPrivateData, or None when the TIFF is not one of ours."""
+    tag = page.tags.get(TAG_DNG_PRIVATE_DATA)
+    if tag is None:
+        return None
+    value = tag.value
+    blob = bytes(value) if not isinstance(value, bytes) else value
+    if not blob.startswith(PRIVATE_PREFIX):
+        return None
+    try:
+        meta = json.loads(blob[len(PRIVATE_PREFIX):].rstrip(b"\0").decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({_one_line(exc)})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+        raise ClispError(f"cannot read raw file '{p}': unrecognised clisp metadata")
+    if int(meta.get("version", 0)) > FORMAT_VERSION:
+        raise ClispError(f"cannot read raw file '{p}': written by a newer clisp "
+                         f"(format version {meta.get('version')})")
+    return meta
+
+
+def _read_pixels(page: Any, p: Path, meta: dict[str, Any]) -> np.ndarray:
+    """The mosaic of ``page`` after checking that the file holds all of it."""
+    if int(page.photometric) != PHOTOMETRIC_CFA:
+        raise ClispError(f"cannot read raw file '{p}': photometric {int(page.photometric)} is not CFA")
+    size = p.stat().st_size
+    ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts)]
+    if not ends or max(ends) > size:
+        need = max(ends) if ends else 0
+        raise ClispError(f"cannot read raw file '{p}': truncated (image data needs {need} bytes, "
+                         f"file has {size})")
+    try:
+        data = page.asarray()
+    except Exception as exc:  # noqa: BLE001
+        raise ClispError(f"cannot read raw file '{p}': damaged image data ({_one_line(exc)})") from exc
+    want_dtype = np.dtype(meta.get("dtype", str(data.dtype)))
+    want_shape = tuple(int(v) for v in meta.get("shape", data.shape))
+    if data.shape != want_shape or data.dtype.newbyteorder("=") != want_dtype.newbyteorder("="):
+        raise ClispError(f"cannot read raw file '{p}': image is {data.dtype} {data.shape}, "
+                         f"metadata says {want_dtype} {want_shape}")
+    return np.ascontiguousarray(data, dtype=want_dtype.newbyteorder("="))
+
+
+def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:
+    """RawImage from our JSON metadata and the pixels."""
+    try:
+        cfa = _rebuild_cfa(meta["cfa"], p)
+        return RawImage(
+            data=data,
+            cfa=cfa,
+            black_level=np.asarray(meta["black_level"], dtype=np.float64),
+            white_level=float(meta["white_level"]),
+            wb=np.asarray(meta["wb"], dtype=np.float64),
+            colour_matrix=np.asarray(meta["colour_matrix"], dtype=np.float64),
+            exposure=float(meta["exposure"]),
+            wb2=np.asarray(meta["wb2"], dtype=np.float64),
+            metadata=dict(meta.get("metadata") or {}),
+            source=str(p),
+        )
+    except ClispError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({_one_line(exc)})") from exc
+
+
+def _rebuild_cfa(desc: dict[str, Any], p: Path) -> CFA:
+    """The CFA named in the metadata, checked against the stored kind, channels and pattern."""
+    name = str(desc.get("name"))
+    try:
+        cfa = cfa_from_name(name)
+    except ClispError as exc:
+        raise ClispError(f"cannot read raw file '{p}': unsupported CFA {name!r}") from exc
+    stored = np.asarray(desc.get("pattern", cfa.pattern.tolist()))
+    if (cfa.kind != desc.get("kind", cfa.kind)
+            or list(cfa.channels) != list(desc.get("channels", cfa.channels))
+            or stored.shape != cfa.pattern.shape or not np.array_equal(stored, cfa.pattern)):
+        raise ClispError(f"cannot read raw file '{p}': unsupported CFA {name!r} "
+                         f"(stored pattern does not match clisp's)")
+    return cfa
+
+
+_MAGIC = (
+    (b"\x89PNG\r\n\x1a\n", "PNG image"),
+    (b"\xff\xd8\xff", "JPEG image"),
+    (b"GIF8", "GIF image"),
+    (b"BM", "BMP image"),
+    (b"II*\0", "TIFF"),
+    (b"MM\0*", "TIFF"),
+)
+
+
+def _sniff_kind(p: Path) -> str | None:
+    """Name of a common non-raw format from the file's first bytes ('TIFF' included), or None."""
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return None
+    for magic, kind in _MAGIC:
+        if head.startswith(magic):
+            return kind
+    return "text file" if _looks_like_text(head) else None
+
+
+def _looks_like_text(head: bytes) -> bool:
+    """True for UTF-8 text without control characters other than tab, CR, LF, FF."""
+    if not head or b"\0" in head:
+        return False
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        text = head[:-3].decode("utf-8", "replace")  # the cut may split a multi-byte character
+        if "\ufffd" in text:
+            return False
+    return all(ch.isprintable() or ch in "\t\r\n\f" for ch in text)
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message squeezed onto one line (bytes arguments decoded, as rawpy uses them)."""
+    args = [a.decode("utf-8", "replace") if isinstance(a, bytes) else str(a) for a in exc.args]
+    text = " ".join(" ".join(args).split()) if args else " ".join(str(exc).split())
+    return text or type(exc).__name__
