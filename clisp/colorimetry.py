@@ -37,10 +37,18 @@ def camera_constants(kind: str) -> tuple[np.ndarray, np.ndarray]:
     raise ValueError(f"unknown CFA kind {kind!r}")
 
 
+SRGB_ENCODING = {"SRGB_THRESHOLD": 0.0031308, "SRGB_SLOPE": 12.92, "SRGB_SCALE": 1.055,
+                 "SRGB_INV_GAMMA": 1.0 / 2.4, "SRGB_OFFSET": 0.055}
+"""IEC 61966-2-1 encoding constants, shared by the NumPy reference and the kernel's defines."""
+
+
 def srgb_encode(x: np.ndarray) -> np.ndarray:
     """Linear -> sRGB-encoded (IEC 61966-2-1), after clipping to [0, 1]. Same shape and dtype."""
+    k = SRGB_ENCODING
     x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(x.dtype)
+    encoded = np.where(x <= k["SRGB_THRESHOLD"], k["SRGB_SLOPE"] * x,
+                       k["SRGB_SCALE"] * np.power(x, k["SRGB_INV_GAMMA"]) - k["SRGB_OFFSET"])
+    return encoded.astype(x.dtype)
 
 
 def srgb_decode(v: np.ndarray) -> np.ndarray:

@@ -40,9 +40,10 @@ class RawImage:
     def __post_init__(self) -> None:
         self.black_level = np.broadcast_to(np.asarray(self.black_level, dtype=np.float64),
                                            (self.cfa.n_channels,)).copy()
-        self.wb = np.asarray(self.wb, dtype=np.float64).reshape(self.cfa.n_channels)
-        self.colour_matrix = np.asarray(self.colour_matrix, dtype=np.float64).reshape(3, 3)
-        self.wb2 = np.asarray(self.wb2, dtype=np.float64).reshape(3)
+        # np.array copies: callers often pass module constants, which must never be aliased.
+        self.wb = np.array(self.wb, dtype=np.float64).reshape(self.cfa.n_channels)
+        self.colour_matrix = np.array(self.colour_matrix, dtype=np.float64).reshape(3, 3)
+        self.wb2 = np.array(self.wb2, dtype=np.float64).reshape(3)
         if self.data.ndim != 2:
             raise ValueError(f"{self.source}: raw data must be H x W, got shape {self.data.shape}")
 

@@ -1,0 +1,128 @@
+"""Scene and output images through OpenImageIO: EXR (linear float), TIFF/PNG (16-bit sRGB).
+
+Every write goes to a temporary file in the destination folder and is renamed into place only
+after it completed, so a failure never leaves a partial or corrupt output.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .colorimetry import srgb_decode
+from .errors import ClispError
+
+LINEAR_EXTENSIONS = (".exr",)
+ENCODED_EXTENSIONS = (".tif", ".tiff", ".png")
+OIIO_FORMATS = {".exr": "openexr", ".tif": "tiff", ".tiff": "tiff", ".png": "png"}
+
+
+def _oiio():  # imported lazily: OpenImageIO takes a moment to load
+    import OpenImageIO as oiio
+    return oiio
+
+
+def output_kind(path: str | Path) -> str:
+    """'linear' for EXR, 'srgb' for 16-bit TIFF/PNG; ClispError for anything else."""
+    ext = Path(path).suffix.lower()
+    if ext in LINEAR_EXTENSIONS:
+        return "linear"
+    if ext in ENCODED_EXTENSIONS:
+        return "srgb"
+    raise ClispError(f"{path}: unsupported output extension {ext or '(none)'!r}; use .exr, .tif, .tiff or .png")
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` with the same extension; rename it to ``path`` on
+    success, delete it on any failure."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ClispError(f"{path}: output folder {folder} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.partial-", suffix=path.suffix, dir=folder)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    umask = os.umask(0)
+    os.umask(umask)
+    try:
+        yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
+    """Read an image as H x W x 3 float32; returns (pixels, is_float_file).
+
+    Integer files are scaled to [0, 1]; grey images are replicated to 3 channels, alpha dropped.
+    """
+    oiio = _oiio()
+    path = Path(path)
+    if not path.is_file():
+        raise ClispError(f"{path}: no such file")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ClispError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if pixels is None or not isinstance(pixels, np.ndarray):
+            raise ClispError(f"{path}: cannot read pixels ({inp.geterror().strip() or 'truncated file?'})")
+        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+    finally:
+        inp.close()
+    pixels = pixels.reshape(spec.height, spec.width, spec.nchannels)
+    if spec.nchannels in (1, 2):
+        pixels = np.repeat(pixels[..., :1], 3, axis=2)
+    return np.ascontiguousarray(pixels[..., :3], dtype=np.float32), is_float
+
+
+def read_scene(path: str | Path) -> np.ndarray:
+    """A scene as H x W x 3 float64 LINEAR sRGB (white 1.0).
+
+    Float files (EXR) are taken as linear sRGB; integer files (PNG/TIFF, 8 or 16 bit) as
+    sRGB-encoded and decoded with the IEC 61966-2-1 curve.
+    """
+    pixels, is_float = read_image(path)
+    pixels = pixels.astype(np.float64)
+    if not np.all(np.isfinite(pixels)):
+        raise ClispError(f"{path}: scene contains NaN or infinite values")
+    return pixels if is_float else srgb_decode(np.clip(pixels, 0.0, 1.0))
+
+
+def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None) -> None:
+    """Write H x W x 3 float: EXR as float32 linear; TIFF/PNG as 16-bit.
+
+    For TIFF/PNG, ``image`` must already be sRGB-encoded in [0, 1] unless ``encoded`` is False,
+    in which case it is tone-mapped here. Atomic (see module docstring).
+    """
+    oiio = _oiio()
+    path = Path(path)
+    kind = output_kind(path)
+    pixels = np.ascontiguousarray(image, dtype=np.float32)
+    if kind == "srgb" and encoded is False:
+        from .colorimetry import srgb_encode
+        pixels = srgb_encode(pixels)
+    if kind == "linear":
+        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "float")
+        spec.attribute("compression", "zip")
+    else:
+        pixels = np.clip(pixels, 0.0, 1.0)
+        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "uint16")
+        spec.attribute("oiio:ColorSpace", "sRGB")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(OIIO_FORMATS[path.suffix.lower()])
+        if out is None or not out.open(str(tmp), spec):
+            raise ClispError(f"{path}: cannot open for writing ({oiio.geterror().strip()})")
+        ok = out.write_image(pixels)
+        err = out.geterror()
+        out.close()
+        if not ok:
+            raise ClispError(f"{path}: write failed ({err.strip()})")

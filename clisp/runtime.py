@@ -1,0 +1,241 @@
+"""The one place that owns OpenCL: device choice, context, queue, program cache and buffer pool.
+
+Stages never create contexts; they ask the process-wide :func:`get_runtime` for kernels and buffers.
+
+Device choice (``CLISP_DEVICE``):
+    unset          a GPU if any platform has one, else a CPU device, preferring PoCL
+    ``gpu``/``cpu`` the first device of that type
+    ``P`` or ``P:D`` platform index P (and device index D), as listed by ``clisp info --device``
+    any other text the first device whose platform or device name contains it (case-insensitive)
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from collections import defaultdict
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import ClispError
+
+LOCAL_SIZE = (32, 4)
+"""Work-group shape (x, y) for 2-D image kernels; global sizes are rounded up to it and kernels
+bounds-check. 32 along x keeps reads coalesced on GPUs and gives PoCL a vectorisable inner loop."""
+
+
+def kernel_dir() -> Path:
+    """Folder holding the ``.cl`` sources: ``kernels/`` of a source checkout, else the installed copy."""
+    here = Path(__file__).resolve().parent.parent / "kernels"
+    if here.is_dir():
+        return here
+    return Path(str(resources.files("clisp.kernels")))
+
+
+def _import_cl() -> Any:
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - dependency missing
+        raise ClispError("pyopencl is not installed; run: pip install pyopencl pocl-binary-distribution") from exc
+    return cl
+
+
+def list_devices() -> list[tuple[int, int, Any, Any]]:
+    """All (platform index, device index, platform, device) visible to OpenCL."""
+    cl = _import_cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:
+        raise ClispError(f"no OpenCL platform found ({exc}); install pocl-binary-distribution") from exc
+    found = []
+    for pi, platform in enumerate(platforms):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:
+            continue
+        for di, device in enumerate(devices):
+            found.append((pi, di, platform, device))
+    if not found:
+        raise ClispError("no OpenCL device found; install pocl-binary-distribution (CPU) or a GPU driver")
+    return found
+
+
+def choose_device(spec: str | None = None) -> tuple[Any, Any]:
+    """Pick (platform, device) by ``spec`` (see module docstring); raises ClispError if nothing matches."""
+    cl = _import_cl()
+    found = list_devices()
+    spec = (spec or "").strip()
+    if not spec:
+        gpus = [f for f in found if f[3].type & cl.device_type.GPU]
+        if gpus:
+            return gpus[0][2], gpus[0][3]
+        cpus = [f for f in found if f[3].type & cl.device_type.CPU]
+        pocl = [f for f in cpus if "portable" in f[2].name.lower() or "pocl" in f[2].vendor.lower()]
+        pick = (pocl or cpus or found)[0]
+        return pick[2], pick[3]
+    if spec.lower() in ("gpu", "cpu"):
+        kind = cl.device_type.GPU if spec.lower() == "gpu" else cl.device_type.CPU
+        match = [f for f in found if f[3].type & kind]
+    elif spec.replace(":", "").isdigit():
+        parts = [int(v) for v in spec.split(":")]
+        match = [f for f in found if f[0] == parts[0] and (len(parts) == 1 or f[1] == parts[1])]
+    else:
+        key = spec.lower()
+        match = [f for f in found if key in f[2].name.lower() or key in f[3].name.lower()]
+    if not match:
+        names = "; ".join(f"{p}:{d} {pl.name} / {dev.name}" for p, d, pl, dev in found)
+        raise ClispError(f"CLISP_DEVICE={spec!r} matches no OpenCL device (available: {names})")
+    return match[0][2], match[0][3]
+
+
+def _define_flags(defines: Mapping[str, Any]) -> list[str]:
+    flags = []
+    for key, value in sorted(defines.items()):
+        if isinstance(value, float):
+            value = repr(float(value)) + "f"
+        flags.append(f"-D{key}={value}")
+    return flags
+
+
+@dataclass
+class DeviceImage:
+    """A planar float32 (or raw-typed) image on the device: ``channels`` planes of ``height x width``."""
+
+    buffer: Any
+    channels: int
+    height: int
+    width: int
+    dtype: np.dtype
+    interleaved: bool = False
+
+    @property
+    def nbytes(self) -> int:
+        return self.channels * self.height * self.width * np.dtype(self.dtype).itemsize
+
+
+class Runtime:
+    """OpenCL context, in-order queue, program cache and buffer pool for one device."""
+
+    def __init__(self, spec: str | None = None) -> None:
+        cl = _import_cl()
+        self.cl = cl
+        self.platform, self.device = choose_device(spec if spec is not None else os.environ.get("CLISP_DEVICE"))
+        self.context = cl.Context([self.device])
+        self.queue = cl.CommandQueue(self.context)
+        self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
+        self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
+        self._free: dict[int, list[Any]] = defaultdict(list)
+        self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
+
+    def describe(self) -> str:
+        """One line naming platform and device, e.g. for ``clisp info --device``."""
+        d = self.device
+        return (f"{self.platform.name} ({self.platform.version}) / {d.name.strip()}, "
+                f"{d.max_compute_units} compute units, {d.global_mem_size / 2**30:.1f} GiB")
+
+    # -- programs -------------------------------------------------------------------------
+    def program(self, name: str, defines: Mapping[str, Any] | None = None, generated: str = "") -> Any:
+        """Build ``kernels/<name>.cl`` with ``-D`` defines once per process and cache it.
+
+        ``generated``: host-generated source (e.g. a filter's weights as literals) placed before
+        the file's text; part of the cache key.
+        """
+        flags = tuple(_define_flags(defines or {}))
+        key = (name, flags + (generated,))
+        if key not in self._programs:
+            path = kernel_dir() / f"{name}.cl"
+            try:
+                source = "\n".join([(kernel_dir() / "common.h").read_text(), generated, path.read_text()])
+            except OSError as exc:
+                raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
+                    prg = self.cl.Program(self.context, source).build(options=list(flags) + ["-cl-std=CL1.2"])
+            except self.cl.RuntimeError as exc:
+                raise ClispError(f"OpenCL build of {path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
+            self._programs[key] = prg
+        return self._programs[key]
+
+    def kernel(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
+               generated: str = "") -> Any:
+        """A cached kernel object from ``kernels/<name>.cl`` (see :meth:`program`)."""
+        flags = tuple(_define_flags(defines or {}))
+        key = (name, flags + (generated,), kernel_name)
+        if key not in self._kernels:
+            self._kernels[key] = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+        return self._kernels[key]
+
+    # -- buffers --------------------------------------------------------------------------
+    def acquire(self, channels: int, height: int, width: int, dtype: Any = np.float32) -> DeviceImage:
+        """A device image from the pool (reused when a buffer of the same size was released)."""
+        nbytes = max(1, channels * height * width * np.dtype(dtype).itemsize)
+        pool = self._free[nbytes]
+        buf = pool.pop() if pool else self.cl.Buffer(self.context, self.cl.mem_flags.READ_WRITE, nbytes)
+        return DeviceImage(buf, channels, height, width, np.dtype(dtype))
+
+    def release(self, image: DeviceImage) -> None:
+        """Return a device image's buffer to the pool."""
+        self._free[max(1, image.nbytes)].append(image.buffer)
+
+    def constant(self, values: np.ndarray) -> Any:
+        """A small read-only device buffer holding ``values`` (CFA patterns, per-channel constants),
+        cached by content so tiles of one run share it."""
+        host = np.ascontiguousarray(values)
+        key = (host.dtype.str, host.shape, host.tobytes())
+        if key not in self._constants:
+            flags = self.cl.mem_flags.READ_ONLY | self.cl.mem_flags.COPY_HOST_PTR
+            self._constants[key] = self.cl.Buffer(self.context, flags, hostbuf=host)
+        return self._constants[key]
+
+    def upload(self, array: np.ndarray, channels: int = 1) -> DeviceImage:
+        """Copy a planar host array (C x H x W or H x W) to a pooled device image."""
+        array = np.ascontiguousarray(array)
+        height, width = array.shape[-2:]
+        image = self.acquire(channels, height, width, array.dtype)
+        self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False)
+        return image
+
+    def interleave(self, image: DeviceImage) -> DeviceImage:
+        """Planar C x H x W -> pixel-interleaved H x W x C on the device (``interleaved`` set)."""
+        kernel = self.kernel("layout", "interleave", {"NCH": image.channels})
+        dst = self.acquire(image.channels, image.height, image.width, image.dtype)
+        self.launch(kernel, image.width, image.height, image.buffer, dst.buffer,
+                    np.int32(image.width), np.int32(image.height))
+        dst.interleaved = True
+        return dst
+
+    def download(self, image: DeviceImage, into: np.ndarray | None = None) -> np.ndarray:
+        """Copy a device image to a host array: H x W x C if interleaved, else C x H x W
+        (H x W when C == 1). ``into``: a contiguous array of that shape to fill instead."""
+        if image.interleaved:
+            shape: tuple[int, ...] = (image.height, image.width, image.channels)
+        elif image.channels == 1:
+            shape = (image.height, image.width)
+        else:
+            shape = (image.channels, image.height, image.width)
+        host = np.empty(shape, dtype=image.dtype) if into is None else into
+        if host.shape != shape or not host.flags.c_contiguous:
+            raise ValueError(f"download target {host.shape} does not match device image {shape}")
+        self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True)
+        return host
+
+    def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
+        """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
+        lx, ly = LOCAL_SIZE
+        gsize = ((width + lx - 1) // lx * lx, (height + ly - 1) // ly * ly)
+        kernel(self.queue, gsize, LOCAL_SIZE, *args)
+
+
+_RUNTIME: Runtime | None = None
+
+
+def get_runtime() -> Runtime:
+    """The process-wide runtime, created on first use."""
+    global _RUNTIME
+    if _RUNTIME is None:
+        _RUNTIME = Runtime()
+    return _RUNTIME

@@ -1,0 +1,76 @@
+"""The stage contract shared by every processing step.
+
+A stage maps an input window to an output window that is smaller by ``halo`` pixels on every
+side. It has two faces with the same meaning:
+
+* ``reference(x, origin)``: NumPy, float64-capable, the definition of correct. Raw stages take and
+  return H x W mosaics; RGB stages take and return H x W x 3.
+* ``enqueue(rt, src, origin) -> DeviceImage``: the OpenCL kernel(s); images are planar on the device
+  (C planes of H x W float32), so every read along x is coalesced.
+
+``origin`` is the image coordinate of the input window's pixel (0, 0). It may be negative near the
+image edge: the tiler pads the raw input once (CFA-preserving mirror, see tiling.py), so a stage
+never special-cases borders and tiled output equals whole-image output.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import ClassVar
+
+import numpy as np
+
+from ..runtime import DeviceImage, Runtime
+
+
+class Stage(ABC):
+    """One configured processing step. Subclasses are small dataclasses of parameters."""
+
+    name: ClassVar[str] = "stage"
+    in_channels: ClassVar[int] = 3
+    out_channels: ClassVar[int] = 3
+
+    @property
+    def halo(self) -> int:
+        """Pixels of input needed on each side of an output pixel."""
+        return 0
+
+    @abstractmethod
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        """NumPy reference on an input window; returns the window shrunk by ``halo`` on every side."""
+
+    @abstractmethod
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        """Enqueue the kernel on ``src``; returns a new pooled device image (``src`` is not released)."""
+
+    def fuse(self, following: "Stage") -> "Stage | None":
+        """One stage equal to ``following`` applied after this one, or None when they do not fuse.
+
+        Fusion is a schedule choice for the OpenCL path; the reference always runs stage by stage.
+        """
+        return None
+
+    def with_interleaved_output(self) -> "Stage | None":
+        """This stage writing H x W x C (the host layout) instead of planes, if it can; as the
+        last stage of a tile that saves a separate interleave pass. None when it cannot."""
+        return None
+
+    def output_shape(self, height: int, width: int) -> tuple[int, int]:
+        """Output window size for an input window of ``height x width``."""
+        return height - 2 * self.halo, width - 2 * self.halo
+
+
+def fuse_stages(stages: list[Stage]) -> list[Stage]:
+    """Greedily fuse neighbouring stages (see :meth:`Stage.fuse`)."""
+    fused: list[Stage] = []
+    for stage in stages:
+        merged = fused[-1].fuse(stage) if fused else None
+        if merged is None:
+            fused.append(stage)
+        else:
+            fused[-1] = merged
+    return fused
+
+
+def as_f32(values: np.ndarray) -> np.ndarray:
+    """Contiguous float32 copy of small host constants for kernel arguments."""
+    return np.ascontiguousarray(values, dtype=np.float32)

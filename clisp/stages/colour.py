@@ -1,0 +1,64 @@
+"""Per-pixel colour steps on 3-channel images (kernels in ``colour.cl``, halo 0).
+
+ColourMatrix: white-balanced camera channels -> linear sRGB. WhiteBalance2: von Kries gains on
+linear sRGB (colour constancy, SPEC.md section 7), a diagonal matrix through the same kernel.
+ToneCurve: clip to [0, 1] and sRGB-encode, for integer outputs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..colorimetry import SRGB_ENCODING, srgb_encode
+from ..runtime import DeviceImage, Runtime
+from .base import Stage, as_f32
+
+
+@dataclass
+class ColourMatrix(Stage):
+    """out[..., i] = sum_j matrix[i, j] * in[..., j]; H x W x 3 -> H x W x 3, linear."""
+
+    matrix: np.ndarray
+    name = "colour_matrix"
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), x.astype(np.float64))
+
+    def fuse(self, following: Stage) -> Stage | None:
+        if isinstance(following, ColourMatrix):
+            return ColourMatrix(np.asarray(following.matrix) @ np.asarray(self.matrix))
+        return None
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        kernel = rt.kernel("colour", "apply_matrix3", SRGB_ENCODING)
+        dst = rt.acquire(3, src.height, src.width)
+        rt.launch(kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
+                  np.int32(src.height), rt.constant(as_f32(self.matrix)))
+        return dst
+
+
+class WhiteBalance2(ColourMatrix):
+    """White balance pass 2: diagonal gains on linear sRGB."""
+
+    name = "white_balance2"
+
+    def __init__(self, gains: np.ndarray) -> None:
+        super().__init__(np.diag(np.asarray(gains, dtype=np.float64)))
+
+
+@dataclass
+class ToneCurve(Stage):
+    """Linear sRGB -> sRGB-encoded in [0, 1] (clip, then IEC 61966-2-1); H x W x 3."""
+
+    name = "tone_curve"
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return srgb_encode(x.astype(np.float64))
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        kernel = rt.kernel("colour", "srgb_encode", SRGB_ENCODING)
+        dst = rt.acquire(3, src.height, src.width)
+        rt.launch(kernel, src.width, 3 * src.height, src.buffer, dst.buffer,
+                  np.int32(src.width), np.int32(3 * src.height))
+        return dst

@@ -1,0 +1,48 @@
+/* Per-phase linear filters on the raw mosaic: the fast demosaic family.
+ * Defines from the host: CFA_PERIOD (P), NOUT (output planes), RADIUS (halo R), RAW_T (input type),
+ * PHASE_Y/PHASE_X (CFA phase of output pixel (0, 0)), ENCODE_SRGB (0/1), SRGB_* (tone curve),
+ * INTERLEAVED (0: NOUT planes; 1: H x W x NOUT, the host's layout, when this is the last stage).
+ * The host also prepends the generated weights: phase_apply(k, v, o) sets o[c] for CFA phase k from
+ * the window v[(2R+1)^2] with the filter's non-zero taps as literals, so zero taps cost nothing. */
+#define SIDE (2 * RADIUS + 1)
+#define TAPS (SIDE * SIDE)
+
+inline float encode_srgb(const float x)
+{
+    const float v = clamp(x, 0.0f, 1.0f);
+    return (v <= SRGB_THRESHOLD) ? SRGB_SLOPE * v : SRGB_SCALE * pow(v, SRGB_INV_GAMMA) - SRGB_OFFSET;
+}
+
+/* phase_filter: out_c(y, x) = bias[k][c] + sum_t w[k][c][t] * src(y + dy_t, x + dx_t), k the CFA
+ * phase of output pixel (y, x), taps t over the (2R+1)^2 window in row order. Halo RADIUS.
+ * One work-item computes one P x P block; both block loops unroll and k is a compile-time
+ * constant in each, so phase_apply folds to straight-line code. */
+__kernel void phase_filter(__global const RAW_T *src, __global float *dst,
+                           const int in_w, const int out_w, const int out_h)
+{
+    const int bx = get_global_id(0) * CFA_PERIOD;
+    const int by = get_global_id(1) * CFA_PERIOD;
+    if (bx >= out_w || by >= out_h) return;
+    const int plane = out_w * out_h;
+    #pragma unroll
+    for (int i = 0; i < CFA_PERIOD; ++i) {
+        #pragma unroll
+        for (int j = 0; j < CFA_PERIOD; ++j) {
+            const int y = by + i;
+            const int x = bx + j;
+            if (y < out_h && x < out_w) {
+                float v[TAPS];
+                float o[NOUT];
+                #pragma unroll
+                for (int t = 0; t < TAPS; ++t)
+                    v[t] = (float)src[(y + t / SIDE) * in_w + x + t % SIDE];
+                phase_apply(((i + PHASE_Y) % CFA_PERIOD) * CFA_PERIOD + (j + PHASE_X) % CFA_PERIOD, v, o);
+                #pragma unroll
+                for (int c = 0; c < NOUT; ++c) {
+                    const int index = INTERLEAVED ? (y * out_w + x) * NOUT + c : c * plane + y * out_w + x;
+                    dst[index] = ENCODE_SRGB ? encode_srgb(o[c]) : o[c];
+                }
+            }
+        }
+    }
+}
