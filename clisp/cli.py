@@ -1,0 +1,179 @@
+"""Command-line interface: ``clisp simulate | process | info | demo``.
+
+Names and options here are a contract with users and later work: keep them stable.
+Every user-facing failure is one line on stderr (``clisp: error: FILE: problem``), exit status 2,
+and no output file (all writes go to a temporary name and are renamed on success).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from . import __version__
+from .errors import ClispError
+
+EXIT_ERROR = 2
+
+
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="simulate a noisy LMS or Bayer raw from an sRGB or linear EXR scene",
+                       description="Inverse ISP, Airy optics, shot + read noise at analog gain G, 10-bit ADC, "
+                                   "mosaic (SPEC.md section 3). Writes a DNG-style raw.")
+    p.add_argument("scene", help="sRGB-encoded PNG/TIFF (8 or 16 bit) or linear-sRGB float EXR")
+    p.add_argument("-o", "--output", required=True, help="raw file to write (.dng)")
+    p.add_argument("--cfa", default="lms", help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx)")
+    noise = p.add_mutually_exclusive_group()
+    noise.add_argument("--gain", type=float, default=None, help="analog gain 1..64 (default 1)")
+    noise.add_argument("--noiseless", action="store_true", help="no noise, no quantisation, no clipping (float raw)")
+    p.add_argument("--optics", choices=("airy", "none"), default="airy", help="diffraction blur (default airy)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--truth", help="also write the clean ground truth (linear sRGB float EXR)")
+    p.set_defaults(func=cmd_simulate)
+
+
+def _add_process(sub: argparse._SubParsersAction) -> None:
+    from .pipeline import DEFAULT_PRESET, DEMOSAICS, PRESETS
+    p = sub.add_parser("process", help="process a raw (ours or a camera's) into an image",
+                       description="OUT by extension: .exr linear sRGB float; .tif/.tiff/.png 16-bit sRGB-encoded.")
+    p.add_argument("raw", help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy)")
+    p.add_argument("-o", "--output", required=True, help="output image (.exr, .tif, .tiff, .png)")
+    p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
+    p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
+    p.add_argument("--tile", type=int, default=None, help="tile side in pixels (default: whole image)")
+    p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
+                   help="opencl kernels (default) or the NumPy reference")
+    p.set_defaults(func=cmd_process)
+
+
+def _add_info(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("info", help="describe a raw file, or the OpenCL device with --device")
+    p.add_argument("raw", nargs="?", help="raw file to describe")
+    p.add_argument("--device", action="store_true", help="show the OpenCL platforms and the device clisp uses")
+    p.add_argument("--json", action="store_true", help="print the raw's description as JSON")
+    p.set_defaults(func=cmd_info)
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="simulate, process and score the built-in chart (no data files needed)")
+    p.add_argument("--out", default="clisp-demo", help="folder for the images (default ./clisp-demo)")
+    p.set_defaults(func=cmd_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="clisp", description="OpenCL ISP for raw sensor data: LMS camera and Bayer.")
+    parser.add_argument("--version", action="version", version=f"clisp {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_simulate(sub)
+    _add_process(sub)
+    _add_info(sub)
+    _add_demo(sub)
+    return parser
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .imageio import read_scene, write_image
+    from .rawfile import write_raw
+    from .simulate import simulate
+    _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
+    if args.truth:
+        _check_output_ext(args.truth, (".exr",))
+    scene = read_scene(args.scene)
+    gain = None if args.noiseless else (1.0 if args.gain is None else args.gain)
+    result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
+    result.raw.metadata["scene"] = Path(args.scene).name
+    write_raw(args.output, result.raw)
+    if args.truth:
+        write_image(args.truth, result.truth)
+    h, w = result.raw.shape
+    noise = "noiseless" if gain is None else f"gain {gain:g}"
+    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw, {noise}, optics {args.optics}, seed {args.seed}")
+    return 0
+
+
+def cmd_process(args: argparse.Namespace) -> int:
+    from .imageio import output_kind, write_image
+    from .pipeline import process_with_stats, resolve_options
+    from .rawfile import read_raw
+    kind = output_kind(args.output)
+    resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
+    if args.tile is not None and args.tile < 16:
+        raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
+    raw = read_raw(args.raw)
+    image, stats = process_with_stats(raw, preset=args.preset, demosaic=args.demosaic, tile=args.tile,
+                                      output=kind, backend=args.backend)
+    write_image(args.output, image)
+    print(f"{args.output}: {image.shape[1]}x{image.shape[0]} from {raw.cfa.name} raw, "
+          f"{stats.megapixels:.1f} MP in {stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles)")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    if args.device:
+        _print_devices()
+    if args.raw:
+        from .rawfile import raw_info
+        info = raw_info(args.raw)
+        if args.json:
+            print(json.dumps(info, indent=2, default=_json_value))
+        else:
+            for key, value in info.items():
+                print(f"{key:>22}: {_format_value(value)}")
+    elif not args.device:
+        raise ClispError("info needs a RAW file or --device")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+    run_demo(Path(args.out))
+    return 0
+
+
+def _print_devices() -> None:
+    from .runtime import get_runtime, list_devices
+    for pi, di, platform, device in list_devices():
+        print(f"  {pi}:{di}  {platform.name} / {device.name.strip()}")
+    print(f"clisp uses: {get_runtime().describe()}  (set CLISP_DEVICE to choose)")
+
+
+def _check_output_ext(path: str, allowed: tuple[str, ...]) -> None:
+    if Path(path).suffix.lower() not in allowed:
+        raise ClispError(f"{path}: unsupported output extension; use {', '.join(allowed)}")
+
+
+def _json_value(value: object) -> object:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def _format_value(value: object) -> str:
+    if isinstance(value, np.ndarray):
+        return np.array2string(value, precision=4, separator=", ").replace("\n", "")
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``clisp`` console script; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ClispError as exc:
+        print(f"clisp: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("clisp: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,166 @@
+"""End-to-end: the CLI contract, the array API, bad input and camera raws.
+
+Scenes are generated in code; camera raws in ../shared/data/raw are used when present (skipped in
+a user's clone, which has no ../shared).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import clisp
+from clisp.charts import demo_chart
+from clisp.cli import main
+from clisp.imageio import read_image, write_image
+from clisp.metrics import psnr
+from clisp.rawfile import read_raw
+
+CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
+
+
+@pytest.fixture(scope="module")
+def scene_png(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 16-bit sRGB PNG of the top-left 256 x 320 of the demo chart."""
+    path = tmp_path_factory.mktemp("scene") / "chart.png"
+    write_image(path, demo_chart().image[:256, :320], encoded=False)
+    return path
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_simulate_then_process(tmp_path: Path, scene_png: Path, cfa: str, capsys) -> None:
+    raw_path, truth_path = tmp_path / "r.dng", tmp_path / "truth.exr"
+    code, _, err = run(["simulate", scene_png, "-o", raw_path, "--cfa", cfa, "--noiseless",
+                        "--truth", truth_path], capsys)
+    assert code == 0, err
+    for out_name in ("o.exr", "o.png", "o.tif"):
+        code, out, err = run(["process", raw_path, "-o", tmp_path / out_name, "--tile", "64"], capsys)
+        assert code == 0, err
+        assert "MP/s" in out
+    linear, is_float = read_image(tmp_path / "o.exr")
+    encoded, _ = read_image(tmp_path / "o.png")
+    truth, _ = read_image(truth_path)
+    assert is_float and linear.shape == truth.shape == encoded.shape == (256, 320, 3)
+    # Flat ColorChecker patches come back exactly (noiseless; linear demosaic of a constant).
+    y0, y1, x0, x1 = 40, 60, 200, 220   # inside the first patch row of the chart crop
+    assert np.allclose(linear[y0:y1, x0:x1], truth[y0:y1, x0:x1], atol=2e-3)
+    assert psnr(linear, truth) > 15.0
+    # The 16-bit PNG is the tone-mapped EXR within one 16-bit step (plus float32 rounding).
+    from clisp.colorimetry import srgb_encode
+    assert np.abs(encoded - srgb_encode(linear)).max() < 2.0 / 65535
+
+
+def test_array_api_matches_cli_pipeline(scene_png: Path) -> None:
+    scene = demo_chart().image[:128, :128]
+    sim = clisp.simulate(scene, cfa="lms", gain=8, seed=3)
+    again = clisp.simulate(scene, cfa="lms", gain=8, seed=3)
+    assert np.array_equal(sim.raw.data, again.raw.data)
+    out = clisp.process(sim.raw)
+    ref = clisp.process(sim.raw, backend="reference")
+    assert out.shape == (128, 128, 3) and out.dtype == np.float32
+    assert np.abs(out - ref).max() <= 1e-5 * max(1.0, float(np.abs(ref).max()))
+
+
+def test_raw_file_round_trip_through_cli(tmp_path: Path, scene_png: Path, capsys) -> None:
+    raw_path = tmp_path / "r.dng"
+    assert run(["simulate", scene_png, "-o", raw_path, "--gain", "8", "--seed", "5"], capsys)[0] == 0
+    raw = read_raw(raw_path)
+    direct = clisp.simulate(clisp.imageio.read_scene(scene_png), cfa="lms", gain=8, seed=5).raw
+    assert np.array_equal(raw.data, direct.data)
+    assert raw.metadata["gain"] == 8 and raw.metadata["seed"] == 5
+
+
+def test_info(tmp_path: Path, scene_png: Path, capsys) -> None:
+    raw_path = tmp_path / "r.dng"
+    run(["simulate", scene_png, "-o", raw_path, "--cfa", "bayer"], capsys)
+    code, out, _ = run(["info", raw_path], capsys)
+    assert code == 0 and "bayer-rggb" in out
+    code, out, _ = run(["info", "--device"], capsys)
+    assert code == 0 and "clisp uses:" in out
+
+
+def _bad_inputs(tmp_path: Path, good_raw: Path) -> dict[str, Path]:
+    truncated = tmp_path / "truncated.dng"
+    truncated.write_bytes(good_raw.read_bytes()[:5000])
+    text = tmp_path / "notes.txt"
+    text.write_text("not a raw file\n")
+    return {"missing": tmp_path / "missing.dng", "truncated": truncated, "unsupported": text}
+
+
+def test_bad_input_exits_nonzero_without_output(tmp_path: Path, scene_png: Path, capsys) -> None:
+    good = tmp_path / "good.dng"
+    run(["simulate", scene_png, "-o", good], capsys)
+    for kind, path in _bad_inputs(tmp_path, good).items():
+        out_path = tmp_path / f"out_{kind}.exr"
+        code, _, err = run(["process", path, "-o", out_path], capsys)
+        assert code == 2, kind
+        assert path.name in err and err.count("\n") == 1, err
+        assert not out_path.exists()
+    leftovers = [p.name for p in tmp_path.iterdir() if "partial" in p.name]
+    assert leftovers == []
+
+
+def test_bad_options(tmp_path: Path, scene_png: Path, capsys) -> None:
+    raw_path = tmp_path / "r.dng"
+    run(["simulate", scene_png, "-o", raw_path], capsys)
+    for args in (["--demosaic", "nope"], ["--preset", "nope"], ["--tile", "4"]):
+        code, _, err = run(["process", raw_path, "-o", tmp_path / "o.exr", *args], capsys)
+        assert code == 2 and err.startswith("clisp: error:")
+    code, _, err = run(["process", raw_path, "-o", tmp_path / "o.jpg"], capsys)
+    assert code == 2 and "o.jpg" in err
+    code, _, err = run(["simulate", scene_png, "-o", tmp_path / "x.dng", "--gain", "100"], capsys)
+    assert code == 2 and not (tmp_path / "x.dng").exists()
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_failed_write_leaves_no_file(tmp_path: Path, monkeypatch) -> None:
+    import OpenImageIO as oiio
+
+    class Broken:
+        def open(self, *args):
+            return True
+
+        def write_image(self, *args):
+            return False
+
+        def geterror(self):
+            return "disk full"
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(oiio.ImageOutput, "create", lambda *a: Broken())
+    with pytest.raises(clisp.errors.ClispError, match="disk full"):
+        write_image(tmp_path / "o.exr", np.zeros((8, 8, 3), np.float32))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo(tmp_path: Path, capsys) -> None:
+    code, out, err = run(["demo", "--out", tmp_path], capsys)
+    assert code == 0, err
+    assert "gray-panel SNR" in out and "throughput" in out
+    rows = [line.split() for line in out.splitlines() if line.startswith(("lms ", "bayer "))]
+    assert len(rows) == 6
+    for row in rows:   # PSNR, linear, zone, six SNRs, MP/s: all finite numbers
+        values = [float(v) for v in row[2:]]
+        assert len(values) == 10 and all(np.isfinite(values))
+    assert {p.name for p in tmp_path.glob("*.png")} >= {"scene.png", "lms_gain8.png", "bayer_gain64.png"}
+
+
+@pytest.mark.skipif(not CAMERA_RAWS.is_dir(), reason="no ../shared/data/raw (camera raws)")
+@pytest.mark.parametrize("name", sorted(p.name for p in CAMERA_RAWS.glob("*")) if CAMERA_RAWS.is_dir() else [])
+def test_camera_raw_to_exr(tmp_path: Path, name: str, capsys) -> None:
+    out_path = tmp_path / "cam.exr"
+    code, _, err = run(["process", CAMERA_RAWS / name, "-o", out_path], capsys)
+    assert code == 0, err
+    image, is_float = read_image(out_path)
+    raw = read_raw(CAMERA_RAWS / name)
+    assert is_float and image.shape[:2] == raw.shape
+    assert np.all(np.isfinite(image)) and 0.0 < float(image.mean()) < 2.0
