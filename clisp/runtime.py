@@ -14,7 +14,6 @@ import os
 import warnings
 from collections import defaultdict
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -28,11 +27,13 @@ bounds-check. 32 along x keeps reads coalesced on GPUs and gives PoCL a vectoris
 
 
 def kernel_dir() -> Path:
-    """Folder holding the ``.cl`` sources: ``kernels/`` of a source checkout, else the installed copy."""
-    here = Path(__file__).resolve().parent.parent / "kernels"
-    if here.is_dir():
-        return here
-    return Path(str(resources.files("clisp.kernels")))
+    """Folder holding the ``.cl`` sources: ``kernels/`` of a source checkout (editable install),
+    else ``clisp/kernels/`` of an installed wheel (pyproject maps the folder there)."""
+    package = Path(__file__).resolve().parent
+    for folder in (package.parent / "kernels", package / "kernels"):
+        if (folder / "common.h").is_file():
+            return folder
+    raise ClispError(f"OpenCL kernel sources not found beside {package}; reinstall clisp")
 
 
 def _import_cl() -> Any:
