@@ -2,8 +2,9 @@
  * Defines from the host: CFA_PERIOD (P), NOUT (output planes), RADIUS (halo R), RAW_T (input type),
  * PHASE_Y/PHASE_X (CFA phase of output pixel (0, 0)), ENCODE_SRGB (0/1), SRGB_* (tone curve),
  * INTERLEAVED (0: NOUT planes; 1: H x W x NOUT, the host's layout, when this is the last stage).
- * The host also prepends the generated weights: phase_apply(k, v, o) sets o[c] for CFA phase k from
- * the window v[(2R+1)^2] with the filter's non-zero taps as literals, so zero taps cost nothing. */
+ * The host also prepends generated code: phase_apply(k, v, o, w, bias) sets o[c] for CFA phase k
+ * from the window v[(2R+1)^2], summing only the taps the filter can use (its support, fixed by the
+ * CFA and demosaic), so structural zeros cost nothing and per-image weights stay arguments. */
 #define SIDE (2 * RADIUS + 1)
 #define TAPS (SIDE * SIDE)
 
@@ -16,9 +17,11 @@ inline float encode_srgb(const float x)
 /* phase_filter: out_c(y, x) = bias[k][c] + sum_t w[k][c][t] * src(y + dy_t, x + dx_t), k the CFA
  * phase of output pixel (y, x), taps t over the (2R+1)^2 window in row order. Halo RADIUS.
  * One work-item computes one P x P block; both block loops unroll and k is a compile-time
- * constant in each, so phase_apply folds to straight-line code. */
+ * constant in each, so phase_apply folds to straight-line code and every weight load is uniform
+ * across work-items. w: [P*P][NOUT][TAPS], bias: [P*P][NOUT]. */
 __kernel void phase_filter(__global const RAW_T *src, __global float *dst,
-                           const int in_w, const int out_w, const int out_h)
+                           const int in_w, const int out_w, const int out_h,
+                           __constant const float *w, __constant const float *bias)
 {
     const int bx = get_global_id(0) * CFA_PERIOD;
     const int by = get_global_id(1) * CFA_PERIOD;
@@ -36,7 +39,7 @@ __kernel void phase_filter(__global const RAW_T *src, __global float *dst,
                 #pragma unroll
                 for (int t = 0; t < TAPS; ++t)
                     v[t] = (float)src[(y + t / SIDE) * in_w + x + t % SIDE];
-                phase_apply(((i + PHASE_Y) % CFA_PERIOD) * CFA_PERIOD + (j + PHASE_X) % CFA_PERIOD, v, o);
+                phase_apply(((i + PHASE_Y) % CFA_PERIOD) * CFA_PERIOD + (j + PHASE_X) % CFA_PERIOD, v, o, w, bias);
                 #pragma unroll
                 for (int c = 0; c < NOUT; ++c) {
                     const int index = INTERLEAVED ? (y * out_w + x) * NOUT + c : c * plane + y * out_w + x;
