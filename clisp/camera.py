@@ -20,6 +20,7 @@ from .cfa import CFA, cfa_from_pattern
 from .colorimetry import XYZ_TO_SRGB
 from .errors import ClispError
 from .rawimage import RawImage
+from .white_balance import gray_world_gains
 
 CFA_LETTERS = "RGB"
 """Our CFA channel order for Bayer raws."""
@@ -60,7 +61,9 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
         raise ClispError(f"cannot read raw file '{p}': not a flat CFA raw ({raw.raw_type})")
     data = np.array(visible, dtype=np.uint16, copy=True)
     black = channel_values(raw.black_level_per_channel, pattern, colours, cfa)
-    wb, wb_source = pick_wb(raw.camera_whitebalance, raw.daylight_whitebalance, pattern, colours, cfa)
+    wb, wb_source = pick_wb(raw.camera_whitebalance, pattern, colours, cfa)
+    if wb is None:
+        wb, wb_source = gray_world_gains(data, cfa, black, float(raw.white_level)), "gray world (file has no camera WB)"
     matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
                                                np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
     metadata = _camera_metadata(raw, p, wb_source, matrix_source)
@@ -111,19 +114,17 @@ def channel_values(values: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> 
     return out
 
 
-def pick_wb(camera: Any, daylight: Any, pattern: np.ndarray, colours: str,
-            cfa: CFA) -> tuple[np.ndarray, str]:
-    """WB pass-1 multipliers per CFA channel, normalised to G = 1, and where they came from.
+def pick_wb(camera: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> tuple[np.ndarray | None, str]:
+    """The camera's (as shot) WB pass-1 multipliers per CFA channel, normalised to G = 1, or
+    (None, reason) when the file has none usable.
 
-    Camera (as shot) first, then daylight, then ones. A candidate is rejected when any value for a
-    colour index used by the pattern is <= 0 or not finite (the Canon D30 CRW reports R = -1).
+    A candidate is rejected when any value for a colour index used by the pattern is <= 0 or not
+    finite (the Canon D30 CRW reports R = -1); the caller then estimates gray-world gains, as
+    LibRaw does (its "auto WB" fallback), rather than guess daylight for an unknown scene.
     LibRaw stores 0 for the second green when it equals the first, so index 3 falls back to index 1.
     """
-    for name, cand in (("camera", camera), ("daylight", daylight)):
-        wb = _wb_candidate(cand, pattern, colours, cfa)
-        if wb is not None:
-            return wb, name
-    return np.ones(cfa.n_channels), "none (unity)"
+    wb = _wb_candidate(camera, pattern, colours, cfa)
+    return (wb, "camera") if wb is not None else (None, "none")
 
 
 def _wb_candidate(values: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> np.ndarray | None:
