@@ -81,7 +81,10 @@ def choose_device(spec: str | None = None) -> tuple[Any, Any]:
         kind = cl.device_type.GPU if spec.lower() == "gpu" else cl.device_type.CPU
         match = [f for f in found if f[3].type & kind]
     elif spec.replace(":", "").isdigit():
-        parts = [int(v) for v in spec.split(":")]
+        try:
+            parts = [int(v) for v in spec.split(":")]
+        except ValueError as exc:
+            raise ClispError(f"CLISP_DEVICE={spec!r} is not P or P:D (platform and device index)") from exc
         match = [f for f in found if f[0] == parts[0] and (len(parts) == 1 or f[1] == parts[1])]
     else:
         key = spec.lower()
@@ -192,9 +195,12 @@ class Runtime:
             self._constants[key] = self.cl.Buffer(self.context, flags, hostbuf=host)
         return self._constants[key]
 
-    def upload(self, array: np.ndarray, channels: int = 1) -> DeviceImage:
-        """Copy a planar host array (C x H x W or H x W) to a pooled device image."""
+    def upload(self, array: np.ndarray) -> DeviceImage:
+        """Copy a planar host array (C x H x W, or H x W for one plane) to a pooled device image."""
         array = np.ascontiguousarray(array)
+        if array.ndim not in (2, 3):
+            raise ValueError(f"upload needs H x W or C x H x W, got shape {array.shape}")
+        channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
         self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False)

@@ -1,0 +1,380 @@
+"""Every OpenCL kernel against its NumPy reference (on PoCL), plus properties of the references.
+
+Tolerance, used by every OpenCL-vs-reference comparison in this file (float32 kernels against
+float64 references; raw inputs in DN scale):
+
+    |opencl - reference| <= TOL * max(1, |reference|)
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from clisp.cfa import CFA, cfa_from_name
+from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
+from clisp.pipeline import build_pipeline
+from clisp.rawimage import RawImage
+from clisp.runtime import DeviceImage, get_runtime
+from clisp.stages.base import fuse_stages
+from clisp.stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
+from clisp.stages.demosaic_bilinear import DemosaicBilinear
+from clisp.stages.linear_filter import LinearPhaseFilter
+from clisp.stages.raw_scale import CfaAffine, normalize, white_balance1
+
+TOL = 1e-5
+"""|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
+
+ORIGINS = [(0, 0), (1, 3), (-2, -5), (5, 2)]
+CFA_NAMES = ["lms", "lms@1,2", "bayer-rggb", "bayer-grbg", "bayer-gbrg", "bayer-bggr"]
+SHAPE = (37, 53)                      # odd on purpose: not a multiple of any CFA period
+BLACK = np.array([64.0, 65.0, 66.0])
+WHITE = 1023.0
+K_EXP = 0.98951
+
+
+def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "") -> None:
+    """The file's one tolerance rule (see TOL); shapes must match exactly."""
+    actual = np.asarray(actual)
+    reference = np.asarray(reference, dtype=np.float64)
+    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
+    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
+    err = np.abs(actual.astype(np.float64) - reference) / np.maximum(1.0, np.abs(reference))
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() <= TOL, (f"{what}: max scaled error {err.max():.3g} at {worst} "
+                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
+
+
+@pytest.fixture(scope="module")
+def rt():
+    return get_runtime()
+
+
+def to_device(rt, x: np.ndarray) -> DeviceImage:
+    """H x W raw, or H x W x C image (uploaded planar)."""
+    if x.ndim == 2:
+        return rt.upload(x)
+    return rt.upload(np.ascontiguousarray(np.moveaxis(x, -1, 0)))
+
+
+def from_device(rt, image: DeviceImage) -> np.ndarray:
+    """H x W for one plane, else H x W x C whatever the device layout."""
+    host = rt.download(image)
+    if image.channels > 1 and not image.interleaved:
+        host = np.moveaxis(host, 0, -1)
+    return host
+
+
+def run_stage(rt, stage, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+    src = to_device(rt, x)
+    dst = stage.enqueue(rt, src, origin)
+    out = from_device(rt, dst)
+    rt.release(src)
+    rt.release(dst)
+    h, w = stage.output_shape(x.shape[0], x.shape[1])
+    assert out.shape[:2] == (h, w)
+    return out
+
+
+def random_raw(dtype, seed: int, shape=SHAPE) -> np.ndarray:
+    """Raw mosaic in DN: uint16 0..4095 (some above white) or float32 -30..1100 (negatives kept)."""
+    rng = np.random.default_rng(seed)
+    if dtype == np.uint16:
+        return rng.integers(0, 4096, size=shape, dtype=np.uint16)
+    return (rng.random(shape) * 1130.0 - 30.0).astype(np.float32)
+
+
+def random_mosaic(seed: int, shape=SHAPE) -> np.ndarray:
+    """Normalised, white-balanced mosaic (what the demosaic sees), float32."""
+    return np.random.default_rng(seed).uniform(-0.05, 1.3, size=shape).astype(np.float32)
+
+
+def random_rgb(seed: int, shape=SHAPE) -> np.ndarray:
+    """H x W x 3 float32 values spanning -0.1 .. 1.2."""
+    return np.random.default_rng(seed).uniform(-0.1, 1.2, size=shape + (3,)).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------
+# raw scaling: normalise and WB pass 1 (kernel raw.cl: cfa_affine)
+# ------------------------------------------------------------------------------------------
+
+def raw_stages(cfa: CFA):
+    return [normalize(cfa, BLACK, WHITE), white_balance1(cfa, WB_LMS / K_EXP)]
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+@pytest.mark.parametrize("name", CFA_NAMES)
+def test_raw_scale_kernels(rt, name, dtype):
+    cfa = cfa_from_name(name)
+    x = random_raw(dtype, seed=CFA_NAMES.index(name))
+    for stage in raw_stages(cfa):
+        for origin in ORIGINS:
+            ref = stage.reference(x, origin)
+            # the reference itself: channel of pixel (y, x) is pattern[(y + oy) % p, (x + ox) % p]
+            p = cfa.period
+            ys = (np.arange(x.shape[0]) + origin[0]) % p
+            xs = (np.arange(x.shape[1]) + origin[1]) % p
+            ch = cfa.pattern[ys[:, None], xs[None, :]]
+            np.testing.assert_allclose(ref, (x.astype(np.float64) - stage.offset[ch]) * stage.scale[ch],
+                                       rtol=1e-15, atol=0)
+            assert_close(run_stage(rt, stage, x, origin), ref, f"{stage.name} {name} {origin}")
+
+
+def test_normalize_maps_black_and_white(rt):
+    """Black level -> 0 and white level -> 1 in every channel."""
+    cfa = cfa_from_name("lms")
+    stage = normalize(cfa, BLACK, WHITE)
+    ch = cfa.channel_map(*SHAPE)
+    x = BLACK[ch].astype(np.float32)
+    assert_close(run_stage(rt, stage, x, (0, 0)), np.zeros(SHAPE), "black")
+    assert_close(run_stage(rt, stage, np.full(SHAPE, WHITE, np.float32), (0, 0)), np.ones(SHAPE), "white")
+
+
+def test_affine_fusion(rt):
+    """Two CFA affines fuse into one equal to applying them in turn (non-zero offsets on both)."""
+    rng = np.random.default_rng(7)
+    cfa = cfa_from_name("lms@1,2")
+    a = CfaAffine(cfa, rng.uniform(50, 70, 3), rng.uniform(0.5, 2.0, 3) / WHITE)
+    b = CfaAffine(cfa, rng.uniform(-0.1, 0.1, 3), rng.uniform(0.5, 3.0, 3))
+    fused = a.fuse(b)
+    assert fused is not None
+    x = random_raw(np.float32, seed=8)
+    for origin in ORIGINS:
+        ref = b.reference(a.reference(x, origin), origin)
+        np.testing.assert_allclose(fused.reference(x, origin), ref, rtol=1e-12, atol=1e-12)
+        assert_close(run_stage(rt, fused, x, origin), ref, f"fused affine {origin}")
+
+
+# ------------------------------------------------------------------------------------------
+# bilinear demosaic (kernel demosaic_linear.cl: phase_filter with derived weights)
+# ------------------------------------------------------------------------------------------
+
+# OpenCL origins per CFA: every origin for lms, two (rotating) for the others, so that each
+# origin is run on LMS and on Bayer without compiling a program per (CFA, origin) pair.
+DEMOSAIC_KERNEL_ORIGINS = {
+    "lms": ORIGINS,
+    "lms@1,2": [(-2, -5), (5, 2)],
+    "bayer-rggb": [(0, 0), (1, 3)],
+    "bayer-grbg": [(-2, -5), (5, 2)],
+    "bayer-gbrg": [(1, 3), (-2, -5)],
+    "bayer-bggr": [(5, 2), (0, 0)],
+}
+
+
+@pytest.mark.parametrize("name", CFA_NAMES)
+def test_demosaic_bilinear_kernel(rt, name):
+    cfa = cfa_from_name(name)
+    stage = DemosaicBilinear(cfa)
+    assert stage.halo == (2 if cfa.kind == "lms" else 1)
+    phase_filter = stage.as_phase_filter()
+    assert phase_filter.halo == stage.halo
+    x = random_mosaic(seed=20 + CFA_NAMES.index(name))
+    for origin in ORIGINS:
+        ref = stage.reference(x, origin)
+        assert ref.shape == (SHAPE[0] - 2 * stage.halo, SHAPE[1] - 2 * stage.halo, 3)
+        np.testing.assert_allclose(phase_filter.reference(x, origin), ref, rtol=0, atol=1e-12,
+                                   err_msg=f"as_phase_filter reference {name} {origin}")
+        if origin in DEMOSAIC_KERNEL_ORIGINS[name]:
+            assert_close(run_stage(rt, stage, x, origin), ref, f"demosaic {name} {origin}")
+
+
+def test_demosaic_bilinear_kernel_uint16(rt):
+    """The demosaic kernel also reads raw DN directly (RAW_T ushort)."""
+    stage = DemosaicBilinear(cfa_from_name("lms"))
+    x = random_raw(np.uint16, seed=30)
+    ref = stage.reference(x, (0, 0))
+    assert_close(run_stage(rt, stage, x, (0, 0)), ref, "demosaic uint16")
+
+
+@pytest.mark.parametrize("name", CFA_NAMES)
+def test_demosaic_bilinear_keeps_samples(name):
+    cfa = cfa_from_name(name)
+    stage = DemosaicBilinear(cfa)
+    r = stage.halo
+    x = random_mosaic(seed=40)
+    for origin in ORIGINS:
+        out = stage.reference(x, origin)
+        inner = x[r:-r, r:-r].astype(np.float64)
+        ch = cfa.channel_map(inner.shape[0], inner.shape[1], (origin[0] + r, origin[1] + r))
+        for c in range(3):
+            assert np.array_equal(out[..., c][ch == c], inner[ch == c]), (name, origin, c)
+        # and a channel at another channel's site is an interpolation, not the sample itself
+        assert not np.array_equal(out[..., 0][ch != 0], inner[ch != 0])
+
+
+@pytest.mark.parametrize("name", CFA_NAMES)
+def test_demosaic_bilinear_flat_field(rt, name):
+    cfa = cfa_from_name(name)
+    stage = DemosaicBilinear(cfa)
+    x = np.full(SHAPE, 0.4375, dtype=np.float32)
+    for origin in ORIGINS:
+        out = stage.reference(x, origin)
+        np.testing.assert_allclose(out, 0.4375, rtol=0, atol=1e-12)
+    origin = DEMOSAIC_KERNEL_ORIGINS[name][0]
+    assert_close(run_stage(rt, stage, x, origin), np.full(out.shape, 0.4375), f"flat {name}")
+
+
+@pytest.mark.parametrize("name", ["bayer-rggb", "bayer-grbg", "bayer-gbrg", "bayer-bggr"])
+def test_demosaic_bilinear_is_classic_bayer_bilinear(name):
+    """Bayer: G = [[0,1,0],[1,4,1],[0,1,0]]/4 on the G samples, R and B = [[1,2,1],[2,4,2],[1,2,1]]/4
+    on theirs (the textbook bilinear demosaic), in the interior."""
+    cfa = cfa_from_name(name)
+    stage = DemosaicBilinear(cfa)
+    k_g = np.array([[0, 1, 0], [1, 4, 1], [0, 1, 0]]) / 4.0
+    k_rb = np.array([[1, 2, 1], [2, 4, 2], [1, 2, 1]]) / 4.0
+    x = random_mosaic(seed=50).astype(np.float64)
+    for origin in ORIGINS:
+        ch = cfa.channel_map(x.shape[0], x.shape[1], origin)
+        classic = np.stack([ndimage.convolve(x * (ch == c), k_g if c == 1 else k_rb, mode="constant")
+                            for c in range(3)], axis=-1)[1:-1, 1:-1]
+        np.testing.assert_allclose(stage.reference(x, origin), classic, rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------
+# generic per-phase linear filter (random dense weights)
+# ------------------------------------------------------------------------------------------
+
+# (radius, cfa, encode, interleaved, origin, input dtype): every combination of radius, encode and
+# interleave once; origins rotate so each radius sees all four, LMS and Bayer both appear for each
+# radius, and float32 input (in -0.05..1.3) alternates with uint16 DN input (0..1023, weights
+# scaled by 1/1023). One program per case keeps compile time down.
+LPF_CASES = [
+    (1, "lms", False, False, (0, 0), np.float32),
+    (1, "lms", False, True, (1, 3), np.uint16),
+    (1, "bayer-gbrg", True, False, (-2, -5), np.float32),
+    (1, "lms", True, True, (5, 2), np.uint16),
+    (2, "bayer-grbg", False, False, (-2, -5), np.uint16),
+    (2, "bayer-grbg", False, True, (5, 2), np.float32),
+    (2, "lms@1,2", True, False, (1, 3), np.uint16),
+    (2, "bayer-grbg", True, True, (0, 0), np.float32),
+]
+
+
+@pytest.mark.parametrize("radius, name, encode, interleaved, origin, dtype", LPF_CASES,
+                         ids=[f"r{r}-{n}-enc{int(e)}-il{int(i)}-{d.__name__}" for r, n, e, i, o, d in LPF_CASES])
+def test_linear_phase_filter(rt, radius, name, encode, interleaved, origin, dtype):
+    cfa = cfa_from_name(name)
+    k, taps = cfa.period ** 2, (2 * radius + 1) ** 2
+    rng = np.random.default_rng(100 + radius * 10 + 2 * encode + interleaved)
+    weights = rng.normal(size=(k, 3, taps)) * 2.0 / taps + 1.0 / taps     # dense: no zero tap
+    assert np.all(weights != 0)
+    bias = rng.uniform(-0.1, 0.1, size=(k, 3))
+    if dtype == np.uint16:
+        x = rng.integers(0, 1024, size=SHAPE, dtype=np.uint16)
+        weights = weights / 1023.0
+    else:
+        x = rng.uniform(-0.05, 1.3, size=SHAPE).astype(np.float32)
+    f = LinearPhaseFilter(cfa, radius, weights, bias, encode=encode, interleaved=interleaved)
+    ref = f.reference(x, origin)
+    assert ref.shape == (SHAPE[0] - 2 * radius, SHAPE[1] - 2 * radius, 3)
+    if encode:
+        assert ref.min() >= 0 and ref.max() <= 1
+        assert np.mean(ref == 0) < 0.5 and np.mean(ref == 1) < 0.5      # mostly inside the curve
+    src = to_device(rt, x)
+    dst = f.enqueue(rt, src, origin)
+    assert dst.interleaved == interleaved and dst.channels == 3
+    assert_close(from_device(rt, dst), ref, f"phase_filter r={radius} {name} {origin} {dtype.__name__}")
+    rt.release(src)
+    rt.release(dst)
+
+
+def test_linear_phase_filter_reference_definition():
+    """reference(): out_c = bias[k, c] + sum_t w[k, c, t] * raw(tap t), k the CFA phase of the
+    output pixel, checked pixel by pixel on a small window."""
+    cfa = cfa_from_name("lms")
+    rng = np.random.default_rng(5)
+    weights = rng.normal(size=(16, 3, 25))
+    bias = rng.normal(size=(16, 3))
+    f = LinearPhaseFilter(cfa, 2, weights, bias)
+    x = rng.normal(size=(9, 11))
+    origin = (-3, 2)
+    out = f.reference(x, origin)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            y, xx = i + 2, j + 2                           # input coordinates of the output pixel
+            k = ((y + origin[0]) % 4) * 4 + (xx + origin[1]) % 4
+            window = x[y - 2:y + 3, xx - 2:xx + 3].ravel()
+            np.testing.assert_allclose(out[i, j], bias[k] + weights[k] @ window, rtol=1e-12, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------
+# colour steps (kernels colour.cl)
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("stage", [ColourMatrix(P_LMS), ColourMatrix(B_BAYER),
+                                   ColourMatrix(np.random.default_rng(9).normal(size=(3, 3))),
+                                   WhiteBalance2(np.array([1.0, 1.0101, 1.0753])), ToneCurve()],
+                         ids=["P", "B", "random", "wb2", "tone"])
+def test_colour_kernels(rt, stage):
+    x = random_rgb(seed=60)
+    for origin in ORIGINS:
+        ref = stage.reference(x, origin)
+        assert_close(run_stage(rt, stage, x, origin), ref, f"{stage.name} {origin}")
+
+
+def test_colour_references():
+    x = random_rgb(seed=61).astype(np.float64)
+    np.testing.assert_allclose(ColourMatrix(P_LMS).reference(x, (0, 0)), x @ P_LMS.T, rtol=1e-13)
+    np.testing.assert_allclose(WhiteBalance2(np.array([1.0, 2.0, 0.5])).reference(x, (0, 0)),
+                               x * [1.0, 2.0, 0.5], rtol=1e-13)
+    tone = ToneCurve().reference(x, (0, 0))
+    assert tone.min() >= 0.0 and tone.max() <= 1.0
+    np.testing.assert_allclose(tone[x <= 0], 0.0)
+    np.testing.assert_allclose(tone[x >= 1], 1.0)
+    mid = (x > 0.0031308) & (x < 1)
+    np.testing.assert_allclose(tone[mid], 1.055 * x[mid] ** (1 / 2.4) - 0.055, rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------
+# full pipelines: fused schedule == unfused == stage-by-stage reference
+# ------------------------------------------------------------------------------------------
+
+def make_raw(kind: str, dtype, wb2: bool, seed: int = 70) -> RawImage:
+    cfa = cfa_from_name(kind)
+    matrix, wb = (P_LMS, WB_LMS) if cfa.kind == "lms" else (B_BAYER, WB_BAYER)
+    rng = np.random.default_rng(seed)
+    if dtype == np.uint16:
+        data = rng.integers(0, 1024, size=SHAPE, dtype=np.uint16)
+    else:
+        data = (rng.random(SHAPE) * 1100.0 - 30.0).astype(np.float32)
+    return RawImage(data=data, cfa=cfa, black_level=BLACK, white_level=WHITE, wb=wb,
+                    colour_matrix=matrix, exposure=1.0 / K_EXP,
+                    wb2=np.array([1.0, 1.0101, 1.0753]) if wb2 else np.ones(3))
+
+
+PIPELINE_CASES = [(kind, output, wb2, dtype)
+                  for kind in ("lms", "bayer")
+                  for output in ("linear", "srgb")
+                  for wb2, dtype in ((False, np.uint16), (True, np.float32))]
+
+
+@pytest.mark.parametrize("kind, output, wb2, dtype", PIPELINE_CASES,
+                         ids=[f"{k}-{o}-{'wb2' if w else 'nowb2'}-{d.__name__}" for k, o, w, d in PIPELINE_CASES])
+def test_pipeline_fused_equals_unfused_reference(kind, output, wb2, dtype):
+    raw = make_raw(kind, dtype, wb2)
+    pipeline = build_pipeline(raw, demosaic="bilinear", output=output)
+    names = [s.name for s in pipeline.stages]
+    expected = ["normalize", "white_balance1", "demosaic_bilinear", "colour_matrix"]
+    expected += ["white_balance2"] if wb2 else []
+    expected += ["tone_curve"] if output == "srgb" else []
+    assert names == expected
+
+    fused = pipeline.schedule(fuse=True)
+    assert len(fused) == 1 and isinstance(fused[0], LinearPhaseFilter)
+    assert fused[0].encode == (output == "srgb") and fused[0].interleaved
+    assert [s.name for s in pipeline.schedule(fuse=False)] == names
+
+    # fusion algebra in float64: the fused stage's reference == the stages one after another
+    x = raw.data
+    for origin in ORIGINS:
+        chained, o = x, origin
+        for stage in pipeline.stages:
+            chained = stage.reference(chained, o)
+            o = (o[0] + stage.halo, o[1] + stage.halo)
+        np.testing.assert_allclose(fuse_stages(pipeline.stages)[0].reference(x, origin), chained,
+                                   rtol=1e-9, atol=1e-9)
+
+    ref = pipeline.run(raw.data, backend="reference")
+    assert ref.shape == SHAPE + (3,) and ref.dtype == np.float32
+    assert_close(pipeline.run(raw.data, backend="opencl", fuse=True), ref, "fused")
+    assert_close(pipeline.run(raw.data, backend="opencl", fuse=False), ref, "unfused")

@@ -1,0 +1,176 @@
+"""The OpenCL runtime: device choice, build errors, program cache, buffer pool, transfers."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clisp.errors import ClispError
+from clisp.runtime import Runtime, choose_device, get_runtime, list_devices
+
+
+@pytest.fixture(scope="module")
+def cl():
+    import pyopencl
+    return pyopencl
+
+
+@pytest.fixture(scope="module")
+def rt():
+    return get_runtime()
+
+
+# ------------------------------------------------------------------------------------------
+# device choice
+# ------------------------------------------------------------------------------------------
+
+def test_list_devices_not_empty():
+    found = list_devices()
+    assert found
+    for pi, di, platform, device in found:
+        assert isinstance(pi, int) and isinstance(di, int)
+        assert device in platform.get_devices()
+
+
+@pytest.mark.parametrize("spec", ["no-such-device-xyzzy", "99", "0:99"])
+def test_choose_device_unknown_spec_lists_devices(spec):
+    with pytest.raises(ClispError) as info:
+        choose_device(spec)
+    message = str(info.value)
+    assert repr(spec) in message
+    assert "available" in message
+    for pi, di, platform, device in list_devices():
+        assert f"{pi}:{di}" in message
+        assert device.name in message and platform.name in message
+
+
+@pytest.mark.parametrize("spec", ["0:", ":0"])
+def test_choose_device_malformed_index_raises_clisp_error(spec):
+    with pytest.raises(ClispError):
+        choose_device(spec)
+
+
+def test_choose_device_cpu(cl):
+    platform, device = choose_device("cpu")
+    assert device.type & cl.device_type.CPU
+    assert device in platform.get_devices()
+
+
+def test_choose_device_by_index_and_name():
+    pi, di, platform, device = list_devices()[0]
+    assert choose_device(f"{pi}:{di}") == (platform, device)
+    assert choose_device(str(pi))[0] == platform
+    key = device.name.strip().split()[0]
+    chosen_platform, chosen = choose_device(key.upper())       # case-insensitive substring
+    assert key.lower() in chosen.name.lower() or key.lower() in chosen_platform.name.lower()
+
+
+def test_choose_device_default():
+    platform, device = choose_device(None)
+    assert (platform, device) == choose_device("")
+    assert any(device == d for _, _, _, d in list_devices())
+
+
+def test_runtime_reads_clisp_device(monkeypatch, cl):
+    monkeypatch.setenv("CLISP_DEVICE", "no-such-device-xyzzy")
+    with pytest.raises(ClispError, match="no-such-device-xyzzy"):
+        Runtime()
+    assert Runtime("cpu").device.type & cl.device_type.CPU      # an explicit spec wins over the env
+    monkeypatch.setenv("CLISP_DEVICE", "cpu")
+    assert Runtime().device.type & cl.device_type.CPU
+
+
+# ------------------------------------------------------------------------------------------
+# programs
+# ------------------------------------------------------------------------------------------
+
+def test_build_failure_names_file_and_log():
+    fresh = Runtime("cpu")
+    defines = {"CFA_PERIOD": 2, "NOUT": 3, "RADIUS": 1, "RAW_T": "float", "PHASE_Y": 0, "PHASE_X": 0,
+               "ENCODE_SRGB": 0, "INTERLEAVED": 0}
+    with pytest.raises(ClispError) as info:
+        fresh.program("demosaic_linear", defines, generated="this is not C;")
+    message = str(info.value)
+    assert "demosaic_linear.cl" in message
+    assert "error" in message.lower()
+    assert "'this'" in message                       # the compiler's own diagnostic about our text
+    assert len(message.splitlines()) > 2
+    # a failed build is not cached: the same key fails again, not with a stale program
+    with pytest.raises(ClispError):
+        fresh.program("demosaic_linear", defines, generated="this is not C;")
+
+
+def test_missing_kernel_file():
+    with pytest.raises(ClispError, match="no_such_kernel.cl"):
+        get_runtime().program("no_such_kernel", {})
+
+
+def test_program_cache(rt):
+    a = rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4})
+    b = rt.program("raw", {"CFA_PERIOD": 4, "RAW_T": "float"})      # same defines, other order
+    assert a is b
+    c = rt.program("raw", {"RAW_T": "ushort", "CFA_PERIOD": 4})
+    assert c is not a
+    d = rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4}, generated="/* other */")
+    assert d is not a
+    assert rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4}) is a
+    k1 = rt.kernel("raw", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4})
+    assert rt.kernel("raw", "cfa_affine", {"CFA_PERIOD": 4, "RAW_T": "float"}) is k1
+
+
+# ------------------------------------------------------------------------------------------
+# buffers and transfers
+# ------------------------------------------------------------------------------------------
+
+def test_buffer_pool_reuses_released_buffers():
+    fresh = Runtime("cpu")
+    a = fresh.acquire(3, 17, 19)
+    assert a.nbytes == 3 * 17 * 19 * 4 and a.dtype == np.float32
+    b = fresh.acquire(3, 17, 19)
+    assert b.buffer is not a.buffer                   # both in use: distinct buffers
+    fresh.release(a)
+    c = fresh.acquire(3, 17, 19)
+    assert c.buffer is a.buffer                       # released buffer handed out again
+    d = fresh.acquire(3, 17, 20)
+    assert d.buffer is not b.buffer and d.buffer is not a.buffer   # other size: new buffer
+    fresh.release(b)
+    e = fresh.upload(np.zeros((3, 17, 19), np.float32))
+    assert e.buffer is b.buffer                       # uploads draw from the pool too
+
+
+def test_constant_cache(rt):
+    a = rt.constant(np.array([1.0, 2.0, 3.0], np.float32))
+    assert rt.constant(np.array([1.0, 2.0, 3.0], np.float32)) is a
+    assert rt.constant(np.array([1.0, 2.0, 4.0], np.float32)) is not a
+    assert rt.constant(np.array([1, 2, 3], np.int8)) is not a
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_upload_download_roundtrip(rt, dtype):
+    x = (np.random.default_rng(1).random((13, 29)) * 1000).astype(dtype)
+    image = rt.upload(x)
+    assert (image.channels, image.height, image.width, image.dtype) == (1, 13, 29, np.dtype(dtype))
+    np.testing.assert_array_equal(rt.download(image), x)
+    into = np.empty((13, 29), dtype)
+    assert rt.download(image, into=into) is into
+    np.testing.assert_array_equal(into, x)
+    with pytest.raises(ValueError):
+        rt.download(image, into=np.empty((29, 13), dtype))
+    rt.release(image)
+
+
+def test_interleave(rt):
+    planar = np.random.default_rng(2).random((3, 11, 37)).astype(np.float32)
+    image = rt.upload(planar)
+    np.testing.assert_array_equal(rt.download(image), planar)
+    inter = rt.interleave(image)
+    assert inter.interleaved and inter.channels == 3
+    np.testing.assert_array_equal(rt.download(inter), np.moveaxis(planar, 0, -1))
+    rt.release(image)
+    rt.release(inter)
+
+
+def test_upload_infers_channels_of_planar_array(rt):
+    planar = np.arange(3 * 5 * 7, dtype=np.float32).reshape(3, 5, 7)
+    image = rt.upload(planar)
+    assert image.channels == 3
+    np.testing.assert_array_equal(rt.download(image), planar)
