@@ -66,6 +66,10 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
         wb, wb_source = gray_world_gains(data, cfa, black, float(raw.white_level)), "gray world (file has no camera WB)"
     matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
                                                np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
+    if matrix_source.startswith("identity"):
+        probed = probe_libraw_matrix(p)
+        if probed is not None:
+            matrix, matrix_source = probed, "probed from LibRaw (not exposed by rawpy)"
     metadata = _camera_metadata(raw, p, wb_source, matrix_source)
     return RawImage(data=data, cfa=cfa, black_level=black, white_level=float(raw.white_level),
                     wb=wb, colour_matrix=matrix, exposure=1.0, metadata=metadata, source=str(p))
@@ -158,6 +162,42 @@ def pick_colour_matrix(rgb_cam: np.ndarray, cam_xyz: np.ndarray) -> tuple[np.nda
     if derived is not None:
         return derived, "derived from rgb_xyz_matrix (dcraw method)"
     return np.eye(3), "identity (file has none)"
+
+
+PROBE_BASE = 0.25
+PROBE_STEP = 0.1
+"""Probe mosaics: a flat grey at 25% of the raw range, plus 10% more in one channel."""
+
+
+def probe_libraw_matrix(path: Path) -> np.ndarray | None:
+    """The camera -> sRGB matrix LibRaw applies, measured by processing flat probe mosaics.
+
+    For cameras whose matrix LibRaw keeps internally (rawpy exposes neither ``color_matrix`` nor
+    ``rgb_xyz_matrix``, e.g. the Kodak DC50), LibRaw still converts to sRGB. Processing a flat grey
+    mosaic and the same grey with a step in one CFA channel (unit WB, linear output) gives that
+    channel's column. Returns None if LibRaw cannot process the file or the result is not finite.
+    """
+    import rawpy
+    try:
+        with rawpy.imread(str(path)) as raw:
+            colours = np.where(raw.raw_colors == 3, 1, raw.raw_colors)
+            black = np.asarray(raw.black_level_per_channel, dtype=np.float64)[raw.raw_colors]
+            scale = float(raw.white_level) - black
+
+            def process(levels: np.ndarray) -> np.ndarray:
+                raw.raw_image[...] = np.round(black + levels[colours] * scale).astype(raw.raw_image.dtype)
+                rgb = raw.postprocess(user_wb=[1.0, 1.0, 1.0, 1.0], no_auto_bright=True, gamma=(1, 1),
+                                      output_bps=16, output_color=rawpy.ColorSpace.sRGB, user_flip=0,
+                                      demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR)
+                h, w = rgb.shape[:2]
+                return rgb[h // 4:3 * h // 4, w // 4:3 * w // 4].reshape(-1, 3).mean(axis=0) / 65535.0
+
+            base = process(np.full(3, PROBE_BASE))
+            columns = [(process(PROBE_BASE + PROBE_STEP * np.eye(3)[c]) - base) / PROBE_STEP for c in range(3)]
+    except (rawpy.LibRawError, OSError, ValueError):
+        return None
+    matrix = np.stack(columns, axis=1)
+    return matrix if np.all(np.isfinite(matrix)) and np.any(matrix != np.eye(3)) else None
 
 
 def rgb_cam_from_cam_xyz(cam_xyz: np.ndarray | None) -> np.ndarray | None:
