@@ -27,10 +27,10 @@ DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
 }
 """Demosaic stages by CLI name; each takes the CFA description."""
 
-PRESETS: dict[str, dict[str, str]] = {
-    "fast": {"demosaic": "bilinear"},
+PRESETS: dict[str, dict[str, dict[str, str]]] = {
+    "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}},
 }
-"""Named parameter sets (``--preset``); explicit options override them."""
+"""Named parameter sets (``--preset``), each option given per CFA kind; explicit options override."""
 
 DEFAULT_PRESET = "fast"
 OUTPUTS = ("linear", "srgb")
@@ -136,16 +136,26 @@ class Pipeline:
         rt.release(src)
 
 
-def resolve_options(preset: str | None, demosaic: str | None) -> dict[str, str]:
-    """Merge a preset with explicit options; raises ClispError on unknown names."""
+def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, str]:
+    """The options for CFA ``kind`` ('lms' or 'bayer'): the preset's, overridden by explicit ones.
+
+    Raises ClispError on unknown names, and on a demosaic that does not support ``kind``
+    (a stage class may declare ``cfa_kinds``; without it, it supports every CFA). With
+    ``kind=None`` only the names are checked.
+    """
     name = preset or DEFAULT_PRESET
     if name not in PRESETS:
         raise ClispError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
-    options = dict(PRESETS[name])
+    if demosaic and demosaic not in DEMOSAICS:
+        raise ClispError(f"unknown demosaic {demosaic!r}; available: {', '.join(DEMOSAICS)}")
+    if kind is None:
+        return {}
+    options = {key: per_kind[kind] for key, per_kind in PRESETS[name].items()}
     if demosaic:
         options["demosaic"] = demosaic
-    if options["demosaic"] not in DEMOSAICS:
-        raise ClispError(f"unknown demosaic {options['demosaic']!r}; available: {', '.join(DEMOSAICS)}")
+    kinds = getattr(DEMOSAICS[options["demosaic"]], "cfa_kinds", (kind,))
+    if kind not in kinds:
+        raise ClispError(f"demosaic {options['demosaic']!r} works on {' and '.join(kinds)} CFAs, not {kind}")
     return options
 
 
@@ -158,8 +168,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
-    options = resolve_options(preset, demosaic)
     cfa = raw.cfa
+    options = resolve_options(preset, demosaic, cfa.kind)
     stages: list[Stage] = [
         normalize(cfa, raw.black_level, raw.white_level),
         white_balance1(cfa, raw.pass1_gains()),
