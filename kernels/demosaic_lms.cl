@@ -1,0 +1,314 @@
+/* LMS hybrid demosaic (paper Fig. 5, SPEC section 4): one kernel per algorithm step, in run order;
+ * NumPy twins of the same names in clisp/stages/demosaic_lms.py.
+ * Defines from the host: CFA_PERIOD; CH_L, CH_M, CH_S (channel indices of the CFA description);
+ * SELECT (0 soft, 1 hard, 2 iso: step A direction choice); NOISY (0: noiseless, eps constant);
+ * LUM_R (h_lum radius); CHROMA_R (radius of the chroma binomial); GF_R (guided filter radius);
+ * BL_R, BL_RATIO (bilateral option radius; 1: interpolate S/I, 0: S - I); MAX_SITES (longest list
+ * of S-site offsets, for s_joint_bilateral). Host-generated: LUM_SUPPORT (see luma_lowpass).
+ * Geometry: every kernel writes an out_w x out_h image; "at" arguments give the pixel of an input
+ * that output pixel (0, 0) is centred on; (oy, ox) are image coordinates (CFA phase) of a pixel. */
+
+/* No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
+ * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
+ * DemosaicLMSHybrid._launch. With no control flow in its body PoCL vectorises a kernel across
+ * work-items (an 81-tap luma_lowpass on 6 MP: 364 ms with a bounds check, 24 ms without). Hence also
+ * branch-free bodies: selections, not ifs. */
+
+/* Maths written as selects: this PoCL build calls fabs, fmax, sqrt and exp per work-item instead of
+ * vectorising them (m_at_s on 6 MP: 60 ms with fabs, 8 ms with the select below). */
+inline float abs_f(const float a) { return a < 0.0f ? -a : a; }
+inline float max_f(const float a, const float b) { return a > b ? a : b; }
+
+#define SELECT_SOFT 0
+#define SELECT_HARD 1
+
+/* CFA phase index py * P + px of image pixel (y, x) (y, x may be negative). */
+inline int cfa_phase(const int y, const int x)
+{
+    return (((y % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD) * CFA_PERIOD
+         + ((x % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
+}
+
+/* m_at_s (step A): the L/M quincunx mosaic. m(y, x) = p(y+2, x+2) except at S sites, where it is
+ * the edge-directed M estimate: E_h, E_v, E_d1, E_d2 (means of the M pairs on each line) mixed by
+ * weights 1/(eps + G)^2 (soft), taken at the smallest G (hard) or the diagonal mean (iso), plus
+ * s_detail * (S - mean of the four S at (+-2, +-2)). eps = eps0 + eps_sigma * sigma, sigma^2 =
+ * shot_m * level + floor_m at the diagonal-mean level. Halo 2. (oy, ox): image pixel of p(0, 0). */
+__kernel void m_at_s(__global const float *p, __global float *m, const int in_w, const int out_w,
+                     const int out_h, const int oy, const int ox, __constant const char *pattern,
+                     const float eps0, const float eps_sigma, const float s_detail,
+                     const float shot_m, const float floor_m)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = p + (y + 2) * in_w + (x + 2);
+    const float centre = c[0];
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    const float e_h = 0.5f * (P(0, -2) + P(0, 2));
+    const float e_v = 0.5f * (P(-2, 0) + P(2, 0));
+    const float e_d1 = 0.5f * (P(-1, -1) + P(1, 1));
+    const float e_d2 = 0.5f * (P(-1, 1) + P(1, -1));
+    const float iso = 0.5f * (e_d1 + e_d2);
+#if SELECT == SELECT_SOFT || SELECT == SELECT_HARD
+    const float g_h = abs_f(P(0, -2) - P(0, 2)) + abs_f(P(0, -1) - P(0, 1));
+    const float g_v = abs_f(P(-2, 0) - P(2, 0)) + abs_f(P(-1, 0) - P(1, 0));
+    const float g_d1 = 2.0f * abs_f(P(-1, -1) - P(1, 1));
+    const float g_d2 = 2.0f * abs_f(P(-1, 1) - P(1, -1));
+#endif
+#if SELECT == SELECT_SOFT
+#if NOISY
+    const float eps = eps0 + eps_sigma * sqrt(shot_m * max_f(iso, 0.0f) + floor_m);
+#else
+    const float eps = eps0;                     /* noiseless: sigma = 0, and no sqrt per pixel */
+#endif
+    const float w_h = 1.0f / ((eps + g_h) * (eps + g_h));
+    const float w_v = 1.0f / ((eps + g_v) * (eps + g_v));
+    const float w_d1 = 1.0f / ((eps + g_d1) * (eps + g_d1));
+    const float w_d2 = 1.0f / ((eps + g_d2) * (eps + g_d2));
+    float est = (w_h * e_h + w_v * e_v + w_d1 * e_d1 + w_d2 * e_d2) / (w_h + w_v + w_d1 + w_d2);
+#elif SELECT == SELECT_HARD
+    float est = e_h, g = g_h;                   /* first smallest gradient in the order h, v, d1, d2 */
+    est = g_v < g ? e_v : est;
+    g = g_v < g ? g_v : g;
+    est = g_d1 < g ? e_d1 : est;
+    g = g_d1 < g ? g_d1 : g;
+    est = g_d2 < g ? e_d2 : est;
+#else
+    float est = iso;
+#endif
+    est += s_detail * (centre - 0.25f * (P(-2, -2) + P(-2, 2) + P(2, -2) + P(2, 2)));
+#undef P
+    m[y * out_w + x] = cfa_channel(pattern, y + 2 + oy, x + 2 + ox) == CH_S ? est : centre;
+}
+
+/* luma_lowpass (step B): lum = h_lum * m. Weights from the host (h_lum's non-zero taps in row
+ * order); which taps are non-zero is structure (the diamond filter vanishes at even offsets, the
+ * notch outside 5 x 5), so the host generates LUM_SUPPORT = X(dy, dx, t) for each such tap t and
+ * structural zeros cost nothing (6 MP: 24 ms against 39 ms for all 81 taps). Halo LUM_R. */
+__kernel void luma_lowpass(__global const float *m, __global float *lum, const int in_w, const int out_w,
+                           const int out_h, __constant const float *weight)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = m + (y + LUM_R) * in_w + (x + LUM_R);
+    float acc = 0.0f;
+#define X(dy, dx, t) acc += weight[t] * c[(dy) * in_w + (dx)];
+    LUM_SUPPORT
+#undef X
+    lum[y * out_w + x] = acc;
+}
+
+/* chroma_demodulate_rows (step B, chroma first half): rows(y, x) = sum_k g[k] d(Y, X+k) mod(Y, X+k),
+ * d = m - lum, (Y, X) = (y + at_y, x + at_x) in lum; mod = +1 at L sites, -1 elsewhere, which
+ * alternates along a row. m is lum's window grown by LUM_R; (oy, ox): image pixel of lum(0, 0).
+ * Reads lum +-CHROMA_R along x. */
+__kernel void chroma_demodulate_rows(__global const float *m, __global const float *lum,
+                                     __global float *rows, const int m_w, const int lum_w,
+                                     const int out_w, const int out_h, const int at_y, const int at_x,
+                                     const int oy, const int ox, __constant const char *pattern,
+                                     __constant const float *g)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int yy = y + at_y, xx = x + at_x;
+    __global const float *lc = lum + yy * lum_w + xx;
+    __global const float *mc = m + (yy + LUM_R) * m_w + (xx + LUM_R);
+    float acc = 0.0f, sign = 1.0f;
+    #pragma unroll
+    for (int k = -CHROMA_R; k <= CHROMA_R; ++k) {
+        acc += sign * g[k + CHROMA_R] * (mc[k] - lc[k]);
+        sign = -sign;
+    }
+    /* sign of tap k = -CHROMA_R is (-1)^CHROMA_R times the centre's */
+    const float centre_mod = cfa_channel(pattern, yy + oy, xx + ox) == CH_L ? 1.0f : -1.0f;
+    rows[y * out_w + x] = ((CHROMA_R & 1) ? -centre_mod : centre_mod) * acc;
+}
+
+/* lm_combine (step B, chroma second half + combination): chr = sum_k g[k] rows(y + CHROMA_R + k, x);
+ * L = lum + chr into plane 0, M = lum - chr into plane 1 of dst; lum centre at (y + at_y, x + at_x).
+ * Reads rows +-CHROMA_R along y. */
+__kernel void lm_combine(__global const float *lum, __global const float *rows, __global float *dst,
+                         const int lum_w, const int rows_w, const int out_w, const int out_h,
+                         const int at_y, const int at_x, __constant const float *g)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *rc = rows + (y + CHROMA_R) * rows_w + x;
+    float chr = 0.0f;
+    #pragma unroll
+    for (int k = -CHROMA_R; k <= CHROMA_R; ++k)
+        chr += g[k + CHROMA_R] * rc[k * rows_w];
+    const float l = lum[(y + at_y) * lum_w + x + at_x];
+    const int i = y * out_w + x;
+    dst[i] = l + chr;
+    dst[out_w * out_h + i] = l - chr;
+}
+
+/* guided_row_moments (step C statistics, rows): over the S sites q in row Y, columns X-GF_R .. X+GF_R,
+ * with the guide centred on its value at the row's centre, c = I(Y, X):
+ *   n = sum chi, i1 = sum chi (I-c), i2 = sum chi (I-c)^2, s1 = sum chi S, is = sum chi (I-c) S
+ * (planes 0..4). Centring keeps var = E[(I-c)^2] - E[I-c]^2 free of float32 cancellation: both
+ * terms are small where I is flat, where uncentred E[I^2] - E[I]^2 would lose ~1e-8 against an
+ * eps of 1e-4. Centre (Y, X) = lum (y + at_y, x + at_x), p (y + p_y, x + p_x); (oy, ox): image
+ * pixel of that centre for output (0, 0). Reads +-GF_R along x. */
+__kernel void guided_row_moments(__global const float *lum, __global const float *p, __global float *mom,
+                                 const int lum_w, const int p_w, const int out_w, const int out_h,
+                                 const int at_y, const int at_x, const int p_y, const int p_x,
+                                 const int oy, const int ox, __constant const char *pattern)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *lc = lum + (y + at_y) * lum_w + x + at_x;
+    __global const float *pc = p + (y + p_y) * p_w + x + p_x;
+    const float c = lc[0];
+    float n = 0.0f, i1 = 0.0f, i2 = 0.0f, s1 = 0.0f, is = 0.0f;
+    #pragma unroll
+    for (int k = -GF_R; k <= GF_R; ++k) {
+        const float chi = cfa_channel(pattern, y + oy, x + ox + k) == CH_S ? 1.0f : 0.0f;
+        const float d = chi * (lc[k] - c);
+        const float sv = chi * pc[k];
+        n += chi;
+        i1 += d;
+        i2 += d * d;
+        s1 += sv;
+        is += d * sv;
+    }
+    const int plane = out_w * out_h, i = y * out_w + x;
+    mom[i] = n;
+    mom[plane + i] = i1;
+    mom[2 * plane + i] = i2;
+    mom[3 * plane + i] = s1;
+    mom[4 * plane + i] = is;
+}
+
+/* guided_coefficients (step C statistics, columns): sums the row moments of rows Y-GF_R .. Y+GF_R
+ * (planes rows_h high; row Y+j centred at c_j = I(Y+j, X)) after moving each to the output's centre
+ * c = I(Y, X), d = c_j - c:  i1 += i1_j + n_j d,  i2 += i2_j + 2 d i1_j + n_j d^2,  is += is_j + d s1_j.
+ * Then over the window's S sites: muI = c + i1/n, muS = s1/n, var = i2/n - (i1/n)^2,
+ * cov = is/n - (i1/n) muS; eps = gf_eps + shot_s * muS + floor_s; a = cov / (var + eps),
+ * b = muS - a muI (planes a, b of ab). Output (y, x): rows (y + GF_R, x), lum (y + at_y, x + at_x).
+ * Reads +-GF_R along y. */
+__kernel void guided_coefficients(__global const float *rows, __global const float *lum, __global float *ab,
+                                  const int rows_w, const int rows_h, const int lum_w, const int out_w,
+                                  const int out_h, const int at_y, const int at_x, const float gf_eps,
+                                  const float shot_s, const float floor_s)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = rows_w * rows_h;
+    __global const float *rc = rows + (y + GF_R) * rows_w + x;
+    __global const float *lc = lum + (y + at_y) * lum_w + x + at_x;
+    const float c = lc[0];
+    float n = 0.0f, i1 = 0.0f, i2 = 0.0f, s1 = 0.0f, is = 0.0f;
+    #pragma unroll
+    for (int j = -GF_R; j <= GF_R; ++j) {
+        const int o = j * rows_w;
+        const float d = lc[j * lum_w] - c;
+        const float n_j = rc[o], i1_j = rc[plane + o], s1_j = rc[3 * plane + o];
+        n += n_j;
+        i1 += i1_j + n_j * d;
+        i2 += rc[2 * plane + o] + d * (2.0f * i1_j + n_j * d);
+        s1 += s1_j;
+        is += rc[4 * plane + o] + d * s1_j;
+    }
+    const float inv_n = 1.0f / n;
+    const float mi = i1 * inv_n, mu_s = s1 * inv_n;
+    const float var = i2 * inv_n - mi * mi;
+    const float cov = is * inv_n - mi * mu_s;
+    const float a = cov / (var + gf_eps + shot_s * max_f(mu_s, 0.0f) + floor_s);
+    const int i = y * out_w + x;
+    ab[i] = a;
+    ab[out_w * out_h + i] = mu_s - a * (c + mi);
+}
+
+/* box_rows (step C): dst(y, x) = sum of src(y, x .. x + 2 GF_R), every plane (planes stacked, so
+ * out_h = planes * height). Reads +2 GF_R along x. */
+__kernel void box_rows(__global const float *src, __global float *dst, const int in_w, const int out_w,
+                       const int out_h)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = src + y * in_w + x;
+    float acc = 0.0f;
+    #pragma unroll
+    for (int k = 0; k <= 2 * GF_R; ++k)
+        acc += c[k];
+    dst[y * out_w + x] = acc;
+}
+
+/* guided_apply (step C): S = box(a) I + box(b) into plane 2 of dst; box = column sum of the row sums
+ * (planes a, b of rows, rows_h high each) over y .. y + 2 GF_R, divided by (2 GF_R + 1)^2; I = lum at
+ * (y + at_y, x + at_x). Reads +2 GF_R along y. */
+__kernel void guided_apply(__global const float *lum, __global const float *rows, __global float *dst,
+                           const int lum_w, const int rows_w, const int rows_h, const int out_w,
+                           const int out_h, const int at_y, const int at_x)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *ra = rows + y * rows_w + x;
+    __global const float *rb = ra + rows_h * rows_w;
+    float sum_a = 0.0f, sum_b = 0.0f;
+    #pragma unroll
+    for (int k = 0; k <= 2 * GF_R; ++k) {
+        sum_a += ra[k * rows_w];
+        sum_b += rb[k * rows_w];
+    }
+    const float norm = 1.0f / ((2 * GF_R + 1) * (2 * GF_R + 1));
+    const float guide = lum[(y + at_y) * lum_w + x + at_x];
+    dst[2 * out_w * out_h + y * out_w + x] = (sum_a * guide + sum_b) * norm;
+}
+
+/* s_joint_bilateral (step C option): S = I * sum w v / sum w (BL_RATIO: v = S / max(I, floor)) or
+ * I + sum w v / sum w (v = S - I) over the S sites within BL_R (site lists as in
+ * guided_coefficients), w = exp(e - max e), e = -d^2 inv_2ss - (I_q - I)^2 / (2 sigma_r^2)
+ * (shifting by the largest exponent keeps the best site's weight at 1, so no window underflows to
+ * 0/0), sigma_r = max(sr_min, sr_k * std of lum), var(lum) = lum_shot * I + lum_floor. Into plane 2
+ * of dst. Centres: lum (y + at_y, x + at_x), p (y + p_y, x + p_x); (oy, ox): image pixel of output
+ * (0, 0). Halo BL_R. */
+__kernel void s_joint_bilateral(__global const float *lum, __global const float *p, __global float *dst,
+                                const int lum_w, const int p_w, const int out_w, const int out_h,
+                                const int at_y, const int at_x, const int p_y, const int p_x,
+                                const int oy, const int ox, __constant const int2 *site,
+                                __constant const float *site_w, const float inv_2ss, const float sr_k,
+                                const float sr_min, const float ratio_floor, const float lum_shot,
+                                const float lum_floor)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int phase = cfa_phase(y + oy, x + ox);
+    __constant const int2 *s = site + phase * MAX_SITES;
+    __constant const float *sw = site_w + phase * MAX_SITES;
+    __global const float *lc = lum + (y + at_y) * lum_w + x + at_x;
+    __global const float *pc = p + (y + p_y) * p_w + x + p_x;
+    const float guide = lc[0];
+    const float sigma_r = max_f(sr_min, sr_k * sqrt(lum_shot * max_f(guide, 0.0f) + lum_floor));
+    const float inv_2sr = 1.0f / (2.0f * sigma_r * sigma_r);
+    float e[MAX_SITES], v[MAX_SITES];
+    float e_max = -INFINITY;
+    #pragma unroll
+    for (int k = 0; k < MAX_SITES; ++k) {
+        const int dy = s[k].x, dx = s[k].y;
+        const float gq = lc[dy * lum_w + dx];
+        const float sq = pc[dy * p_w + dx];
+        const float ek = -(float)(dy * dy + dx * dx) * inv_2ss - (gq - guide) * (gq - guide) * inv_2sr;
+        e[k] = sw[k] > 0.0f ? ek : -INFINITY;
+        e_max = max_f(e_max, e[k]);
+#if BL_RATIO
+        v[k] = sq / max_f(gq, ratio_floor);
+#else
+        v[k] = sq - gq;
+#endif
+    }
+    float num = 0.0f, den = 0.0f;
+    #pragma unroll
+    for (int k = 0; k < MAX_SITES; ++k) {
+        const float w = exp(e[k] - e_max);
+        num += w * v[k];
+        den += w;
+    }
+#if BL_RATIO
+    dst[2 * out_w * out_h + y * out_w + x] = guide * (num / den);
+#else
+    dst[2 * out_w * out_h + y * out_w + x] = guide + num / den;
+#endif
+}
