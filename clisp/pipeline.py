@@ -19,12 +19,16 @@ from .runtime import get_runtime
 from .stages.base import Stage, fuse_stages
 from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
 from .stages.demosaic_bilinear import DemosaicBilinear
+from .stages.demosaic_dlmmse import DemosaicDLMMSE
 from .stages.demosaic_lms import DemosaicLMSHybrid
+from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
 from .tiling import Tile, gather_window, plan_tiles
 
 DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "bilinear": DemosaicBilinear,
+    "malvar": DemosaicMalvar,
+    "dlmmse": DemosaicDLMMSE,
     "hybrid": DemosaicLMSHybrid,
 }
 """Demosaic stages by CLI name; each takes the CFA description."""
