@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Sequence
 
@@ -16,6 +18,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ClispError
+from .tiling import Tile
 
 EXIT_ERROR = 2
 
@@ -33,18 +36,26 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--optics", choices=("airy", "none"), default="airy", help="diffraction blur (default airy)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--truth", help="also write the clean ground truth (linear sRGB float EXR)")
+    p.add_argument("--size", type=image_size, default=None, metavar="WxH",
+                   help="repeat the scene (alternate copies mirrored) to W x H and write raw and truth "
+                        "band by band, for images larger than memory; the noise is seeded per band, "
+                        "so the result is reproducible but not bit-identical to a run without --size")
     p.set_defaults(func=cmd_simulate)
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    from .pipeline import DEFAULT_PRESET, DEMOSAICS, PRESETS
+    from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, DEMOSAICS, PRESETS
     p = sub.add_parser("process", help="process a raw (ours or a camera's) into an image",
                        description="OUT by extension: .exr linear sRGB float; .tif/.tiff/.png 16-bit sRGB-encoded.")
     p.add_argument("raw", help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy)")
     p.add_argument("-o", "--output", required=True, help="output image (.exr, .tif, .tiff, .png)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
-    p.add_argument("--tile", type=int, default=None, help="tile side in pixels (default: whole image)")
+    p.add_argument("--tile", type=int, default=None,
+                   help="tile side in pixels (default: chosen from --mem and the device's limits)")
+    p.add_argument("--mem", type=memory_size, default=DEFAULT_BUDGET, metavar="SIZE",
+                   help="memory budget for the tiles in flight, e.g. 512M or 2G (default 1G); "
+                        "the image is streamed from the raw file to the output in tiles")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
     p.set_defaults(func=cmd_process)
@@ -84,6 +95,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         _check_output_ext(args.truth, (".exr",))
     scene = read_scene(args.scene)
     gain = None if args.noiseless else (1.0 if args.gain is None else args.gain)
+    if args.size:
+        return _simulate_large(args, scene, gain)
     result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
     result.raw.metadata["scene"] = Path(args.scene).name
     write_raw(args.output, result.raw)
@@ -95,20 +108,52 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | None) -> int:
+    """``simulate --size``: bands computed one after another, each written (raw and truth) on a
+    writer thread while the next is computed; two bands in memory at most."""
+    from .imageio import ImageWriter
+    from .rawfile import raw_band_writer
+    from .simulate import simulate_large
+    from .streaming import progress_bar
+    width, height = args.size
+    sim = simulate_large(scene, (height, width), cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
+    sim.header.metadata["scene"] = Path(args.scene).name
+    truth_file = ImageWriter(args.truth, width, height) if args.truth else nullcontext(None)
+    with raw_band_writer(args.output, sim.header) as write_rows, truth_file as truth, \
+            progress_bar(sim.bands, Path(args.output).name) as update, ThreadPoolExecutor(1) as writer:
+        def write(band: Tile, dn: np.ndarray, rgb: np.ndarray) -> None:
+            write_rows(band.y0, dn)
+            if truth is not None:
+                truth.write_rows(band.y0, rgb)
+        pending = None
+        for band in sim.bands:
+            pixels = sim.band(band)
+            if pending is not None:
+                pending.result()
+            pending = writer.submit(write, band, *pixels)
+            update(band)
+        pending.result()
+    noise = "noiseless" if gain is None else f"gain {gain:g}"
+    sh, sw = scene.shape[:2]
+    print(f"{args.output}: {width}x{height} {sim.header.cfa.name} raw, {noise}, optics {args.optics}, "
+          f"seed {args.seed} per band; {sw}x{sh} scene repeated (mirrored), {len(sim.bands)} bands")
+    return 0
+
+
 def cmd_process(args: argparse.Namespace) -> int:
-    from .imageio import output_kind, write_image
-    from .pipeline import process_with_stats, resolve_options
+    from .imageio import output_kind
+    from .pipeline import process_file, resolve_options
     from .rawfile import read_raw
-    kind = output_kind(args.output)
+    output_kind(args.output)
     resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
-    raw = read_raw(args.raw)
-    image, stats = process_with_stats(raw, preset=args.preset, demosaic=args.demosaic, tile=args.tile,
-                                      output=kind, backend=args.backend)
-    write_image(args.output, image)
-    print(f"{args.output}: {image.shape[1]}x{image.shape[0]} from {raw.cfa.name} raw, "
-          f"{stats.megapixels:.1f} MP in {stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles)")
+    raw = read_raw(args.raw, lazy=True)
+    (height, width), stats = process_file(raw, args.output, preset=args.preset, demosaic=args.demosaic,
+                                          tile=args.tile, budget=args.mem, backend=args.backend, progress=True)
+    th, tw = stats.tile_shape
+    print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
+          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
     return 0
 
 
@@ -139,6 +184,30 @@ def _print_devices() -> None:
     for pi, di, platform, device in list_devices():
         print(f"  {pi}:{di}  {platform.name} / {device.name.strip()}")
     print(f"clisp uses: {get_runtime().describe()}  (set CLISP_DEVICE to choose)")
+
+
+_UNITS = {"": 1, "B": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def memory_size(text: str) -> int:
+    """Bytes from '1073741824', '512M', '1.5G', '2GiB' or '800MB' (binary units); for --mem."""
+    value = text.strip().upper().removesuffix("IB").removesuffix("B")
+    unit = value[-1:] if value[-1:] in _UNITS else ""
+    try:
+        size = float(value[:len(value) - len(unit)]) * _UNITS[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size such as 512M or 2G") from None
+    if not 2**20 <= size < 2**60:
+        raise argparse.ArgumentTypeError(f"{text!r}: the memory budget must be at least 1M")
+    return int(size)
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """(width, height) from 'WxH', e.g. '23040x17280'; for --size."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size such as 5760x4320 (width x height)")
+    return int(parts[0]), int(parts[1])
 
 
 def _check_output_ext(path: str, allowed: tuple[str, ...]) -> None:

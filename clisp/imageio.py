@@ -1,13 +1,15 @@
 """Scene and output images through OpenImageIO: EXR (linear float), TIFF/PNG (16-bit sRGB).
 
-Every write goes to a temporary file in the destination folder and is renamed into place only
-after it completed, so a failure never leaves a partial or corrupt output.
+Outputs are written band by band (:class:`ImageWriter`, scanlines top to bottom), so tile
+streaming never holds a whole output image. Every write goes to a temporary file in the
+destination folder and is renamed into place only after it completed, so a failure never leaves
+a partial or corrupt output.
 """
 from __future__ import annotations
 
 import os
 import tempfile
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Iterator
 
@@ -103,26 +105,77 @@ def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None
     For TIFF/PNG, ``image`` must already be sRGB-encoded in [0, 1] unless ``encoded`` is False,
     in which case it is tone-mapped here. Atomic (see module docstring).
     """
-    oiio = _oiio()
-    path = Path(path)
-    kind = output_kind(path)
-    pixels = np.ascontiguousarray(image, dtype=np.float32)
-    if kind == "srgb" and encoded is False:
+    pixels = np.asarray(image)
+    if output_kind(path) == "srgb" and encoded is False:
         from .colorimetry import srgb_encode
-        pixels = srgb_encode(pixels)
-    if kind == "linear":
-        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "float")
-        spec.attribute("compression", "zip")
-    else:
-        pixels = np.clip(pixels, 0.0, 1.0)
-        spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "uint16")
-        spec.attribute("oiio:ColorSpace", "sRGB")
-    with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(OIIO_FORMATS[path.suffix.lower()])
+        pixels = srgb_encode(np.asarray(pixels, dtype=np.float32))
+    with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2]) as out:
+        out.write_rows(0, pixels)
+
+
+WRITE_ROWS = 128
+"""Rows per write_scanlines call: bounds the converted (float32, clipped) copy and OIIO's own
+conversion buffers, whatever the band height; enough for OpenEXR to compress 8 line blocks of 16
+rows in parallel."""
+
+
+class ImageWriter:
+    """An H x W x C output image written band by band, top to bottom, never held whole.
+
+    EXR: float32 linear, zip-compressed scanlines. TIFF/PNG: 16-bit; the rows must be
+    sRGB-encoded and are clipped to [0, 1] here. Use as a context manager: the file is written
+    under a temporary name beside ``path`` and renamed when every row arrived without error;
+    otherwise it is removed (ClispError names ``path``).
+    """
+
+    def __init__(self, path: str | Path, width: int, height: int, channels: int = 3) -> None:
+        self.path = Path(path)
+        self.kind = output_kind(self.path)
+        self.width, self.height, self.channels = width, height, channels
+        self.next_row = 0
+        self._stack = ExitStack()
+        self._out = None
+
+    def __enter__(self) -> "ImageWriter":
+        oiio = _oiio()
+        fmt = "float" if self.kind == "linear" else "uint16"
+        spec = oiio.ImageSpec(self.width, self.height, self.channels, fmt)
+        if self.kind == "linear":
+            spec.attribute("compression", "zip")
+        else:
+            spec.attribute("oiio:ColorSpace", "sRGB")
+        tmp = self._stack.enter_context(atomic_path(self.path))
+        out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])
         if out is None or not out.open(str(tmp), spec):
-            raise ClispError(f"{path}: cannot open for writing ({oiio.geterror().strip()})")
-        ok = out.write_image(pixels)
-        err = out.geterror()
-        out.close()
-        if not ok:
-            raise ClispError(f"{path}: write failed ({err.strip()})")
+            self._stack.close()
+            raise ClispError(f"{self.path}: cannot open for writing ({oiio.geterror().strip()})")
+        self._out = out
+        return self
+
+    def write_rows(self, y0: int, rows: np.ndarray) -> None:
+        """Write rows y0..y0+h (h x W x C float); bands must follow each other without gaps."""
+        if y0 != self.next_row or rows.shape[1:] != (self.width, self.channels):
+            raise ClispError(f"{self.path}: band {rows.shape} at row {y0} does not follow row "
+                             f"{self.next_row} of a {self.width}x{self.height}x{self.channels} image")
+        for start in range(0, rows.shape[0], WRITE_ROWS):
+            pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
+            if self.kind == "srgb":
+                pixels = np.clip(pixels, 0.0, 1.0)
+            if not self._out.write_scanlines(self.next_row, self.next_row + pixels.shape[0], 0, pixels):
+                raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
+            self.next_row += pixels.shape[0]
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
+        out, self._out = self._out, None
+        closed = out is not None and out.close()
+        error = exc
+        if error is None and self.next_row != self.height:
+            error = ClispError(f"{self.path}: only {self.next_row} of {self.height} rows were written")
+        elif error is None and not closed:
+            error = ClispError(f"{self.path}: write failed ({out.geterror().strip()})")
+        if error is None:
+            self._stack.close()                                   # rename into place
+            return
+        self._stack.__exit__(type(error), error, error.__traceback__)   # remove the temporary file
+        if exc is None:
+            raise error

@@ -5,10 +5,13 @@ stages; later work can drop or swap stages per image or per tile without touchin
 """
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from contextlib import closing, nullcontext
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -23,7 +26,9 @@ from .stages.demosaic_dlmmse import DemosaicDLMMSE
 from .stages.demosaic_lms import DemosaicLMSHybrid
 from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
-from .tiling import Tile, gather_window, plan_tiles
+from .streaming import (ArraySink, BandSink, TileSink, WindowSource, progress_bar, run_tiles,
+                        window_source)
+from .tiling import DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
 DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "bilinear": DemosaicBilinear,
@@ -42,13 +47,23 @@ DEFAULT_PRESET = "fast"
 OUTPUTS = ("linear", "srgb")
 
 
+DEFAULT_BUDGET = 2**30
+"""Memory budget of the tile planner in bytes (``clisp process --mem``): host and device
+buffers of the tiles in flight, not the interpreter or the output array of the in-memory API."""
+
+TILES_IN_FLIGHT = 3
+"""Host copies of a tile's window and result alive at once: one being read or written, one
+being computed, one queued (see streaming.run_tiles)."""
+
+
 @dataclass
 class RunStats:
-    """Wall time of the last run and its throughput in megapixels per second."""
+    """Wall time of the last run, its throughput in megapixels per second and its tiling."""
 
     seconds: float = 0.0
     megapixels: float = 0.0
     tiles: int = 0
+    tile_shape: tuple[int, int] = (0, 0)
 
     @property
     def mp_per_s(self) -> float:
@@ -68,48 +83,103 @@ class Pipeline:
         """Total input border one output pixel needs (sum of the stage halos)."""
         return sum(stage.halo for stage in self.stages)
 
+    @property
+    def align(self) -> int:
+        """Tile-origin multiple: the CFA period and every stage's alignment."""
+        return math.lcm(self.cfa.period, *(stage.align for stage in self.stages))
+
+    @property
+    def out_channels(self) -> int:
+        return self.stages[-1].out_channels
+
     def describe(self) -> str:
         return " -> ".join(stage.name for stage in self.stages)
 
+    def needs(self, raw_dtype: Any) -> TileNeeds:
+        """The planner's numbers for raw input of ``raw_dtype`` (B/px of the input window).
+
+        Device: the raw, every stage's declared buffers (all stay pooled; the unfused sum bounds
+        the fused schedule) and an interleaved result. Host: TILES_IN_FLIGHT windows and results.
+        """
+        raw_bytes = float(np.dtype(raw_dtype).itemsize)
+        out_bytes = 4.0 * self.out_channels
+        stage_bytes = [float(stage.bytes_per_pixel) for stage in self.stages]
+        return TileNeeds(halo=self.halo, align=self.align,
+                         device_bytes=raw_bytes + sum(stage_bytes) + out_bytes,
+                         host_bytes=TILES_IN_FLIGHT * (raw_bytes + out_bytes),
+                         largest_bytes=max(stage_bytes + [raw_bytes, out_bytes]))
+
+    def plan(self, shape: tuple[int, int], raw_dtype: Any, tile: int | None = None,
+             budget: int = DEFAULT_BUDGET, backend: str = "opencl") -> TilePlan:
+        """Tiles for an H x W raw: ``tile`` None = from ``budget`` and the device's limits,
+        0 = the whole image, N = N x N (see tiling.make_plan)."""
+        limits = DeviceLimits()
+        if backend == "opencl":
+            device = get_runtime().device
+            limits = DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
+        return make_plan(shape[0], shape[1], self.needs(raw_dtype), tile, budget, limits)
+
     def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
-            fuse: bool = True) -> np.ndarray:
+            fuse: bool = True, budget: int = DEFAULT_BUDGET) -> np.ndarray:
         """Process an H x W raw mosaic (DN, uint16 or float32) into H x W x 3 float32.
 
-        ``tile``: output tile side in pixels (None: the whole image is one tile).
+        ``tile``: output tile side in pixels; None (default) chooses tiles from ``budget`` (bytes)
+        and the device's limits, 0 runs the whole image as one tile.
         ``backend``: 'opencl' (kernels) or 'reference' (NumPy, float64 inside, stage by stage).
         ``fuse``: on OpenCL, merge neighbouring stages that compose (e.g. normalise, WB 1, bilinear
         demosaic and colour matrix become one kernel); False runs one kernel per stage.
+        A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
         """
-        if backend not in ("opencl", "reference"):
-            raise ClispError(f"unknown backend {backend!r}; expected opencl or reference")
-        height, width = data.shape
-        if min(height, width) < self.cfa.period:
-            raise ClispError(f"raw of {width}x{height} is smaller than one CFA tile")
-        out = np.empty((height, width, self.stages[-1].out_channels), dtype=np.float32)
-        tiles = plan_tiles(height, width, tile, align=self.cfa.period)
-        start = time.perf_counter()
-        if backend == "opencl":
-            schedule = self.schedule(fuse)
-            for t in tiles:
-                self._run_tile_opencl(schedule, data, t, out)
-        else:
-            for t in tiles:
-                out[t.y0:t.y0 + t.h, t.x0:t.x0 + t.w] = self._run_tile_reference(data, t)
-        self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(tiles))
+        self._check(data.shape, backend)
+        out = np.empty((data.shape[0], data.shape[1], self.out_channels), dtype=np.float32)
+        plan = self.plan(data.shape, data.dtype, tile, budget, backend)
+        with closing(window_source(data)) as source:
+            self.stream(source, ArraySink(out), plan, backend, fuse)
         return out
 
-    def _window(self, data: np.ndarray, t: Tile) -> tuple[np.ndarray, tuple[int, int]]:
-        halo = self.halo
-        origin = (t.y0 - halo, t.x0 - halo)
-        window = gather_window(data, origin[0], origin[1], t.h + 2 * halo, t.w + 2 * halo, self.cfa.period)
-        return window, origin
+    def stream(self, source: WindowSource, sink: TileSink, plan: TilePlan, backend: str = "opencl",
+               fuse: bool = True, progress: Callable[[Tile], None] | None = None) -> RunStats:
+        """Run ``plan`` from ``source`` into ``sink`` (see streaming.run_tiles); sets and returns
+        :attr:`stats`."""
+        self._check(source.shape, backend)
+        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        if backend == "opencl":                      # halo passed on: stages recompute it per call
+            compute = partial(self._compute_opencl, self.schedule(fuse), halo)
+        else:
+            compute = partial(self._compute_reference, halo)
 
-    def _run_tile_reference(self, data: np.ndarray, t: Tile) -> np.ndarray:
-        x, origin = self._window(data, t)
+        def read(t: Tile) -> np.ndarray:
+            return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period)
+
+        start = time.perf_counter()
+        try:
+            run_tiles(plan, read, compute, sink, progress)
+        finally:
+            if backend == "opencl":
+                get_runtime().queue.finish()          # no copy may still target the sink's arrays
+        height, width = source.shape
+        self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
+                              (plan.tile_h, plan.tile_w))
+        return self.stats
+
+    def _check(self, shape: tuple[int, ...], backend: str) -> None:
+        if backend not in ("opencl", "reference"):
+            raise ClispError(f"unknown backend {backend!r}; expected opencl or reference")
+        if len(shape) != 2:
+            raise ClispError(f"raw data must be H x W, got shape {tuple(shape)}")
+        if min(shape) < self.cfa.period:
+            raise ClispError(f"raw of {shape[1]}x{shape[0]} is smaller than one CFA tile")
+
+    def _compute_reference(self, halo: int, t: Tile, window: np.ndarray,
+                           target: tuple[np.ndarray, int, int]) -> None:
+        """The NumPy stages on the tile's own window (the plan's may reach past the image)."""
+        x, origin = window[:t.h + 2 * halo, :t.w + 2 * halo], (t.y0 - halo, t.x0 - halo)
         for stage in self.stages:
             x = stage.reference(x, origin)
             origin = (origin[0] + stage.halo, origin[1] + stage.halo)
-        return x
+        host, y, x0 = target
+        host[y:y + t.h, x0:x0 + t.w] = x
+        return None
 
     def schedule(self, fuse: bool = True) -> list[Stage]:
         """The stages as run on OpenCL: fused where they compose, the last one writing the host's
@@ -120,26 +190,26 @@ class Pipeline:
             schedule[-1] = last
         return schedule
 
-    def _run_tile_opencl(self, schedule: list[Stage], data: np.ndarray, t: Tile, out: np.ndarray) -> None:
-        """Upload one window, run every stage on the device, download once into ``out``."""
+    def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray,
+                        target: tuple[np.ndarray, int, int]) -> Any:
+        """Enqueue one window's upload, every stage and the download of the kept pixels into
+        ``target``; returns the download's event (nothing waits here: no host round trip)."""
         rt = get_runtime()
-        window, origin = self._window(data, t)
         if window.dtype not in (np.uint16, np.float32):
             window = window.astype(np.float32)
-        src = rt.upload(window)
+        src, origin = rt.upload(window), (t.y0 - halo, t.x0 - halo)
         for stage in schedule:
             dst = stage.enqueue(rt, src, origin)
             rt.release(src)
             src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
-        if src.channels > 1 and not src.interleaved:
+        if not src.interleaved:
             planar, src = src, rt.interleave(src)
             rt.release(planar)
-        region = out[t.y0:t.y0 + t.h, t.x0:t.x0 + t.w]
-        if region.flags.c_contiguous:
-            rt.download(src, into=region)
-        else:
-            region[...] = rt.download(src)
-        rt.release(src)
+        host, y, x = target
+        event = rt.download_region(src, host, y, x, t.h, t.w)
+        rt.release(src)                               # the in-order queue copies before reuse
+        rt.queue.flush()
+        return event
 
 
 def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, str]:
@@ -221,3 +291,31 @@ def process(raw: RawImage | str | Path, preset: str | None = None, demosaic: str
         from .rawfile import read_raw
         raw = read_raw(raw)
     return process_with_stats(raw, preset, demosaic, tile, output, backend)[0]
+
+
+def process_file(raw: RawImage, path: str | Path, preset: str | None = None, demosaic: str | None = None,
+                 tile: int | None = None, budget: int = DEFAULT_BUDGET, backend: str = "opencl",
+                 progress: bool = False) -> tuple[tuple[int, int], RunStats]:
+    """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
+
+    Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
+    written band by band (imageio.ImageWriter), so memory stays within ``budget`` plus fixed
+    overheads whatever the image size. Raws with a camera rotation are oriented in memory.
+    ``progress``: a progress bar on stderr (when it is a terminal). Atomic: on failure no file.
+    Returns the output's (height, width) and the run's stats.
+    """
+    from .imageio import ImageWriter, output_kind, write_image
+    pipeline = build_pipeline(raw, preset=preset, demosaic=demosaic, output=output_kind(path))
+    flip = int(raw.metadata.get("flip", 0) or 0)
+    if flip:                    # rotated output rows are input columns: orient the whole result
+        image = orient(pipeline.run(raw.data, tile=tile, backend=backend, budget=budget), flip)
+        write_image(path, image)
+        return image.shape[:2], pipeline.stats
+    plan = pipeline.plan(raw.shape, raw.data.dtype, tile, budget, backend)
+    (height, width), channels = raw.shape, pipeline.out_channels
+    bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
+    start = time.perf_counter()
+    with closing(window_source(raw.data)) as source, ImageWriter(path, width, height, channels) as writer, \
+            BandSink(writer.write_rows, plan, width, channels) as sink, bar as update:
+        stats = pipeline.stream(source, sink, plan, backend, progress=update)
+    return raw.shape, replace(stats, seconds=time.perf_counter() - start)    # the last write included

@@ -1,7 +1,8 @@
 """Reading and writing raw files.
 
-clisp writes its own raws as DNG-style TIFFs (one uncompressed CFA image in strips of
-``ROWS_PER_STRIP`` rows, so that rows can later be memory-mapped for tile streaming). Besides the
+clisp writes its own raws as DNG-style TIFFs (one uncompressed CFA image in contiguous strips of
+``ROWS_PER_STRIP`` rows, so that tile streaming can read just the rows of a tile: see
+``read_raw(path, lazy=True)``; :func:`raw_band_writer` writes one band by band). Besides the
 standard DNG tags the file carries clisp's exact metadata as JSON in DNGPrivateData (tag 50740,
 prefixed with ``b"clisp\\0"``), so :func:`read_raw` rebuilds the :class:`RawImage` bit for bit.
 Any other file is handed to :func:`clisp.camera.read_camera_raw` (rawpy / LibRaw).
@@ -14,9 +15,10 @@ import json
 import math
 import os
 import tempfile
+from contextlib import contextmanager
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import tifffile
@@ -78,8 +80,52 @@ def write_raw(path: str | os.PathLike[str], raw: RawImage) -> None:
     file is removed and ClispError is raised (an existing file at ``path`` is left untouched).
     """
     target = Path(path)
-    data = _checked_data(raw, target)
-    tags = dng_tags(raw)
+    data = np.ascontiguousarray(raw.data, dtype=_checked_dtype(raw, target))
+    with _atomic_raw_file(target) as tmp_name:
+        tifffile.imwrite(tmp_name, data, extratags=dng_tags(raw), **_TIFF_LAYOUT)
+
+
+@contextmanager
+def raw_band_writer(path: str | os.PathLike[str], header: RawImage) -> Iterator[Callable[[int, np.ndarray], None]]:
+    """Write a raw file whose rows arrive in bands, never holding the whole mosaic.
+
+    ``header`` supplies the metadata; of ``header.data`` only shape and dtype are used (pass a
+    zero-stride ``np.broadcast_to`` array, which costs no memory). Yields ``write(y0, rows)`` that
+    stores ``rows`` (h x W, the header's dtype) as rows y0..y0+h. The file layout equals
+    :func:`write_raw`'s (tifffile writes the header and reserves the contiguous strips, the bands
+    are written at their offsets), and so does the atomicity; ClispError if a row is missing.
+    """
+    target = Path(path)
+    dtype = _checked_dtype(header, target)
+    height, width = header.shape
+    with _atomic_raw_file(target) as tmp_name:
+        offset, _ = tifffile.imwrite(tmp_name, shape=(height, width), dtype=dtype, returnoffset=True,
+                                     extratags=dng_tags(header), **_TIFF_LAYOUT)
+        written = np.zeros(height, dtype=bool)
+        fd = os.open(tmp_name, os.O_WRONLY)
+        try:
+            def write(y0: int, rows: np.ndarray) -> None:
+                block = np.ascontiguousarray(rows, dtype=dtype)
+                if block.ndim != 2 or block.shape[1] != width or not 0 <= y0 <= height - block.shape[0]:
+                    raise ValueError(f"band of shape {block.shape} at row {y0} does not fit {height}x{width}")
+                _pwrite_all(fd, memoryview(block.reshape(-1).view(np.uint8)), offset + y0 * width * dtype.itemsize)
+                written[y0:y0 + block.shape[0]] = True
+            yield write
+        finally:
+            os.close(fd)
+        if not written.all():
+            raise ValueError(f"rows {int(np.argmin(written))} and on were never written")
+
+
+_TIFF_LAYOUT: dict[str, Any] = dict(photometric=PHOTOMETRIC_CFA, rowsperstrip=ROWS_PER_STRIP, subfiletype=0,
+                                    compression=None, metadata=None, software="clisp")
+"""tifffile.imwrite arguments of our raw files: uncompressed CFA strips, no tifffile metadata."""
+
+
+@contextmanager
+def _atomic_raw_file(target: Path) -> Iterator[str]:
+    """Yield a temporary file name beside ``target``; rename it to ``target`` on success, remove
+    it on any failure (raised as a one-line ClispError naming ``target``)."""
     folder = target.parent if str(target.parent) else Path(".")
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
@@ -87,16 +133,21 @@ def write_raw(path: str | os.PathLike[str], raw: RawImage) -> None:
         raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
     os.close(fd)
     try:
-        tifffile.imwrite(tmp_name, data, photometric=PHOTOMETRIC_CFA, rowsperstrip=ROWS_PER_STRIP,
-                         subfiletype=0, compression=None, metadata=None, software="clisp",
-                         extratags=tags)
+        yield tmp_name
         _chmod_default(tmp_name)
         os.replace(tmp_name, target)
     except BaseException as exc:
         _remove_quietly(tmp_name)
-        if isinstance(exc, Exception):
+        if isinstance(exc, Exception) and not isinstance(exc, ClispError):
             raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
         raise
+
+
+def _pwrite_all(fd: int, data: memoryview, offset: int) -> None:
+    """os.pwrite until every byte of ``data`` is at ``offset`` (a large write may be split)."""
+    while len(data):
+        n = os.pwrite(fd, data, offset)
+        data, offset = data[n:], offset + n
 
 
 def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
@@ -159,8 +210,8 @@ def _baseline_exposure(raw: RawImage) -> float:
     return math.log2(raw.exposure) if raw.exposure > 0 and math.isfinite(raw.exposure) else 0.0
 
 
-def _checked_data(raw: RawImage, target: Path) -> np.ndarray:
-    """The mosaic as a C-contiguous native-endian uint16 or float32 H x W array."""
+def _checked_dtype(raw: RawImage, target: Path) -> np.dtype:
+    """The file dtype for ``raw.data``: native uint16 or float32; ClispError for anything else."""
     dtype = raw.data.dtype
     if dtype.kind == "u" and dtype.itemsize == 2:
         out_dtype = np.dtype(np.uint16)
@@ -171,7 +222,7 @@ def _checked_data(raw: RawImage, target: Path) -> np.ndarray:
     if raw.cfa.n_channels != 3:
         raise ClispError(f"cannot write raw file '{target}': CFA {raw.cfa.name} has "
                          f"{raw.cfa.n_channels} channels, DNG CFAPlaneColor needs 3")
-    return np.ascontiguousarray(raw.data, dtype=out_dtype)
+    return out_dtype
 
 
 def _metadata_json(raw: RawImage) -> dict[str, Any]:
@@ -251,15 +302,20 @@ def _remove_quietly(name: str) -> None:
 # Reading
 # --------------------------------------------------------------------------------------------
 
-def read_raw(path: str | os.PathLike[str]) -> RawImage:
-    """Read a raw file: one of ours exactly (``source`` = str(path)), else a camera raw via rawpy."""
-    raw, _ = _load(path)
+def read_raw(path: str | os.PathLike[str], lazy: bool = False) -> RawImage:
+    """Read a raw file: one of ours exactly (``source`` = str(path)), else a camera raw via rawpy.
+
+    ``lazy``: for our (uncompressed, contiguous) files ``data`` is a read-only ``np.memmap``, so
+    the pixels stay on disk until read; tile streaming then reads only each tile's rows (see
+    clisp.streaming.window_source). Camera raws are always decoded whole.
+    """
+    raw, _ = _load(path, lazy)
     return raw
 
 
 def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Summary of a raw file for ``clisp info RAW``: sizes, CFA, levels (DN), WB, matrix, gain."""
-    raw, kind = _load(path)
+    raw, kind = _load(path, lazy=True)            # the pixels are not needed
     md = raw.metadata
     info: dict[str, Any] = {
         "path": str(path),
@@ -286,11 +342,11 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     return info
 
 
-def _load(path: str | os.PathLike[str]) -> tuple[RawImage, str]:
+def _load(path: str | os.PathLike[str], lazy: bool = False) -> tuple[RawImage, str]:
     """Read ``path`` and say whether it was one of ours (SOURCE_CLISP) or a camera raw."""
     p = Path(path)
     _check_readable(p)
-    ours, tiff_error = _try_read_clisp(p)
+    ours, tiff_error = _try_read_clisp(p, lazy)
     if ours is not None:
         return ours, SOURCE_CLISP
     from .camera import read_camera_raw
@@ -322,7 +378,7 @@ def _check_readable(p: Path) -> None:
         raise ClispError(f"cannot read raw file '{p}': permission denied")
 
 
-def _try_read_clisp(p: Path) -> tuple[RawImage | None, str | None]:
+def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str | None]:
     """(RawImage, None) for one of our files; (None, tifffile's complaint or None) otherwise."""
     try:
         with tifffile.TiffFile(p) as tif:
@@ -332,7 +388,7 @@ def _try_read_clisp(p: Path) -> tuple[RawImage | None, str | None]:
             meta = _private_metadata(page, p)
             if meta is None:
                 return None, None
-            data = _read_pixels(page, p, meta)
+            data = _read_pixels(page, p, meta, lazy)
     except ClispError:
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
@@ -361,8 +417,9 @@ def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:
     return meta
 
 
-def _read_pixels(page: Any, p: Path, meta: dict[str, Any]) -> np.ndarray:
-    """The mosaic of ``page`` after checking that the file holds all of it."""
+def _read_pixels(page: Any, p: Path, meta: dict[str, Any], lazy: bool = False) -> np.ndarray:
+    """The mosaic of ``page`` after checking that the file holds all of it (``lazy``: mapped,
+    not read, when the file allows it)."""
     if int(page.photometric) != PHOTOMETRIC_CFA:
         raise ClispError(f"cannot read raw file '{p}': photometric {int(page.photometric)} is not CFA")
     size = p.stat().st_size
@@ -372,7 +429,9 @@ def _read_pixels(page: Any, p: Path, meta: dict[str, Any]) -> np.ndarray:
         raise ClispError(f"cannot read raw file '{p}': truncated (image data needs {need} bytes, "
                          f"file has {size})")
     try:
-        data = page.asarray()
+        data = _mapped_pixels(page, p) if lazy else None
+        if data is None:
+            data = page.asarray()
     except Exception as exc:  # noqa: BLE001
         raise ClispError(f"cannot read raw file '{p}': damaged image data ({_one_line(exc)})") from exc
     want_dtype = np.dtype(meta.get("dtype", str(data.dtype)))
@@ -380,7 +439,20 @@ def _read_pixels(page: Any, p: Path, meta: dict[str, Any]) -> np.ndarray:
     if data.shape != want_shape or data.dtype.newbyteorder("=") != want_dtype.newbyteorder("="):
         raise ClispError(f"cannot read raw file '{p}': image is {data.dtype} {data.shape}, "
                          f"metadata says {want_dtype} {want_shape}")
+    if isinstance(data, np.memmap):
+        return data
     return np.ascontiguousarray(data, dtype=want_dtype.newbyteorder("="))
+
+
+def _mapped_pixels(page: Any, p: Path) -> np.memmap | None:
+    """A read-only memory map of an uncompressed single-sample page stored in contiguous
+    strips (as we write them), or None when the layout does not allow one."""
+    offsets, counts = page.dataoffsets, page.databytecounts
+    contiguous = all(int(o) + int(n) == int(o2) for o, n, o2 in zip(offsets, counts, offsets[1:]))
+    if int(page.compression) != 1 or page.samplesperpixel != 1 or len(page.shape) != 2 or not contiguous:
+        return None
+    dtype = np.dtype(page.parent.byteorder + page.dtype.char)
+    return np.memmap(p, dtype=dtype, mode="r", offset=int(offsets[0]), shape=tuple(page.shape))
 
 
 def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:

@@ -230,6 +230,22 @@ class Runtime:
         self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True)
         return host
 
+    def download_region(self, image: DeviceImage, into: np.ndarray, y0: int, x0: int,
+                        rows: int, cols: int) -> Any:
+        """Enqueue, without waiting, a copy of the top-left ``rows x cols`` pixels of an
+        interleaved device image into ``into[y0:y0+rows, x0:x0+cols]`` (``into``: a C-contiguous
+        H' x W' x C host array of the image's dtype). Returns the copy's event; ``into`` must not
+        be read before it completes."""
+        if not image.interleaved or into.ndim != 3 or into.shape[2] != image.channels \
+                or into.dtype != image.dtype or not into.flags.c_contiguous:
+            raise ValueError(f"download target {into.shape} {into.dtype} does not fit device image "
+                             f"{image.height}x{image.width}x{image.channels} {image.dtype}")
+        pixel = image.channels * np.dtype(image.dtype).itemsize
+        return self.cl.enqueue_copy(self.queue, into, image.buffer, is_blocking=False,
+                                    buffer_origin=(0, 0, 0), host_origin=(x0 * pixel, y0, 0),
+                                    region=(cols * pixel, rows, 1), buffer_pitches=(image.width * pixel,),
+                                    host_pitches=(into.shape[1] * pixel,))
+
     def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
         """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
         lx, ly = LOCAL_SIZE

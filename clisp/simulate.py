@@ -8,6 +8,9 @@ Steps, per image::
     mosaic: keep channel cfa.channel_map(y, x) at each pixel
     DN   = raw (WL - BL) + BL                noiseless (float32, no quantisation, no clipping), or
     DN   = NoiseModel.sample(raw, gain)      noisy (uint16, quantised and clipped)
+
+:func:`simulate_large` does the same for the scene repeated (alternate copies mirrored) to any
+size, band by band, for test images larger than memory (``clisp simulate --size``).
 """
 from __future__ import annotations
 
@@ -24,6 +27,7 @@ from .errors import ClispError
 from .noise import NoiseModel, check_gain
 from .optics import airy_kernel, blur_channel
 from .rawimage import RawImage
+from .tiling import Tile, cfa_mirror_index, grid
 
 OPTICS_KINDS = ("airy", "none")
 
@@ -99,14 +103,15 @@ def _check_seed(seed: Any) -> int | None:
 
 
 def optics_and_mosaic(scene: np.ndarray, cfa: CFA, kernel: np.ndarray | None,
-                      a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                      a: np.ndarray, origin: tuple[int, int] = (0, 0)) -> tuple[np.ndarray, np.ndarray]:
     """Blur the scene and mosaic its raw values, one channel at a time to bound memory.
 
-    scene H x W x 3 linear sRGB; a 3 x 3 sRGB -> raw matrix. Returns (truth H x W x 3 float32,
-    raw mosaic H x W float64 normalised, 1.0 = white level).
+    scene H x W x 3 linear sRGB whose pixel (0, 0) is image pixel ``origin`` (sets the CFA
+    phase); a 3 x 3 sRGB -> raw matrix. Returns (truth H x W x 3 float32, raw mosaic H x W
+    float64 normalised, 1.0 = white level).
     """
     height, width = scene.shape[:2]
-    channel_of = cfa.channel_map(height, width)
+    channel_of = cfa.channel_map(height, width, origin)
     truth = np.empty((height, width, 3), dtype=np.float32)
     raw = np.zeros((height, width), dtype=np.float64)
     for j in range(3):
@@ -148,26 +153,118 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     truth=H x W x 3 float32 blurred linear sRGB).
     """
     scene = _check_scene(scene)
+    cfa, gain_value, kernel, seed = _check_options(cfa, gain, optics, r0, seed, noise)
+    a, k_exp = inverse_isp_matrix(cfa.kind)
+    truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
+    data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))
+    del raw
+    metadata = _metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp)
+    return SimResult(raw=_raw_image(data, cfa, noise, k_exp, metadata), truth=truth)
+
+
+def _check_options(cfa: CFA | str, gain: float | None, optics: str | None, r0: float, seed: int | None,
+                   noise: NoiseModel) -> tuple[CFA, float | None, np.ndarray | None, int | None]:
+    """Validated (CFA, gain, optics kernel, seed) for :func:`simulate` and :func:`simulate_large`."""
     cfa = resolve_cfa(cfa)
     gain_value = None if gain is None else check_gain(gain)
     kernel = _optics_kernel(optics, r0)
     seed = _check_seed(seed)
     if not isinstance(noise, NoiseModel):
         raise ClispError(f"noise must be a NoiseModel, got {type(noise).__name__}")
+    return cfa, gain_value, kernel, seed
+
+
+def _digitise(raw: np.ndarray, gain: float | None, noise: NoiseModel, rng: np.random.Generator) -> np.ndarray:
+    """DN of a normalised raw mosaic: float32 without noise (gain None), else noisy uint16."""
+    if gain is None:
+        return (raw * noise.range_dn + float(noise.black_level)).astype(np.float32)
+    return noise.sample(raw, gain, rng)
+
+
+def _raw_image(data: np.ndarray, cfa: CFA, noise: NoiseModel, k_exp: float,
+               metadata: dict[str, Any]) -> RawImage:
+    """The simulated RawImage around ``data`` (camera constants of the CFA kind)."""
     matrix, wb = camera_constants(cfa.kind)
-    a, k_exp = inverse_isp_matrix(cfa.kind)
-    truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
-    if gain_value is None:
-        data = (raw * noise.range_dn + float(noise.black_level)).astype(np.float32)
-    else:
-        data = noise.sample(raw, gain_value, np.random.default_rng(seed))
-    del raw
-    image = RawImage(
+    return RawImage(
         data=data, cfa=cfa,
         black_level=np.full(cfa.n_channels, float(noise.black_level)),
         white_level=float(noise.white_level),
         wb=np.array(wb, dtype=np.float64), colour_matrix=np.array(matrix, dtype=np.float64),
-        exposure=1.0 / k_exp, wb2=np.ones(3),
-        metadata=_metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp),
-        source="simulated")
-    return SimResult(raw=image, truth=truth)
+        exposure=1.0 / k_exp, wb2=np.ones(3), metadata=metadata, source="simulated")
+
+
+# --------------------------------------------------------------------------------------------
+# Large captures, band by band
+# --------------------------------------------------------------------------------------------
+
+BAND_PIXELS = 2_000_000
+"""Pixels per band of :func:`simulate_large` (rows rounded down to a multiple of 16, the raw
+file's strip height): about 150 MB of float64 temporaries per band."""
+
+
+def mirror_repeat_index(idx: np.ndarray, n: int) -> np.ndarray:
+    """Source index along a side of ``n`` for the scene repeated with alternate copies mirrored
+    (0..n-1, n-1..0, 0..n-1, ...), so the repeat has no seams."""
+    m = np.asarray(idx, dtype=np.int64) % (2 * n)
+    return np.where(m < n, m, 2 * n - 1 - m)
+
+
+@dataclass
+class LargeSimulation:
+    """A capture of a scene repeated (mirrored) to ``header.shape``, computed band by band.
+
+    header  the RawImage metadata; ``header.data`` is a zero-stride placeholder with the full
+            shape and dtype (write it with ``rawfile.raw_band_writer``).
+    bands   full-width row bands (clisp.tiling.Tile) covering the image, top to bottom.
+    Call :meth:`band` for each band's pixels, in any order: the optics read a halo of the
+    kernel radius from the repeated scene, so bands join exactly; the noise of band i is drawn
+    from ``SeedSequence(seed).spawn(len(bands))[i]``, so a run is reproducible, but it is NOT
+    bit-identical to :func:`simulate` of the same scene (which draws one stream for the image).
+    """
+
+    header: RawImage
+    bands: list[Tile]
+    scene: np.ndarray
+    kernel: np.ndarray | None
+    a: np.ndarray
+    gain: float | None
+    noise: NoiseModel
+    seeds: list[np.random.SeedSequence]
+
+    def band(self, tile: Tile) -> tuple[np.ndarray, np.ndarray]:
+        """(DN tile.h x W, uint16 or float32; truth tile.h x W x 3 float32) of one band."""
+        height, width = self.header.shape
+        r = 0 if self.kernel is None else self.kernel.shape[0] // 2
+        rows = cfa_mirror_index(np.arange(tile.y0 - r, tile.y0 + tile.h + r), height, 1)
+        rows = mirror_repeat_index(rows, self.scene.shape[0])
+        cols = mirror_repeat_index(np.arange(width), self.scene.shape[1])
+        part = self.scene[rows][:, cols]
+        truth, raw = optics_and_mosaic(part, self.header.cfa, self.kernel, self.a, (tile.y0 - r, 0))
+        truth, raw = truth[r:r + tile.h], raw[r:r + tile.h]
+        rng = np.random.default_rng(self.seeds[tile.y0 // self.bands[0].h])
+        return _digitise(raw, self.gain, self.noise, rng), truth
+
+
+def simulate_large(scene: np.ndarray, size: tuple[int, int], cfa: CFA | str = "lms",
+                   gain: float | None = None, optics: str | None = "airy", seed: int | None = 0,
+                   r0: float = 1.0, noise: NoiseModel = NoiseModel()) -> LargeSimulation:
+    """:func:`simulate` of ``scene`` repeated to ``size`` = (height, width), band by band.
+
+    The scene (H x W x 3 linear sRGB) is tiled with alternate copies mirrored (no seams); nothing
+    of full size is allocated. Each band's pixels come from :meth:`LargeSimulation.band`.
+    """
+    scene = _check_scene(scene)
+    cfa, gain_value, kernel, seed = _check_options(cfa, gain, optics, r0, seed, noise)
+    height, width = (int(v) for v in size)
+    if min(height, width) < cfa.period:
+        raise ClispError(f"size {width}x{height} is smaller than one CFA tile ({cfa.period} px)")
+    a, k_exp = inverse_isp_matrix(cfa.kind)
+    rows = max(16, BAND_PIXELS // width // 16 * 16)
+    bands = grid(height, width, rows, width)
+    metadata = _metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp)
+    metadata["repeat"] = {"scene_shape": list(scene.shape[:2]), "mode": "mirror",
+                          "noise": f"per band of {rows} rows, SeedSequence(seed).spawn(bands)"}
+    placeholder = np.broadcast_to(np.zeros((), np.float32 if gain_value is None else np.uint16), (height, width))
+    header = _raw_image(placeholder, cfa, noise, k_exp, metadata)
+    seeds = np.random.SeedSequence(seed).spawn(len(bands))
+    return LargeSimulation(header, bands, scene, kernel, a, gain_value, noise, seeds)

@@ -3,12 +3,39 @@
 The pipeline pads the raw input once, by the sum of all stage halos, and every stage shrinks its
 window by its own halo. Because padding happens only at the image level and is a fixed index map,
 a tile sees exactly the pixels the whole image would, so tiled output equals whole-image output.
+
+The planner alone decides windows, from a few numbers the stages declare (darktable's tiling
+contract, :class:`TileNeeds`): total halo, tile-origin alignment and bytes per pixel. Every tile of
+a plan computes the same window size (the last row/column of tiles reaches past the image edge and
+is cropped), so the device buffer pool holds one set of buffers however many tiles run.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from .errors import ClispError
+
+TARGET_TILE_PIXELS = 2_000_000
+"""Automatic tiles stop growing at about this many window pixels even when the memory budget
+allows more. Measured with tools/bench_tiling.py --sweep (PoCL, 2 shared cores, 25 MP LMS raw,
+preallocated output), three runs: 2 MP bands ran at 1.08-1.46x the whole image's throughput,
+4-16 MP bands at 0.85-1.15x. ``clisp process`` of a 400 MP raw to EXR: 2 MP tiles 91-97 s and
+274 MiB peak RSS, 4 MP tiles 99 s and 359 MiB. Measured on a CPU device only: a GPU may want
+larger launches."""
+
+MIN_BAND_ROWS = 32
+"""Automatic tiles are full-width bands (one read per band, scanline output, no assembly). A
+band this tall is allowed past TARGET_TILE_PIXELS (never past the budget), since shorter bands
+spend a large share on their halo rows."""
+
+MIN_TILE = 16
+"""Smallest tile side in pixels the planner accepts."""
+
+DEVICE_SHARE = 0.75
+"""Fraction of the device's global memory a plan may use (the rest is left to the driver)."""
 
 
 @dataclass(frozen=True)
@@ -21,17 +48,122 @@ class Tile:
     w: int
 
 
+@dataclass(frozen=True)
+class TileNeeds:
+    """What the planner knows about a pipeline, per pixel of a tile's input window.
+
+    halo           input border one output pixel needs, px (sum of the stage halos)
+    align          tile origins are multiples of this, px (CFA period and stage alignments)
+    device_bytes   device memory per window pixel: input plus every stage's buffers, B/px
+    host_bytes     host memory per window pixel for the tiles in flight (read, run, write), B/px
+    largest_bytes  bytes per pixel of the largest single device buffer, B/px
+    """
+
+    halo: int
+    align: int
+    device_bytes: float
+    host_bytes: float
+    largest_bytes: float
+
+
+@dataclass(frozen=True)
+class DeviceLimits:
+    """CL_DEVICE_GLOBAL_MEM_SIZE and CL_DEVICE_MAX_MEM_ALLOC_SIZE in bytes (None: no device)."""
+
+    global_mem: int | None = None
+    max_alloc: int | None = None
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """Tiles in row-major order; each computes a ``tile_h x tile_w`` output (``halo`` more on
+    every side as input), of which ``Tile.h x Tile.w`` lie inside the image and are kept."""
+
+    tiles: list[Tile]
+    tile_h: int
+    tile_w: int
+    halo: int
+
+    @property
+    def window_shape(self) -> tuple[int, int]:
+        """Input window of every tile, (rows, columns)."""
+        return self.tile_h + 2 * self.halo, self.tile_w + 2 * self.halo
+
+
 def plan_tiles(height: int, width: int, tile: int | None, align: int = 1) -> list[Tile]:
     """Cover an H x W image with tiles of at most ``tile`` x ``tile`` (None or 0: one tile).
 
     Tile sides are rounded down to a multiple of ``align`` (the CFA period) so tiles start on
     the same CFA phase; the last row/column of tiles takes the remainder.
     """
-    if not tile or tile >= max(height, width):
-        return [Tile(0, 0, height, width)]
-    step = max(align, tile // align * align)
-    return [Tile(y, x, min(step, height - y), min(step, width - x))
-            for y in range(0, height, step) for x in range(0, width, step)]
+    return make_plan(height, width, TileNeeds(0, align, 1.0, 0.0, 1.0), tile or 0).tiles
+
+
+def grid(height: int, width: int, step_h: int, step_w: int) -> list[Tile]:
+    """Row-major tiles of ``step_h x step_w`` covering H x W; the last ones are cropped."""
+    return [Tile(y, x, min(step_h, height - y), min(step_w, width - x))
+            for y in range(0, height, step_h) for x in range(0, width, step_w)]
+
+
+def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None,
+              budget: int = 2**30, limits: DeviceLimits = DeviceLimits()) -> TilePlan:
+    """The tiles for an H x W image.
+
+    ``tile``: None chooses the tile shape from ``budget`` (bytes) and the device ``limits``
+    (:func:`auto_tile_shape`); 0 processes the whole image as one tile; N gives N x N tiles
+    (rounded down to ``needs.align``).
+    """
+    if tile is None:
+        step_h, step_w = auto_tile_shape(height, width, needs, budget, limits)
+    elif tile == 0 or tile >= max(height, width):
+        step_h, step_w = height, width
+    else:
+        step_h = step_w = max(needs.align, tile // needs.align * needs.align)
+    step_h, step_w = min(step_h, height), min(step_w, width)
+    return TilePlan(grid(height, width, step_h, step_w), step_h, step_w, needs.halo)
+
+
+def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
+                    limits: DeviceLimits = DeviceLimits()) -> tuple[int, int]:
+    """Tile (rows, columns) for an H x W image: the whole image if it fits TARGET_TILE_PIXELS
+    and the memory limits, else full-width bands, else (images too wide for even MIN_TILE rows
+    within ``budget``) squares. Sides are split evenly over the image (the last tile is no
+    sliver) and aligned. Raises ClispError when not even a MIN_TILE square fits."""
+    most = max_window_pixels(needs, budget, limits)
+    target = min(most, TARGET_TILE_PIXELS)
+    halo, align = needs.halo, needs.align
+    if (height + 2 * halo) * (width + 2 * halo) <= target:
+        return height, width
+    row_pixels = width + 2 * halo
+    rows = max(target // row_pixels, min(MIN_BAND_ROWS + 2 * halo, most // row_pixels)) - 2 * halo
+    if rows >= MIN_TILE:
+        return even_split(height, rows, align), width
+    side = math.isqrt(most) - 2 * halo
+    if side < MIN_TILE:
+        per_px = needs.device_bytes + needs.host_bytes
+        need = (MIN_TILE + 2 * halo) ** 2 * per_px
+        raise ClispError(f"memory budget of {budget / 2**20:.0f} MiB is too small: one "
+                         f"{MIN_TILE}x{MIN_TILE} tile needs {need / 2**20:.1f} MiB ({per_px:.0f} B/px)")
+    return even_split(height, side, align), even_split(width, side, align)
+
+
+def max_window_pixels(needs: TileNeeds, budget: int, limits: DeviceLimits) -> int:
+    """Most input-window pixels one tile may have: within ``budget`` (host + device bytes),
+    DEVICE_SHARE of global memory and the largest allocation."""
+    caps = [budget / (needs.device_bytes + needs.host_bytes)]
+    if limits.global_mem:
+        caps.append(DEVICE_SHARE * limits.global_mem / needs.device_bytes)
+    if limits.max_alloc:
+        caps.append(limits.max_alloc / needs.largest_bytes)
+    return int(min(caps))
+
+
+def even_split(n: int, most: int, align: int) -> int:
+    """Side of ceil(n / most) equal tiles covering n, rounded up to ``align`` (never above
+    ``most`` rounded down to ``align``)."""
+    most = max(align, most // align * align)
+    side = -(-n // -(-n // most))                  # ceil(n / count) with count = ceil(n / most)
+    return -(-side // align) * align
 
 
 def cfa_mirror_index(idx: np.ndarray, n: int, period: int) -> np.ndarray:
@@ -58,6 +190,15 @@ def cfa_mirror_index(idx: np.ndarray, n: int, period: int) -> np.ndarray:
     return np.where(inside, idx, out)
 
 
+def window_indices(y0: int, x0: int, h: int, w: int, shape: tuple[int, int],
+                   period: int) -> tuple[np.ndarray, np.ndarray]:
+    """Source rows (h,) and columns (w,) of the window at (y0, x0) of an image of ``shape``,
+    padded by :func:`cfa_mirror_index`."""
+    rows = cfa_mirror_index(np.arange(y0, y0 + h), shape[0], period)
+    cols = cfa_mirror_index(np.arange(x0, x0 + w), shape[1], period)
+    return rows, cols
+
+
 def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
     """Split an index array into (dst_start, src_start, length) runs of consecutive indices."""
     breaks = np.flatnonzero(np.diff(idx) != 1) + 1
@@ -66,17 +207,19 @@ def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(a), int(idx[a]), int(b - a)) for a, b in zip(starts, ends)]
 
 
-def gather_window(data: np.ndarray, y0: int, x0: int, h: int, w: int, period: int) -> np.ndarray:
-    """The h x w window of ``data`` starting at (y0, x0), padded outside the image by
-    :func:`cfa_mirror_index`. Returns a contiguous copy with the dtype of ``data``.
-
-    Copied as slices of consecutive rows/columns (the interior is one block, each padded
-    border line its own short run), which is much faster than fancy indexing on large windows.
-    """
-    rows = _runs(cfa_mirror_index(np.arange(y0, y0 + h), data.shape[0], period))
-    cols = _runs(cfa_mirror_index(np.arange(x0, x0 + w), data.shape[1], period))
-    window = np.empty((h, w), dtype=data.dtype)
-    for dy, sy, ny in rows:
-        for dx, sx, nx in cols:
+def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``data[rows][:, cols]`` as a contiguous copy, copied as slices of consecutive rows and
+    columns (the interior is one block, each padded border line its own short run), which is much
+    faster than fancy indexing on large windows."""
+    window = np.empty((len(rows), len(cols)), dtype=data.dtype)
+    col_runs = _runs(cols)
+    for dy, sy, ny in _runs(rows):
+        for dx, sx, nx in col_runs:
             window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
     return window
+
+
+def gather_window(data: np.ndarray, y0: int, x0: int, h: int, w: int, period: int) -> np.ndarray:
+    """The h x w window of ``data`` starting at (y0, x0), padded outside the image by
+    :func:`cfa_mirror_index`. Returns a contiguous copy with the dtype of ``data``."""
+    return gather(data, *window_indices(y0, x0, h, w, data.shape, period))

@@ -127,7 +127,7 @@ def test_failed_write_leaves_no_file(tmp_path: Path, monkeypatch) -> None:
         def open(self, *args):
             return True
 
-        def write_image(self, *args):
+        def write_scanlines(self, *args):
             return False
 
         def geterror(self):

@@ -34,6 +34,21 @@ class Stage(ABC):
         """Pixels of input needed on each side of an output pixel."""
         return 0
 
+    @property
+    def align(self) -> int:
+        """Tile origins must be multiples of this (px). The planner always also aligns to the CFA
+        period, so 1 means "the CFA period"; a multi-resolution stage (e.g. a 2x pyramid over a
+        4x4 CFA) declares 8."""
+        return 1
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """Device bytes this stage keeps per pixel of its input window: its output and every
+        intermediate buffer (they stay in the runtime's pool). Used by the tile planner only.
+        The default, four float32 images as wide as the stage's widest side, is conservative for
+        single-kernel stages; stages with more intermediates override it."""
+        return 16.0 * max(self.in_channels, self.out_channels)
+
     @abstractmethod
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         """NumPy reference on an input window; returns the window shrunk by ``halo`` on every side."""

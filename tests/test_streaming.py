@@ -1,0 +1,360 @@
+"""Tile streaming (issue 6): planner, file windows, streamed output, large simulation.
+
+Every comparison of two pipeline outputs uses the kernels' stated tolerance (as test_tiling.py):
+
+    |a - b| <= TOL * max(1, |b|)
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+import clisp
+from clisp.cfa import cfa_from_name
+from clisp.cli import image_size, main, memory_size
+from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
+from clisp.errors import ClispError
+from clisp.imageio import ImageWriter, read_image
+from clisp.pipeline import PRESETS, Pipeline, build_pipeline, process_file
+from clisp.rawfile import raw_band_writer, read_raw, write_raw
+from clisp.rawimage import RawImage
+from clisp.simulate import mirror_repeat_index, simulate, simulate_large
+from clisp.stages.base import Stage
+from clisp.streaming import ArrayWindows, FileWindows, window_source
+from clisp.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
+
+simulate_module = importlib.import_module("clisp.simulate")   # clisp.simulate is the function
+
+TOL = 1e-5
+SHAPE = (1093, 1157)          # not a multiple of any tile size or CFA period; 2 x 2 tiles of 1024
+
+
+def assert_close(actual: np.ndarray, expected: np.ndarray, what: str = "") -> None:
+    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
+    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
+    err = np.abs(actual.astype(np.float64) - expected) / np.maximum(1.0, np.abs(expected.astype(np.float64)))
+    assert err.max() <= TOL, f"{what}: max scaled error {err.max():.3g} at {np.unravel_index(err.argmax(), err.shape)}"
+
+
+def make_raw(kind: str, shape: tuple[int, int] = SHAPE, dtype: type = np.uint16, seed: int = 3) -> RawImage:
+    """Random raw in DN with the camera constants of its CFA kind."""
+    cfa = cfa_from_name(kind)
+    matrix, wb = (P_LMS, WB_LMS) if cfa.kind == "lms" else (B_BAYER, WB_BAYER)
+    rng = np.random.default_rng(seed)
+    if dtype == np.uint16:
+        data = rng.integers(64, 1024, size=shape, dtype=np.uint16)
+    else:
+        data = (rng.random(shape) * 1100.0 - 30.0).astype(np.float32)
+    return RawImage(data=data, cfa=cfa, black_level=np.array([64.0, 65.0, 66.0]), white_level=1023.0,
+                    wb=wb, colour_matrix=matrix, exposure=1.0 / 0.98951)
+
+
+def preset_pipelines(raw_by_kind: dict[str, RawImage]) -> list[tuple[str, str, Pipeline]]:
+    """(preset, CFA kind, pipeline) for every preset and every CFA kind it accepts."""
+    found = []
+    for name in PRESETS:
+        usable = []
+        for kind, raw in raw_by_kind.items():
+            try:
+                usable.append((name, kind, build_pipeline(raw, preset=name)))
+            except ClispError:
+                continue                                  # a preset for the other CFA kind
+        assert usable, f"preset {name} builds for no CFA"
+        found += usable
+    return found
+
+
+# ------------------------------------------------------------------------------------------
+# tiled == whole image, every preset
+# ------------------------------------------------------------------------------------------
+
+def test_every_preset_tiled_equals_whole() -> None:
+    raws = {"lms": make_raw("lms"), "bayer": make_raw("bayer")}
+    for name, kind, pipeline in preset_pipelines(raws):
+        data = raws[kind].data
+        whole = pipeline.run(data, tile=0)
+        assert pipeline.stats.tiles == 1
+        for tile in (64, 256, 1024):
+            tiled = pipeline.run(data, tile=tile)
+            assert pipeline.stats.tiles > 1
+            assert_close(tiled, whole, f"{name}/{kind} tile {tile}")
+        auto = pipeline.run(data, budget=16 * 2**20)          # bands chosen from a small budget
+        assert pipeline.stats.tiles > 1 and pipeline.stats.tile_shape[1] == SHAPE[1]
+        assert_close(auto, whole, f"{name}/{kind} automatic tiles")
+
+
+@pytest.mark.parametrize("kind", ["lms", "bayer"])
+def test_streamed_files_equal_in_memory(tmp_path: Path, kind: str) -> None:
+    raw = make_raw(kind, shape=(301, 517), dtype=np.float32)
+    write_raw(tmp_path / "r.dng", raw)
+    lazy = read_raw(tmp_path / "r.dng", lazy=True)
+    assert isinstance(lazy.data, np.memmap)
+    linear, encoded = clisp.process(raw), clisp.process(raw, output="srgb")
+    for tile in (None, 64, 256):
+        process_file(lazy, tmp_path / "o.exr", tile=tile, budget=2**20 * 4)
+        image, is_float = read_image(tmp_path / "o.exr")
+        assert is_float
+        assert_close(image, linear, f"EXR, tile {tile}")
+    process_file(lazy, tmp_path / "o.png", tile=64)
+    png, _ = read_image(tmp_path / "o.png")
+    assert np.abs(png - encoded).max() <= 1.0 / 65535 + 1e-6
+
+
+def test_rotated_camera_raw_to_file(tmp_path: Path) -> None:
+    raw = make_raw("bayer", shape=(120, 200))
+    raw.metadata["flip"] = 6                                             # 90 degrees clockwise
+    shape, _ = process_file(raw, tmp_path / "o.exr", tile=64)
+    assert shape == (200, 120)
+    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw), "rotated")
+
+
+def test_cli_streams_silently(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    raw = make_raw("lms", shape=(300, 400))
+    write_raw(tmp_path / "r.dng", raw)
+    code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", "8M"])
+    out, err = capsys.readouterr()
+    assert code == 0 and err == "", err                   # no progress bar when stderr is no terminal
+    assert "tiles of 400x" in out and " 1 tiles" not in out
+    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw), "CLI --mem 8M")
+
+
+# ------------------------------------------------------------------------------------------
+# failures leave no file
+# ------------------------------------------------------------------------------------------
+
+def test_failed_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    raw = make_raw("bayer", shape=(300, 200))
+    calls = []
+
+    def failing(self: ImageWriter, y0: int, rows: np.ndarray) -> None:
+        calls.append(y0)
+        if len(calls) == 2:
+            raise ClispError(f"{self.path}: disk full (simulated)")
+        real(self, y0, rows)
+
+    real = ImageWriter.write_rows
+    monkeypatch.setattr(ImageWriter, "write_rows", failing)
+    with pytest.raises(ClispError, match="disk full"):
+        process_file(raw, tmp_path / "o.tif", tile=64)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_truncated_raw_while_streaming(tmp_path: Path) -> None:
+    path = tmp_path / "r.dng"
+    write_raw(path, make_raw("lms", shape=(256, 128)))
+    raw = read_raw(path, lazy=True)
+    os.truncate(path, os.path.getsize(path) // 2)
+    with pytest.raises(ClispError, match="truncated"):
+        process_file(raw, tmp_path / "o.exr", tile=64)
+    assert [p.name for p in tmp_path.iterdir()] == ["r.dng"]
+
+
+def test_image_writer_needs_every_row(tmp_path: Path) -> None:
+    with pytest.raises(ClispError, match="only 4 of 8 rows"):
+        with ImageWriter(tmp_path / "o.exr", 5, 8) as out:
+            out.write_rows(0, np.zeros((4, 5, 3), np.float32))
+    with pytest.raises(ClispError, match="does not follow"):
+        with ImageWriter(tmp_path / "o.png", 5, 8) as out:
+            out.write_rows(4, np.zeros((4, 5, 3), np.float32))
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------
+# reading windows from the file
+# ------------------------------------------------------------------------------------------
+
+WINDOWS = [(0, 0, 37, 53), (-6, -6, 49, 65), (-6, 20, 30, 20), (30, -3, 20, 59), (-40, -50, 120, 160),
+           (36, 52, 1, 1), (20, 40, 30, 30)]
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_file_windows_equal_array_windows(tmp_path: Path, dtype: type) -> None:
+    raw = make_raw("lms", shape=(37, 53), dtype=dtype)
+    write_raw(tmp_path / "r.dng", raw)
+    lazy = read_raw(tmp_path / "r.dng", lazy=True)
+    source = window_source(lazy.data)
+    assert isinstance(source, FileWindows) and source.shape == (37, 53)
+    try:
+        for window in WINDOWS:
+            got = source.read(*window, 4)
+            assert got.dtype == dtype and got.flags.c_contiguous
+            np.testing.assert_array_equal(got, gather_window(raw.data, *window, 4), err_msg=str(window))
+    finally:
+        source.close()
+    assert isinstance(window_source(lazy.data[1:]), ArrayWindows)      # a slice is not the file
+    assert isinstance(window_source(raw.data), ArrayWindows)
+
+
+def test_file_windows_big_endian(tmp_path: Path) -> None:
+    data = np.arange(20 * 30, dtype=np.uint16).reshape(20, 30)
+    path = tmp_path / "be.bin"
+    path.write_bytes(b"x" * 100 + data.astype(">u2").tobytes())
+    source = FileWindows(path, 100, data.shape, ">u2")
+    try:
+        got = source.read(-2, 5, 24, 10, 2)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, gather_window(data, -2, 5, 24, 10, 2))
+    finally:
+        source.close()
+
+
+# ------------------------------------------------------------------------------------------
+# the planner
+# ------------------------------------------------------------------------------------------
+
+NEEDS = TileNeeds(halo=3, align=4, device_bytes=80.0, host_bytes=40.0, largest_bytes=24.0)
+
+
+def check_plan(plan, height: int, width: int, align: int) -> None:
+    count = np.zeros((height, width), np.int32)
+    for t in plan.tiles:
+        assert t.y0 % align == 0 and t.x0 % align == 0
+        assert 0 < t.h <= plan.tile_h and 0 < t.w <= plan.tile_w
+        count[t.y0:t.y0 + t.h, t.x0:t.x0 + t.w] += 1
+    assert np.all(count == 1)
+
+
+@pytest.mark.parametrize("budget", [2**30, 64 * 2**20, 4 * 2**20, 2**20])
+def test_auto_plan_fits_budget(budget: int) -> None:
+    height, width = 3001, 4005
+    plan = make_plan(height, width, NEEDS, None, budget)
+    check_plan(plan, height, width, NEEDS.align)
+    win_h, win_w = plan.window_shape
+    assert win_h * win_w * (NEEDS.device_bytes + NEEDS.host_bytes) <= budget
+    if plan.tile_w == width and plan.tile_h < height:
+        assert plan.tile_h >= MIN_TILE                                # bands are never slivers
+    last_row = max(t.y0 for t in plan.tiles)
+    assert height - last_row > plan.tile_h - 2 * NEEDS.align * len(plan.tiles)   # split evenly
+
+
+def test_auto_plan_shapes() -> None:
+    assert make_plan(300, 400, NEEDS).tiles == make_plan(300, 400, NEEDS, 0).tiles      # fits: one tile
+    bands = make_plan(3000, 4000, NEEDS, None, 2**30)
+    assert bands.tile_w == 4000 and len(bands.tiles) > 1                # target size: bands
+    tall = make_plan(3000, 100_000, NEEDS, None, 2**30)
+    assert tall.tile_w == 100_000 and tall.tile_h >= MIN_BAND_ROWS     # past the target, within budget
+    squares = make_plan(3000, 40000, NEEDS, None, 2**20)
+    assert squares.tile_w < 40000 and squares.tile_h == squares.tile_w  # no 16-row band fits 1 MiB
+    capped = make_plan(3000, 4000, NEEDS, None, 2**30, DeviceLimits(global_mem=2**36, max_alloc=2**20))
+    assert capped.window_shape[0] * capped.window_shape[1] * NEEDS.largest_bytes <= 2**20
+    with pytest.raises(ClispError, match="too small"):
+        make_plan(3000, 4000, NEEDS, None, 2**14)
+
+
+class Shift8(Stage):
+    """Identity that needs tiles aligned to 8 px (as a 2x pyramid over a 4x4 CFA would)."""
+
+    name = "shift8"
+
+    @property
+    def align(self) -> int:
+        return 8
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return x
+
+    def enqueue(self, rt, src, origin):  # pragma: no cover - reference only
+        raise NotImplementedError
+
+
+def test_stage_alignment_and_bytes_reach_the_plan() -> None:
+    raw = make_raw("bayer", shape=(300, 500))
+    pipeline = build_pipeline(raw)
+    pipeline.stages.insert(2, Shift8())
+    assert pipeline.align == 8
+    needs = pipeline.needs(np.uint16)
+    assert needs.device_bytes >= sum(s.bytes_per_pixel for s in pipeline.stages) + 2
+    plan = pipeline.plan(raw.shape, np.uint16, tile=70, backend="reference")
+    assert plan.tile_h == 64
+    check_plan(plan, 300, 500, 8)
+
+
+# ------------------------------------------------------------------------------------------
+# simulate --size
+# ------------------------------------------------------------------------------------------
+
+def repeated(scene: np.ndarray, height: int, width: int) -> np.ndarray:
+    rows = mirror_repeat_index(np.arange(height), scene.shape[0])
+    cols = mirror_repeat_index(np.arange(width), scene.shape[1])
+    return scene[rows][:, cols]
+
+
+def test_mirror_repeat_index() -> None:
+    np.testing.assert_array_equal(mirror_repeat_index(np.arange(10), 3), [0, 1, 2, 2, 1, 0, 0, 1, 2, 2])
+
+
+@pytest.mark.parametrize("optics", ["airy", "none"])
+def test_large_simulation_equals_whole_noiseless(monkeypatch: pytest.MonkeyPatch, optics: str) -> None:
+    monkeypatch.setattr(simulate_module, "BAND_PIXELS", 16 * 130)      # 16-row bands
+    scene = np.random.default_rng(0).random((40, 52, 3))
+    sim = simulate_large(scene, (100, 130), cfa="lms", gain=None, optics=optics)
+    assert len(sim.bands) == 7 and sim.header.shape == (100, 130)
+    whole = simulate(repeated(scene, 100, 130), cfa="lms", gain=None, optics=optics)
+    raw = np.concatenate([sim.band(b)[0] for b in sim.bands])
+    truth = np.concatenate([sim.band(b)[1] for b in sim.bands])
+    assert raw.dtype == np.float32 and truth.dtype == np.float32
+    np.testing.assert_allclose(raw, whole.raw.data, rtol=1e-6, atol=1e-3)
+    np.testing.assert_allclose(truth, whole.truth, rtol=1e-6, atol=1e-6)
+
+
+def test_large_simulation_noise_seeded_per_band(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(simulate_module, "BAND_PIXELS", 16 * 64)
+    scene = np.full((8, 8, 3), 0.4)
+    a = simulate_large(scene, (64, 64), gain=8, seed=5)
+    b = simulate_large(scene, (64, 64), gain=8, seed=5)
+    c = simulate_large(scene, (64, 64), gain=8, seed=6)
+    bands = [a.band(t)[0] for t in a.bands]
+    assert all(x.dtype == np.uint16 for x in bands)
+    assert np.array_equal(bands[2], b.band(b.bands[2])[0])              # reproducible, in any order
+    assert not np.array_equal(bands[2], c.band(c.bands[2])[0])
+    assert not np.array_equal(bands[0], bands[1])                       # each band its own stream
+
+
+def test_cli_simulate_size(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from clisp.imageio import write_image
+    scene = np.random.default_rng(1).random((30, 40, 3))
+    write_image(tmp_path / "s.exr", scene)
+    args = ["simulate", str(tmp_path / "s.exr"), "--size", "90x70", "-o", str(tmp_path / "r.dng"),
+            "--truth", str(tmp_path / "t.exr"), "--noiseless", "--cfa", "bayer"]
+    assert main(args) == 0, capsys.readouterr().err
+    raw = read_raw(tmp_path / "r.dng")
+    whole = simulate(repeated(scene.astype(np.float32).astype(np.float64), 70, 90), cfa="bayer", gain=None)
+    assert raw.shape == (70, 90) and raw.cfa.name == "bayer-rggb"
+    assert raw.metadata["repeat"]["mode"] == "mirror" and raw.metadata["scene"] == "s.exr"
+    np.testing.assert_allclose(raw.data, whole.raw.data, rtol=1e-6, atol=1e-3)
+    np.testing.assert_allclose(read_image(tmp_path / "t.exr")[0], whole.truth, rtol=1e-6, atol=1e-6)
+    with tifffile.TiffFile(tmp_path / "r.dng") as tif:
+        page = tif.pages[0]
+        assert page.rowsperstrip == 16 and int(page.compression) == 1 and page.is_contiguous
+
+
+def test_band_writer_needs_every_row(tmp_path: Path) -> None:
+    header = make_raw("lms", shape=(40, 24))
+    header.data = np.broadcast_to(np.zeros((), np.uint16), (40, 24))
+    with pytest.raises(ClispError, match="never written"):
+        with raw_band_writer(tmp_path / "r.dng", header) as write:
+            write(0, np.zeros((16, 24), np.uint16))
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------
+# option parsing
+# ------------------------------------------------------------------------------------------
+
+def test_option_parsing() -> None:
+    assert memory_size("512M") == 512 * 2**20 and memory_size("2G") == 2 * 2**30
+    assert memory_size("1.5GiB") == 3 * 2**29 and memory_size("800MB") == 800 * 2**20
+    assert memory_size("1073741824") == 2**30
+    for bad in ("lots", "12K", "-1G", "inf", "G"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            memory_size(bad)
+    assert image_size("23040x17280") == (23040, 17280)
+    for bad in ("100", "0x5", "ax3", "1x2x3"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            image_size(bad)
