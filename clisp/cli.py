@@ -53,6 +53,8 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
+    p.add_argument("--compression", default=None, metavar="NAME",
+                   help="EXR/TIFF compression: none (default, fastest), zip, piz, dwaa, lzw, ...")
     p.add_argument("--mem", type=memory_size, default=DEFAULT_BUDGET, metavar="SIZE",
                    help="memory budget for the tiles in flight, e.g. 512M or 2G (default 1G); "
                         "the image is streamed from the raw file to the output in tiles")
@@ -141,16 +143,19 @@ def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | N
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from .imageio import output_kind
+    from .imageio import check_compression, output_kind
     from .pipeline import process_file, resolve_options
     from .rawfile import read_raw
     output_kind(args.output)
     resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
+    if args.compression:
+        check_compression(args.output, args.compression)
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
     raw = read_raw(args.raw, lazy=True)
     (height, width), stats = process_file(raw, args.output, preset=args.preset, demosaic=args.demosaic,
-                                          tile=args.tile, budget=args.mem, backend=args.backend, progress=True)
+                                          tile=args.tile, budget=args.mem, backend=args.backend, progress=True,
+                                          compression=args.compression)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")

@@ -99,17 +99,18 @@ def read_scene(path: str | Path) -> np.ndarray:
     return pixels if is_float else srgb_decode(np.clip(pixels, 0.0, 1.0))
 
 
-def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None) -> None:
+def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None,
+                compression: str = "none") -> None:
     """Write H x W x 3 float: EXR as float32 linear; TIFF/PNG as 16-bit.
 
     For TIFF/PNG, ``image`` must already be sRGB-encoded in [0, 1] unless ``encoded`` is False,
-    in which case it is tone-mapped here. Atomic (see module docstring).
+    in which case it is tone-mapped here. ``compression``: see DEFAULT_COMPRESSION. Atomic.
     """
     pixels = np.asarray(image)
     if output_kind(path) == "srgb" and encoded is False:
         from .colorimetry import srgb_encode
         pixels = srgb_encode(np.asarray(pixels, dtype=np.float32))
-    with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2]) as out:
+    with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2], compression) as out:
         out.write_rows(0, pixels)
 
 
@@ -119,17 +120,45 @@ conversion buffers, whatever the band height; enough for OpenEXR to compress 8 l
 rows in parallel."""
 
 
+DEFAULT_COMPRESSION = "none"
+"""EXR/TIFF compression unless asked otherwise. Measured on 25 MP of noisy float32 (2-core machine):
+none 37 MP/s; zip 3.4 MP/s for a 4% smaller file; piz 3.3 MP/s, 12% smaller. A raw converter's
+output is noisy, so compression costs ten times the processing time for little; ``--compression
+zip`` (or piz, dwaa, ...; any OpenImageIO compression name) when size matters."""
+
+
+COMPRESSIONS = {
+    ".exr": ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"),
+    ".tif": ("none", "lzw", "zip", "packbits"),
+    ".tiff": ("none", "lzw", "zip", "packbits"),
+    ".png": ("none",),
+}
+"""Compression names accepted per output extension (OpenImageIO's; 'zip:N' / 'dwaa:N' set a level)."""
+
+
+def check_compression(path: str | Path, compression: str) -> None:
+    """ClispError naming ``path`` when ``compression`` is not one of its format's COMPRESSIONS."""
+    ext = Path(path).suffix.lower()
+    allowed = COMPRESSIONS.get(ext, ())
+    if compression.split(":")[0] not in allowed:
+        raise ClispError(f"{path}: compression {compression!r} is not available for {ext} "
+                         f"(choose from {', '.join(allowed)})")
+
+
 class ImageWriter:
     """An H x W x C output image written band by band, top to bottom, never held whole.
 
-    EXR: float32 linear, zip-compressed scanlines. TIFF/PNG: 16-bit; the rows must be
+    EXR: float32 linear scanlines. TIFF/PNG: 16-bit; the rows must be
     sRGB-encoded and are clipped to [0, 1] here. Use as a context manager: the file is written
     under a temporary name beside ``path`` and renamed when every row arrived without error;
     otherwise it is removed (ClispError names ``path``).
     """
 
-    def __init__(self, path: str | Path, width: int, height: int, channels: int = 3) -> None:
+    def __init__(self, path: str | Path, width: int, height: int, channels: int = 3,
+                 compression: str = DEFAULT_COMPRESSION) -> None:
         self.path = Path(path)
+        check_compression(self.path, compression)
+        self.compression = compression
         self.kind = output_kind(self.path)
         self.width, self.height, self.channels = width, height, channels
         self.next_row = 0
@@ -140,9 +169,9 @@ class ImageWriter:
         oiio = _oiio()
         fmt = "float" if self.kind == "linear" else "uint16"
         spec = oiio.ImageSpec(self.width, self.height, self.channels, fmt)
-        if self.kind == "linear":
-            spec.attribute("compression", "zip")
-        else:
+        if self.path.suffix.lower() != ".png":     # PNG is always deflated; OIIO keeps its default
+            spec.attribute("compression", self.compression)
+        if self.kind == "srgb":
             spec.attribute("oiio:ColorSpace", "sRGB")
         tmp = self._stack.enter_context(atomic_path(self.path))
         out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])

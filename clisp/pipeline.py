@@ -295,27 +295,29 @@ def process(raw: RawImage | str | Path, preset: str | None = None, demosaic: str
 
 def process_file(raw: RawImage, path: str | Path, preset: str | None = None, demosaic: str | None = None,
                  tile: int | None = None, budget: int = DEFAULT_BUDGET, backend: str = "opencl",
-                 progress: bool = False) -> tuple[tuple[int, int], RunStats]:
+                 progress: bool = False, compression: str | None = None) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
     written band by band (imageio.ImageWriter), so memory stays within ``budget`` plus fixed
     overheads whatever the image size. Raws with a camera rotation are oriented in memory.
-    ``progress``: a progress bar on stderr (when it is a terminal). Atomic: on failure no file.
+    ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
+    compression (default imageio.DEFAULT_COMPRESSION). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
-    from .imageio import ImageWriter, output_kind, write_image
+    from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
+    compression = compression or DEFAULT_COMPRESSION
     pipeline = build_pipeline(raw, preset=preset, demosaic=demosaic, output=output_kind(path))
     flip = int(raw.metadata.get("flip", 0) or 0)
     if flip:                    # rotated output rows are input columns: orient the whole result
         image = orient(pipeline.run(raw.data, tile=tile, backend=backend, budget=budget), flip)
-        write_image(path, image)
+        write_image(path, image, compression=compression)
         return image.shape[:2], pipeline.stats
     plan = pipeline.plan(raw.shape, raw.data.dtype, tile, budget, backend)
     (height, width), channels = raw.shape, pipeline.out_channels
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, ImageWriter(path, width, height, channels) as writer, \
+    with closing(window_source(raw.data)) as source, ImageWriter(path, width, height, channels, compression) as writer, \
             BandSink(writer.write_rows, plan, width, channels) as sink, bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
     return raw.shape, replace(stats, seconds=time.perf_counter() - start)    # the last write included

@@ -164,3 +164,15 @@ def test_camera_raw_to_exr(tmp_path: Path, name: str, capsys) -> None:
     raw = read_raw(CAMERA_RAWS / name)
     assert is_float and image.shape[:2] == raw.shape
     assert np.all(np.isfinite(image)) and 0.0 < float(image.mean()) < 2.0
+
+
+def test_compression_option(tmp_path: Path, scene_png: Path, capsys) -> None:
+    raw_path = tmp_path / "r.dng"
+    run(["simulate", scene_png, "-o", raw_path, "--gain", "4"], capsys)
+    plain, zipped = tmp_path / "plain.exr", tmp_path / "zipped.exr"
+    assert run(["process", raw_path, "-o", plain], capsys)[0] == 0
+    assert run(["process", raw_path, "-o", zipped, "--compression", "zip"], capsys)[0] == 0
+    assert np.array_equal(read_image(plain)[0], read_image(zipped)[0])
+    assert zipped.stat().st_size < plain.stat().st_size
+    code, _, err = run(["process", raw_path, "-o", tmp_path / "bad.exr", "--compression", "bogus"], capsys)
+    assert code == 2 and "bogus" in err and not (tmp_path / "bad.exr").exists()
