@@ -16,7 +16,7 @@ import numpy as np
 from .charts import demo_chart
 from .imageio import write_image
 from .metrics import gray_panel_snr, psnr
-from .pipeline import process_with_stats
+from .pipeline import DEFAULT_PRESET, process_with_stats, resolve_options
 from .rawfile import read_raw, write_raw
 from .rawimage import RawImage
 from .runtime import get_runtime
@@ -76,8 +76,9 @@ def run_demo(out_dir: Path) -> list[DemoRow]:
     h, w = chart.image.shape[:2]
     print(f"clisp demo: {w}x{h} chart (ColorChecker, zone plate, Siemens star, dead leaves) -> {out_dir}/")
     print(f"OpenCL: {get_runtime().describe()}")
-    print("pipeline: normalise, WB pass 1, bilinear demosaic, colour matrix, WB pass 2 (no denoise yet); "
-          "PSNR tone-mapped with a 10 px border, 'zone' = zone-plate PSNR")
+    demosaics = ", ".join(f"{kind} {resolve_options(None, None, kind)['demosaic']}" for kind in CFAS)
+    print(f"pipeline (preset {DEFAULT_PRESET}): normalise, WB pass 1, demosaic ({demosaics}), colour matrix, "
+          "WB pass 2; PSNR tone-mapped with a 10 px border, 'zone' = zone-plate PSNR")
     rows, raws = [], {}
     for cfa in CFAS:
         for gain in GAINS:

@@ -174,3 +174,46 @@ class NoiseModel:
         except (TypeError, ValueError) as exc:
             raise ClispError(f"bad noise model metadata {dict(d)!r}: {exc}") from exc
         return cls(**kwargs)
+
+
+@dataclass(frozen=True)
+class ChannelNoise:
+    """Noise of one white-balanced, normalised sample of CFA channel c at expected level s::
+
+        var_c(s) = shot[c] * max(s, 0) + floor[c]        (units: white-balanced signal^2, white ~ 1)
+
+    SPEC section 3: shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2, w the pass-1
+    multiplier of the channel (white balance times exposure).
+    """
+
+    shot: tuple[float, ...]
+    floor: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.shot) != len(self.floor) or min(*self.shot, *self.floor) < 0:
+            raise ClispError(f"noise needs non-negative shot and floor terms per channel, got {self.shot}, {self.floor}")
+
+    @classmethod
+    def from_model(cls, model: NoiseModel, gain: float, pass1_gains: np.ndarray) -> "ChannelNoise":
+        """From the sensor model at analog gain ``gain`` and the pass-1 multipliers per CFA channel."""
+        w = np.asarray(pass1_gains, dtype=np.float64)
+        floor = model.variance(0.0, gain, w)
+        shot = model.variance(1.0, gain, w) - floor
+        return cls(tuple(float(v) for v in shot), tuple(float(v) for v in floor))
+
+    @classmethod
+    def from_metadata(cls, metadata: Mapping[str, Any], pass1_gains: np.ndarray) -> "ChannelNoise | None":
+        """From RawImage.metadata: its ``gain`` (None = noiseless -> None) and ``noise`` dict (a
+        NoiseModel; the default model when absent). Camera raws without a gain give None."""
+        gain = metadata.get("gain") if metadata else None
+        if gain is None:
+            return None
+        model = NoiseModel.from_dict(metadata.get("noise") or {})
+        return cls.from_model(model, float(gain), pass1_gains)
+
+    def variance(self, channel: int, level: np.ndarray | float) -> np.ndarray:
+        return self.shot[channel] * np.maximum(level, 0.0) + self.floor[channel]
+
+
+NOISELESS = ChannelNoise((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+"""Three noiseless channels: what the demosaics use when a raw carries no noise description."""

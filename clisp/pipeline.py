@@ -24,6 +24,7 @@ from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
 from .stages.demosaic_bilinear import DemosaicBilinear
 from .stages.demosaic_dlmmse import DemosaicDLMMSE
 from .stages.demosaic_lms import DemosaicLMSHybrid
+from .stages.demosaic_lms_guided import DemosaicLMSGuided
 from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
 from .streaming import (ArraySink, BandSink, TileSink, WindowSource, progress_bar, run_tiles,
@@ -35,15 +36,19 @@ DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "malvar": DemosaicMalvar,
     "dlmmse": DemosaicDLMMSE,
     "hybrid": DemosaicLMSHybrid,
+    "guided": DemosaicLMSGuided,
 }
-"""Demosaic stages by CLI name; each takes the CFA description."""
+"""Demosaic stages by CLI name. Each is built from the CFA description, or by its ``for_raw(raw)``
+when it has one (stages that adapt to the raw's noise); ``cfa_kinds`` lists the CFAs it supports."""
 
 PRESETS: dict[str, dict[str, dict[str, str]]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}},
+    "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse"}},
+    "quality": {"demosaic": {"lms": "guided", "bayer": "dlmmse"}},
 }
 """Named parameter sets (``--preset``), each option given per CFA kind; explicit options override."""
 
-DEFAULT_PRESET = "fast"
+DEFAULT_PRESET = "quality"
 OUTPUTS = ("linear", "srgb")
 
 
@@ -235,6 +240,13 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
     return options
 
 
+def make_demosaic(name: str, raw: RawImage) -> Stage:
+    """The demosaic stage ``name`` configured for ``raw`` (its CFA, and its noise if the stage uses it)."""
+    factory = DEMOSAICS[name]
+    for_raw = getattr(factory, "for_raw", None)
+    return for_raw(raw) if for_raw is not None else factory(raw.cfa)
+
+
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear") -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, colour matrix, WB pass 2, tone curve.
@@ -249,7 +261,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     stages: list[Stage] = [
         normalize(cfa, raw.black_level, raw.white_level),
         white_balance1(cfa, raw.pass1_gains()),
-        DEMOSAICS[options["demosaic"]](cfa),
+        make_demosaic(options["demosaic"], raw),
         ColourMatrix(raw.colour_matrix),
     ]
     if not np.allclose(raw.wb2, 1.0, rtol=0, atol=0):

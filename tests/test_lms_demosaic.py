@@ -19,12 +19,12 @@ from clisp import charts, simulate
 from clisp.cfa import bayer_cfa, lms_cfa
 from clisp.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
-from clisp.noise import NoiseModel
+from clisp.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
 from clisp.runtime import DeviceImage, get_runtime
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
-                                       LMSHybridParams, PixelNoise, box_rows, chroma_demodulate_rows,
+                                       LMSHybridParams, box_rows, chroma_demodulate_rows,
                                        diamond_halfband, frequency_response, guided_apply, guided_coefficients,
                                        guided_filter_spec, guided_row_moments, lm_combine,
                                        luma_filter, luma_lowpass, m_at_s, s_joint_bilateral)
@@ -40,7 +40,7 @@ of e alone changes exp(e) by |e| * 6e-8 relative; measured 6e-6 on dead leaves, 
 PHASES = [(0, 0), (1, 2)]
 ORIGINS = [(0, 0), (1, 3), (-2, -5), (-7, 6)]
 SHAPE = (45, 97)                        # odd sizes; every intermediate >= 64 wide (one work-group shape)
-NOISE = PixelNoise.from_model(NoiseModel(), 8.0, WB_LMS / 0.98951)
+NOISE = ChannelNoise.from_model(NoiseModel(), 8.0, WB_LMS / 0.98951)
 
 
 def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "", tol: float = TOL) -> None:
@@ -142,12 +142,12 @@ def test_m_at_s_keeps_samples_and_uses_the_s_detail() -> None:
     cfa = lms_cfa()
     x = random_window(2)
     channel = cfa.channel_map(*x.shape)
-    m = m_at_s(f64(x), channel, 2, LMSHybridParams(), PixelNoise((0, 0, 0), (0, 0, 0)), 1)
+    m = m_at_s(f64(x), channel, 2, LMSHybridParams(), ChannelNoise((0, 0, 0), (0, 0, 0)), 1)
     inner = channel[A_RADIUS:-A_RADIUS, A_RADIUS:-A_RADIUS]
     np.testing.assert_array_equal(m[inner != 2], f64(x)[A_RADIUS:-A_RADIUS, A_RADIUS:-A_RADIUS][inner != 2])
     flat = np.where(channel == 2, 0.0, 0.4)
     flat[6, 5] = 0.9                                                  # (6, 5) is an S site at phase (0, 0)
-    m = m_at_s(flat, channel, 2, LMSHybridParams(s_detail=0.25), PixelNoise((0, 0, 0), (0, 0, 0)), 1)
+    m = m_at_s(flat, channel, 2, LMSHybridParams(s_detail=0.25), ChannelNoise((0, 0, 0), (0, 0, 0)), 1)
     assert channel[6, 5] == 2 and abs(m[4, 3] - (0.4 + 0.25 * 0.9)) < 1e-12
 
 
@@ -337,7 +337,7 @@ def test_parameters_and_cfa_are_checked() -> None:
 
 def test_pixel_noise_matches_the_noise_model() -> None:
     model, gain, w = NoiseModel(), 16.0, WB_LMS / 0.98951
-    noise = PixelNoise.from_model(model, gain, w)
+    noise = ChannelNoise.from_model(model, gain, w)
     for c in range(3):
         for level in (0.0, 0.2, 0.9):
             assert abs(noise.variance(c, level) - model.variance(level, gain, w[c])) < 1e-15

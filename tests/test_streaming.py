@@ -84,8 +84,8 @@ def test_every_preset_tiled_equals_whole() -> None:
             tiled = pipeline.run(data, tile=tile)
             assert pipeline.stats.tiles > 1
             assert_close(tiled, whole, f"{name}/{kind} tile {tile}")
-        auto = pipeline.run(data, budget=16 * 2**20)          # bands chosen from a small budget
-        assert pipeline.stats.tiles > 1 and pipeline.stats.tile_shape[1] == SHAPE[1]
+        auto = pipeline.run(data, budget=16 * 2**20)          # tiles chosen from a small budget
+        assert pipeline.stats.tiles > 1                       # bands or squares, by the stages' needs
         assert_close(auto, whole, f"{name}/{kind} automatic tiles")
 
 
@@ -117,11 +117,12 @@ def test_rotated_camera_raw_to_file(tmp_path: Path) -> None:
 def test_cli_streams_silently(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     raw = make_raw("lms", shape=(300, 400))
     write_raw(tmp_path / "r.dng", raw)
-    code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", "8M"])
+    code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", "8M",
+                 "--preset", "fast"])
     out, err = capsys.readouterr()
     assert code == 0 and err == "", err                   # no progress bar when stderr is no terminal
     assert "tiles of 400x" in out and " 1 tiles" not in out
-    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw), "CLI --mem 8M")
+    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw, preset="fast"), "CLI --mem 8M")
 
 
 # ------------------------------------------------------------------------------------------

@@ -58,7 +58,7 @@ Halo: the S and the chroma steps both start from lum, so the radii add along the
 2 (step A) + 4 (lum) + max(4 (chroma), 2 r (guided: statistics r, box of a and b r)) = 14 at r = 4;
 with the bilateral option 2 + 4 + max(4, r_b) = 10.
 
-Noise: ``noise`` (a :class:`PixelNoise`, per-channel affine variance of a white-balanced sample) sets
+Noise: ``noise`` (a :class:`ChannelNoise`, per-channel affine variance of a white-balanced sample) sets
 eps in steps A and C and sigma_r of the bilateral option; None (default) means noiseless.
 """
 from __future__ import annotations
@@ -70,9 +70,11 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..noise import NoiseModel
+from ..noise import NOISELESS, ChannelNoise
+from ..rawimage import RawImage
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
+from .lms_common import binomial, check_lms_structure, diamond_halfband
 
 A_RADIUS = 2
 """Radius of step A (M at S sites): E_v reads (y +- 2, x), the S-detail correction (y +- 2, x +- 2)."""
@@ -93,44 +95,6 @@ vertical taps."""
 
 
 # ---------------------------------------------------------------------------------- filters
-
-def binomial(n: int) -> np.ndarray:
-    """1-D binomial of length n normalised to sum 1 (n = 5: [1 4 6 4 1]/16; n = 9: .../256)."""
-    row = np.array([1.0])
-    for _ in range(n - 1):
-        row = np.convolve(row, [1.0, 1.0])
-    return row / row.sum()
-
-
-def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray:
-    """(2R+1)^2 windowed diamond half-band filter (SPEC section 4).
-
-    D[n1, n2] ~ (2/pi^2) s(n1+n2) s(n1-n2) w(n1) w(n2), s(t) = sin(pi t/2)/t, s(0) = pi/2,
-    w = numpy.hamming(2R+3)[1:-1]. Ideal response: 1 inside the diamond |w_x| + |w_y| < pi, 0 outside.
-    s(t) is set exactly to 0 at even t != 0, so the taps off the origin lie on odd n1 + n2 only.
-
-    Normalisation: the windowed taps sum to 0.99494, not 1. ``exact_halfband`` (default) keeps the
-    centre at 1/2 and scales the off-centre taps to sum 1/2: DC gain 1 and exactly 0 at (pi, pi), the
-    two properties SPEC section 4 states for h_lum (a flat L/M field then demosaics exactly).
-    False: SPEC's literal "normalised to sum 1" (centre 0.50254, response 0.00509 at (pi, pi)).
-    """
-    t = np.arange(-radius, radius + 1)
-    n1, n2 = np.meshgrid(t, t, indexing="ij")
-
-    def s(v: np.ndarray) -> np.ndarray:
-        out = np.where(v % 2 == 0, 0.0, np.sin(np.pi * v / 2.0) / np.where(v == 0, 1, v))
-        return np.where(v == 0, np.pi / 2.0, out)
-
-    w = np.hamming(2 * radius + 3)[1:-1]
-    d = (2.0 / np.pi ** 2) * s(n1 + n2) * s(n1 - n2) * w[n1 + radius] * w[n2 + radius]
-    if not exact_halfband:
-        return d / d.sum()
-    centre = np.zeros_like(d)
-    centre[radius, radius] = 0.5
-    off = d.copy()
-    off[radius, radius] = 0.0
-    return centre + 0.5 * off / off.sum()
-
 
 def luma_filter(alpha: float = 0.75, exact_halfband: bool = True) -> np.ndarray:
     """h_lum = (1 - alpha)(delta - g5 . mod) + alpha D, 9 x 9 (SPEC section 4 step B)."""
@@ -153,32 +117,6 @@ def frequency_response(h: np.ndarray, wy: float, wx: float) -> float:
 
 # ---------------------------------------------------------------------------------- parameters
 
-@dataclass(frozen=True)
-class PixelNoise:
-    """Noise of one white-balanced, normalised sample of CFA channel c at expected level s::
-
-        var_c(s) = shot[c] * max(s, 0) + floor[c]        (units: normalised white-balanced^2)
-
-    (SPEC section 3: shot = w/N_fs, floor = w^2 (read^2 + step^2/12)/N_fs^2, w the pass-1 multiplier.)
-    """
-
-    shot: tuple[float, ...]
-    floor: tuple[float, ...]
-
-    @classmethod
-    def from_model(cls, model: NoiseModel, gain: float, pass1_gains: np.ndarray) -> "PixelNoise":
-        """From the sensor model at analog gain ``gain`` and the pass-1 multipliers
-        (``RawImage.pass1_gains()``, one per CFA channel)."""
-        w = np.asarray(pass1_gains, dtype=np.float64)
-        floor = model.variance(0.0, gain, w)
-        shot = model.variance(1.0, gain, w) - floor
-        return cls(tuple(float(v) for v in shot), tuple(float(v) for v in floor))
-
-    def variance(self, channel: int, level: np.ndarray | float) -> np.ndarray:
-        return self.shot[channel] * np.maximum(level, 0.0) + self.floor[channel]
-
-
-NOISELESS = PixelNoise((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
 
 @dataclass(frozen=True)
@@ -256,27 +194,7 @@ def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
     return out
 
 
-def check_lms_structure(cfa: CFA) -> tuple[int, int, int]:
-    """(L, M, S) channel indices after checking the neighbourhood step A relies on (SPEC section 1):
-    around every S site the 4-neighbours are L, the diagonals and (0, +-2), (+-2, 0) are M, the
-    (+-2, +-2) are S; L and M+S fill the two quincunxes."""
-    if cfa.kind != "lms" or set(cfa.channels) != {"L", "M", "S"}:
-        raise ClispError(f"the LMS hybrid demosaic needs an LMS CFA, got {cfa.name}")
-    ch_l, ch_m, ch_s = (cfa.channels.index(c) for c in "LMS")
-    p = cfa.period
-    pat = cfa.pattern
-    want = {ch_l: [(0, 1), (0, -1), (1, 0), (-1, 0)],
-            ch_m: [(1, 1), (1, -1), (-1, 1), (-1, -1), (0, 2), (0, -2), (2, 0), (-2, 0)],
-            ch_s: [(2, 2), (2, -2), (-2, 2), (-2, -2)]}
-    for y, x in np.argwhere(pat == ch_s):
-        for c, offsets in want.items():
-            if any(pat[(y + dy) % p, (x + dx) % p] != c for dy, dx in offsets):
-                raise ClispError(f"CFA {cfa.name}: S-site neighbourhood differs from the paper's LMS CFA")
-    yy, xx = np.mgrid[0:p, 0:p]
-    is_l = pat == ch_l
-    if not (np.all(is_l == ((yy + xx) % 2 == 0)) or np.all(is_l == ((yy + xx) % 2 == 1))):
-        raise ClispError(f"CFA {cfa.name}: L does not fill a quincunx")
-    return ch_l, ch_m, ch_s
+
 
 
 def site_table(cfa: CFA, channel: int, radius: int) -> tuple[np.ndarray, np.ndarray]:
@@ -303,7 +221,7 @@ def site_table(cfa: CFA, channel: int, radius: int) -> tuple[np.ndarray, np.ndar
 # channel map of the function's input window (cfa.channel_map(H, W, origin)).
 
 def m_at_s(p: np.ndarray, channel: np.ndarray, ch_s: int, params: LMSHybridParams,
-           noise: PixelNoise, ch_m: int) -> np.ndarray:
+           noise: ChannelNoise, ch_m: int) -> np.ndarray:
     """Step A: the L/M quincunx m, (H-4) x (W-4): p where not S; M estimated at S sites."""
     def at(dy: int, dx: int) -> np.ndarray:
         return _valid(p, A_RADIUS, dy, dx)
@@ -353,7 +271,7 @@ def lm_combine(lum: np.ndarray, rows: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 def guided_filter_spec(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int, eps: float,
-                       noise: PixelNoise, ch_s: int) -> np.ndarray:
+                       noise: ChannelNoise, ch_s: int) -> np.ndarray:
     """SPEC section 4 step C written out (box = window mean; output shrunk by 2r). The stage computes
     the same quantities as :func:`guided_row_moments` + :func:`guided_coefficients` + box of a, b."""
     chi = is_s.astype(np.float64)
@@ -383,7 +301,7 @@ def guided_row_moments(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int)
     return out
 
 
-def guided_coefficients(rows: np.ndarray, lum: np.ndarray, r: int, eps: float, noise: PixelNoise,
+def guided_coefficients(rows: np.ndarray, lum: np.ndarray, r: int, eps: float, noise: ChannelNoise,
                         ch_s: int) -> tuple[np.ndarray, np.ndarray]:
     """Step C, columns: (a, b) from the row moments of rows y-r .. y+r, each moved from its row centre
     c_j = I(y+j, x) to the output's c = I(y, x); ``lum`` holds the row centres (same shape as
@@ -417,7 +335,7 @@ def guided_apply(lum: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray, r: int
 
 
 def s_joint_bilateral(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, params: LMSHybridParams,
-                      lum_noise_gain: float, noise: PixelNoise, ch_l: int, ch_m: int) -> np.ndarray:
+                      lum_noise_gain: float, noise: ChannelNoise, ch_l: int, ch_m: int) -> np.ndarray:
     """Step C option: joint bilateral interpolation of S/I (or S - I) over the S sites within r_b.
 
     Weights exp(e - max e), e = -d^2/(2 sigma_s^2) - (I_q - I)^2/(2 sigma_r^2): the usual bilateral
@@ -466,21 +384,26 @@ class DemosaicLMSHybrid(Stage):
 
     cfa: CFA
     params: LMSHybridParams = field(default_factory=LMSHybridParams)
-    noise: PixelNoise | None = None
+    noise: ChannelNoise | None = None
+
+    @classmethod
+    def for_raw(cls, raw: "RawImage", params: LMSHybridParams | None = None) -> "DemosaicLMSHybrid":
+        """The stage for a RawImage: its CFA, and its noise from the metadata's gain and noise model."""
+        return cls(raw.cfa, params or LMSHybridParams(), ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains()))
     name = "demosaic_lms_hybrid"
     cfa_kinds = ("lms",)
     in_channels = 1
     out_channels = 3
 
     def __post_init__(self) -> None:
-        self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa)
+        self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa, "LMS hybrid demosaic")
         self.h_lum = luma_filter(self.params.alpha, self.params.exact_halfband)
         self.g_c = binomial(2 * CHROMA_RADIUS + 1)
         self.lum_support = np.argwhere(self.h_lum != 0) - LUM_RADIUS     # (dy, dx), row order
         self.site_offsets, self.site_counts = site_table(self.cfa, self.ch_s, self.params.bl_radius)
 
     @property
-    def pixel_noise(self) -> PixelNoise:
+    def pixel_noise(self) -> ChannelNoise:
         return NOISELESS if self.noise is None else self.noise
 
     @property

@@ -1,0 +1,657 @@
+"""Guided LMS demosaic: guided-filter residuals for M at S sites, guided chroma, and a noise-driven
+LMMSE luminance blend (issue 3; default candidate for LMS raws).
+
+Why: with paper eq. (1), R = 0.86 Y + 8.6 C + 0.14 S (Y = (L+M)/2, C = (L-M)/2, SPEC.md section 2a),
+so every L/M separation error reaches red amplified 8.6x. The hybrid of Fig. 5 (``demosaic_lms``)
+low-passes the luminance and keeps the chroma within a 9 x 9 binomial; this stage instead keeps every
+measured L/M sample, estimates the chroma by a guided filter (edges of the chroma follow edges of the
+luminance), estimates M at S sites from the S sample itself, and falls back to the low-passed
+luminance only where the noise model says the detail is noise. Input: the white-balanced LMS mosaic p
+(H x W); output L, M, S, (H - 2 halo) x (W - 2 halo) x 3. ``mod`` = +1 at L sites, -1 elsewhere (the
+(pi, pi) carrier of C). GF = He et al.'s guided filter with box windows of radius r (mean of the
+per-window coefficients a, b over the windows that cover a pixel), statistics over the sites of one
+CFA channel where "masked".
+
+Steps (one function per kernel below; radius = halo the step consumes)::
+
+    l_guide           r 4   I0 = L at L sites, 2 (D * L-samples) elsewhere (D: 9 x 9 diamond half-band)
+    M at S, pass 1    r 8   GF of the M samples and of the S samples against I0 (radius r1 = 3):
+                            Mfit, Sfit; at S sites M = Mfit + gamma (S - Sfit)
+                            (gamma = 1 noiseless: the S sample's own detail is M's detail)
+    chroma, pass 1    r 12  ylp = D * m; cin = B5 * ((m - ylp) mod); c = GF(ylp, cin) (radius 3),
+                            y = m - c mod (every sample kept: y = L - c at L, M + c at M sites)
+    M at S, pass 2    r 6   as pass 1 with guide y (radius r2 = 2), fused with an edge-directed
+                            estimate yd - c where its prediction error is small (below)
+    chroma, pass 2    r 12  as pass 1 on the new m
+    luminance blend   r 2   Y = ylp + w (y - ylp), w = max(E - k vn, 0) / E (LMMSE-style),
+                            E = 5 x 5 mean of (y - ylp)^2, vn its noise variance from the noise
+                            model (w = 1 noiseless); L = Y + c, M = Y - c
+    S                 r 11  g = GF over S sites of p against M (radius 4); residual interpolation:
+                            S = g + gamma_S * tent-interpolation over the S lattice of (p - g)
+
+Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 = 55 px with the default radii (``halo``).
+
+Edge-directed estimate (M at S, pass 2): for the four 2-tap predictors d in {h, v, d1, d2} of y from its
+neighbours along d, err_d = mean squared error of the same predictor at the known (non-S) pixels of the
+3 x 3 around the S site; yd = sum_d E_d / (eps + err_d) / sum_d 1 / (eps + err_d); the estimate is
+mixed in with weight w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2. It fixes the
+S-lattice aliasing of the S-sample transfer on oriented detail at the S-lattice carriers (0, pi),
+(pi, 0), (pi/2, pi/2) and helps colour edges (McMaster +0.2 dB, linear zone plate +2 dB).
+
+Noise (``noise``, a :class:`ChannelNoise`, None = noiseless): every GF eps grows by the noise
+variance of its target at the local level (chroma: of the guide ylp); gamma and gamma_S are LMMSE
+gains of the S residuals (signal variance from the M residuals around, resp. the S residuals); the
+luminance blend uses the noise variance of y - ylp, sum(D^2) var(L/M sample). On flat patches w -> 0,
+Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the SNR lead over Bayer
+comes from; on detail w -> 1 and every sample is kept.
+
+Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
+means): Kodak 24 37.46 dB, McMaster 18 34.42 dB (Bayer DLMMSE 36.21 / 32.73, hybrid 33.90 / 32.09);
+charts.zone_plate(256) 28.67 dB (Bayer DLMMSE 29.64, hybrid 14.97). Gray-panel SNR lead over Bayer
+DLMMSE (ideal chroma denoiser, mean of six panels) +4.05 / +4.15 / +3.99 / +3.88 / +4.38 dB at gains
+4 / 8 / 16 / 32 / 64. Known limit: false colour on the zone plate where luminance sits on a chroma
+carrier (the sRGB cosine's 2nd harmonic at (pi, pi), the S-lattice carriers near Nyquist).
+
+Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata); a raw without a gain
+in its metadata is treated as noiseless.
+
+Example: a flat mosaic comes back flat::
+
+    >>> from clisp.cfa import lms_cfa
+    >>> stage = DemosaicLMSGuided(lms_cfa())
+    >>> out = stage.reference(np.full((2 * stage.halo + 3, 2 * stage.halo + 4), 0.5), (0, 0))
+    >>> out.shape, bool(np.allclose(out, 0.5))
+    ((3, 4, 3), True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..cfa import CFA
+from ..errors import ClispError
+from ..noise import NOISELESS, ChannelNoise
+from ..runtime import DeviceImage, Runtime
+from .base import Stage, as_f32
+from .lms_common import binomial, check_lms_structure, diamond_halfband
+
+D_RADIUS = 4
+"""Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
+PRE_RADIUS = 2
+"""Radius of the 5 x 5 binomial B5 applied to the demodulated chroma before its guided filter."""
+COMBINE_RADIUS = 2
+"""Radius of m_at_s_combine (5 x 5 residual energy, 2-tap predictors around a 3 x 3) and of the
+luminance blend (5 x 5 energy)."""
+RI_RADIUS = 3
+"""Radius of the residual interpolation over the S lattice: the support of the lattice's tent."""
+DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
+"""The 2-tap predictors of the edge-directed estimate: y(q - d) and y(q + d) for each d = (dy, dx)."""
+WORK_GROUP = (64, 4)
+"""Work-group shape (x, y) of this stage's kernels (the hybrid's measured choice on PoCL)."""
+i32, f32 = np.int32, np.float32
+
+
+# ---------------------------------------------------------------------------------- filters
+
+def ri_tent() -> np.ndarray:
+    """7 x 7 bilinear tent of the 45-degree S lattice (spacing 2 sqrt 2, neighbours at (2, +-2)):
+    (1 - |dy + dx| / 4)+ (1 - |dy - dx| / 4)+, zero at the next S along both lattice axes; its
+    support is |dy| + |dx| <= 3, so it fits 7 x 7 (RI_RADIUS = 3)."""
+    t = np.arange(-RI_RADIUS, RI_RADIUS + 1)
+    dy, dx = np.meshgrid(t, t, indexing="ij")
+    return np.clip(1 - np.abs(dy + dx) / 4.0, 0, None) * np.clip(1 - np.abs(dy - dx) / 4.0, 0, None)
+
+
+D9 = diamond_halfband()
+B5 = np.outer(binomial(5), binomial(5))
+TENT = ri_tent()
+LUM_NOISE_GAIN = float(np.sum(D9 ** 2))
+"""Flat-field noise variance of ylp = D * m relative to one sample (0.405): also that of y - ylp."""
+
+
+# ---------------------------------------------------------------------------------- parameters
+
+
+
+@dataclass(frozen=True)
+class LMSGuidedParams:
+    """Parameters of :class:`DemosaicLMSGuided` (signal units: white-balanced raw, white ~ 1)."""
+
+    ms_radius1: int = 3
+    """M at S, pass 1: guided-filter radius (px) against the L-only guide."""
+    ms_radius2: int = 2
+    """M at S, pass 2: guided-filter radius (px) against the pass-1 luminance y."""
+    ms_eps: float = 1e-4
+    """M at S: guided-filter regulariser (signal^2), plus the target's noise variance."""
+    chroma_radius: int = 3
+    """Chroma: guided-filter radius (px) of the demodulated chroma against ylp."""
+    chroma_eps: float = 1e-5
+    """Chroma: guided-filter regulariser (signal^2), plus the noise variance of ylp."""
+    s_radius: int = 4
+    """S: guided-filter radius (px) over the S sites against M."""
+    s_eps: float = 1e-4
+    """S: guided-filter regulariser (signal^2), plus the S noise variance."""
+    dir_kappa: float = 0.1
+    """M at S, pass 2: weight of the local detail energy against the edge-directed prediction error
+    (0 disables the edge-directed estimate); dimensionless."""
+    dir_eps: float = 1e-7
+    """M at S, pass 2: floor of the predictor errors in the direction weights (signal^2)."""
+    blend_k: float = 2.0
+    """Luminance blend: noise over-subtraction factor k in w = max(E - k vn, 0) / E (dimensionless)."""
+
+    def __post_init__(self) -> None:
+        for name in ("ms_radius1", "ms_radius2", "chroma_radius", "s_radius"):
+            if int(getattr(self, name)) < 2:
+                raise ClispError(f"{name} must be >= 2 px (the S covering radius of the LMS CFA)")
+        if min(self.ms_eps, self.chroma_eps, self.s_eps, self.dir_eps) <= 0:
+            raise ClispError("the guided-filter regularisers and dir_eps must be > 0")
+        if self.dir_kappa < 0 or self.blend_k < 0:
+            raise ClispError("dir_kappa and blend_k must be >= 0")
+
+
+# ---------------------------------------------------------------------------------- helpers
+
+def _valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:
+    """a shrunk by r on every side, shifted by (dy, dx): a[r+dy : H-r+dy, r+dx : W-r+dx]."""
+    h, w = a.shape[:2]
+    return a[r + dy:h - r + dy, r + dx:w - r + dx]
+
+
+def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Valid-region correlation sum_t k[t] a[. + t] with an odd square kernel (zero taps skipped)."""
+    r = k.shape[0] // 2
+    out = np.zeros((a.shape[0] - 2 * r, a.shape[1] - 2 * r))
+    for dy, dx in np.argwhere(k != 0) - r:
+        out += k[dy + r, dx + r] * _valid(a, r, dy, dx)
+    return out
+
+
+
+
+
+# ---------------------------------------------------------------------------------- reference steps
+# One function per kernel (same names). Arrays are float64 windows; ``ch`` is the CFA channel map of
+# the function's input window. Every function returns its valid region (shrunk by its radius).
+
+def l_guide(p: np.ndarray, ch: np.ndarray, ch_l: int) -> np.ndarray:
+    """I0: L at L sites; elsewhere 2 sum_{t != 0} D[t] p(. + t) (off-centre taps of D fall on L sites
+    only, so this interpolates the L quincunx). Shrinks by D_RADIUS."""
+    off = D9.copy()
+    off[D_RADIUS, D_RADIUS] = 0.0
+    centre = _valid(p, D_RADIUS)
+    return np.where(_valid(ch, D_RADIUS) == ch_l, centre, 2.0 * correlate_valid(p, off))
+
+
+def gf_row_moments(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int) -> np.ndarray:
+    """Row sums over x - r .. x + r of the masked moments, the guide centred on the row centre value
+    c = guide(y, x): (n, sum d, sum d^2, sum v, sum d v), d = guide - c; H x (W - 2r) x 5.
+    ``mask`` None: every pixel."""
+    c = guide[:, r:guide.shape[1] - r]
+    out = np.zeros(c.shape + (5,))
+    for k in range(-r, r + 1):
+        chi = (np.ones_like(c) if mask is None else mask[:, r + k:mask.shape[1] - r + k].astype(np.float64))
+        d = chi * (guide[:, r + k:guide.shape[1] - r + k] - c)
+        s = chi * v[:, r + k:v.shape[1] - r + k]
+        out += np.stack([chi, d, d * d, s, d * s], axis=-1)
+    return out
+
+
+def gf_coefficients(rows: np.ndarray, guide: np.ndarray, r: int, eps0: float, shot: float, floor: float,
+                    level_from_guide: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Column sums over y - r .. y + r of the row moments, each moved from its row centre c_j to the
+    output's c = guide(y, x) (exact algebra); ``guide`` holds the row centres (rows.shape[:2]).
+    a = cov / (var + eps), b = mu_v - a mu_I, eps = eps0 + shot max(level, 0) + floor, level = mu_I
+    (``level_from_guide``) or mu_v. Returns a, b, (H - 2r) x W'."""
+    h = rows.shape[0] - 2 * r
+    c = guide[r:r + h]
+    n = s1 = s2 = sv = sdv = 0.0
+    for j in range(-r, r + 1):
+        nj, s1j, s2j, svj, sdvj = (rows[r + j:r + j + h, :, q] for q in range(5))
+        delta = guide[r + j:r + j + h] - c
+        n = n + nj
+        s1 = s1 + s1j + nj * delta
+        s2 = s2 + s2j + 2.0 * delta * s1j + nj * delta * delta
+        sv = sv + svj
+        sdv = sdv + sdvj + delta * svj
+    mean_d, mu_v = s1 / n, sv / n
+    var = s2 / n - mean_d * mean_d
+    cov = sdv / n - mean_d * mu_v
+    mu_i = c + mean_d
+    level = mu_i if level_from_guide else mu_v
+    a = cov / (var + eps0 + shot * np.maximum(level, 0.0) + floor)
+    return a, mu_v - a * mu_i
+
+
+def box_rows(x: np.ndarray, r: int) -> np.ndarray:
+    """Sum over x - r .. x + r (along the second axis); x may have a trailing channel axis."""
+    return sum(x[:, r + k:x.shape[1] - r + k] for k in range(-r, r + 1))
+
+
+def gf_apply(guide: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray, r: int) -> np.ndarray:
+    """Mean a and b over the (2r+1)^2 windows covering the pixel (column sums of the row sums),
+    applied: q = mean(a) I + mean(b); ``guide`` at the output pixels."""
+    def cols(x: np.ndarray) -> np.ndarray:
+        return sum(x[r + k:x.shape[0] - r + k] for k in range(-r, r + 1)) / (2 * r + 1) ** 2
+    return cols(rows_a) * guide + cols(rows_b)
+
+
+def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int, eps0: float,
+                  shot: float, floor: float, level_from_guide: bool) -> np.ndarray:
+    """The four GF steps in a row: guide and v (and mask) on one window; output shrunk by 2r."""
+    rows = gf_row_moments(guide, v, mask, r)
+    a, b = gf_coefficients(rows, guide[:, r:guide.shape[1] - r], r, eps0, shot, floor, level_from_guide)
+    return gf_apply(_valid(guide, 2 * r), box_rows(a, r), box_rows(b, r), r)
+
+
+def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.ndarray, ch_m: int, ch_s: int,
+                   noise: ChannelNoise | None, directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+                   kappa: float, dir_eps: float) -> np.ndarray:
+    """The L/M quincunx m (shrunk by COMBINE_RADIUS; all inputs on one window): p where not S; at S
+    sites M = Mfit + gamma (S - Sfit), gamma = sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0),
+    E_M = mean over the M sites of the 5 x 5 of (p - Mfit)^2; gamma = 1 when noiseless.
+    ``directional`` = (y, c, ylp) mixes in the edge-directed estimate (module doc)."""
+    r = COMBINE_RADIUS
+    centre_p, centre_ch = _valid(p, r), _valid(ch, r)
+    est = _valid(mfit, r)
+    if noise is None:
+        est = est + (centre_p - _valid(sfit, r))
+    else:
+        is_m = (ch == ch_m).astype(np.float64)
+        e_m = correlate_valid(is_m * (p - mfit) ** 2, np.ones((5, 5))) / correlate_valid(is_m, np.ones((5, 5)))
+        sig = np.maximum(e_m - noise.variance(ch_m, _valid(mfit, r)), 0.0)
+        gamma = sig / (sig + noise.variance(ch_s, _valid(sfit, r)))
+        est = est + gamma * (centre_p - _valid(sfit, r))
+    if directional is not None and kappa > 0:
+        y, c, ylp = directional
+        known = ch != ch_s
+        num = den = 0.0
+        err_min = np.full(centre_p.shape, np.inf)
+        for dy, dx in DIRECTIONS:
+            pred = (_valid(y, 1, -dy, -dx) + _valid(y, 1, dy, dx)) / 2          # on the window less 1
+            ok = (_valid(known, 1) & _valid(known, 1, -dy, -dx) & _valid(known, 1, dy, dx)).astype(np.float64)
+            err = correlate_valid(ok * (pred - _valid(y, 1)) ** 2, np.ones((3, 3))) \
+                / correlate_valid(ok, np.ones((3, 3)))
+            weight = 1.0 / (err + dir_eps)
+            num = num + weight * _valid(pred, 1)
+            den = den + weight
+            err_min = np.minimum(err_min, err)
+        hf = kappa * correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
+        total = hf + err_min
+        w = np.where(total > 0, hf / np.where(total > 0, total, 1.0), 0.0)
+        est = w * (num / den - _valid(c, r)) + (1.0 - w) * est
+    return np.where(centre_ch == ch_s, est, centre_p)
+
+
+def lum_lowpass(m: np.ndarray) -> np.ndarray:
+    """ylp = D * m (the quincunx baseband, zero at the (pi, pi) chroma carrier). Shrinks by D_RADIUS."""
+    return correlate_valid(m, D9)
+
+
+def chroma_input(m: np.ndarray, ylp: np.ndarray, mod: np.ndarray) -> np.ndarray:
+    """B5 * ((m - ylp) mod) on ylp's window (m, mod: ylp's window grown by D_RADIUS): the demodulated
+    high band, ~ C plus luminance leaking near (pi, pi). Shrinks ylp's window by PRE_RADIUS."""
+    return correlate_valid((_valid(m, D_RADIUS) - ylp) * _valid(mod, D_RADIUS), B5)
+
+
+def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, noise: ChannelNoise | None,
+              ch_l: int, ch_m: int, blend_k: float) -> np.ndarray:
+    """L, M (shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod, d = y - ylp,
+    Y = ylp + w d with w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = sum(D^2) (var_L + var_M)/2
+    at the level ylp (w = 1 noiseless); L = Y + c, M = Y - c."""
+    r = COMBINE_RADIUS
+    y = m - c * mod
+    d = y - ylp
+    centre_d, centre_ylp, centre_c = _valid(d, r), _valid(ylp, r), _valid(c, r)
+    if noise is None:
+        lum = centre_ylp + centre_d
+    else:
+        e = correlate_valid(d * d, np.ones((5, 5)) / 25.0)
+        vn = LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
+        w = np.where(e > 0, np.maximum(e - blend_k * vn, 0.0) / np.where(e > 0, e, 1.0), 0.0)
+        lum = centre_ylp + w * centre_d
+    return np.stack([lum + centre_c, lum - centre_c], axis=-1)
+
+
+def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: ChannelNoise | None) -> np.ndarray:
+    """S = g + gamma_S * (tent interpolation over the S sites within RI_RADIUS of (p - g)), shrunk by
+    RI_RADIUS (p, ch, g on one window); gamma_S = max(E - var_S(g), 0) / E, E = mean over the S sites
+    of the 7 x 7 of (p - g)^2 (gamma_S = 1 noiseless). At an S site this keeps the sample (gamma_S = 1)."""
+    is_s = (ch == ch_s).astype(np.float64)
+    res = is_s * (p - g)
+    interp = correlate_valid(res, TENT) / correlate_valid(is_s, TENT)
+    centre_g = _valid(g, RI_RADIUS)
+    if noise is None:
+        return centre_g + interp
+    ones = np.ones((2 * RI_RADIUS + 1,) * 2)
+    e = correlate_valid(res * res, ones) / correlate_valid(is_s, ones)
+    gamma = np.where(e > 0, np.maximum(e - noise.variance(ch_s, centre_g), 0.0) / np.where(e > 0, e, 1.0), 0.0)
+    return centre_g + gamma * interp
+
+
+# ---------------------------------------------------------------------------------- the stage
+
+@dataclass
+class DemosaicLMSGuided(Stage):
+    """LMS mosaic (white-balanced, H x W) -> L, M, S ((H-2 halo) x (W-2 halo) x 3); see module doc.
+
+    ``noise``: a :class:`ChannelNoise` (per-channel variance of a white-balanced sample) or None for a
+    noiseless raw. From a RawImage: ``DemosaicLMSGuided.for_raw(raw)``.
+    """
+
+    cfa: CFA
+    params: LMSGuidedParams = field(default_factory=LMSGuidedParams)
+    noise: ChannelNoise | None = None
+    name = "demosaic_lms_guided"
+    cfa_kinds = ("lms",)
+    in_channels = 1
+    out_channels = 3
+
+    def __post_init__(self) -> None:
+        self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa, "guided LMS demosaic")
+        self.shift = lattice_shift(self.cfa, self.ch_l, self.ch_s)
+
+    @classmethod
+    def for_raw(cls, raw: Any, params: LMSGuidedParams | None = None) -> "DemosaicLMSGuided":
+        """The stage for a RawImage: its CFA, and its noise from metadata gain/noise and pass-1 gains."""
+        noise = ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains())
+        return cls(raw.cfa, params or LMSGuidedParams(), noise)
+
+    # -- geometry ---------------------------------------------------------------------------------
+    @property
+    def radii(self) -> dict[str, int]:
+        """Halo consumed by each step, in run order (sums to ``halo``)."""
+        prm = self.params
+        chroma = D_RADIUS + PRE_RADIUS + 2 * prm.chroma_radius
+        return {"l_guide": D_RADIUS, "ms1_fit": 2 * prm.ms_radius1, "ms1_combine": COMBINE_RADIUS,
+                "chroma1": chroma, "ms2_fit": 2 * prm.ms_radius2, "ms2_combine": COMBINE_RADIUS,
+                "chroma2": chroma, "lm_output": COMBINE_RADIUS, "s_fit": 2 * prm.s_radius, "s_output": RI_RADIUS}
+
+    @property
+    def halo(self) -> int:
+        return sum(self.radii.values())
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """Device bytes per input pixel for the tile planner: at most about 14 float32 planes are alive
+        at once (mosaic, y, c, ylp, m, two fits, five row moments, two coefficient planes); 20 planes
+        leave room for the pool keeping released buffers of other sizes."""
+        return 4.0 * 20
+
+    # -- reference ------------------------------------------------------------------------------
+    def _chroma(self, m: np.ndarray, mod: np.ndarray, noise: ChannelNoise) -> tuple[np.ndarray, np.ndarray]:
+        """(c, ylp) on m's window shrunk by D + PRE + 2 chroma_radius; mod on m's window."""
+        prm, r = self.params, self.params.chroma_radius
+        ylp = lum_lowpass(m)
+        cin = chroma_input(m, ylp, mod)
+        ylp_c = _valid(ylp, PRE_RADIUS)
+        shot = LUM_NOISE_GAIN * 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m])
+        floor = LUM_NOISE_GAIN * 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
+        c = guided_filter(ylp_c, cin, None, r, prm.chroma_eps, shot, floor, True)
+        return c, _valid(ylp_c, 2 * r)
+
+    def _m_at_s(self, p: np.ndarray, ch: np.ndarray, guide: np.ndarray, r: int,
+                directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> np.ndarray:
+        """m on guide's window shrunk by 2r + COMBINE_RADIUS; p, ch on guide's window; directional
+        (y, c, ylp) on the window shrunk by 2r."""
+        prm, noise = self.params, self.pixel_noise
+        fits = [guided_filter(guide, p, ch == c, r, prm.ms_eps, noise.shot[c], noise.floor[c], False)
+                for c in (self.ch_m, self.ch_s)]
+        return m_at_s_combine(_valid(p, 2 * r), _valid(ch, 2 * r), fits[0], fits[1], self.ch_m, self.ch_s,
+                              self.noise, directional, prm.dir_kappa, prm.dir_eps)
+
+    @property
+    def pixel_noise(self) -> ChannelNoise:
+        return NOISELESS if self.noise is None else self.noise
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        prm, noise = self.params, self.pixel_noise
+        p = x.astype(np.float64)
+        ch = self.cfa.channel_map(p.shape[0], p.shape[1], origin)
+        mod = np.where(ch == self.ch_l, 1.0, -1.0)
+        o = D_RADIUS                                             # offset of the current window in p
+        guide = l_guide(p, ch, self.ch_l)
+        m = self._m_at_s(_valid(p, o), _valid(ch, o), guide, prm.ms_radius1, None)
+        o += 2 * prm.ms_radius1 + COMBINE_RADIUS
+        c, ylp = self._chroma(m, _valid(mod, o), noise)
+        k = D_RADIUS + PRE_RADIUS + 2 * prm.chroma_radius
+        o += k
+        y = _valid(m, k) - c * _valid(mod, o)
+        r2 = prm.ms_radius2
+        m = self._m_at_s(_valid(p, o), _valid(ch, o), y, r2,
+                         (_valid(y, 2 * r2), _valid(c, 2 * r2), _valid(ylp, 2 * r2)))
+        o += 2 * r2 + COMBINE_RADIUS
+        c, ylp = self._chroma(m, _valid(mod, o), noise)
+        o += k
+        lm = lm_output(_valid(m, k), c, ylp, _valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k)
+        o += COMBINE_RADIUS
+        rs = prm.s_radius
+        g = guided_filter(lm[..., 1], _valid(p, o), _valid(ch, o) == self.ch_s, rs, prm.s_eps,
+                          noise.shot[self.ch_s], noise.floor[self.ch_s], False)
+        o += 2 * rs
+        s = s_output(_valid(p, o), _valid(ch, o), g, self.ch_s, self.noise)
+        return np.concatenate([_valid(lm, 2 * rs + RI_RADIUS), s[..., None]], axis=-1)
+
+    # -- OpenCL ---------------------------------------------------------------------------------
+    # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each
+    # side); a kernel reads inputs on larger windows through offsets relative to its own window.
+
+    def defines(self, kernel_name: str, directional: bool = False, gf_r: int = 0) -> dict[str, int]:
+        """Compile-time constants of kernels/demosaic_lms_guided.cl (see its header). Each kernel gets
+        only the defines it reads, so programs (and PoCL's per-kernel compilations) are shared: the
+        guided-filter kernels between noisy and noiseless raws, all kernels between CFA phases (the
+        phase is folded into the origin, see ``_origin``)."""
+        base = dict(LATTICE)
+        if kernel_name in GF_KERNELS:
+            return {**base, "GF_R": int(gf_r)}
+        return {**base, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional)}
+
+    def _origin(self, origin: tuple[int, int]) -> tuple[np.int32, np.int32]:
+        """Kernel arguments (oy, ox) for image ``origin``: shifted by the translation that maps this CFA
+        onto the base LMS tile that LATTICE describes (so one program serves every CFA phase)."""
+        return i32(origin[0] + self.shift[0]), i32(origin[1] + self.shift[1])
+
+    @staticmethod
+    def generated_source() -> str:
+        """``D_TAPS`` and ``TENT_TAPS``: X(dy, dx, t) for each non-zero tap t (structure, not weights;
+        D_TAPS without the centre)."""
+        d = " ".join(f"X({dy}, {dx}, {t})" for t, (dy, dx) in enumerate(_support(D9, centre=False)))
+        tent = " ".join(f"X({dy}, {dx}, {t})" for t, (dy, dx) in enumerate(_support(TENT)))
+        return ("/* generated by clisp: supports of D (off-centre) and of the S-lattice tent */\n"
+                f"#define D_TAPS {d}\n#define TENT_TAPS {tent}\n")
+
+    def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object,
+                directional: bool = False, gf_r: int = 0) -> None:
+        """Enqueue ``kernel_name`` over exactly width x height outputs without bounds checks: whole
+        WORK_GROUP groups over the largest multiple-of-group block, then the ragged right/bottom strips
+        as one group-wide launch shifted inward to end at the edge (recomputing some outputs with
+        identical values); a side shorter than the group gets the largest power of two that fits."""
+        kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(kernel_name, directional, gf_r),
+                           self.generated_source())
+        lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (width, height)))
+        full_w, full_h = width // lx * lx, height // ly * ly
+        xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
+        ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])
+        for x0, gw in xs:
+            for y0, gh in ys:
+                kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0, y0))
+
+    def enqueue_l_guide(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        """I0 on p's window shrunk by D_RADIUS."""
+        h, w = p.height - 2 * D_RADIUS, p.width - 2 * D_RADIUS
+        dst = rt.acquire(1, h, w)
+        self._launch(rt, "l_guide", w, h, p.buffer, dst.buffer, i32(p.width), i32(w), *self._origin(origin),
+                     rt.constant(as_f32(_weights(D9, centre=False))))
+        return dst
+
+    def enqueue_guided(self, rt: Runtime, own: tuple[int, int], origin: tuple[int, int], guide: DeviceImage,
+                       g_off: int, v: DeviceImage, v_off: int, r: int, channel: int, eps0: float,
+                       noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0) -> DeviceImage:
+        """The guided filter of v against plane ``g_plane`` of guide over the own window (own = (h, w),
+        image ``origin``; guide, v on windows larger by g_off, v_off), statistics over CFA channel
+        ``channel`` (-1: all): gf_row_moments, gf_coefficients, box_rows, gf_apply. Output shrunk by 2r."""
+        h, w = own
+        g_base = i32(g_plane * guide.height * guide.width)
+        mask = {-1: 0, self.ch_m: 1, self.ch_s: 2}[channel]
+        rows = rt.acquire(5, h, w - 2 * r)
+        self._launch(rt, "gf_row_moments", w - 2 * r, h, guide.buffer, v.buffer, rows.buffer, g_base,
+                     i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(w - 2 * r), i32(h), i32(mask),
+                     *self._origin(origin), gf_r=r)
+        ab = rt.acquire(2, h - 2 * r, w - 2 * r)
+        self._launch(rt, "gf_coefficients", w - 2 * r, h - 2 * r, rows.buffer, guide.buffer, ab.buffer,
+                     i32(w - 2 * r), i32(h), g_base, i32(guide.width), i32(g_off), i32(w - 2 * r), i32(h - 2 * r),
+                     f32(eps0), f32(noise[0]), f32(noise[1]), i32(level_from_guide), gf_r=r)
+        rt.release(rows)
+        ab_rows = rt.acquire(2, h - 2 * r, w - 4 * r)
+        self._launch(rt, "box_rows", w - 4 * r, 2 * (h - 2 * r), ab.buffer, ab_rows.buffer, i32(w - 2 * r),
+                     i32(w - 4 * r), gf_r=r)
+        rt.release(ab)
+        q = rt.acquire(1, h - 4 * r, w - 4 * r)
+        self._launch(rt, "gf_apply", w - 4 * r, h - 4 * r, ab_rows.buffer, guide.buffer, q.buffer,
+                     i32(w - 4 * r), i32(h - 2 * r), g_base, i32(guide.width), i32(g_off), i32(w - 4 * r), gf_r=r)
+        rt.release(ab_rows)
+        return q
+
+    def enqueue_m_at_s(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int], guide: DeviceImage,
+                       o_guide: int, r: int, directional: tuple[DeviceImage, DeviceImage, DeviceImage, int, int]
+                       | None = None) -> DeviceImage:
+        """m on guide's window (p's shrunk by o_guide) shrunk by 2r + COMBINE_RADIUS; ``directional`` =
+        (y, c, ylp, o_y, o_ylp): y and c on the window p's shrunk by o_y, ylp by o_ylp."""
+        prm, noise = self.params, self.pixel_noise
+        own, g_origin = (guide.height, guide.width), (origin[0] + o_guide, origin[1] + o_guide)
+        fits = [self.enqueue_guided(rt, own, g_origin, guide, 0, p, o_guide, r, c, prm.ms_eps,
+                                    (noise.shot[c], noise.floor[c]), False) for c in (self.ch_m, self.ch_s)]
+        o_fit = o_guide + 2 * r
+        h, w = fits[0].height - 2 * COMBINE_RADIUS, fits[0].width - 2 * COMBINE_RADIUS
+        dst = rt.acquire(1, h, w)
+        if directional is None:
+            y, c, ylp, o_y, o_l = fits[0], fits[0], fits[0], o_fit, o_fit          # unread placeholders
+        else:
+            y, c, ylp, o_y, o_l = directional
+        self._launch(rt, "m_at_s_combine", w, h, p.buffer, fits[0].buffer, fits[1].buffer, y.buffer, c.buffer,
+                     ylp.buffer, dst.buffer, i32(fits[0].width), i32(p.width), i32(o_fit), i32(y.width),
+                     i32(o_fit - o_y), i32(ylp.width), i32(o_fit - o_l), i32(w),
+                     *self._origin((origin[0] + o_fit, origin[1] + o_fit)), f32(noise.shot[self.ch_m]),
+                     f32(noise.floor[self.ch_m]), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]),
+                     f32(prm.dir_kappa), f32(prm.dir_eps), directional=directional is not None)
+        for fit in fits:
+            rt.release(fit)
+        return dst
+
+    def _lum_noise(self) -> tuple[float, float]:
+        """(shot, floor) of the noise of ylp (and of y - ylp): sum(D^2) (var_L + var_M) / 2."""
+        n = self.pixel_noise
+        return (LUM_NOISE_GAIN * 0.5 * (n.shot[self.ch_l] + n.shot[self.ch_m]),
+                LUM_NOISE_GAIN * 0.5 * (n.floor[self.ch_l] + n.floor[self.ch_m]))
+
+    def enqueue_chroma(self, rt: Runtime, m: DeviceImage, m_origin: tuple[int, int]
+                       ) -> tuple[DeviceImage, DeviceImage]:
+        """(c, ylp): ylp on m's window shrunk by D_RADIUS, c by D + PRE + 2 chroma_radius."""
+        prm, r = self.params, self.params.chroma_radius
+        h, w = m.height - 2 * D_RADIUS, m.width - 2 * D_RADIUS
+        ylp = rt.acquire(1, h, w)
+        self._launch(rt, "lum_lowpass", w, h, m.buffer, ylp.buffer, i32(m.width), i32(w),
+                     rt.constant(as_f32(_weights(D9, centre=False))))
+        y_origin = (m_origin[0] + D_RADIUS, m_origin[1] + D_RADIUS)
+        hc, wc = h - 2 * PRE_RADIUS, w - 2 * PRE_RADIUS
+        cin = rt.acquire(1, hc, wc)
+        self._launch(rt, "chroma_input", wc, hc, m.buffer, ylp.buffer, cin.buffer, i32(w), i32(m.width), i32(wc),
+                     *self._origin(y_origin), rt.constant(as_f32(B5)))
+        c_origin = (y_origin[0] + PRE_RADIUS, y_origin[1] + PRE_RADIUS)
+        c = self.enqueue_guided(rt, (hc, wc), c_origin, ylp, PRE_RADIUS, cin, 0, r, -1, prm.chroma_eps,
+                                self._lum_noise(), True)
+        rt.release(cin)
+        return c, ylp
+
+    def enqueue_keep_luminance(self, rt: Runtime, m: DeviceImage, c: DeviceImage, m_off: int,
+                               c_origin: tuple[int, int]) -> DeviceImage:
+        """y = m - c mod on c's window (m's larger by m_off)."""
+        dst = rt.acquire(1, c.height, c.width)
+        self._launch(rt, "keep_luminance", c.width, c.height, m.buffer, c.buffer, dst.buffer, i32(m.width),
+                     i32(m_off), i32(c.width), *self._origin(c_origin))
+        return dst
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        """All steps on the device (module doc); intermediates from the pool, released when done."""
+        if np.dtype(src.dtype) != np.float32:
+            raise ClispError("the guided LMS demosaic reads the white-balanced float32 mosaic")
+        prm, noise = self.params, self.pixel_noise
+
+        def at(o: int) -> tuple[int, int]:
+            return origin[0] + o, origin[1] + o
+
+        k_chroma = D_RADIUS + PRE_RADIUS + 2 * prm.chroma_radius
+        guide = self.enqueue_l_guide(rt, src, origin)
+        o_m = D_RADIUS
+        m = self.enqueue_m_at_s(rt, src, origin, guide, o_m, prm.ms_radius1)
+        rt.release(guide)
+        o_m += 2 * prm.ms_radius1 + COMBINE_RADIUS
+        c, ylp = self.enqueue_chroma(rt, m, at(o_m))
+        o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
+        y = self.enqueue_keep_luminance(rt, m, c, k_chroma, at(o_c))
+        rt.release(m)
+        m = self.enqueue_m_at_s(rt, src, origin, y, o_c, prm.ms_radius2, (y, c, ylp, o_c, o_ylp))
+        for image in (y, c, ylp):
+            rt.release(image)
+        o_m = o_c + 2 * prm.ms_radius2 + COMBINE_RADIUS
+        c, ylp = self.enqueue_chroma(rt, m, at(o_m))
+        o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
+        h, w = c.height - 2 * COMBINE_RADIUS, c.width - 2 * COMBINE_RADIUS
+        lm = rt.acquire(2, h, w)
+        lum_shot, lum_floor = self._lum_noise()
+        self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, lm.buffer, i32(c.width), i32(m.width),
+                     i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(w), i32(h),
+                     *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot), f32(lum_floor))
+        for image in (m, c, ylp):
+            rt.release(image)
+        o_lm = o_c + COMBINE_RADIUS
+        rs = prm.s_radius
+        g = self.enqueue_guided(rt, (h, w), at(o_lm), lm, 0, src, o_lm, rs, self.ch_s, prm.s_eps,
+                                (noise.shot[self.ch_s], noise.floor[self.ch_s]), False, g_plane=1)
+        o_g = o_lm + 2 * rs
+        out_h, out_w = g.height - 2 * RI_RADIUS, g.width - 2 * RI_RADIUS
+        dst = rt.acquire(3, out_h, out_w)
+        self._launch(rt, "s_output", out_w, out_h, src.buffer, g.buffer, lm.buffer, dst.buffer, i32(g.width),
+                     i32(src.width), i32(o_g), i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(out_w),
+                     i32(out_h), *self._origin(at(o_g)), rt.constant(as_f32(_weights(TENT))),
+                     f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
+        rt.release(g)
+        rt.release(lm)
+        return dst
+
+
+def _support(k: np.ndarray, centre: bool = True) -> np.ndarray:
+    """(T, 2) (dy, dx) of the non-zero taps of a centred square kernel, row order (X(...) order)."""
+    r = k.shape[0] // 2
+    nz = k != 0
+    if not centre:
+        nz[r, r] = False
+    return np.argwhere(nz) - r
+
+
+def _weights(k: np.ndarray, centre: bool = True) -> np.ndarray:
+    """Weights of ``_support(k, centre)``, in order."""
+    r = k.shape[0] // 2
+    return np.array([k[dy + r, dx + r] for dy, dx in _support(k, centre)])
+
+
+LATTICE = {"L_PAR": 0, "S_Y": 0, "S_D": 1}
+"""The kernels' closed form of the base LMS tile (SPEC section 1, phase (0, 0)): L iff x + y + L_PAR is
+even; S iff y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise."""
+GF_KERNELS = ("gf_row_moments", "gf_coefficients", "box_rows", "gf_apply")
+"""The kernels that read GF_R (and nothing noise- or pass-dependent)."""
+
+
+def lattice_shift(cfa: CFA, ch_l: int, ch_s: int) -> tuple[int, int]:
+    """(ty, tx) with channel(y, x) = base tile at (y + ty, x + tx) for every pixel, where the base tile
+    is LATTICE's; every CFA that passes check_lms_structure is such a translate (SPEC section 1)."""
+    yy, xx = np.mgrid[0:cfa.period, 0:cfa.period]
+    for ty in range(4):
+        for tx in range(4):
+            y, x = yy + ty, xx + tx
+            is_l = (x + y + LATTICE["L_PAR"]) % 2 == 0
+            is_s = ((y + LATTICE["S_Y"]) % 2 == 0) & ((x - y + LATTICE["S_D"]) % 4 == 0)
+            if np.array_equal(is_l, cfa.pattern == ch_l) and np.array_equal(is_s, cfa.pattern == ch_s):
+                return ty, tx
+    raise ClispError(f"CFA {cfa.name}: not a translate of the paper's LMS tile")

@@ -1,0 +1,68 @@
+"""Pieces shared by the LMS demosaics: filters and the CFA structure they rely on."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..cfa import CFA
+from ..errors import ClispError
+
+
+def binomial(n: int) -> np.ndarray:
+    """1-D binomial of length n normalised to sum 1 (n = 5: [1 4 6 4 1]/16; n = 9: .../256)."""
+    row = np.array([1.0])
+    for _ in range(n - 1):
+        row = np.convolve(row, [1.0, 1.0])
+    return row / row.sum()
+
+
+def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray:
+    """(2R+1)^2 windowed diamond half-band filter (SPEC section 4).
+
+    D[n1, n2] ~ (2/pi^2) s(n1+n2) s(n1-n2) w(n1) w(n2), s(t) = sin(pi t/2)/t, s(0) = pi/2,
+    w = numpy.hamming(2R+3)[1:-1]. Ideal response: 1 inside the diamond |w_x| + |w_y| < pi, 0 outside.
+    s(t) is set exactly to 0 at even t != 0, so the taps off the origin lie on odd n1 + n2 only.
+
+    Normalisation: the windowed taps sum to 0.99494, not 1. ``exact_halfband`` (default) keeps the
+    centre at 1/2 and scales the off-centre taps to sum 1/2: DC gain 1 and exactly 0 at (pi, pi), the
+    two properties SPEC section 4 states for h_lum (a flat L/M field then demosaics exactly).
+    False: SPEC's literal "normalised to sum 1" (centre 0.50254, response 0.00509 at (pi, pi)).
+    """
+    t = np.arange(-radius, radius + 1)
+    n1, n2 = np.meshgrid(t, t, indexing="ij")
+
+    def s(v: np.ndarray) -> np.ndarray:
+        out = np.where(v % 2 == 0, 0.0, np.sin(np.pi * v / 2.0) / np.where(v == 0, 1, v))
+        return np.where(v == 0, np.pi / 2.0, out)
+
+    w = np.hamming(2 * radius + 3)[1:-1]
+    d = (2.0 / np.pi ** 2) * s(n1 + n2) * s(n1 - n2) * w[n1 + radius] * w[n2 + radius]
+    if not exact_halfband:
+        return d / d.sum()
+    centre = np.zeros_like(d)
+    centre[radius, radius] = 0.5
+    off = d.copy()
+    off[radius, radius] = 0.0
+    return centre + 0.5 * off / off.sum()
+
+
+def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int, int]:
+    """(L, M, S) channel indices after checking the neighbourhood step A relies on (SPEC section 1):
+    around every S site the 4-neighbours are L, the diagonals and (0, +-2), (+-2, 0) are M, the
+    (+-2, +-2) are S; L and M+S fill the two quincunxes."""
+    if cfa.kind != "lms" or set(cfa.channels) != {"L", "M", "S"}:
+        raise ClispError(f"the {what} needs an LMS CFA, got {cfa.name}")
+    ch_l, ch_m, ch_s = (cfa.channels.index(c) for c in "LMS")
+    p = cfa.period
+    pat = cfa.pattern
+    want = {ch_l: [(0, 1), (0, -1), (1, 0), (-1, 0)],
+            ch_m: [(1, 1), (1, -1), (-1, 1), (-1, -1), (0, 2), (0, -2), (2, 0), (-2, 0)],
+            ch_s: [(2, 2), (2, -2), (-2, 2), (-2, -2)]}
+    for y, x in np.argwhere(pat == ch_s):
+        for c, offsets in want.items():
+            if any(pat[(y + dy) % p, (x + dx) % p] != c for dy, dx in offsets):
+                raise ClispError(f"CFA {cfa.name}: S-site neighbourhood differs from the paper's LMS CFA")
+    yy, xx = np.mgrid[0:p, 0:p]
+    is_l = pat == ch_l
+    if not (np.all(is_l == ((yy + xx) % 2 == 0)) or np.all(is_l == ((yy + xx) % 2 == 1))):
+        raise ClispError(f"CFA {cfa.name}: L does not fill a quincunx")
+    return ch_l, ch_m, ch_s

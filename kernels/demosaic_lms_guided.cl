@@ -1,0 +1,386 @@
+/* Guided LMS demosaic (issue 3): one kernel per algorithm step, in run order; NumPy twins of the same
+ * names in clisp/stages/demosaic_lms_guided.py.
+ *
+ * Defines from the host:
+ *   L_PAR, S_Y, S_D  the CFA (checked by check_lms_structure): L iff x + y + L_PAR is even; S iff
+ *                    y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (image coordinates)
+ *   NOISY            0: noiseless, every LMMSE gain is 1 and no noise term is computed
+ *   DIRECTIONAL      1 in the program of the pass-2 m_at_s_combine (edge-directed estimate mixed in)
+ *   GF_R             radius of the guided-filter kernels of this program (0 where unused)
+ * Host-generated: D_TAPS, the off-centre support of the 9 x 9 diamond half-band D, and TENT_TAPS, the
+ * support of the 7 x 7 residual-interpolation tent, as X(dy, dx, t) (weights in constant buffers).
+ *
+ * Geometry: a kernel writes an out_w x out_h image (planes of out_w * out_h); output pixel (y, x) is
+ * centred on pixel (y + R, x + R) of the kernel's own window (R: the kernel's radius); inputs on larger
+ * windows get offsets (*_off) added to own-window coordinates; (oy, ox) are the image coordinates of
+ * own-window pixel (0, 0). All maths float32; weights and parameters come from the host.
+ *
+ * No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
+ * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
+ * DemosaicLMSGuided._launch. Bodies are branch-free (selects) with compile-time loop bounds, which
+ * PoCL unrolls and vectorises across work-items. */
+
+/* Each program is built with only the defines its kernels read (DemosaicLMSGuided.defines); the others
+ * get these placeholders so that the file compiles, and are never used by the kernels launched. */
+#ifndef GF_R
+#define GF_R 1
+#endif
+#ifndef NOISY
+#define NOISY 0
+#endif
+#ifndef DIRECTIONAL
+#define DIRECTIONAL 0
+#endif
+
+inline float max_f(const float a, const float b) { return a > b ? a : b; }
+inline float min_f(const float a, const float b) { return a < b ? a : b; }
+
+/* CFA membership of image pixel (y, x), y and x possibly negative (& is exact in two's complement). */
+inline int at_l(const int y, const int x) { return ((x + y + L_PAR) & 1) == 0; }
+inline int at_s(const int y, const int x) { return ((y + S_Y) & 1) == 0 && ((x - y + S_D) & 3) == 0; }
+inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f; }
+
+/* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
+ * on L sites only: the L quincunx interpolated). R = 4. */
+__kernel void l_guide(__global const float *p, __global float *dst, const int in_w, const int out_w,
+                      const int oy, const int ox, __constant const float *d)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = p + (y + 4) * in_w + (x + 4);
+    float acc = 0.0f;
+#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
+    D_TAPS
+#undef X
+    dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
+}
+
+/* gf_row_moments: row sums over x-r .. x+r (r = GF_R) of the masked moments, the guide centred on the
+ * row centre value c = I(y, x+r): n, sum d, sum d^2, sum v, sum d v (planes 0..4), d = I - c, over the
+ * pixels selected by `mask` (0: every pixel, 1: the M sites, 2: the S sites).
+ * Output (y, x) is centred on own-window pixel (y, x + r); the guide (element g_base on) and v live on
+ * windows larger by g_off, v_off. Centring keeps var = E[d^2] - E[d]^2 free of float32 cancellation.
+ * Reads +-r along x. */
+__kernel void gf_row_moments(__global const float *guide, __global const float *v, __global float *mom,
+                             const int g_base, const int g_w, const int g_off, const int v_w, const int v_off,
+                             const int out_w, const int out_h, const int mask, const int oy, const int ox)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *gc = guide + g_base + (y + g_off) * g_w + x + GF_R + g_off;
+    __global const float *vc = v + (y + v_off) * v_w + x + GF_R + v_off;
+    const float c = gc[0];
+    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
+    #pragma unroll
+    for (int k = -GF_R; k <= GF_R; ++k) {
+        const int iy = y + oy, ix = x + GF_R + k + ox;
+        const int s_site = at_s(iy, ix);
+        const int m_site = !s_site && !at_l(iy, ix);
+        const float chi = mask == 0 ? 1.0f : ((mask == 2 ? s_site : m_site) ? 1.0f : 0.0f);
+        const float dk = chi * (gc[k] - c);
+        const float vk = chi * vc[k];
+        n += chi;
+        s1 += dk;
+        s2 += dk * dk;
+        sv += vk;
+        sdv += dk * vk;
+    }
+    const int plane = out_w * out_h, i = y * out_w + x;
+    mom[i] = n;
+    mom[plane + i] = s1;
+    mom[2 * plane + i] = s2;
+    mom[3 * plane + i] = sv;
+    mom[4 * plane + i] = sdv;
+}
+
+/* gf_coefficients: column sums over y-r .. y+r of the row moments, each moved from its row centre c_j
+ * to the output's c (delta = c_j - c: s1 += s1_j + n_j delta, s2 += s2_j + 2 delta s1_j + n_j delta^2,
+ * sdv += sdv_j + delta sv_j); mu_I = c + s1/n, mu_v = sv/n, var = s2/n - (s1/n)^2, cov = sdv/n -
+ * (s1/n) mu_v; eps = eps0 + shot max(level, 0) + floor, level = mu_I (level_from_guide) or mu_v;
+ * a = cov / (var + eps), b = mu_v - a mu_I (planes a, b). Output (y, x) <-> rows (y + r, x), the own
+ * window's pixel (y + r, x + r), the guide's (y + r + g_off, x + r + g_off) (the row centres; guide
+ * from element g_base). Reads +-r along y. */
+__kernel void gf_coefficients(__global const float *rows, __global const float *guide, __global float *ab,
+                              const int rows_w, const int rows_h, const int g_base, const int g_w,
+                              const int g_off, const int out_w, const int out_h, const float eps0,
+                              const float shot, const float floor_, const int level_from_guide)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = rows_w * rows_h;
+    __global const float *rc = rows + (y + GF_R) * rows_w + x;
+    __global const float *gc = guide + g_base + (y + GF_R + g_off) * g_w + x + GF_R + g_off;
+    const float c = gc[0];
+    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
+    #pragma unroll
+    for (int j = -GF_R; j <= GF_R; ++j) {
+        const int o = j * rows_w;
+        const float delta = gc[j * g_w] - c;
+        const float n_j = rc[o], s1_j = rc[plane + o], sv_j = rc[3 * plane + o];
+        n += n_j;
+        s1 += s1_j + n_j * delta;
+        s2 += rc[2 * plane + o] + delta * (2.0f * s1_j + n_j * delta);
+        sv += sv_j;
+        sdv += rc[4 * plane + o] + delta * sv_j;
+    }
+    const float inv_n = 1.0f / n;
+    const float mean_d = s1 * inv_n, mu_v = sv * inv_n;
+    const float var = s2 * inv_n - mean_d * mean_d;
+    const float cov = sdv * inv_n - mean_d * mu_v;
+    const float mu_i = c + mean_d;
+    const float level = level_from_guide ? mu_i : mu_v;
+    const float a = cov / (var + eps0 + shot * max_f(level, 0.0f) + floor_);
+    const int i = y * out_w + x;
+    ab[i] = a;
+    ab[out_w * out_h + i] = mu_v - a * mu_i;
+}
+
+/* box_rows: dst(y, x) = sum of src(y, x .. x + 2r), r = GF_R, every plane (planes stacked: out_h =
+ * planes * height). Reads +2r along x. */
+__kernel void box_rows(__global const float *src, __global float *dst, const int in_w, const int out_w)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = src + y * in_w + x;
+    float acc = 0.0f;
+    #pragma unroll
+    for (int k = 0; k <= 2 * GF_R; ++k)
+        acc += c[k];
+    dst[y * out_w + x] = acc;
+}
+
+/* gf_apply: q = mean(a) I + mean(b), the means over the (2r+1)^2 windows covering the pixel (column
+ * sums of the row sums of a, b; planes of rows_ab, rows_h high), r = GF_R. Output (y, x) <-> rows
+ * (y + r, x), the own window's pixel (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off)
+ * (guide from element g_base). Reads +-r along y. */
+__kernel void gf_apply(__global const float *rows_ab, __global const float *guide, __global float *dst,
+                       const int rows_w, const int rows_h, const int g_base, const int g_w, const int g_off,
+                       const int out_w)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = rows_w * rows_h;
+    __global const float *rc = rows_ab + y * rows_w + x;
+    float sa = 0.0f, sb = 0.0f;
+    #pragma unroll
+    for (int j = 0; j <= 2 * GF_R; ++j) {
+        sa += rc[j * rows_w];
+        sb += rc[plane + j * rows_w];
+    }
+    const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));
+    dst[y * out_w + x] = (sa * guide[g_base + (y + 2 * GF_R + g_off) * g_w + x + 2 * GF_R + g_off] + sb) * inv;
+}
+
+/* m_at_s_combine: the L/M quincunx m; p where not S; at S sites M = Mfit + gamma (p - Sfit), gamma = 1
+ * (noiseless) or sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0), E_M = mean over the M
+ * sites of the 5 x 5 of (p - Mfit)^2. DIRECTIONAL: mixed with the edge-directed estimate yd - c by
+ * w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2, err_d the mean squared error of
+ * the 2-tap predictor along d at the non-S pixels of the 3 x 3, yd = sum_d E_d / (eps + err_d) /
+ * sum_d 1 / (eps + err_d). mfit, sfit on the kernel's window (width in_w); p, y and c, ylp on windows
+ * larger by p_off, y_off, l_off (widths p_w, y_w, l_w). R = 2. */
+__kernel void m_at_s_combine(__global const float *p, __global const float *mfit, __global const float *sfit,
+                             __global const float *yg, __global const float *cg, __global const float *ylpg,
+                             __global float *dst, const int in_w, const int p_w, const int p_off,
+                             const int y_w, const int y_off, const int l_w, const int l_off,
+                             const int out_w, const int oy, const int ox,
+                             const float shot_m, const float floor_m, const float shot_s, const float floor_s,
+                             const float kappa, const float dir_eps)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int yc = y + 2, xc = x + 2;
+    const int ic = yc * in_w + xc;
+    const float pc = p[(yc + p_off) * p_w + xc + p_off];
+    const float mf = mfit[ic], sf = sfit[ic];
+#if NOISY
+    float e = 0.0f, cnt = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const int iy = yc + dy + oy, ix = xc + dx + ox;
+            const float chi = (!at_s(iy, ix) && !at_l(iy, ix)) ? 1.0f : 0.0f;
+            const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
+            e += chi * rm * rm;
+            cnt += chi;
+        }
+    }
+    const float sig = max_f(e / cnt - (shot_m * max_f(mf, 0.0f) + floor_m), 0.0f);
+    const float gamma = sig / (sig + shot_s * max_f(sf, 0.0f) + floor_s);
+    float est = mf + gamma * (pc - sf);
+#else
+    float est = mf + (pc - sf);
+#endif
+#if DIRECTIONAL
+    const int iy0 = (yc + y_off) * y_w + xc + y_off;
+    const int il0 = (yc + l_off) * l_w + xc + l_off;
+    float num = 0.0f, den = 0.0f, err_min = INFINITY;
+    #pragma unroll
+    for (int k = 0; k < 4; ++k) {
+        const int dy = k == 0 ? 0 : 1, dx = k == 0 ? 1 : (k == 1 ? 0 : (k == 2 ? 1 : -1));
+        const int o = dy * y_w + dx;
+        float err = 0.0f, cnt_k = 0.0f;
+        #pragma unroll
+        for (int uy = -1; uy <= 1; ++uy) {
+            #pragma unroll
+            for (int ux = -1; ux <= 1; ++ux) {
+                const int ui = iy0 + uy * y_w + ux;
+                const int u_y = yc + uy + oy, u_x = xc + ux + ox;
+                const float ok = (!at_s(u_y, u_x) && !at_s(u_y - dy, u_x - dx) && !at_s(u_y + dy, u_x + dx))
+                               ? 1.0f : 0.0f;
+                const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
+                err += ok * pe * pe;
+                cnt_k += ok;
+            }
+        }
+        err /= cnt_k;
+        const float wk = 1.0f / (err + dir_eps);
+        num += wk * 0.5f * (yg[iy0 - o] + yg[iy0 + o]);
+        den += wk;
+        err_min = min_f(err_min, err);
+    }
+    float hf = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const float dd = yg[iy0 + dy * y_w + dx] - ylpg[il0 + dy * l_w + dx];
+            hf += dd * dd;
+        }
+    }
+    hf *= kappa / 25.0f;
+    const float total = hf + err_min;
+    const float w = total > 0.0f ? hf / total : 0.0f;
+    est = w * (num / den - cg[iy0]) + (1.0f - w) * est;
+#endif
+    dst[y * out_w + x] = at_s(yc + oy, xc + ox) ? est : pc;
+}
+
+/* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre support D_TAPS). R = 4. */
+__kernel void lum_lowpass(__global const float *m, __global float *dst, const int in_w, const int out_w,
+                          __constant const float *d)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    __global const float *c = m + (y + 4) * in_w + (x + 4);
+    float acc = 0.5f * c[0];
+#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
+    D_TAPS
+#undef X
+    dst[y * out_w + x] = acc;
+}
+
+/* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);
+ * ylp on the kernel's window (width in_w), m on a window larger by 4 (width m_w). b5: the 5 x 5
+ * weights, row order. R = 2. */
+__kernel void chroma_input(__global const float *m, __global const float *ylp, __global float *dst,
+                           const int in_w, const int m_w, const int out_w, const int oy, const int ox,
+                           __constant const float *b5)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    float acc = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const int yy = y + 2 + dy, xx = x + 2 + dx;
+            const float hi = m[(yy + 4) * m_w + xx + 4] - ylp[yy * in_w + xx];
+            acc += b5[(dy + 2) * 5 + dx + 2] * hi * mod_f(yy + oy, xx + ox);
+        }
+    }
+    dst[y * out_w + x] = acc;
+}
+
+/* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
+ * kernel's window, m on a window larger by m_off. R = 0. */
+__kernel void keep_luminance(__global const float *m, __global const float *c, __global float *dst,
+                             const int m_w, const int m_off, const int out_w, const int oy, const int ox)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
+}
+
+/* lm_output: L, M (planes 0, 1): y = m - c mod, d = y - ylp; Y = ylp + w d, w = 1 (noiseless) or
+ * max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = lum_shot max(ylp, 0) + lum_floor (the noise of d);
+ * L = Y + c, M = Y - c. c on the kernel's window (width in_w), m and ylp on windows larger by m_off,
+ * l_off. R = 2. */
+__kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
+                        __global float *dst, const int in_w, const int m_w, const int m_off, const int l_w,
+                        const int l_off, const int out_w, const int out_h, const int oy, const int ox,
+                        const float blend_k, const float lum_shot, const float lum_floor)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int yc = y + 2, xc = x + 2, ic = yc * in_w + xc;
+    const int il = (yc + l_off) * l_w + xc + l_off;
+    const float dc = m[(yc + m_off) * m_w + xc + m_off] - c[ic] * mod_f(yc + oy, xc + ox) - ylp[il];
+#if NOISY
+    float e = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const float d = m[(yc + dy + m_off) * m_w + xc + dx + m_off]
+                          - c[ic + dy * in_w + dx] * mod_f(yc + dy + oy, xc + dx + ox) - ylp[il + dy * l_w + dx];
+            e += d * d;
+        }
+    }
+    e *= 1.0f / 25.0f;
+    const float vn = lum_shot * max_f(ylp[il], 0.0f) + lum_floor;
+    const float w = e > 0.0f ? max_f(e - blend_k * vn, 0.0f) / e : 0.0f;
+    const float lum = ylp[il] + w * dc;
+#else
+    const float lum = ylp[il] + dc;
+#endif
+    const int i = y * out_w + x;
+    dst[i] = lum + c[ic];
+    dst[out_w * out_h + i] = lum - c[ic];
+}
+
+/* s_output: the three output planes: L, M copied from lm (a window larger by lm_off on every side of
+ * the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the S sites of
+ * the 7 x 7 of the residuals p - g), gamma_S = 1 (noiseless) or max(E - var_S(g), 0) / E, E = mean over
+ * those S sites of (p - g)^2. g on the kernel's window (width in_w), p on a window larger by p_off.
+ * tent: the TENT_TAPS weights. R = 3. */
+__kernel void s_output(__global const float *p, __global const float *g, __global const float *lm,
+                       __global float *dst, const int in_w, const int p_w, const int p_off, const int lm_w,
+                       const int lm_h, const int lm_off, const int out_w, const int out_h, const int oy,
+                       const int ox, __constant const float *tent, const float shot_s, const float floor_s)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int yc = y + 3, xc = x + 3;
+    __global const float *gc = g + yc * in_w + xc;
+    __global const float *pc = p + (yc + p_off) * p_w + xc + p_off;
+    float num = 0.0f, den = 0.0f;
+#define X(dy, dx, t) { const float chi = at_s(yc + (dy) + oy, xc + (dx) + ox) ? 1.0f : 0.0f; \
+                       num += tent[t] * chi * (pc[(dy) * p_w + (dx)] - gc[(dy) * in_w + (dx)]); \
+                       den += tent[t] * chi; }
+    TENT_TAPS
+#undef X
+    const float g0 = gc[0];
+#if NOISY
+    float e = 0.0f, cnt = 0.0f;
+    #pragma unroll
+    for (int dy = -3; dy <= 3; ++dy) {
+        #pragma unroll
+        for (int dx = -3; dx <= 3; ++dx) {
+            const float chi = at_s(yc + dy + oy, xc + dx + ox) ? 1.0f : 0.0f;
+            const float res = pc[dy * p_w + dx] - gc[dy * in_w + dx];
+            e += chi * res * res;
+            cnt += chi;
+        }
+    }
+    e /= cnt;
+    const float gamma = e > 0.0f ? max_f(e - (shot_s * max_f(g0, 0.0f) + floor_s), 0.0f) / e : 0.0f;
+#else
+    const float gamma = 1.0f;
+#endif
+    const int i = y * out_w + x, plane = out_w * out_h;
+    const int li = (y + lm_off) * lm_w + x + lm_off;
+    dst[i] = lm[li];
+    dst[plane + i] = lm[lm_w * lm_h + li];
+    dst[2 * plane + i] = g0 + gamma * num / den;
+}

@@ -1,0 +1,301 @@
+"""The guided LMS demosaic (clisp.stages.demosaic_lms_guided): every kernel against its NumPy reference,
+the whole stage at several origins and both tested CFA phases, flat fields, the noise-driven blend,
+and tiled against untiled through a full pipeline.
+
+Tolerance, used by every OpenCL-vs-reference comparison in this file (float32 kernels against float64
+references on the same float32 inputs, white-balanced values around 0..1):
+
+    |opencl - reference| <= TOL * max(1, |reference|),  TOL = 1e-5
+
+(measured worst case 2.5e-7 for the whole stage on a simulated natural scene, noiseless and at gain 8:
+the guided filters centre their statistics, so no step loses float32 precision to cancellation).
+Tiled against untiled: the same kernels on the same pixels, compared with TOL as well.
+Windows are at least 2 halo + 64 px wide so that every kernel runs with one work-group shape: PoCL
+compiles each kernel once per shape (about 1 s each on a cold kernel cache, ~25 s for this file's
+first run; warm runs take ~8 s).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clisp import charts, simulate
+from clisp.cfa import bayer_cfa, lms_cfa
+from clisp.colorimetry import P_LMS, WB_LMS
+from clisp.errors import ClispError
+from clisp.noise import ChannelNoise, NoiseModel
+from clisp.pipeline import Pipeline
+from clisp.runtime import get_runtime
+from clisp.stages.colour import ColourMatrix
+from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
+                                              RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams,
+                                              _valid, chroma_input, guided_filter, l_guide, lm_output,
+                                              lum_lowpass, m_at_s_combine, s_output)
+from clisp.stages.raw_scale import normalize, white_balance1
+
+TOL = 1e-5
+"""|opencl - reference| <= TOL * max(1, |reference|) everywhere in this file."""
+
+PHASES = [(0, 0), (1, 2)]
+ORIGINS = [(0, 0), (1, 3), (-2, -5), (-7, 6)]
+K_EXP = 0.98951
+NOISE = ChannelNoise.from_model(NoiseModel(), 8.0, WB_LMS / K_EXP)
+
+
+def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "", tol: float = TOL) -> None:
+    """The file's tolerance rule; shapes must match exactly."""
+    actual = np.asarray(actual, dtype=np.float64)
+    reference = np.asarray(reference, dtype=np.float64)
+    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
+    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
+    err = np.abs(actual - reference) / np.maximum(1.0, np.abs(reference))
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() <= tol, (f"{what}: max scaled error {err.max():.3g} at {worst} "
+                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
+
+
+@pytest.fixture(scope="module")
+def rt():
+    return get_runtime()
+
+
+def mosaic(cfa, gain=None, shape=(125, 181), offset=(40, 52), seed=0) -> np.ndarray:
+    """A white-balanced float32 LMS mosaic window of a simulated dead-leaves capture (optics on):
+    natural-image statistics with sharp colour edges; ``offset`` picks the window."""
+    sim = simulate(charts.dead_leaves(256, seed=seed), cfa, gain=gain, seed=seed)
+    raw = sim.raw
+    ch = cfa.channel_map(*raw.data.shape)
+    p = (raw.data.astype(np.float64) - raw.black_level[ch]) / (raw.white_level - raw.black_level[ch])
+    p *= raw.pass1_gains()[ch]
+    y0, x0 = offset
+    return np.ascontiguousarray(p[y0:y0 + shape[0], x0:x0 + shape[1]], dtype=np.float32)
+
+
+def download(rt, image) -> np.ndarray:
+    """Planar device image as H x W (one plane) or H x W x C."""
+    host = rt.download(image)
+    return host if host.ndim == 2 else host.transpose(1, 2, 0)
+
+
+# ---------------------------------------------------------------------------------- whole stage
+
+@pytest.mark.parametrize("phase", PHASES)
+@pytest.mark.parametrize("noisy", [False, True])
+def test_stage_matches_reference(rt, phase, noisy):
+    cfa = lms_cfa(phase)
+    stage = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None)
+    x = mosaic(cfa, 8.0 if noisy else None)
+    src = rt.upload(x)
+    for origin in ORIGINS:
+        ref = stage.reference(x.astype(np.float64), origin)
+        out = stage.enqueue(rt, src, origin)
+        assert_close(download(rt, out), ref, f"stage phase {phase} origin {origin} noisy {noisy}")
+        rt.release(out)
+    rt.release(src)
+
+
+def test_halo_and_shapes():
+    stage = DemosaicLMSGuided(lms_cfa())
+    assert stage.halo == sum(stage.radii.values()) == 55
+    assert stage.reference(np.full((120, 131), 0.3), (0, 0)).shape == (10, 21, 3)
+    small = DemosaicLMSGuided(lms_cfa(), LMSGuidedParams(ms_radius1=2, chroma_radius=2, s_radius=2))
+    assert small.halo == 55 - 2 - 2 * 2 - 4
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_flat_field_reproduced(rt, noisy):
+    """A neutral flat field (L = M = S after white balance) comes back exactly flat, both paths."""
+    stage = DemosaicLMSGuided(lms_cfa(), noise=NOISE if noisy else None)
+    x = np.full((2 * stage.halo + 9, 2 * stage.halo + 71), 0.37, dtype=np.float32)
+    ref = stage.reference(x.astype(np.float64), (-3, 2))
+    np.testing.assert_allclose(ref, float(np.float32(0.37)), rtol=0, atol=1e-12)
+    out = stage.enqueue(rt, rt.upload(x), (-3, 2))
+    assert_close(download(rt, out), ref, "flat")
+
+
+def test_coloured_flat_field_reproduced():
+    """A flat field of any colour (L, M, S constant but different) is reproduced (reference)."""
+    cfa = lms_cfa()
+    stage = DemosaicLMSGuided(cfa)
+    lms = np.array([0.6, 0.3, 0.1])
+    shape = (2 * stage.halo + 5, 2 * stage.halo + 6)
+    x = lms[cfa.channel_map(*shape, (1, 1))]
+    np.testing.assert_allclose(stage.reference(x, (1, 1)), np.broadcast_to(lms, (5, 6, 3)), atol=1e-9)
+
+
+def test_noise_blend_averages_flat_noise():
+    """On a noisy flat patch the luminance falls back to the diamond low-pass (w -> 0): the noise of
+    Y = (L + M) / 2 is about sqrt(sum D^2) = 0.64 of one sample's, where keeping samples gives 1.0."""
+    cfa = lms_cfa()
+    rng = np.random.default_rng(3)
+    level = 0.2
+    shape = (240, 240)
+    ch = cfa.channel_map(*shape)
+    sd = np.sqrt(NOISE.variance(0, level))
+    x = level + rng.normal(0.0, 1.0, shape) * np.sqrt([NOISE.variance(c, level) for c in range(3)])[ch]
+    noisy = DemosaicLMSGuided(cfa, noise=NOISE).reference(x, (0, 0))
+    kept = DemosaicLMSGuided(cfa).reference(x, (0, 0))
+    ratio = (0.5 * (noisy[..., 0] + noisy[..., 1])).std() / sd
+    assert ratio < 0.75, ratio
+    assert (0.5 * (kept[..., 0] + kept[..., 1])).std() / sd > 0.9
+    assert abs(LUM_NOISE_GAIN - 0.405) < 1e-3
+
+
+# ---------------------------------------------------------------------------------- kernels
+
+@pytest.fixture(scope="module")
+def window():
+    cfa = lms_cfa((1, 2))
+    return cfa, mosaic(cfa, None, shape=(90, 181))
+
+
+@pytest.mark.parametrize("origin", [(0, 0), (-5, 3)])
+def test_kernel_l_guide(rt, window, origin):
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa)
+    ref = l_guide(x.astype(np.float64), cfa.channel_map(*x.shape, origin), stage.ch_l)
+    assert_close(download(rt, stage.enqueue_l_guide(rt, rt.upload(x), origin)), ref, "l_guide")
+
+
+@pytest.mark.parametrize("channel_name", ["M", "S", None])
+def test_kernel_guided_filter(rt, window, channel_name):
+    """gf_row_moments + gf_coefficients + box_rows + gf_apply against guided_filter, masked and not,
+    with a guide offset into a larger image and the noise term in eps."""
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    origin, off, r = (-3, 2), 3, 3
+    guide = x[off:-off, off:-off].astype(np.float64) ** 0.5          # a smooth, different guide
+    channel = -1 if channel_name is None else cfa.channels.index(channel_name)
+    ch = cfa.channel_map(*guide.shape, (origin[0] + off, origin[1] + off))
+    shot, floor = (0.01, 1e-5) if channel < 0 else (NOISE.shot[channel], NOISE.floor[channel])
+    mask = None if channel < 0 else ch == channel
+    ref = guided_filter(guide, x[off:-off, off:-off].astype(np.float64), mask, r, 1e-4, shot, floor, channel < 0)
+    out = stage.enqueue_guided(rt, guide.shape, (origin[0] + off, origin[1] + off),
+                               rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, channel, 1e-4,
+                               (shot, floor), channel < 0)
+    assert_close(download(rt, out), ref, f"guided filter {channel_name}")
+
+
+@pytest.mark.parametrize("pass2", [False, True])
+@pytest.mark.parametrize("noisy", [False, True])
+def test_kernel_m_at_s(rt, window, pass2, noisy):
+    """enqueue_m_at_s (two guided filters + m_at_s_combine) against its reference, pass 1 (guide only)
+    and pass 2 (edge-directed estimate mixed in)."""
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None)
+    origin, o_g, r = (2, -7), 6, 2
+    p = x.astype(np.float64)
+    guide = p[o_g:-o_g, o_g:-o_g] * 0.9 + 0.01
+    rng = np.random.default_rng(1)
+    c = 0.01 * rng.standard_normal(guide.shape)
+    ylp = guide + 0.005 * rng.standard_normal(guide.shape)
+    ch = cfa.channel_map(*p.shape, origin)
+    directional = (_valid(guide, 2 * r), _valid(c, 2 * r), _valid(ylp, 2 * r)) if pass2 else None
+    ref = stage._m_at_s(_valid(p, o_g), _valid(ch, o_g), guide, r, directional)
+    up = {k: rt.upload(v.astype(np.float32)) for k, v in (("g", guide), ("c", c), ("ylp", ylp))}
+    out = stage.enqueue_m_at_s(rt, rt.upload(x), origin, up["g"], o_g, r,
+                               (up["g"], up["c"], up["ylp"], o_g, o_g) if pass2 else None)
+    # the reference ran on float64 copies of float32 inputs; guide etc. rounded the same way:
+    ref32 = stage._m_at_s(_valid(p, o_g), _valid(ch, o_g), guide.astype(np.float32).astype(np.float64), r,
+                          None if not pass2 else tuple(a.astype(np.float32).astype(np.float64) for a in directional))
+    assert_close(download(rt, out), ref32, f"m_at_s pass2={pass2} noisy={noisy}")
+    assert np.abs(ref32 - ref).max() < 1e-5
+
+
+@pytest.mark.parametrize("origin", [(0, 0), (-6, 1)])
+def test_kernel_chroma(rt, window, origin):
+    """lum_lowpass + chroma_input + the chroma guided filter (enqueue_chroma) and keep_luminance."""
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    m = x.astype(np.float64)
+    ch = cfa.channel_map(*m.shape, origin)
+    mod = np.where(ch == stage.ch_l, 1.0, -1.0)
+    c_ref, ylp_ref = stage._chroma(m, mod, NOISE)
+    c_dev, ylp_dev = stage.enqueue_chroma(rt, rt.upload(x), origin)
+    assert_close(download(rt, ylp_dev), lum_lowpass(m), "lum_lowpass")
+    assert_close(download(rt, c_dev), c_ref, "chroma")
+    k = D_RADIUS + PRE_RADIUS + 2 * stage.params.chroma_radius
+    assert_close(download(rt, ylp_dev)[k - D_RADIUS:-(k - D_RADIUS), k - D_RADIUS:-(k - D_RADIUS)], ylp_ref,
+                 "ylp crop")
+    y = stage.enqueue_keep_luminance(rt, rt.upload(x), c_dev, k, (origin[0] + k, origin[1] + k))
+    assert_close(download(rt, y), _valid(m, k) - download(rt, c_dev) * _valid(mod, k), "keep_luminance")
+    assert chroma_input(m, lum_lowpass(m), mod).shape == (m.shape[0] - 12, m.shape[1] - 12)
+
+
+def test_reference_steps_compose():
+    """The step functions used by the kernels tests agree with the stage's own composition (shapes)."""
+    cfa = lms_cfa()
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    rng = np.random.default_rng(0)
+    m = rng.uniform(0.1, 0.9, (40, 44))
+    c = 0.01 * rng.standard_normal((40, 44))
+    ylp = m + 0.01
+    mod = np.where(cfa.channel_map(40, 44) == stage.ch_l, 1.0, -1.0)
+    lm = lm_output(m, c, ylp, mod, NOISE, stage.ch_l, stage.ch_m, 2.0)
+    assert lm.shape == (40 - 2 * COMBINE_RADIUS, 44 - 2 * COMBINE_RADIUS, 2)
+    g = rng.uniform(0.1, 0.9, (40, 44))
+    s = s_output(m, cfa.channel_map(40, 44), g, stage.ch_s, NOISE)
+    assert s.shape == (40 - 2 * RI_RADIUS, 44 - 2 * RI_RADIUS)
+    assert m_at_s_combine(m, cfa.channel_map(40, 44), g, g, stage.ch_m, stage.ch_s, None, None, 0.1,
+                          1e-7).shape == (36, 40)
+    assert abs(D9.sum() - 1.0) < 1e-12
+
+
+# ---------------------------------------------------------------------------------- pipeline
+
+def _pipeline(raw, stage) -> Pipeline:
+    cfa = raw.cfa
+    return Pipeline(cfa, [normalize(cfa, raw.black_level, raw.white_level), white_balance1(cfa, raw.pass1_gains()),
+                          stage, ColourMatrix(raw.colour_matrix)])
+
+
+@pytest.mark.parametrize("gain", [None, 8.0])
+def test_tiled_equals_untiled(gain):
+    scene = charts.demo_chart().image[150:451, 100:617]                # 301 x 517
+    sim = simulate(scene, "lms", gain=gain, seed=2)
+    stage = DemosaicLMSGuided.for_raw(sim.raw)
+    assert (stage.noise is None) == (gain is None)
+    pipe = _pipeline(sim.raw, stage)
+    whole = pipe.run(sim.raw.data, tile=0)
+    assert whole.shape == (301, 517, 3) and np.all(np.isfinite(whole))
+    for tile in (64, 256):
+        assert_close(pipe.run(sim.raw.data, tile=tile), whole, f"tile {tile}")
+
+
+def test_pipeline_reference_backend_matches_opencl():
+    """The NumPy reference through the same pipeline (stage by stage) agrees with OpenCL."""
+    sim = simulate(charts.dead_leaves(96, seed=1), "lms@1,2", gain=None)
+    pipe = _pipeline(sim.raw, DemosaicLMSGuided.for_raw(sim.raw))
+    assert_close(pipe.run(sim.raw.data, tile=0), pipe.run(sim.raw.data, tile=0, backend="reference"), "backends")
+
+
+# ---------------------------------------------------------------------------------- parameters
+
+def test_noise_from_metadata():
+    sim = simulate(np.full((16, 16, 3), 0.5), "lms", gain=16.0)
+    noise = ChannelNoise.from_metadata(sim.raw.metadata, sim.raw.pass1_gains())
+    model = NoiseModel()
+    for c in range(3):
+        assert noise.variance(c, 0.3) == pytest.approx(float(model.variance(0.3, 16.0, sim.raw.pass1_gains()[c])))
+    clean = simulate(np.full((16, 16, 3), 0.5), "lms", gain=None)
+    assert ChannelNoise.from_metadata(clean.raw.metadata, clean.raw.pass1_gains()) is None
+    assert DemosaicLMSGuided.for_raw(clean.raw).noise is None
+
+
+def test_rejects_bad_cfa_and_params():
+    with pytest.raises(ClispError):
+        DemosaicLMSGuided(bayer_cfa("RGGB"))
+    with pytest.raises(ClispError):
+        LMSGuidedParams(s_radius=1)
+    with pytest.raises(ClispError):
+        LMSGuidedParams(chroma_eps=0.0)
+    assert DemosaicLMSGuided.cfa_kinds == ("lms",)
+
+
+def test_colour_of_demosaiced_neutral_is_neutral():
+    """A neutral (sRGB-grey) flat scene simulated and demosaiced stays grey through eq. (1)."""
+    sim = simulate(np.full((140, 150, 3), 0.3), "lms", gain=None)
+    stage = DemosaicLMSGuided.for_raw(sim.raw)
+    rgb = _pipeline(sim.raw, stage).run(sim.raw.data, tile=0, backend="reference")
+    np.testing.assert_allclose(rgb, 0.3, atol=1e-5)
+    assert P_LMS.shape == (3, 3)
