@@ -27,7 +27,12 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a noisy LMS or Bayer raw from an sRGB or linear EXR scene",
                        description="Inverse ISP, Airy optics, shot + read noise at analog gain G, 10-bit ADC, "
                                    "mosaic (SPEC.md section 3). Writes a DNG-style raw.")
-    p.add_argument("scene", help="sRGB-encoded PNG/TIFF (8 or 16 bit) or linear-sRGB float EXR")
+    p.add_argument("scene", nargs="?", help="sRGB-encoded PNG/TIFF (8 or 16 bit) or linear-sRGB float EXR")
+    p.add_argument("--spectral", choices=("colorchecker",), default=None,
+                   help="instead of SCENE, a ColorChecker from reflectance spectra under D65 (LMS: Stockman-"
+                        "Sharpe cones; Bayer: Nikon D100); truth = its true sRGB")
+    p.add_argument("--reflectances", default=None, metavar="MAT",
+                   help="with --spectral: ISETCam's macbethChart.mat instead of colour-science's spectra")
     p.add_argument("-o", "--output", required=True, help="raw file to write (.dng)")
     p.add_argument("--cfa", default="lms", help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx)")
     noise = p.add_mutually_exclusive_group()
@@ -95,8 +100,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
-    scene = read_scene(args.scene)
     gain = None if args.noiseless else (1.0 if args.gain is None else args.gain)
+    if (args.scene is None) == (args.spectral is None):
+        raise ClispError("simulate needs a SCENE file or --spectral colorchecker (one of them)")
+    if args.spectral:
+        return _simulate_spectral(args, gain)
+    scene = read_scene(args.scene)
     if args.size:
         return _simulate_large(args, scene, gain)
     result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
@@ -107,6 +116,26 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     h, w = result.raw.shape
     noise = "noiseless" if gain is None else f"gain {gain:g}"
     print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw, {noise}, optics {args.optics}, seed {args.seed}")
+    return 0
+
+
+def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
+    """``simulate --spectral colorchecker``: the spectral path (clisp.spectral)."""
+    from .imageio import write_image
+    from .rawfile import write_raw
+    from .spectral import simulate_spectral
+    if args.size:
+        raise ClispError("--size repeats a scene file; it does not apply to --spectral")
+    source = "isetcam" if args.reflectances else "colour"
+    result = simulate_spectral(args.cfa, gain=gain, optics=args.optics, seed=args.seed, source=source,
+                               data=args.reflectances)
+    write_raw(args.output, result.raw)
+    if args.truth:
+        write_image(args.truth, result.truth)
+    h, w = result.raw.shape
+    noise = "noiseless" if gain is None else f"gain {gain:g}"
+    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw of the spectral ColorChecker ({source} "
+          f"reflectances, D65), {noise}, optics {args.optics}, seed {args.seed}")
     return 0
 
 

@@ -80,14 +80,15 @@ def illuminant_d65() -> np.ndarray:
 def reflectances(source: str = "colour", data: str | Path | None = None) -> np.ndarray:
     """The 24 ColorChecker reflectances at WAVELENGTHS in chart reading order, shape (24, n_lambda).
 
-    'colour': colour-science's 'ColorChecker N Ohta'; 'isetcam': ISETCam's macbethChart.mat from
-    ``data`` (a folder holding spectral/isetcam/, e.g. ../shared/data).
+    'colour': colour-science's 'ColorChecker N Ohta'; 'isetcam': ISETCam's macbethChart.mat, given
+    as ``data``: the .mat file itself or a folder holding spectral/isetcam/ (e.g. ../shared/data).
     """
     if source == "colour":
         sds = _colour().SDS_COLOURCHECKERS["ColorChecker N Ohta"]
         return np.stack([_resample(sd) for sd in sds.values()])
     if source == "isetcam":
-        return _isetcam_reflectances(Path(data or "") / "spectral" / "isetcam" / "macbethChart.mat")
+        path = Path(data or "")
+        return _isetcam_reflectances(path if path.suffix == ".mat" else path / "spectral" / "isetcam" / "macbethChart.mat")
     raise ClispError(f"unknown reflectance source {source!r}; expected one of {', '.join(REFLECTANCE_SOURCES)}")
 
 

@@ -76,3 +76,19 @@ def test_bad_kind_and_source() -> None:
         reflectances("nowhere")
     with pytest.raises(ClispError, match="macbethChart"):
         reflectances("isetcam", "/nonexistent")
+
+
+def test_cli_spectral(tmp_path) -> None:
+    from clisp.cli import main
+    from clisp.imageio import read_image
+    raw_path, truth_path = tmp_path / "s.dng", tmp_path / "t.exr"
+    assert main(["simulate", "--spectral", "colorchecker", "--cfa", "lms", "--noiseless",
+                 "-o", str(raw_path), "--truth", str(truth_path)]) == 0
+    raw = clisp.read_raw(raw_path)
+    assert raw.metadata["scene"].startswith("spectral colorchecker") and raw.data.dtype == np.float32
+    out = clisp.process(raw)
+    truth, _ = read_image(truth_path)
+    de = patch_delta_e(out, truth, spectral_colorchecker("lms").rois)
+    assert de.mean() < 1.0
+    assert main(["simulate", "-o", str(tmp_path / "x.dng")]) == 2          # neither SCENE nor --spectral
+    assert not (tmp_path / "x.dng").exists()
