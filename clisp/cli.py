@@ -63,6 +63,14 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mem", type=memory_size, default=DEFAULT_BUDGET, metavar="SIZE",
                    help="memory budget for the tiles in flight, e.g. 512M or 2G (default 1G); "
                         "the image is streamed from the raw file to the output in tiles")
+    p.add_argument("--no-denoise", action="store_true", help="no chroma denoising (plain colour matrix)")
+    p.add_argument("--denoise-scale", type=float, default=1.0, metavar="K",
+                   help="multiply the noise levels the chroma denoiser assumes (default 1: the raw's noise "
+                        "model, or an estimate from the raw when it has none)")
+    p.add_argument("--chroma-strengths", default=None, metavar="S,S[,S]",
+                   help="per-chroma strengths: LMS R-Y,G-Y,B-Y (default 1,1,1.5), Bayer U,V (default 1.5,1)")
+    p.add_argument("--wb2", choices=("metadata", "gray_world", "gray_pixels"), default="metadata",
+                   help="white balance pass 2: known illuminant (default), gray world, gray pixels")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
     p.set_defaults(func=cmd_process)
@@ -181,14 +189,33 @@ def cmd_process(args: argparse.Namespace) -> int:
         check_compression(args.output, args.compression)
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
+    denoise = _denoise_option(args)
     raw = read_raw(args.raw, lazy=True)
-    (height, width), stats = process_file(raw, args.output, preset=args.preset, demosaic=args.demosaic,
-                                          tile=args.tile, budget=args.mem, backend=args.backend, progress=True,
-                                          compression=args.compression)
+    (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
+                                          progress=True, compression=args.compression, preset=args.preset,
+                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
     return 0
+
+
+def _denoise_option(args: argparse.Namespace) -> "bool | None | object":
+    """build_pipeline's ``denoise`` from --no-denoise, --denoise-scale and --chroma-strengths."""
+    if args.no_denoise:
+        return False
+    if args.denoise_scale == 1.0 and args.chroma_strengths is None:
+        return None                                   # the preset decides
+    from dataclasses import replace
+    from .pipeline import PRESETS, DEFAULT_PRESET, denoise_params
+    if args.denoise_scale < 0:
+        raise ClispError(f"--denoise-scale {args.denoise_scale:g}: must be >= 0")
+    try:
+        strengths = tuple(float(v) for v in args.chroma_strengths.split(",")) if args.chroma_strengths else None
+    except ValueError as exc:
+        raise ClispError(f"--chroma-strengths {args.chroma_strengths!r}: expected numbers separated by commas") from exc
+    levels = PRESETS[args.preset or DEFAULT_PRESET]["denoise_levels"]
+    return replace(denoise_params(True, levels), noise_scale=args.denoise_scale, strengths=strengths)
 
 
 def cmd_info(args: argparse.Namespace) -> int:

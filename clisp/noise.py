@@ -183,15 +183,24 @@ class ChannelNoise:
         var_c(s) = shot[c] * max(s, 0) + floor[c]        (units: white-balanced signal^2, white ~ 1)
 
     SPEC section 3: shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2, w the pass-1
-    multiplier of the channel (white balance times exposure).
+    multiplier of the channel (white balance times exposure). ``source``: 'model' (from the sensor
+    model), 'estimate' (measured on the raw, clisp.noise_estimate) or 'none' (noiseless).
     """
 
     shot: tuple[float, ...]
     floor: tuple[float, ...]
+    source: str = "model"
 
     def __post_init__(self) -> None:
-        if len(self.shot) != len(self.floor) or min(*self.shot, *self.floor) < 0:
-            raise ClispError(f"noise needs non-negative shot and floor terms per channel, got {self.shot}, {self.floor}")
+        if len(self.shot) != len(self.floor):
+            raise ClispError("noise: shot and floor need one value per CFA channel")
+        if any(not math.isfinite(v) or v < 0 for v in (*self.shot, *self.floor)):
+            raise ClispError(f"noise: shot and floor must be finite and >= 0, got {self.shot}, {self.floor}")
+
+    @classmethod
+    def zero(cls, n_channels: int = 3) -> "ChannelNoise":
+        """No noise (noiseless simulation): every variance 0."""
+        return cls((0.0,) * n_channels, (0.0,) * n_channels, "none")
 
     @classmethod
     def from_model(cls, model: NoiseModel, gain: float, pass1_gains: np.ndarray) -> "ChannelNoise":
@@ -199,7 +208,7 @@ class ChannelNoise:
         w = np.asarray(pass1_gains, dtype=np.float64)
         floor = model.variance(0.0, gain, w)
         shot = model.variance(1.0, gain, w) - floor
-        return cls(tuple(float(v) for v in shot), tuple(float(v) for v in floor))
+        return cls(tuple(float(v) for v in shot), tuple(float(v) for v in floor), "model")
 
     @classmethod
     def from_metadata(cls, metadata: Mapping[str, Any], pass1_gains: np.ndarray) -> "ChannelNoise | None":
@@ -211,9 +220,19 @@ class ChannelNoise:
         model = NoiseModel.from_dict(metadata.get("noise") or {})
         return cls.from_model(model, float(gain), pass1_gains)
 
+    @property
+    def is_zero(self) -> bool:
+        return not any(self.shot) and not any(self.floor)
+
     def variance(self, channel: int, level: np.ndarray | float) -> np.ndarray:
-        return self.shot[channel] * np.maximum(level, 0.0) + self.floor[channel]
+        """var of a WB'd sample of ``channel`` at expected WB'd level(s) ``level``; float64."""
+        return self.shot[channel] * np.maximum(np.asarray(level, dtype=np.float64), 0.0) + self.floor[channel]
+
+    def scaled(self, factor: float) -> "ChannelNoise":
+        """The same noise with every standard deviation multiplied by ``factor``."""
+        f2 = float(factor) ** 2
+        return ChannelNoise(tuple(v * f2 for v in self.shot), tuple(v * f2 for v in self.floor), self.source)
 
 
-NOISELESS = ChannelNoise((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+NOISELESS = ChannelNoise.zero(3)
 """Three noiseless channels: what the demosaics use when a raw carries no noise description."""

@@ -20,6 +20,7 @@ from .errors import ClispError
 from .rawimage import RawImage
 from .runtime import get_runtime
 from .stages.base import Stage, fuse_stages
+from .stages.chroma_denoise import ChromaDenoiseParams, chroma_denoise_for
 from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
 from .stages.demosaic_bilinear import DemosaicBilinear
 from .stages.demosaic_dlmmse import DemosaicDLMMSE
@@ -29,6 +30,8 @@ from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
 from .streaming import (ArraySink, BandSink, TileSink, WindowSource, progress_bar, run_tiles,
                         window_source)
+from .noise_estimate import NoiseEstimateError
+from .white_balance2 import estimate_wb2
 from .tiling import DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
 DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
@@ -41,12 +44,13 @@ DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
 """Demosaic stages by CLI name. Each is built from the CFA description, or by its ``for_raw(raw)``
 when it has one (stages that adapt to the raw's noise); ``cfa_kinds`` lists the CFAs it supports."""
 
-PRESETS: dict[str, dict[str, dict[str, str]]] = {
-    "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}},
-    "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse"}},
-    "quality": {"demosaic": {"lms": "guided", "bayer": "dlmmse"}},
+PRESETS: dict[str, dict[str, Any]] = {
+    "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}, "denoise_levels": 0},
+    "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse"}, "denoise_levels": 2},
+    "quality": {"demosaic": {"lms": "guided", "bayer": "dlmmse"}, "denoise_levels": 3},
 }
-"""Named parameter sets (``--preset``), each option given per CFA kind; explicit options override."""
+"""Named parameter sets (``--preset``); an option is one value or a dict per CFA kind.
+``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. Explicit options override."""
 
 DEFAULT_PRESET = "quality"
 OUTPUTS = ("linear", "srgb")
@@ -217,7 +221,7 @@ class Pipeline:
         return event
 
 
-def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, str]:
+def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, Any]:
     """The options for CFA ``kind`` ('lms' or 'bayer'): the preset's, overridden by explicit ones.
 
     Raises ClispError on unknown names, and on a demosaic that does not support ``kind``
@@ -231,7 +235,7 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
         raise ClispError(f"unknown demosaic {demosaic!r}; available: {', '.join(DEMOSAICS)}")
     if kind is None:
         return {}
-    options = {key: per_kind[kind] for key, per_kind in PRESETS[name].items()}
+    options = {key: value[kind] if isinstance(value, dict) else value for key, value in PRESETS[name].items()}
     if demosaic:
         options["demosaic"] = demosaic
     kinds = getattr(DEMOSAICS[options["demosaic"]], "cfa_kinds", (kind,))
@@ -248,27 +252,47 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 
 
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
-                   output: str = "linear") -> Pipeline:
-    """Stages for ``raw``: normalise, WB pass 1, demosaic, colour matrix, WB pass 2, tone curve.
+                   output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
+                   wb2: str = "metadata") -> Pipeline:
+    """Stages for ``raw``: normalise, WB pass 1, demosaic, colour (+ chroma denoise), WB pass 2,
+    tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve
-    (for 16-bit TIFF/PNG). WB pass 2 is left out when its gains are exactly 1 (identity).
+    (for 16-bit TIFF/PNG). ``denoise``: None = the preset's depth, False = off, True = on (the
+    preset's depth, at least 1 level), or explicit ChromaDenoiseParams; its noise comes from the
+    raw's sensor model, else it is estimated from the raw. ``wb2``: white balance pass 2 from
+    'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
     cfa = raw.cfa
     options = resolve_options(preset, demosaic, cfa.kind)
-    stages: list[Stage] = [
-        normalize(cfa, raw.black_level, raw.white_level),
-        white_balance1(cfa, raw.pass1_gains()),
-        make_demosaic(options["demosaic"], raw),
-        ColourMatrix(raw.colour_matrix),
-    ]
-    if not np.allclose(raw.wb2, 1.0, rtol=0, atol=0):
-        stages.append(WhiteBalance2(raw.wb2))
+    demosaic_stage = make_demosaic(options["demosaic"], raw)
+    params = denoise_params(denoise, options["denoise_levels"])
+    colour: Stage = ColourMatrix(raw.colour_matrix)
+    if params is not None:
+        try:
+            colour = chroma_denoise_for(raw, demosaic_stage, params)
+        except NoiseEstimateError:
+            pass        # a raw too small to estimate its noise is processed without chroma denoise
+    stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
+                           white_balance1(cfa, raw.pass1_gains()), demosaic_stage, colour]
+    gains2 = estimate_wb2(raw, wb2)
+    if not np.allclose(gains2, 1.0, rtol=0, atol=0):
+        stages.append(WhiteBalance2(gains2))
     if output == "srgb":
         stages.append(ToneCurve())
     return Pipeline(cfa, stages)
+
+
+def denoise_params(denoise: ChromaDenoiseParams | bool | None, levels: int) -> ChromaDenoiseParams | None:
+    """The chroma denoiser's parameters from a build_pipeline ``denoise`` argument and the preset's
+    depth, or None for no denoiser."""
+    if isinstance(denoise, ChromaDenoiseParams):
+        return denoise
+    if denoise is False or (denoise is None and levels == 0):
+        return None
+    return ChromaDenoiseParams(levels=max(1, int(levels)))
 
 
 def orient(image: np.ndarray, flip: int) -> np.ndarray:
@@ -282,44 +306,45 @@ def orient(image: np.ndarray, flip: int) -> np.ndarray:
     return image
 
 
-def process_with_stats(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
-                       tile: int | None = None, output: str = "linear",
-                       backend: str = "opencl") -> tuple[np.ndarray, RunStats]:
+def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "opencl",
+                       **options: Any) -> tuple[np.ndarray, RunStats]:
     """:func:`process` for a RawImage, also returning the run's timing."""
-    pipeline = build_pipeline(raw, preset=preset, demosaic=demosaic, output=output)
+    pipeline = build_pipeline(raw, **options)
     image = pipeline.run(raw.data, tile=tile, backend=backend)
     image = np.ascontiguousarray(orient(image, int(raw.metadata.get("flip", 0) or 0)))
     return image, pipeline.stats
 
 
-def process(raw: RawImage | str | Path, preset: str | None = None, demosaic: str | None = None,
-            tile: int | None = None, output: str = "linear", backend: str = "opencl") -> np.ndarray:
+def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = "opencl",
+            **options: Any) -> np.ndarray:
     """Process a raw image (or a raw file's path) into H x W x 3 float32 sRGB.
 
-    ``output='linear'``: scene-linear sRGB (white 1.0, unclipped); ``'srgb'``: sRGB-encoded in
-    [0, 1]. Orientation from camera metadata is applied last.
+    ``options`` are :func:`build_pipeline`'s: preset, demosaic, output ('linear': scene-linear
+    sRGB, white 1.0, unclipped; 'srgb': sRGB-encoded in [0, 1]), denoise, wb2.
+    Orientation from camera metadata is applied last.
     """
     if not isinstance(raw, RawImage):
         from .rawfile import read_raw
         raw = read_raw(raw)
-    return process_with_stats(raw, preset, demosaic, tile, output, backend)[0]
+    return process_with_stats(raw, tile, backend, **options)[0]
 
 
-def process_file(raw: RawImage, path: str | Path, preset: str | None = None, demosaic: str | None = None,
-                 tile: int | None = None, budget: int = DEFAULT_BUDGET, backend: str = "opencl",
-                 progress: bool = False, compression: str | None = None) -> tuple[tuple[int, int], RunStats]:
+def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budget: int = DEFAULT_BUDGET,
+                 backend: str = "opencl", progress: bool = False, compression: str | None = None,
+                 **options: Any) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
     written band by band (imageio.ImageWriter), so memory stays within ``budget`` plus fixed
     overheads whatever the image size. Raws with a camera rotation are oriented in memory.
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
-    compression (default imageio.DEFAULT_COMPRESSION). Atomic: on failure no file.
+    compression (default imageio.DEFAULT_COMPRESSION). ``options``: :func:`build_pipeline`'s
+    (the output kind follows the extension). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
     from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
-    pipeline = build_pipeline(raw, preset=preset, demosaic=demosaic, output=output_kind(path))
+    pipeline = build_pipeline(raw, output=output_kind(path), **options)
     flip = int(raw.metadata.get("flip", 0) or 0)
     if flip:                    # rotated output rows are input columns: orient the whole result
         image = orient(pipeline.run(raw.data, tile=tile, backend=backend, budget=budget), flip)

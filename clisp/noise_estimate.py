@@ -1,0 +1,178 @@
+"""Per-channel noise of the white-balanced raw: from the sensor model, or estimated from the raw.
+
+Both give a :class:`ChannelNoise`, the affine variance of one white-balanced, normalised sample of
+CFA channel c at expected level s (SPEC.md section 3)::
+
+    var_c(s) = shot[c] * max(s, 0) + floor[c]          units: (white-balanced normalised raw)^2
+
+From the model (simulated raws, whose metadata carries the gain and the noise model):
+shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2 with w the pass-1 multiplier
+(``RawImage.pass1_gains()``), i.e. exactly ``NoiseModel.variance``.
+
+From the raw itself (camera raws, no noise metadata), :func:`estimate_raw_noise`: for every CFA
+phase, the sub-image of that phase (a regular lattice, period p) is high-passed with Immerkaer's
+3 x 3 Laplacian difference ``[[1,-2,1],[-2,4,-2],[1,-2,1]] / 6`` (unit noise gain for white noise,
+zero response to planes), paired with the 3 x 3 mean as the local level; pixels whose 3 x 3
+neighbourhood is clipped are dropped. The samples are pooled per channel and sorted by level into
+bins of equal count; in each bin only the flattest 30 % by Sobel gradient are kept (the odd Sobel
+response is independent of the even residual for Gaussian noise, so this rejects texture without
+biasing the noise), and the bin's noise std is the robust 1.4826 median |residual|. A weighted least-squares line through (level, variance) gives
+shot and floor, both clamped at 0.
+
+J. Immerkaer, "Fast noise variance estimation", CVIU 64(2), 300-302, 1996 (the operator);
+A. Foi et al., "Practical Poissonian-Gaussian noise modeling and fitting for single-image raw-data",
+IEEE TIP 17(10), 2008 (the affine model and the level-binned fit).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from .cfa import CFA
+from .errors import ClispError
+from .noise import ChannelNoise, NoiseModel
+from .rawimage import RawImage
+from .streaming import window_source
+
+
+class NoiseEstimateError(ClispError):
+    """The raw holds too few flat samples to estimate its noise (small or heavily textured)."""
+
+IMMERKAER = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]]) / 6.0
+"""High-pass with sum of squared taps 1: a white-noise residual keeps the pixel's std."""
+SOBEL = np.array([[1.0, 0.0, -1.0], [2.0, 0.0, -2.0], [1.0, 0.0, -1.0]])
+"""Odd (antisymmetric) gradient: for Gaussian noise it is independent of the even IMMERKAER
+residual at the same pixel, so selecting pixels by low gradient does not bias the noise estimate."""
+FLAT_FRACTION = 0.3
+"""Share of each level bin (the flattest by Sobel gradient) whose residuals estimate the noise."""
+MAD_TO_STD = 1.4826
+"""std of a zero-mean Gaussian = 1.4826 * median |x|."""
+CLIP_FRACTION = 0.98
+"""A normalised sample at or above this (before WB) counts as clipped."""
+
+
+def _phase_residuals(plane: np.ndarray, clipped: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(level, residual, texture) of every interior pixel of one phase sub-image whose 3 x 3 is
+    unclipped; texture = squared Sobel gradient magnitude."""
+    if min(plane.shape) < 3:
+        return np.empty(0), np.empty(0), np.empty(0)
+    resid = ndimage.correlate(plane, IMMERKAER, mode="nearest")[1:-1, 1:-1]
+    level = ndimage.uniform_filter(plane, 3, mode="nearest")[1:-1, 1:-1]
+    texture = (ndimage.correlate(plane, SOBEL, mode="nearest") ** 2
+               + ndimage.correlate(plane, SOBEL.T, mode="nearest") ** 2)[1:-1, 1:-1]
+    bad = ndimage.maximum_filter(clipped.astype(np.uint8), 3, mode="nearest")[1:-1, 1:-1] > 0
+    keep = ~bad
+    return level[keep].ravel(), resid[keep].ravel(), texture[keep].ravel()
+
+
+def fit_affine_variance(level: np.ndarray, resid: np.ndarray, texture: np.ndarray, bins: int = 16,
+                        min_per_bin: int = 600) -> tuple[float, float]:
+    """(shot, floor) of var = shot * level + floor from pooled (level, residual, texture) samples.
+
+    Samples are sorted by level into ``bins`` bins of equal count (at least ``min_per_bin`` each);
+    in each bin the FLAT_FRACTION with the lowest texture give (median level,
+    (1.4826 median |residual|)^2); the line is fitted by weighted least squares with weights
+    count / var^2 (the variance of a variance estimate). Clamped at 0.
+    """
+    n = level.size
+    if n < 2 * min_per_bin:
+        raise ClispError(f"noise estimate: only {n} usable samples in a channel (need {2 * min_per_bin})")
+    order = np.argsort(level, kind="stable")
+    edges = np.linspace(0, n, min(bins, n // min_per_bin) + 1).astype(int)
+    xs, vs, ws = [], [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        idx = order[a:b]
+        flat = np.argsort(texture[idx], kind="stable")[:max(1, int(FLAT_FRACTION * (b - a)))]
+        idx = idx[flat]
+        sigma = MAD_TO_STD * float(np.median(np.abs(resid[idx])))
+        xs.append(float(np.median(level[idx])))
+        vs.append(sigma * sigma)
+        ws.append(idx.size / max(sigma ** 4, 1e-30))
+    x, v, w = np.array(xs), np.array(vs), np.array(ws)
+    design = np.stack([x, np.ones_like(x)], axis=1) * np.sqrt(w)[:, None]
+    (shot, floor), *_ = np.linalg.lstsq(design, v * np.sqrt(w), rcond=None)
+    if shot < 0:                                   # no measurable shot noise: constant variance
+        shot, floor = 0.0, float(np.sum(w * v) / np.sum(w))
+    if floor < 0:                                  # line through the origin instead
+        shot, floor = float(np.sum(w * x * v) / np.sum(w * x * x)), 0.0
+    return float(max(shot, 0.0)), float(max(floor, 0.0))
+
+
+SAMPLE_CROP = 512
+"""Side of the crops the estimate reads from large raws (px, a multiple of every CFA period)."""
+SAMPLE_PIXELS = 4_000_000
+"""Raws larger than this are sampled by a grid of SAMPLE_CROP crops totalling about this many pixels."""
+
+
+def sample_crops(height: int, width: int, max_pixels: int = SAMPLE_PIXELS,
+                 crop: int = SAMPLE_CROP) -> list[tuple[int, int, int, int]]:
+    """(y0, y1, x0, x1) boxes to read: the whole image if small, else an evenly spaced grid of
+    crop x crop boxes (origins multiples of ``crop``, so every box starts on CFA phase (0, 0))."""
+    if height * width <= max_pixels or height < crop or width < crop:
+        return [(0, height, 0, width)]
+    per_side = max(1, int(np.sqrt(max_pixels / crop ** 2)))
+    ys = np.unique(np.linspace(0, height // crop - 1, min(per_side, height // crop)).astype(int)) * crop
+    xs = np.unique(np.linspace(0, width // crop - 1, min(per_side, width // crop)).astype(int)) * crop
+    return [(int(y), int(y) + crop, int(x), int(x) + crop) for y in ys for x in xs]
+
+
+def estimate_raw_noise(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
+                       pass1_gains: np.ndarray, bins: int = 16) -> ChannelNoise:
+    """Estimate :class:`ChannelNoise` (WB'd normalised units) from the mosaic ``data`` (H x W DN).
+
+    See the module docstring for the method. ``pass1_gains``: the multipliers that take the
+    normalised raw to white-balanced values (``RawImage.pass1_gains()``). Raws above
+    SAMPLE_PIXELS are read as a grid of crops (:func:`sample_crops`), so a memory-mapped raw of any
+    size costs about SAMPLE_PIXELS of reading.
+    """
+    p = cfa.period
+    black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
+    gains = np.asarray(pass1_gains, dtype=np.float64)
+    levels: list[list[np.ndarray]] = [[] for _ in range(cfa.n_channels)]
+    resids: list[list[np.ndarray]] = [[] for _ in range(cfa.n_channels)]
+    textures: list[list[np.ndarray]] = [[] for _ in range(cfa.n_channels)]
+    source = window_source(data)     # a mapped raw file is read with pread: a file truncated
+    try:                              # meanwhile raises ClispError instead of a bus error
+        blocks = [(y0, x0, source.read(y0, x0, y1 - y0, x1 - x0, p))
+                  for y0, y1, x0, x1 in sample_crops(data.shape[0], data.shape[1])]
+    finally:
+        source.close()
+    for y0, x0, block in blocks:
+        for py in range(p):
+            for px in range(p):
+                c = int(cfa.pattern[(y0 + py) % p, (x0 + px) % p])
+                sub = block[py::p, px::p].astype(np.float64)
+                norm = (sub - black[c]) / (float(white_level) - black[c])
+                lv, rs, tx = _phase_residuals(norm * gains[c], norm >= CLIP_FRACTION)
+                levels[c].append(lv)
+                resids[c].append(rs)
+                textures[c].append(tx)
+    shot, floor = [], []
+    for c in range(cfa.n_channels):
+        s, f = fit_affine_variance(np.concatenate(levels[c]), np.concatenate(resids[c]),
+                                   np.concatenate(textures[c]), bins)
+        shot.append(s)
+        floor.append(f)
+    return ChannelNoise(tuple(shot), tuple(floor), "estimate")
+
+
+def raw_noise(raw: RawImage, estimate: bool | None = None) -> ChannelNoise:
+    """The noise of ``raw``'s white-balanced channels.
+
+    ``estimate=None`` (default): from the metadata when it carries the sensor model (clisp
+    simulations: ``metadata['noise']`` and ``metadata['gain']``; gain None = noiseless, zero
+    noise), else estimated from the data (camera raws). True / False force one or the other.
+    """
+    md: dict[str, Any] = raw.metadata or {}
+    has_model = "noise" in md and "gain" in md
+    if estimate is None:
+        estimate = not has_model
+    if not estimate:
+        if not has_model:
+            raise ClispError(f"{raw.source}: no noise model in the metadata; estimate it instead")
+        if md["gain"] is None:
+            return ChannelNoise.zero(raw.cfa.n_channels)
+        return ChannelNoise.from_model(NoiseModel.from_dict(md["noise"]), float(md["gain"]), raw.pass1_gains())
+    return estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())

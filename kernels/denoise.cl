@@ -1,0 +1,260 @@
+/* Luminance-guided multiresolution chroma denoising (clisp/stages/chroma_denoise.py, SPEC section 6).
+ * One kernel per step, named after the reference function it mirrors. Planar float32 images;
+ * a "level" image holds NPLANES = 1 + NCHROMA planes (Y, then the chroma planes); a "detail" image
+ * holds 3 x NPLANES planes from haar_analyze, 3 x NCHROMA after bayes_shrink, orientation-major
+ * (dx, dy, dd). Defines from the host: NCHROMA, RADIUS (bilateral), SHRINK_RADIUS and SHRINK_RULE
+ * (detail shrinkage), VEC (joint_bilateral, bayes_shrink), INTERLEAVED (chroma_merge). Per tile:
+ * chroma_split; J x (haar_analyze, bayes_shrink); from level J down: joint_bilateral,
+ * haar_synthesize; joint_bilateral at level 0; chroma_merge. */
+
+#define NPLANES (NCHROMA + 1)
+
+/* VEC (define, 1 or 8): pixels along x per work item in joint_bilateral and bayes_shrink. PoCL on
+ * CPUs does not vectorise the scalar kernels across work items; explicit float8 made them 8x and
+ * 2x cheaper there (a 1.5 MP single-plane 7x7 bilateral 0.54 -> 0.064 CPU-s; the whole stage's
+ * bayes_shrink 0.15 -> 0.07 CPU-s). GPUs use VEC = 1 (one pixel per lane, coalesced). */
+#ifndef VEC
+#define VEC 1
+#endif
+#if VEC == 8
+typedef float8 floatv;
+#define LOADV(p) vload8(0, (p))
+#define STOREV(v, p) vstore8((v), 0, (p))
+#define AS_FLOATV as_float8
+#define CONVERT_INTV convert_int8
+#else
+typedef float floatv;
+#define LOADV(p) (*(p))
+#define STOREV(v, p) (*(p) = (v))
+#define AS_FLOATV as_float
+#define CONVERT_INTV convert_int
+#endif
+
+/* exp(x) for x <= 0, as the bilateral weights need it: Cody-Waite reduction x = n ln2 + f,
+ * |f| <= ln2/2, degree-6 Taylor polynomial for e^f (truncation < 1.3e-7 relative), 2^n from the
+ * exponent bits. Exactly 0 below EXP_CUT: e^-40 = 4e-18 is far below float resolution of the
+ * centre weight (1), and flushing keeps weights and weight * value products out of the denormal
+ * range, which x86 handles in microcode (a safeguard: no difference measured on our test images).
+ * Written out because PoCL's exp() is a scalar library call: this made joint_bilateral ~5x faster on
+ * PoCL/CPU before vectorising, and it vectorises. */
+#define EXP_CUT (-40.0f)
+inline floatv exp_neg(const floatv x)
+{
+    const floatv xc = fmax(x, EXP_CUT);
+    const floatv n = floor(xc * 1.44269504089f + 0.5f);
+    const floatv f = (xc - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
+    const floatv p = 1.0f + f * (1.0f + f * (0.5f + f * (1.6666667e-1f + f * (4.1666668e-2f
+                   + f * (8.3333338e-3f + f * 1.3888889e-3f)))));
+    return select(p * AS_FLOATV((CONVERT_INTV(n) + 127) << 23), (floatv)0.0f, x < EXP_CUT);
+}
+
+/* chroma_split: planes (Y, c_1..c_n) = m . camera, m row-major (NPLANES x 3), read from the window
+ * at (y + skip_y, x + skip_x) (the first pixel aligned to the decimation grid). Halo 0. */
+__kernel void chroma_split(__global const float *src, __global float *dst,
+                           const int src_w, const int src_h, const int skip_y, const int skip_x,
+                           const int width, const int height, __constant const float *m)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    if (x >= width || y >= height) return;
+    const int src_plane = src_w * src_h;
+    const int si = (y + skip_y) * src_w + x + skip_x;
+    const float l = src[si], mm = src[src_plane + si], s = src[2 * src_plane + si];
+    const int plane = width * height;
+    const int i = y * width + x;
+    for (int p = 0; p < NPLANES; ++p)
+        dst[p * plane + i] = m[3 * p] * l + m[3 * p + 1] * mm + m[3 * p + 2] * s;
+}
+
+/* haar_analyze: one Haar level on 2 x 2 blocks (block means and differences / 4) of all NPLANES
+ * planes: approximation (NPLANES planes) and details dx, dy, dd (3 x NPLANES planes, orientation
+ * major). Output width x height, input 2 width x 2 height. Halo 0 (blocks on the aligned grid). */
+__kernel void haar_analyze(__global const float *src, __global float *approx, __global float *detail,
+                           const int width, const int height)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    if (x >= width || y >= height) return;
+    const int src_w = 2 * width;
+    const int src_plane = 4 * width * height;
+    const int plane = width * height;
+    const int i = y * width + x;
+    const int s0 = 2 * y * src_w + 2 * x;
+    for (int p = 0; p < NPLANES; ++p) {
+        __global const float *a = src + p * src_plane + s0;
+        const float x00 = a[0], x01 = a[1], x10 = a[src_w], x11 = a[src_w + 1];
+        approx[p * plane + i] = 0.25f * (x00 + x01 + x10 + x11);
+        detail[p * plane + i]                 = 0.25f * (x00 - x01 + x10 - x11);
+        detail[(NPLANES + p) * plane + i]     = 0.25f * (x00 + x01 - x10 - x11);
+        detail[(2 * NPLANES + p) * plane + i] = 0.25f * (x00 - x01 - x10 + x11);
+    }
+}
+
+/* window_energy: mean of d^2 over the (2 SHRINK_RADIUS + 1)^2 window centred on index ci
+ * (VEC consecutive centres). */
+inline floatv window_energy(__global const float *d, const int ci, const int in_w)
+{
+    floatv energy = 0.0f;
+    for (int dy = -SHRINK_RADIUS; dy <= SHRINK_RADIUS; ++dy)
+        for (int dx = -SHRINK_RADIUS; dx <= SHRINK_RADIUS; ++dx) {
+            const floatv v = LOADV(d + ci + dy * in_w + dx);
+            energy += v * v;
+        }
+    return energy / (float)((2 * SHRINK_RADIUS + 1) * (2 * SHRINK_RADIUS + 1));
+}
+
+/* bayes_shrink: shrink the chroma detail planes. Halo SHRINK_RADIUS: output (u, v) is input
+ * (u + R_W, v + R_W). Input 3 x NPLANES detail planes (plane 0 of each orientation = Y), output
+ * 3 x NCHROMA. With E = window_energy, var_n = strength2[k] (coef a max(Y, 0) + b) (Y = plane 0 of
+ * the level image, same grid; coef per channel and orientation, Y first) and var_x = max(E - var_n, 0):
+ * SHRINK_RULE 0 (BayesShrink soft): d' = sign(d) max(|d| - var_n / sqrt(var_x), 0), 0 if var_x = 0;
+ * SHRINK_RULE 1 (Wiener): d' = d var_x / (var_x + var_n). guide != 0: d'' = d' + g_Y (d - d'),
+ * g_Y = var_xY / (var_xY + var_nY), the Wiener gain of the luminance detail. VEC consecutive
+ * outputs per work item, as in joint_bilateral (width >= VEC). */
+__kernel void bayes_shrink(__global const float *detail, __global const float *level,
+                           __global float *dst, const int in_w, const int in_h,
+                           const int width, const int height,
+                           __constant const float *coef, __constant const float *strength2,
+                           const int guide)
+{
+    const int x = min((int)get_global_id(0) * VEC, width - VEC);
+    const int y = get_global_id(1);
+    if ((int)get_global_id(0) * VEC >= width || y >= height) return;
+    const int in_plane = in_w * in_h;
+    const int plane = width * height;
+    const int ci = (y + SHRINK_RADIUS) * in_w + x + SHRINK_RADIUS;
+    const floatv s = fmax(LOADV(level + ci), 0.0f);
+    for (int o = 0; o < 3; ++o) {
+        floatv g_y = 0.0f;
+        if (guide) {
+            const floatv var_ny = coef[2 * o] * s + coef[2 * o + 1];
+            const floatv var_xy = fmax(window_energy(detail + o * NPLANES * in_plane, ci, in_w) - var_ny, 0.0f);
+            const floatv total = var_xy + var_ny;
+            g_y = select((floatv)0.0f, var_xy / total, total > 0.0f);
+        }
+        for (int k = 0; k < NCHROMA; ++k) {
+            __global const float *d = detail + (o * NPLANES + 1 + k) * in_plane;
+            const int c = 2 * (3 * (1 + k) + o);
+            const floatv var_n = strength2[k] * (coef[c] * s + coef[c + 1]);
+            const floatv var_x = fmax(window_energy(d, ci, in_w) - var_n, 0.0f);
+            const floatv dc = LOADV(d + ci);
+#if SHRINK_RULE == 1
+            const floatv total = var_x + var_n;
+            const floatv shrunk = select((floatv)0.0f, dc * var_x / total, total > 0.0f);
+#else
+            const floatv shrunk = select((floatv)0.0f, copysign(fmax(fabs(dc) - var_n / sqrt(var_x), 0.0f), dc),
+                                         var_x > 0.0f);
+#endif
+            STOREV(shrunk + g_y * (dc - shrunk), dst + (o * NCHROMA + k) * plane + y * width + x);
+        }
+    }
+}
+
+/* joint_bilateral: luminance-guided bilateral of NCHROMA chroma planes. Halo RADIUS: output (u, v)
+ * is centred on chroma pixel (u + R, v + R) (planes at src + c_offset, c_w x c_h) and on luminance
+ * pixel (u + R + y_shift, v + R + y_shift) of the level image (plane 0, y_w wide). prm:
+ * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n]: range variances aY max(Y,0) + bY and
+ * a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y term.
+ * w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))).
+ * Each work item computes VEC consecutive pixels of a row (width >= VEC); the last one of a row
+ * starts at width - VEC, recomputing a few pixels with identical results. */
+__kernel void joint_bilateral(__global const float *src, const int c_offset, __global const float *level,
+                              __global float *dst, const int c_w, const int c_h, const int y_w,
+                              const int y_shift, const int width, const int height, const int guide,
+                              __constant const float *prm)
+{
+    const int x = min((int)get_global_id(0) * VEC, width - VEC);
+    const int y = get_global_id(1);
+    if ((int)get_global_id(0) * VEC >= width || y >= height) return;
+    const int c_plane = c_w * c_h;
+    const int plane = width * height;
+    const int ci = (y + RADIUS) * c_w + x + RADIUS;
+    const int yi = (y + RADIUS + y_shift) * y_w + x + RADIUS + y_shift;
+    __global const float *c = src + c_offset;
+    const float inv2sd2 = prm[0], floor2 = prm[1];
+    const floatv yp = LOADV(level + yi);
+    const floatv s = fmax(yp, 0.0f);
+    const floatv inv_y = guide ? 0.5f / fmax(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
+    for (int k = 0; k < NCHROMA; ++k) {
+        __global const float *ck = c + k * c_plane + ci;
+        const floatv cp = LOADV(ck);
+        const floatv inv_c = 0.5f / fmax(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
+        floatv num = 0.0f, den = 0.0f;
+        for (int dy = -RADIUS; dy <= RADIUS; ++dy) {
+            for (int dx = -RADIUS; dx <= RADIUS; ++dx) {
+                const floatv dyq = LOADV(level + yi + dy * y_w + dx) - yp;
+                const floatv cq = LOADV(ck + dy * c_w + dx);
+                const floatv dc = cq - cp;
+                const floatv w = exp_neg(-((float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y
+                                           + dc * dc * inv_c));
+                num += w * cq;
+                den += w;
+            }
+        }
+        STOREV(num / den, dst + k * plane + y * width + x);
+    }
+}
+
+/* haar_synthesize: inverse of haar_analyze for the NCHROMA chroma planes, one output pixel per
+ * work item: x_(sy,sx) = a + sx dx + sy dy + sx sy dd, sx = +1 on even columns, -1 on odd (sy
+ * alike). approx: NCHROMA planes a_w x a_h. detail: d_planes planes per orientation, d_w x d_h,
+ * chroma k at plane d_first + k; coefficient (u + d_shift, v + d_shift) for approx (u, v).
+ * Output 2 a_w x 2 a_h. Halo 0. */
+__kernel void haar_synthesize(__global const float *approx, __global const float *detail,
+                              __global float *dst, const int a_w, const int a_h,
+                              const int d_w, const int d_h, const int d_shift,
+                              const int d_planes, const int d_first)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int width = 2 * a_w, height = 2 * a_h;
+    if (x >= width || y >= height) return;
+    const int u = y >> 1, v = x >> 1;
+    const float sx = (x & 1) ? -1.0f : 1.0f;
+    const float sy = (y & 1) ? -1.0f : 1.0f;
+    const int ai = u * a_w + v;
+    const int di = (u + d_shift) * d_w + v + d_shift;
+    const int a_plane = a_w * a_h, d_plane = d_w * d_h, plane = width * height;
+    for (int k = 0; k < NCHROMA; ++k) {
+        const float a = approx[k * a_plane + ai];
+        const float ddx = detail[(d_first + k) * d_plane + di];
+        const float ddy = detail[(d_planes + d_first + k) * d_plane + di];
+        const float ddd = detail[(2 * d_planes + d_first + k) * d_plane + di];
+        dst[k * plane + y * width + x] = a + sx * ddx + sy * ddy + sx * sy * ddd;
+    }
+}
+
+/* chroma_merge: RGB = m . (Y, c_1..c_n), m row-major (3 x NPLANES). Output (u, v) reads chroma
+ * (u + c_shift_y, v + c_shift_x) of c_w x c_h planes and Y (u + y_shift_y, v + y_shift_x) of the
+ * level-0 image (y_w wide). Halo 0. INTERLEAVED (define): write H x W x 3 (the host layout, when
+ * this is the pipeline's last stage) instead of 3 planes. */
+#ifndef INTERLEAVED
+#define INTERLEAVED 0
+#endif
+__kernel void chroma_merge(__global const float *level, __global const float *chroma, __global float *dst,
+                           const int y_w, const int y_shift_y, const int y_shift_x,
+                           const int c_w, const int c_h, const int c_shift_y, const int c_shift_x,
+                           const int width, const int height, __constant const float *m)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    if (x >= width || y >= height) return;
+    const float lum = level[(y + y_shift_y) * y_w + x + y_shift_x];
+    const int c_plane = c_w * c_h;
+    const int ci = (y + c_shift_y) * c_w + x + c_shift_x;
+    float c[NCHROMA];
+    for (int k = 0; k < NCHROMA; ++k)
+        c[k] = chroma[k * c_plane + ci];
+    const int plane = width * height;
+    const int i = y * width + x;
+    for (int r = 0; r < 3; ++r) {
+        float v = m[r * NPLANES] * lum;
+        for (int k = 0; k < NCHROMA; ++k)
+            v += m[r * NPLANES + 1 + k] * c[k];
+#if INTERLEAVED
+        dst[3 * i + r] = v;
+#else
+        dst[r * plane + i] = v;
+#endif
+    }
+}

@@ -1,0 +1,356 @@
+"""Chroma denoise (SPEC section 6): kernels against references, tiling, behaviour on flat fields;
+noise from the raw (model and estimate); white balance pass 2 estimation.
+
+Tolerance for every OpenCL-vs-reference and tiled-vs-whole comparison (float32 kernels against
+float64 references, signal values ~0..1.2):
+
+    |opencl - reference| <= TOL * max(1, |reference|)
+"""
+from __future__ import annotations
+
+
+import numpy as np
+import pytest
+
+from clisp.cfa import cfa_from_name
+from clisp.charts import colorchecker
+from clisp.colorimetry import B_BAYER, P_LMS
+from clisp.noise import NoiseModel
+from clisp.noise import ChannelNoise
+from clisp.noise_estimate import estimate_raw_noise, raw_noise
+from clisp.pipeline import Pipeline
+from clisp.runtime import get_runtime
+from clisp.simulate import simulate
+from clisp.stages import chroma_denoise as cd
+from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
+                                         chroma_denoise_for, haar_analyze, haar_synthesize, lms_space,
+                                         make_plan, yuv_space)
+from clisp.stages.colour import ColourMatrix
+from clisp.stages.demosaic_bilinear import DemosaicBilinear
+from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.white_balance2 import estimate_wb2, gray_pixel_gains, illuminant_gains
+
+TOL = 1e-5
+"""|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
+
+SPACES = {"lms": lms_space(P_LMS), "yuv": yuv_space(B_BAYER)}
+HALO = ChromaDenoise(SPACES["lms"]).halo            # 52 at the defaults (J = 3, r = 3)
+# (window shape, window origin): odd sizes; origins at 0, negative, aligned to 2^J = 8 or not.
+WINDOWS = [((2 * HALO + 37, 2 * HALO + 53), (0, 0)),                # window aligned
+           ((2 * HALO + 37, 2 * HALO + 53), (-HALO, -HALO)),        # tile at (0, 0): window unaligned
+           ((2 * HALO + 41, 2 * HALO + 19), (-48, -16)),            # negative, window aligned
+           ((2 * HALO + 30, 2 * HALO + 67), (-61, 13)),             # negative, unaligned
+           ((2 * HALO + 9, 2 * HALO + 11), (3, -5))]                # small output (9 x 11 < VEC rows)
+
+
+def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "") -> None:
+    """The file's one tolerance rule (see TOL); shapes must match exactly."""
+    actual = np.asarray(actual)
+    reference = np.asarray(reference, dtype=np.float64)
+    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
+    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
+    err = np.abs(actual.astype(np.float64) - reference) / np.maximum(1.0, np.abs(reference))
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() <= TOL, (f"{what}: max scaled error {err.max():.3g} at {worst} "
+                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
+
+
+@pytest.fixture(scope="module")
+def rt():
+    return get_runtime()
+
+
+def run_stage(rt, stage, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+    src = rt.upload(np.ascontiguousarray(np.moveaxis(x, -1, 0)).astype(np.float32))
+    dst = stage.enqueue(rt, src, origin)
+    out = np.moveaxis(rt.download(dst), 0, -1)
+    rt.release(src)
+    rt.release(dst)
+    assert out.shape[:2] == stage.output_shape(x.shape[0], x.shape[1])
+    return out
+
+
+def random_table(space, seed: int, levels: int = 3) -> NoiseTable:
+    """Noise levels of a mid-gain capture: std ~0.005..0.05 at s = 0.3, random per subband."""
+    rng = np.random.default_rng(seed)
+    n = space.n_chroma
+    scale = np.array([2e-3, 2e-4])
+    return NoiseTable(rng.uniform(0.1, 1.0, (levels + 1, 1 + n, 2)) * scale,
+                      rng.uniform(0.1, 1.0, (levels + 1, 1 + n, 3, 2)) * scale)
+
+
+def noisy_camera(shape, seed: int) -> np.ndarray:
+    """Smooth colour ramps and a luminance edge plus noise: H x W x 3 white-balanced camera values."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:shape[0], 0:shape[1]] / max(shape)
+    base = np.stack([0.3 + 0.3 * x, 0.35 + 0.2 * y, 0.25 + 0.3 * x * y], axis=-1)
+    base *= np.where(x > 0.5, 1.6, 1.0)[..., None]
+    return base + 0.03 * rng.standard_normal(base.shape)
+
+
+# ------------------------------------------------------------------------------------------
+# colour spaces
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["lms", "yuv"])
+def test_space_round_trip_is_the_colour_matrix(name):
+    """from_luma Y + from_chroma c == to_rgb cam: with c^ = c the stage is the colour matrix."""
+    sp = SPACES[name]
+    np.testing.assert_allclose(sp.merge_matrix @ sp.split_matrix, sp.to_rgb, rtol=0, atol=1e-12)
+
+
+def test_spaces_are_the_papers():
+    lms = SPACES["lms"]
+    np.testing.assert_allclose(lms.luma, [0.5, 0.5, 0.0])
+    np.testing.assert_allclose(lms.chroma, P_LMS - np.outer(np.ones(3), lms.luma))
+    assert lms.strengths == (1.0, 1.0, 1.5)
+    yuv = SPACES["yuv"]
+    rgb = B_BAYER @ np.array([0.2, 0.5, 0.7])
+    y = 0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]
+    np.testing.assert_allclose(yuv.split_matrix @ [0.2, 0.5, 0.7], [y, 0.492 * (rgb[2] - y), 0.877 * (rgb[0] - y)])
+
+
+def test_haar_is_inverted_exactly():
+    a = np.random.default_rng(0).standard_normal((2, 16, 24))
+    approx, detail = haar_analyze(a)
+    np.testing.assert_allclose(haar_synthesize(approx, detail), a, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(approx, a.reshape(2, 8, 2, 12, 2).mean(axis=(2, 4)))
+
+
+# ------------------------------------------------------------------------------------------
+# kernels against the reference
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("vec", [1, 8])
+@pytest.mark.parametrize("name", ["lms", "yuv"])
+def test_kernels_match_reference(rt, monkeypatch, name, vec):
+    """Whole stage (chroma_split, haar_analyze, bayes_shrink, joint_bilateral, haar_synthesize,
+    chroma_merge) on odd windows at negative, aligned and unaligned origins; both vector widths."""
+    monkeypatch.setattr(cd, "vector_width", lambda rt: vec)
+    stage = ChromaDenoise(SPACES[name], random_table(SPACES[name], seed=1))
+    for i, (shape, origin) in enumerate(WINDOWS):
+        x = noisy_camera(shape, seed=i)
+        assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), f"{name} {shape} {origin}")
+
+
+@pytest.mark.parametrize("params", [
+    ChromaDenoiseParams(shrink="wiener"), ChromaDenoiseParams(shrink="none"),
+    ChromaDenoiseParams(shrink_guide=False, k_luma=0.0), ChromaDenoiseParams(levels=2, radius=2, shrink_radius=1),
+    ChromaDenoiseParams(strengths=(2.0, 0.5, 1.0), noise_scale=1.5),
+], ids=["wiener", "no-shrink", "unguided", "J2r2", "strengths"])
+def test_kernel_options_match_reference(rt, params):
+    space = SPACES["lms"]
+    stage = ChromaDenoise(space, random_table(space, seed=2, levels=params.levels), params)
+    shape, origin = (2 * stage.halo + 29, 2 * stage.halo + 35), (-7, 6)
+    x = noisy_camera(shape, seed=5)
+    assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), str(params))
+
+
+def test_fused_white_balance_and_interleaved_output(rt):
+    """A following WB pass 2 folds into the merge; the interleaved last-stage output is the same image."""
+    from clisp.stages.colour import WhiteBalance2
+    space = SPACES["yuv"]
+    stage = ChromaDenoise(space, random_table(space, seed=7))
+    wb2 = WhiteBalance2(np.array([1.1, 1.0, 0.9]))
+    fused = stage.fuse(wb2)
+    assert isinstance(fused, ChromaDenoise)
+    shape, origin = (2 * HALO + 13, 2 * HALO + 17), (4, -9)
+    x = noisy_camera(shape, seed=8)
+    expected = wb2.reference(stage.reference(x, origin), origin)
+    np.testing.assert_allclose(fused.reference(x, origin), expected, rtol=0, atol=1e-12)
+    src = rt.upload(np.ascontiguousarray(np.moveaxis(x, -1, 0)).astype(np.float32))
+    dst = fused.with_interleaved_output().enqueue(rt, src, origin)
+    assert dst.interleaved
+    assert_close(rt.download(dst), expected, "fused, interleaved")
+    rt.release(src)
+    rt.release(dst)
+
+
+def test_plan_is_anchored_to_image_coordinates():
+    """The aligned start is the first multiple of 2^J in image coordinates, whatever the window."""
+    for origin in [(0, 0), (-52, -52), (3, -5), (-61, 17)]:
+        plan = make_plan(3, 3, 200, 220, origin)
+        assert all((o + s) % 8 == 0 for o, s in zip(origin, plan.skip))
+        assert all(0 <= c for c in plan.crop)
+
+
+# ------------------------------------------------------------------------------------------
+# behaviour
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["lms", "yuv"])
+def test_zero_noise_is_the_colour_matrix(name):
+    """No noise: every sigma floors at 1e-6, so the denoiser returns the colour matrix."""
+    sp = SPACES[name]
+    stage = ChromaDenoise(sp)
+    shape, origin = (2 * HALO + 21, 2 * HALO + 26), (-3, 9)
+    x = noisy_camera(shape, seed=3)
+    h = stage.halo
+    expected = ColourMatrix(sp.to_rgb).reference(x, origin)[h:-h, h:-h]
+    np.testing.assert_allclose(stage.reference(x, origin), expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["lms", "yuv"])
+def test_flat_field_unchanged(rt, name):
+    """A noiseless flat field stays exactly flat and equal to the colour matrix, noise table or not."""
+    sp = SPACES[name]
+    stage = ChromaDenoise(sp, random_table(sp, seed=4))
+    cam = np.array([0.31, 0.27, 0.12])
+    x = np.broadcast_to(cam, (2 * HALO + 16, 2 * HALO + 24, 3)).copy()
+    expected = np.broadcast_to(sp.to_rgb @ cam, (16, 24, 3))
+    np.testing.assert_allclose(stage.reference(x, (5, -2)), expected, rtol=0, atol=1e-12)
+    assert_close(run_stage(rt, stage, x, (5, -2)), expected, name)
+
+
+def flat_capture(kind: str, gain: float, level: float = 0.18, shape=(192, 256)):
+    """Simulated raw of a flat neutral at linear ``level``, no optics."""
+    return simulate(np.full(shape + (3,), level), kind, gain=gain, optics="none", seed=11).raw
+
+
+@pytest.mark.parametrize("kind", ["lms", "bayer"])
+def test_reduces_chroma_noise_and_keeps_luminance(kind):
+    """On a noisy flat field the chroma std drops >= 5x; the output noise is then close to the
+    luminance noise (Y untouched), for every output channel."""
+    raw = flat_capture(kind, gain=16)
+    cfa = raw.cfa
+    demosaic = DemosaicBilinear(cfa)
+    head = [normalize(cfa, raw.black_level, raw.white_level), white_balance1(cfa, raw.pass1_gains()), demosaic]
+    stage = chroma_denoise_for(raw, demosaic)
+    assert isinstance(stage, ChromaDenoise)
+    sp = stage.space
+    cam = Pipeline(cfa, head).run(raw.data, tile=0)[8:-8, 8:-8].astype(np.float64)
+    out = Pipeline(cfa, head + [stage]).run(raw.data, tile=0)[8:-8, 8:-8].astype(np.float64)
+    plain = cam @ sp.to_rgb.T
+    luma = cam @ sp.luma
+    pinv = np.linalg.pinv(sp.from_chroma)
+    chroma_in = (plain - luma[..., None] * sp.from_luma) @ pinv.T
+    chroma_out = (out - luma[..., None] * sp.from_luma) @ pinv.T
+    assert np.all(chroma_out.std(axis=(0, 1)) * 5 <= chroma_in.std(axis=(0, 1)))
+    # output noise ~ luminance noise: within 15 % per channel (luminance std from the input)
+    assert np.all(np.abs(out.std(axis=(0, 1)) / luma.std() - 1.0) < 0.15)
+    if kind == "bayer":      # BT.601 Y of the output is exactly the input's Y (U, V only changed)
+        np.testing.assert_allclose(out @ [0.299, 0.587, 0.114], luma, rtol=0, atol=2e-6)
+
+
+def test_noiseless_raw_keeps_the_colour_matrix():
+    raw = flat_capture("lms", gain=None)
+    assert raw_noise(raw).is_zero
+    assert isinstance(chroma_denoise_for(raw, DemosaicBilinear(raw.cfa)), ColourMatrix)
+
+
+@pytest.mark.parametrize("kind, tile", [("lms", 64), ("lms", 256), ("bayer", 64), ("bayer", 256), ("lms", 60)])
+def test_tiled_equals_untiled(kind, tile):
+    """Full pipeline on a 301 x 517 noisy capture; tiles 64 and 256 (origins aligned to 2^J = 8)
+    and 60 (unaligned origins: the decimation grid is anchored to image coordinates anyway)."""
+    rng = np.random.default_rng(6)
+    scene = np.clip(0.2 + 0.15 * rng.standard_normal((301, 517, 3)).cumsum(axis=1) / 20, 0, 1)
+    raw = simulate(scene, kind, gain=8, optics="none", seed=2).raw
+    cfa = raw.cfa
+    demosaic = DemosaicBilinear(cfa)
+    stages = [normalize(cfa, raw.black_level, raw.white_level), white_balance1(cfa, raw.pass1_gains()),
+              demosaic, chroma_denoise_for(raw, demosaic)]
+    pipe = Pipeline(cfa, stages)
+    assert pipe.align == 8
+    whole = pipe.run(raw.data, tile=0)
+    assert_close(pipe.run(raw.data, tile=tile), whole, f"{kind} tile {tile}")
+
+
+def test_calibration_follows_the_noise():
+    """Zero noise -> zero table; the measured level-0 luminance variance of a bilinear LMS demosaic
+    scales with the raw variance (4x the noise variance -> ~4x the table)."""
+    cfa = cfa_from_name("lms")
+    sp, dem = SPACES["lms"], DemosaicBilinear(cfa)
+    assert calibrate_noise(dem, cfa, sp, ChannelNoise.zero()).is_zero
+    noise = ChannelNoise.from_model(NoiseModel(), 16.0, np.array([1.0, 1.2191, 3.1397]) / 0.98951)
+    t1 = calibrate_noise(dem, cfa, sp, noise, size=192)
+    t4 = calibrate_noise(dem, cfa, sp, noise.scaled(2.0), size=192)
+    v1 = t1.approx[0, 0, 0] * 0.2 + t1.approx[0, 0, 1]
+    v4 = t4.approx[0, 0, 0] * 0.2 + t4.approx[0, 0, 1]
+    assert 3.6 < v4 / v1 < 4.4
+
+
+# ------------------------------------------------------------------------------------------
+# noise from the raw
+# ------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["lms", "bayer"])
+def test_noise_estimate_matches_the_model(kind):
+    """On a smooth simulated capture the blind estimate is within 15 % of the model's std."""
+    y, x = np.mgrid[0:384, 0:512] / 512.0
+    scene = np.stack([0.05 + 0.6 * x, 0.05 + 0.5 * x, 0.05 + 0.4 * x + 0.1 * y], axis=-1)
+    raw = simulate(scene, kind, gain=16, optics="none", seed=3).raw
+    model = raw_noise(raw)
+    assert model.source == "model"
+    est = estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    for c in range(raw.cfa.n_channels):
+        for s in (0.1, 0.4):
+            ratio = np.sqrt(est.variance(c, s) / model.variance(c, s))
+            assert abs(ratio - 1) < 0.15, (c, s, ratio)
+
+
+def test_raw_noise_without_metadata_is_estimated():
+    raw = flat_capture("bayer", gain=8)
+    raw.metadata = {}
+    assert raw_noise(raw).source == "estimate"
+
+
+# ------------------------------------------------------------------------------------------
+# white balance pass 2
+# ------------------------------------------------------------------------------------------
+
+def test_illuminant_gains_of_the_spec():
+    np.testing.assert_allclose(illuminant_gains(P_LMS), [1.0, 1.0101, 1.0753], atol=1e-4)
+    np.testing.assert_allclose(illuminant_gains(B_BAYER), [1.0, 1.0, 1.0], atol=1e-12)
+
+
+def test_metadata_pass2_is_identity_for_rgb_sourced_simulations():
+    raw = flat_capture("lms", gain=4)
+    np.testing.assert_array_equal(estimate_wb2(raw, "metadata"), np.ones(3))
+    raw.metadata["illuminant_white"] = [1.0, 1.0, 1.0]
+    np.testing.assert_allclose(estimate_wb2(raw, "metadata"), illuminant_gains(P_LMS))
+
+
+@pytest.mark.parametrize("kind", ["lms", "bayer"])
+def test_gray_pixels_recover_a_colour_cast(kind):
+    """ColorChecker under a warm cast: the gray-pixel estimate is within 1 degree of the cast's
+    inverse; gray world is less accurate on this chart."""
+    chart, _ = colorchecker(patch=32, gap=8)
+    cast = np.array([1.25, 1.0, 0.7])
+    raw = simulate(chart * cast * 0.8, kind, gain=8, seed=1).raw
+    truth = (1.0 / cast) / (1.0 / cast[1])
+
+    def angle(g):
+        return np.degrees(np.arccos(g @ truth / np.linalg.norm(g) / np.linalg.norm(truth)))
+    assert angle(estimate_wb2(raw, "gray_pixels")) < 1.0
+    assert angle(estimate_wb2(raw, "gray_world")) < 5.0
+
+
+def test_gray_pixels_ignore_saturated_colours():
+    """Neutrals under a cast plus saturated reds: gray pixels give exactly the inverse cast."""
+    cast = np.array([1.3, 1.0, 0.8])
+    neutral = np.linspace(0.1, 0.9, 50)[:, None] * cast
+    red = np.tile([0.9, 0.1, 0.05], (15, 1))
+    gains = gray_pixel_gains(np.vstack([neutral, red]))
+    np.testing.assert_allclose(gains, 1.0 / cast, rtol=1e-9)
+
+
+def test_large_raws_are_sampled(monkeypatch):
+    """Big (memory-mapped) raws: the WB thumbnail takes every k-th CFA tile, the noise estimate a
+    grid of crops; both give the same answers as the full read on a uniform capture."""
+    import clisp.noise_estimate as ne
+    from clisp.white_balance2 import raw_thumbnail
+    y, x = np.mgrid[0:512, 0:768] / 768.0
+    scene = np.stack([0.1 + 0.5 * x, 0.1 + 0.4 * x, 0.1 + 0.3 * x + 0.1 * y], axis=-1)
+    raw = simulate(scene, "lms", gain=16, optics="none", seed=4).raw
+    full, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    part, ok2 = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains(),
+                              max_tiles=full.shape[0] * full.shape[1] // 8)   # k = ceil(sqrt(8)) = 3
+    np.testing.assert_array_equal(part, full[::3, ::3])
+    np.testing.assert_array_equal(ok2, ok[::3, ::3])
+    whole = estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    monkeypatch.setattr(ne, "SAMPLE_PIXELS", 200_000)
+    monkeypatch.setattr(ne, "SAMPLE_CROP", 128)
+    assert len(ne.sample_crops(512, 768, ne.SAMPLE_PIXELS, ne.SAMPLE_CROP)) > 1
+    sampled = ne.estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    for c in range(3):
+        assert abs(np.sqrt(sampled.variance(c, 0.3) / whole.variance(c, 0.3)) - 1) < 0.1
