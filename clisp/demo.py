@@ -77,8 +77,10 @@ def run_demo(out_dir: Path) -> list[DemoRow]:
     print(f"clisp demo: {w}x{h} chart (ColorChecker, zone plate, Siemens star, dead leaves) -> {out_dir}/")
     print(f"OpenCL: {get_runtime().describe()}")
     demosaics = ", ".join(f"{kind} {resolve_options(None, None, kind)['demosaic']}" for kind in CFAS)
-    print(f"pipeline (preset {DEFAULT_PRESET}): normalise, WB pass 1, demosaic ({demosaics}), colour matrix, "
-          "WB pass 2; PSNR tone-mapped with a 10 px border, 'zone' = zone-plate PSNR")
+    levels = resolve_options(None, None, CFAS[0])["denoise_levels"]
+    denoise = f"chroma denoise ({levels} levels)" if levels else "no chroma denoise"
+    print(f"pipeline (preset {DEFAULT_PRESET}): normalise, WB pass 1, demosaic ({demosaics}), colour matrix + "
+          f"{denoise}, WB pass 2; PSNR tone-mapped with a 10 px border, 'zone' = zone-plate PSNR")
     rows, raws = [], {}
     for cfa in CFAS:
         for gain in GAINS:
