@@ -11,7 +11,8 @@ of linear sRGB), the exposure factor, and the share of pixels compared.
 
 With --demosaic bilinear against LibRaw's LINEAR both sides interpolate alike, so the figure
 isolates colour (black, white, WB, matrix, orientation); other pairs add demosaic differences,
-which in noisy dark images dominate a per-pixel CIEDE2000.
+which in noisy dark images dominate a per-pixel CIEDE2000. clisp's chroma denoiser is off unless
+--denoise: LibRaw has none, and removing chroma noise is not a colour error.
 """
 from __future__ import annotations
 
@@ -38,8 +39,8 @@ def rawpy_linear(path: Path, algorithm: str = "LINEAR") -> np.ndarray:
     return rgb.astype(np.float64) / 65535.0
 
 
-def compare(path: Path, demosaic: str | None, algorithm: str) -> dict[str, float]:
-    ours = clisp.process(path, demosaic=demosaic).astype(np.float64)
+def compare(path: Path, demosaic: str | None, algorithm: str, denoise: bool) -> dict[str, float]:
+    ours = clisp.process(path, demosaic=demosaic, denoise=None if denoise else False).astype(np.float64)
     theirs = rawpy_linear(path, algorithm)
     if ours.shape != theirs.shape:
         raise SystemExit(f"{path.name}: size differs: clisp {ours.shape} vs rawpy {theirs.shape}")
@@ -60,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--demosaic", default=None, help="clisp Bayer demosaic (default: the preset's)")
+    parser.add_argument("--denoise", action="store_true",
+                        help="keep clisp's chroma denoiser (LibRaw has none, so per-pixel CIEDE2000 then "
+                             "also counts the chroma noise rawpy keeps); default off")
     parser.add_argument("--rawpy-demosaic", default="LINEAR",
                         help="LibRaw demosaic: LINEAR (bilinear, isolates colour from demosaic), AHD, ...")
     args = parser.parse_args(argv)
@@ -70,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'file':<44}{'median dE00':>12}{'mean':>8}{'p95':>8}{'exposure':>10}{'compared':>10}")
     worst = 0.0
     for path in files:
-        r = compare(path, args.demosaic, args.rawpy_demosaic)
+        r = compare(path, args.demosaic, args.rawpy_demosaic, args.denoise)
         worst = max(worst, r["median"])
         print(f"{path.name:<44}{r['median']:>12.2f}{r['mean']:>8.2f}{r['p95']:>8.2f}{r['exposure']:>10.3f}"
               f"{r['share']:>9.0%}")
