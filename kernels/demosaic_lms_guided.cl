@@ -302,10 +302,11 @@ __kernel void keep_luminance(__global const float *m, __global const float *c, _
     dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
 }
 
-/* lm_output: L, M (planes 0, 1): y = m - c mod, d = y - ylp; Y = ylp + w d, w = 1 (noiseless) or
- * max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = lum_shot max(ylp, 0) + lum_floor (the noise of d);
- * L = Y + c, M = Y - c. c on the kernel's window (width in_w), m and ylp on windows larger by m_off,
- * l_off. R = 2. */
+/* lm_output: L, M (planes 0, 1): y = m - c mod, d = y - ylp; noiseless Y = ylp + d (= y); noisy
+ * Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial neighbours) / 8 (the flat-field target: zero
+ * at the (pi, pi) chroma carrier, noise gain 0.3125), w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2,
+ * vn = lum_shot max(ylp, 0) + lum_floor (the noise of d); L = Y + c, M = Y - c. c on the kernel's window
+ * (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
 __kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
                         __global float *dst, const int in_w, const int m_w, const int m_off, const int l_w,
                         const int l_off, const int out_w, const int out_h, const int oy, const int ox,
@@ -330,7 +331,9 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
     e *= 1.0f / 25.0f;
     const float vn = lum_shot * max_f(ylp[il], 0.0f) + lum_floor;
     const float w = e > 0.0f ? max_f(e - blend_k * vn, 0.0f) / e : 0.0f;
-    const float lum = ylp[il] + w * dc;
+    const int im = (yc + m_off) * m_w + xc + m_off;
+    const float ybl = 0.5f * m[im] + 0.125f * (m[im - m_w] + m[im + m_w] + m[im - 1] + m[im + 1]);
+    const float lum = ybl + w * (m[im] - c[ic] * mod_f(yc + oy, xc + ox) - ybl);
 #else
     const float lum = ylp[il] + dc;
 #endif

@@ -124,8 +124,8 @@ def test_coloured_flat_field_reproduced():
 
 
 def test_noise_blend_averages_flat_noise():
-    """On a noisy flat patch the luminance falls back to the diamond low-pass (w -> 0): the noise of
-    Y = (L + M) / 2 is about sqrt(sum D^2) = 0.64 of one sample's, where keeping samples gives 1.0."""
+    """On a noisy flat patch the luminance falls back to the flat-field target ybl (w -> 0): the noise
+    of Y = (L + M) / 2 is about sqrt(0.3125) = 0.56 of one sample's, where keeping samples gives 1.0."""
     cfa = lms_cfa()
     rng = np.random.default_rng(3)
     level = 0.2
@@ -136,9 +136,33 @@ def test_noise_blend_averages_flat_noise():
     noisy = DemosaicLMSGuided(cfa, noise=NOISE).reference(x, (0, 0))
     kept = DemosaicLMSGuided(cfa).reference(x, (0, 0))
     ratio = (0.5 * (noisy[..., 0] + noisy[..., 1])).std() / sd
-    assert ratio < 0.75, ratio
+    assert ratio < 0.6, ratio
     assert (0.5 * (kept[..., 0] + kept[..., 1])).std() / sd > 0.9
     assert abs(LUM_NOISE_GAIN - 0.405) < 1e-3
+
+
+def test_lm_output_blend_ends():
+    """lm_output's two ends: noiseless (and w = 1) keeps y = m - c mod exactly; on flat noise (w = 0)
+    Y is the flat-field target ybl = m / 2 + (4 axial neighbours) / 8, which cancels the (pi, pi)
+    chroma carrier (a pure +-c checkerboard in m gives ybl = its DC level)."""
+    cfa = lms_cfa()
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    shape = (40, 44)
+    mod = np.where(cfa.channel_map(*shape) == stage.ch_l, 1.0, -1.0)
+    rng = np.random.default_rng(1)
+    m = rng.uniform(0.1, 0.9, shape)
+    c = 0.05 * rng.standard_normal(shape)
+    lm = lm_output(m, c, lum_lowpass(np.pad(m, D_RADIUS, mode="reflect")), mod, None, stage.ch_l, stage.ch_m, 2.0)
+    r = COMBINE_RADIUS
+    np.testing.assert_allclose(0.5 * (lm[..., 0] + lm[..., 1]), _valid(m - c * mod, r), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(lm[..., 0] - lm[..., 1], 2.0 * _valid(c, r), atol=1e-15)
+    # flat noise far below the blend threshold -> w = 0 -> Y = ybl; a carrier +-0.1 in m cancels in ybl
+    flat = 0.3 + 0.1 * mod + 1e-9 * rng.standard_normal(shape)
+    c0 = np.full(shape, 0.1)
+    lm = lm_output(flat, c0, np.full(shape, 0.3), mod, NOISE, stage.ch_l, stage.ch_m, 2.0)
+    ybl = 0.5 * _valid(flat, r) + 0.125 * sum(_valid(flat, r, dy, dx) for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)))
+    np.testing.assert_allclose(0.5 * (lm[..., 0] + lm[..., 1]), ybl, atol=1e-12)
+    np.testing.assert_allclose(ybl, 0.3, atol=1e-8)
 
 
 # ---------------------------------------------------------------------------------- kernels

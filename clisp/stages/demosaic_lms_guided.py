@@ -23,9 +23,11 @@ Steps (one function per kernel below; radius = halo the step consumes)::
     M at S, pass 2    r 6   as pass 1 with guide y (radius r2 = 2), fused with an edge-directed
                             estimate yd - c where its prediction error is small (below)
     chroma, pass 2    r 12  as pass 1 on the new m
-    luminance blend   r 2   Y = ylp + w (y - ylp), w = max(E - k vn, 0) / E (LMMSE-style),
+    luminance blend   r 2   Y = ybl + w (y - ybl), w = max(E - k vn, 0) / E (LMMSE-style),
                             E = 5 x 5 mean of (y - ylp)^2, vn its noise variance from the noise
-                            model (w = 1 noiseless); L = Y + c, M = Y - c
+                            model; ybl = m / 2 + (4 axial neighbours of m) / 8, the flat-field
+                            target (zero at (pi, pi), noise gain 0.3125 against 0.405 for ylp);
+                            noiseless Y = ylp + (y - ylp) = y; L = Y + c, M = Y - c
     S                 r 11  g = GF over S sites of p against M (radius 4); residual interpolation:
                             S = g + gamma_S * tent-interpolation over the S lattice of (p - g)
 
@@ -297,9 +299,11 @@ def chroma_input(m: np.ndarray, ylp: np.ndarray, mod: np.ndarray) -> np.ndarray:
 
 def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, noise: ChannelNoise | None,
               ch_l: int, ch_m: int, blend_k: float) -> np.ndarray:
-    """L, M (shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod, d = y - ylp,
-    Y = ylp + w d with w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = sum(D^2) (var_L + var_M)/2
-    at the level ylp (w = 1 noiseless); L = Y + c, M = Y - c."""
+    """L, M (shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod, d = y - ylp; noiseless
+    Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = B * m with B = delta / 2 + (4 axial taps) / 8
+    (the flat-field target: DC gain 1, zero at the (pi, pi) chroma carrier, noise gain 0.3125 against
+    sum(D^2) = 0.405 for ylp), w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = sum(D^2)
+    (var_L + var_M) / 2 at the level ylp (the noise of d); L = Y + c, M = Y - c."""
     r = COMBINE_RADIUS
     y = m - c * mod
     d = y - ylp
@@ -310,7 +314,9 @@ def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, no
         e = correlate_valid(d * d, np.ones((5, 5)) / 25.0)
         vn = LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
         w = np.where(e > 0, np.maximum(e - blend_k * vn, 0.0) / np.where(e > 0, e, 1.0), 0.0)
-        lum = centre_ylp + w * centre_d
+        ybl = 0.5 * _valid(m, r) + 0.125 * (_valid(m, r, -1, 0) + _valid(m, r, 1, 0)
+                                            + _valid(m, r, 0, -1) + _valid(m, r, 0, 1))
+        lum = ybl + w * (_valid(y, r) - ybl)
     return np.stack([lum + centre_c, lum - centre_c], axis=-1)
 
 
