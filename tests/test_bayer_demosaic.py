@@ -20,13 +20,13 @@ from clisp.cfa import BAYER_PHASES, bayer_cfa, lms_cfa
 from clisp.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.pipeline import Pipeline
-from clisp.runtime import DeviceImage, get_runtime
+from clisp.runtime import DeviceImage
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_dlmmse import EPSILON, DemosaicDLMMSE
 from clisp.stages.demosaic_malvar import DemosaicMalvar
 from clisp.stages.raw_scale import normalize, white_balance1
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
 
 ORIGINS = [(0, 0), (1, 3), (-2, -5), (5, -2)]
@@ -40,21 +40,8 @@ SPEC_M = 4
 SPEC_EPSILON = 0.1 / 255 ** 2
 
 
-def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "") -> None:
-    """The file's one tolerance rule (see TOL); shapes must match exactly."""
-    actual = np.asarray(actual)
-    reference = np.asarray(reference, dtype=np.float64)
-    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual.astype(np.float64) - reference) / np.maximum(1.0, np.abs(reference))
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() <= TOL, (f"{what}: max scaled error {err.max():.3g} at {worst} "
-                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
 
 
-@pytest.fixture(scope="module")
-def rt():
-    return get_runtime()
 
 
 def run_stage(rt, stage, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:

@@ -19,7 +19,6 @@ from clisp.noise import NoiseModel
 from clisp.noise import ChannelNoise
 from clisp.noise_estimate import estimate_raw_noise, raw_noise
 from clisp.pipeline import Pipeline
-from clisp.runtime import get_runtime
 from clisp.simulate import simulate
 from clisp.stages import chroma_denoise as cd
 from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
@@ -29,8 +28,8 @@ from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_bilinear import DemosaicBilinear
 from clisp.stages.raw_scale import normalize, white_balance1
 from clisp.white_balance2 import estimate_wb2, gray_pixel_gains, illuminant_gains
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
 
 SPACES = {"lms": lms_space(P_LMS), "yuv": yuv_space(B_BAYER)}
@@ -43,21 +42,8 @@ WINDOWS = [((2 * HALO + 37, 2 * HALO + 53), (0, 0)),                # window ali
            ((2 * HALO + 9, 2 * HALO + 11), (3, -5))]                # small output (9 x 11 < VEC rows)
 
 
-def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "") -> None:
-    """The file's one tolerance rule (see TOL); shapes must match exactly."""
-    actual = np.asarray(actual)
-    reference = np.asarray(reference, dtype=np.float64)
-    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual.astype(np.float64) - reference) / np.maximum(1.0, np.abs(reference))
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() <= TOL, (f"{what}: max scaled error {err.max():.3g} at {worst} "
-                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
 
 
-@pytest.fixture(scope="module")
-def rt():
-    return get_runtime()
 
 
 def run_stage(rt, stage, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:

@@ -15,14 +15,14 @@ from clisp.cfa import CFA, cfa_from_name
 from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
 from clisp.rawimage import RawImage
-from clisp.runtime import DeviceImage, get_runtime
+from clisp.runtime import DeviceImage
 from clisp.stages.base import fuse_stages
 from clisp.stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
 from clisp.stages.demosaic_bilinear import DemosaicBilinear
 from clisp.stages.linear_filter import LinearPhaseFilter
 from clisp.stages.raw_scale import CfaAffine, normalize, white_balance1
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
 
 ORIGINS = [(0, 0), (1, 3), (-2, -5), (5, 2)]
@@ -33,21 +33,8 @@ WHITE = 1023.0
 K_EXP = 0.98951
 
 
-def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "") -> None:
-    """The file's one tolerance rule (see TOL); shapes must match exactly."""
-    actual = np.asarray(actual)
-    reference = np.asarray(reference, dtype=np.float64)
-    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual.astype(np.float64) - reference) / np.maximum(1.0, np.abs(reference))
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() <= TOL, (f"{what}: max scaled error {err.max():.3g} at {worst} "
-                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
 
 
-@pytest.fixture(scope="module")
-def rt():
-    return get_runtime()
 
 
 def to_device(rt, x: np.ndarray) -> DeviceImage:

@@ -21,7 +21,7 @@ from clisp.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
 from clisp.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
-from clisp.runtime import DeviceImage, get_runtime
+from clisp.runtime import DeviceImage
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
                                        LMSHybridParams, box_rows, chroma_demodulate_rows,
@@ -29,8 +29,8 @@ from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, Demo
                                        guided_filter_spec, guided_row_moments, lm_combine,
                                        luma_filter, luma_lowpass, m_at_s, s_joint_bilateral)
 from clisp.stages.raw_scale import normalize, white_balance1
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|opencl - reference| <= TOL * max(1, |reference|) unless a test states otherwise."""
 TOL_BILATERAL = 5e-5
 """S of the joint-bilateral option on a natural scene: at sharp edges its weights are exp(e) with
@@ -43,21 +43,8 @@ SHAPE = (45, 97)                        # odd sizes; every intermediate >= 64 wi
 NOISE = ChannelNoise.from_model(NoiseModel(), 8.0, WB_LMS / 0.98951)
 
 
-def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "", tol: float = TOL) -> None:
-    """The file's tolerance rule; shapes must match exactly."""
-    actual = np.asarray(actual, dtype=np.float64)
-    reference = np.asarray(reference, dtype=np.float64)
-    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual - reference) / np.maximum(1.0, np.abs(reference))
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() <= tol, (f"{what}: max scaled error {err.max():.3g} at {worst} "
-                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
 
 
-@pytest.fixture(scope="module")
-def rt():
-    return get_runtime()
 
 
 def random_window(seed: int, shape=SHAPE, lo: float = 0.02, hi: float = 1.2) -> np.ndarray:

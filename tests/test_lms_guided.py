@@ -25,15 +25,15 @@ from clisp.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
 from clisp.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
-from clisp.runtime import get_runtime
 from clisp.stages.colour import ColourMatrix
+from clisp.stages.lms_common import valid
 from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
                                               RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams,
-                                              _valid, chroma_input, guided_filter, l_guide, lm_output,
+                                              chroma_input, guided_filter, l_guide, lm_output,
                                               lum_lowpass, m_at_s_combine, s_output)
 from clisp.stages.raw_scale import normalize, white_balance1
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|opencl - reference| <= TOL * max(1, |reference|) everywhere in this file."""
 
 PHASES = [(0, 0), (1, 2)]
@@ -42,21 +42,8 @@ K_EXP = 0.98951
 NOISE = ChannelNoise.from_model(NoiseModel(), 8.0, WB_LMS / K_EXP)
 
 
-def assert_close(actual: np.ndarray, reference: np.ndarray, what: str = "", tol: float = TOL) -> None:
-    """The file's tolerance rule; shapes must match exactly."""
-    actual = np.asarray(actual, dtype=np.float64)
-    reference = np.asarray(reference, dtype=np.float64)
-    assert actual.shape == reference.shape, f"{what}: shape {actual.shape} != {reference.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual - reference) / np.maximum(1.0, np.abs(reference))
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() <= tol, (f"{what}: max scaled error {err.max():.3g} at {worst} "
-                              f"(opencl {actual[worst]!r}, reference {reference[worst]!r})")
 
 
-@pytest.fixture(scope="module")
-def rt():
-    return get_runtime()
 
 
 def mosaic(cfa, gain=None, shape=(125, 181), offset=(40, 52), seed=0) -> np.ndarray:
@@ -154,13 +141,13 @@ def test_lm_output_blend_ends():
     c = 0.05 * rng.standard_normal(shape)
     lm = lm_output(m, c, lum_lowpass(np.pad(m, D_RADIUS, mode="reflect")), mod, None, stage.ch_l, stage.ch_m, 2.0)
     r = COMBINE_RADIUS
-    np.testing.assert_allclose(0.5 * (lm[..., 0] + lm[..., 1]), _valid(m - c * mod, r), rtol=0, atol=1e-15)
-    np.testing.assert_allclose(lm[..., 0] - lm[..., 1], 2.0 * _valid(c, r), atol=1e-15)
+    np.testing.assert_allclose(0.5 * (lm[..., 0] + lm[..., 1]), valid(m - c * mod, r), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(lm[..., 0] - lm[..., 1], 2.0 * valid(c, r), atol=1e-15)
     # flat noise far below the blend threshold -> w = 0 -> Y = ybl; a carrier +-0.1 in m cancels in ybl
     flat = 0.3 + 0.1 * mod + 1e-9 * rng.standard_normal(shape)
     c0 = np.full(shape, 0.1)
     lm = lm_output(flat, c0, np.full(shape, 0.3), mod, NOISE, stage.ch_l, stage.ch_m, 2.0)
-    ybl = 0.5 * _valid(flat, r) + 0.125 * sum(_valid(flat, r, dy, dx) for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)))
+    ybl = 0.5 * valid(flat, r) + 0.125 * sum(valid(flat, r, dy, dx) for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)))
     np.testing.assert_allclose(0.5 * (lm[..., 0] + lm[..., 1]), ybl, atol=1e-12)
     np.testing.assert_allclose(ybl, 0.3, atol=1e-8)
 
@@ -214,13 +201,13 @@ def test_kernel_m_at_s(rt, window, pass2, noisy):
     c = 0.01 * rng.standard_normal(guide.shape)
     ylp = guide + 0.005 * rng.standard_normal(guide.shape)
     ch = cfa.channel_map(*p.shape, origin)
-    directional = (_valid(guide, 2 * r), _valid(c, 2 * r), _valid(ylp, 2 * r)) if pass2 else None
-    ref = stage._m_at_s(_valid(p, o_g), _valid(ch, o_g), guide, r, directional)
+    directional = (valid(guide, 2 * r), valid(c, 2 * r), valid(ylp, 2 * r)) if pass2 else None
+    ref = stage._m_at_s(valid(p, o_g), valid(ch, o_g), guide, r, directional)
     up = {k: rt.upload(v.astype(np.float32)) for k, v in (("g", guide), ("c", c), ("ylp", ylp))}
     out = stage.enqueue_m_at_s(rt, rt.upload(x), origin, up["g"], o_g, r,
                                (up["g"], up["c"], up["ylp"], o_g, o_g) if pass2 else None)
     # the reference ran on float64 copies of float32 inputs; guide etc. rounded the same way:
-    ref32 = stage._m_at_s(_valid(p, o_g), _valid(ch, o_g), guide.astype(np.float32).astype(np.float64), r,
+    ref32 = stage._m_at_s(valid(p, o_g), valid(ch, o_g), guide.astype(np.float32).astype(np.float64), r,
                           None if not pass2 else tuple(a.astype(np.float32).astype(np.float64) for a in directional))
     assert_close(download(rt, out), ref32, f"m_at_s pass2={pass2} noisy={noisy}")
     assert np.abs(ref32 - ref).max() < 1e-5
@@ -242,7 +229,7 @@ def test_kernel_chroma(rt, window, origin):
     assert_close(download(rt, ylp_dev)[k - D_RADIUS:-(k - D_RADIUS), k - D_RADIUS:-(k - D_RADIUS)], ylp_ref,
                  "ylp crop")
     y = stage.enqueue_keep_luminance(rt, rt.upload(x), c_dev, k, (origin[0] + k, origin[1] + k))
-    assert_close(download(rt, y), _valid(m, k) - download(rt, c_dev) * _valid(mod, k), "keep_luminance")
+    assert_close(download(rt, y), valid(m, k) - download(rt, c_dev) * valid(mod, k), "keep_luminance")
     assert chroma_input(m, lum_lowpass(m), mod).shape == (m.shape[0] - 12, m.shape[1] - 12)
 
 

@@ -28,18 +28,13 @@ from clisp.simulate import mirror_repeat_index, simulate, simulate_large
 from clisp.stages.base import Stage
 from clisp.streaming import ArrayWindows, FileWindows, window_source
 from clisp.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
+from tolerance import TOL, assert_close
 
 simulate_module = importlib.import_module("clisp.simulate")   # clisp.simulate is the function
 
-TOL = 1e-5
 SHAPE = (1093, 1157)          # not a multiple of any tile size or CFA period; 2 x 2 tiles of 1024
 
 
-def assert_close(actual: np.ndarray, expected: np.ndarray, what: str = "") -> None:
-    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual.astype(np.float64) - expected) / np.maximum(1.0, np.abs(expected.astype(np.float64)))
-    assert err.max() <= TOL, f"{what}: max scaled error {err.max():.3g} at {np.unravel_index(err.argmax(), err.shape)}"
 
 
 def make_raw(kind: str, shape: tuple[int, int] = SHAPE, dtype: type = np.uint16, seed: int = 3) -> RawImage:

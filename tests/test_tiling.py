@@ -14,18 +14,13 @@ from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
 from clisp.rawimage import RawImage
 from clisp.tiling import Tile, cfa_mirror_index, gather_window, plan_tiles
+from tolerance import TOL, assert_close
 
-TOL = 1e-5
 """|a - b| <= TOL * max(1, |b|) for every output comparison in this file."""
 
 IMAGE_SHAPE = (301, 517)              # not a multiple of any tile size or CFA period
 
 
-def assert_close(actual: np.ndarray, expected: np.ndarray, what: str = "") -> None:
-    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
-    assert np.all(np.isfinite(actual)), f"{what}: non-finite output"
-    err = np.abs(actual.astype(np.float64) - expected) / np.maximum(1.0, np.abs(expected.astype(np.float64)))
-    assert err.max() <= TOL, f"{what}: max scaled error {err.max():.3g} at {np.unravel_index(err.argmax(), err.shape)}"
 
 
 # ------------------------------------------------------------------------------------------

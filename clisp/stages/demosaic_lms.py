@@ -74,7 +74,7 @@ from ..noise import NOISELESS, ChannelNoise
 from ..rawimage import RawImage
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import binomial, check_lms_structure, diamond_halfband
+from .lms_common import binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
 
 A_RADIUS = 2
 """Radius of step A (M at S sites): E_v reads (y +- 2, x), the S-detail correction (y +- 2, x +- 2)."""
@@ -177,21 +177,7 @@ class LMSHybridParams:
 
 # ---------------------------------------------------------------------------------- helpers
 
-def _valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:
-    """a shrunk by r on every side, shifted by (dy, dx): a[r+dy : H-r+dy, r+dx : W-r+dx]."""
-    h, w = a.shape[:2]
-    return a[r + dy:h - r + dy, r + dx:w - r + dx]
 
-
-def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Valid-region correlation sum_t k[t] a[. + t] of a 2-D array with an odd kernel."""
-    r = k.shape[0] // 2
-    out = np.zeros((a.shape[0] - 2 * r, a.shape[1] - 2 * r))
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            if k[dy + r, dx + r] != 0:
-                out += k[dy + r, dx + r] * _valid(a, r, dy, dx)
-    return out
 
 
 
@@ -224,7 +210,7 @@ def m_at_s(p: np.ndarray, channel: np.ndarray, ch_s: int, params: LMSHybridParam
            noise: ChannelNoise, ch_m: int) -> np.ndarray:
     """Step A: the L/M quincunx m, (H-4) x (W-4): p where not S; M estimated at S sites."""
     def at(dy: int, dx: int) -> np.ndarray:
-        return _valid(p, A_RADIUS, dy, dx)
+        return valid(p, A_RADIUS, dy, dx)
 
     estimates = np.stack([(at(0, -2) + at(0, 2)) / 2, (at(-2, 0) + at(2, 0)) / 2,
                           (at(-1, -1) + at(1, 1)) / 2, (at(-1, 1) + at(1, -1)) / 2])
@@ -243,7 +229,7 @@ def m_at_s(p: np.ndarray, channel: np.ndarray, ch_s: int, params: LMSHybridParam
         m_est = iso
     s_mean = (at(-2, -2) + at(-2, 2) + at(2, -2) + at(2, 2)) / 4
     m_est = m_est + params.s_detail * (at(0, 0) - s_mean)
-    return np.where(_valid(channel, A_RADIUS) == ch_s, m_est, at(0, 0))
+    return np.where(valid(channel, A_RADIUS) == ch_s, m_est, at(0, 0))
 
 
 def luma_lowpass(m: np.ndarray, h_lum: np.ndarray) -> np.ndarray:
@@ -257,7 +243,7 @@ def chroma_demodulate_rows(m: np.ndarray, lum: np.ndarray, mod: np.ndarray, g: n
     m, mod: the window of lum grown by LUM_RADIUS (m's own window); returns lum's rows x (cols - 2R).
     """
     r = len(g) // 2
-    d = (_valid(m, LUM_RADIUS) - lum) * _valid(mod, LUM_RADIUS)
+    d = (valid(m, LUM_RADIUS) - lum) * valid(mod, LUM_RADIUS)
     return sum(g[k + r] * d[:, r + k:d.shape[1] - r + k] for k in range(-r, r + 1))
 
 
@@ -285,7 +271,7 @@ def guided_filter_spec(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int,
     var = box(chi * lum * lum) / n - mu_i * mu_i
     a = cov / (var + eps + noise.variance(ch_s, mu_s))
     b = mu_s - a * mu_i
-    return box(a) * _valid(lum, 2 * r) + box(b)
+    return box(a) * valid(lum, 2 * r) + box(b)
 
 
 def guided_row_moments(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int) -> np.ndarray:
@@ -341,19 +327,19 @@ def s_joint_bilateral(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, params: 
     Weights exp(e - max e), e = -d^2/(2 sigma_s^2) - (I_q - I)^2/(2 sigma_r^2): the usual bilateral
     weights scaled per pixel so that the largest is 1 (same result, no underflow)."""
     r = params.bl_radius
-    centre = _valid(lum, r)
+    centre = valid(lum, r)
     var_lm = 0.5 * (noise.variance(ch_l, centre) + noise.variance(ch_m, centre))
     sigma_r = np.maximum(params.bl_sigma_r_min, params.bl_sigma_r * np.sqrt(lum_noise_gain * var_lm))
     exponents, values = [], []
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
-            guide = _valid(lum, r, dy, dx)
-            sample = _valid(p, r, dy, dx)
+            guide = valid(lum, r, dy, dx)
+            sample = valid(p, r, dy, dx)
             if params.bl_domain == "ratio":
                 values.append(sample / np.maximum(guide, params.bl_ratio_floor))
             else:
                 values.append(sample - guide)
-            exponents.append(np.where(_valid(is_s, r, dy, dx),
+            exponents.append(np.where(valid(is_s, r, dy, dx),
                                       -(dy * dy + dx * dx) / (2 * params.bl_sigma_s ** 2)
                                       - (guide - centre) ** 2 / (2 * sigma_r ** 2), -np.inf))
     e = np.stack(exponents)
@@ -429,20 +415,20 @@ class DemosaicLMSHybrid(Stage):
         o_lum = A_RADIUS + LUM_RADIUS
         c0 = big_r - CHROMA_RADIUS - o_lum                         # lum rows/cols used by chroma
         lum_c = lum[c0:lum.shape[0] - c0, c0:lum.shape[1] - c0]
-        m_c = _valid(m, c0)
-        mod_c = _valid(mod, c0 + A_RADIUS)
+        m_c = valid(m, c0)
+        mod_c = valid(mod, c0 + A_RADIUS)
         rows = chroma_demodulate_rows(m_c, lum_c, mod_c, self.g_c)
         lm = lm_combine(lum_c, rows, self.g_c)
         s0 = big_r - prm.s_radius - o_lum                          # lum rows/cols used by S
         lum_s = lum[s0:lum.shape[0] - s0, s0:lum.shape[1] - s0]
-        p_s = _valid(p, s0 + o_lum)
-        is_s = _valid(channel, s0 + o_lum) == self.ch_s
+        p_s = valid(p, s0 + o_lum)
+        is_s = valid(channel, s0 + o_lum) == self.ch_s
         if prm.s_method == "guided":
             r = prm.gf_radius
             rows_m = guided_row_moments(lum_s, p_s, is_s, r)
             centres = lum_s[:, r:lum_s.shape[1] - r]
             a, b = guided_coefficients(rows_m, centres, r, prm.gf_eps, noise, self.ch_s)
-            s = guided_apply(_valid(lum_s, 2 * r), box_rows(a, r), box_rows(b, r), r)
+            s = guided_apply(valid(lum_s, 2 * r), box_rows(a, r), box_rows(b, r), r)
         else:
             s = s_joint_bilateral(lum_s, p_s, is_s, prm, float(np.sum(self.h_lum ** 2)), noise,
                                   self.ch_l, self.ch_m)

@@ -77,7 +77,7 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import binomial, check_lms_structure, diamond_halfband
+from .lms_common import binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
 
 D_RADIUS = 4
 """Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
@@ -155,19 +155,7 @@ class LMSGuidedParams:
 
 # ---------------------------------------------------------------------------------- helpers
 
-def _valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:
-    """a shrunk by r on every side, shifted by (dy, dx): a[r+dy : H-r+dy, r+dx : W-r+dx]."""
-    h, w = a.shape[:2]
-    return a[r + dy:h - r + dy, r + dx:w - r + dx]
 
-
-def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Valid-region correlation sum_t k[t] a[. + t] with an odd square kernel (zero taps skipped)."""
-    r = k.shape[0] // 2
-    out = np.zeros((a.shape[0] - 2 * r, a.shape[1] - 2 * r))
-    for dy, dx in np.argwhere(k != 0) - r:
-        out += k[dy + r, dx + r] * _valid(a, r, dy, dx)
-    return out
 
 
 
@@ -182,8 +170,8 @@ def l_guide(p: np.ndarray, ch: np.ndarray, ch_l: int) -> np.ndarray:
     only, so this interpolates the L quincunx). Shrinks by D_RADIUS."""
     off = D9.copy()
     off[D_RADIUS, D_RADIUS] = 0.0
-    centre = _valid(p, D_RADIUS)
-    return np.where(_valid(ch, D_RADIUS) == ch_l, centre, 2.0 * correlate_valid(p, off))
+    centre = valid(p, D_RADIUS)
+    return np.where(valid(ch, D_RADIUS) == ch_l, centre, 2.0 * correlate_valid(p, off))
 
 
 def gf_row_moments(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int) -> np.ndarray:
@@ -244,7 +232,7 @@ def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: 
     """The four GF steps in a row: guide and v (and mask) on one window; output shrunk by 2r."""
     rows = gf_row_moments(guide, v, mask, r)
     a, b = gf_coefficients(rows, guide[:, r:guide.shape[1] - r], r, eps0, shot, floor, level_from_guide)
-    return gf_apply(_valid(guide, 2 * r), box_rows(a, r), box_rows(b, r), r)
+    return gf_apply(valid(guide, 2 * r), box_rows(a, r), box_rows(b, r), r)
 
 
 def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.ndarray, ch_m: int, ch_s: int,
@@ -255,34 +243,34 @@ def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.nda
     E_M = mean over the M sites of the 5 x 5 of (p - Mfit)^2; gamma = 1 when noiseless.
     ``directional`` = (y, c, ylp) mixes in the edge-directed estimate (module doc)."""
     r = COMBINE_RADIUS
-    centre_p, centre_ch = _valid(p, r), _valid(ch, r)
-    est = _valid(mfit, r)
+    centre_p, centre_ch = valid(p, r), valid(ch, r)
+    est = valid(mfit, r)
     if noise is None:
-        est = est + (centre_p - _valid(sfit, r))
+        est = est + (centre_p - valid(sfit, r))
     else:
         is_m = (ch == ch_m).astype(np.float64)
         e_m = correlate_valid(is_m * (p - mfit) ** 2, np.ones((5, 5))) / correlate_valid(is_m, np.ones((5, 5)))
-        sig = np.maximum(e_m - noise.variance(ch_m, _valid(mfit, r)), 0.0)
-        gamma = sig / (sig + noise.variance(ch_s, _valid(sfit, r)))
-        est = est + gamma * (centre_p - _valid(sfit, r))
+        sig = np.maximum(e_m - noise.variance(ch_m, valid(mfit, r)), 0.0)
+        gamma = sig / (sig + noise.variance(ch_s, valid(sfit, r)))
+        est = est + gamma * (centre_p - valid(sfit, r))
     if directional is not None and kappa > 0:
         y, c, ylp = directional
         known = ch != ch_s
         num = den = 0.0
         err_min = np.full(centre_p.shape, np.inf)
         for dy, dx in DIRECTIONS:
-            pred = (_valid(y, 1, -dy, -dx) + _valid(y, 1, dy, dx)) / 2          # on the window less 1
-            ok = (_valid(known, 1) & _valid(known, 1, -dy, -dx) & _valid(known, 1, dy, dx)).astype(np.float64)
-            err = correlate_valid(ok * (pred - _valid(y, 1)) ** 2, np.ones((3, 3))) \
+            pred = (valid(y, 1, -dy, -dx) + valid(y, 1, dy, dx)) / 2          # on the window less 1
+            ok = (valid(known, 1) & valid(known, 1, -dy, -dx) & valid(known, 1, dy, dx)).astype(np.float64)
+            err = correlate_valid(ok * (pred - valid(y, 1)) ** 2, np.ones((3, 3))) \
                 / correlate_valid(ok, np.ones((3, 3)))
             weight = 1.0 / (err + dir_eps)
-            num = num + weight * _valid(pred, 1)
+            num = num + weight * valid(pred, 1)
             den = den + weight
             err_min = np.minimum(err_min, err)
         hf = kappa * correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
         total = hf + err_min
         w = np.where(total > 0, hf / np.where(total > 0, total, 1.0), 0.0)
-        est = w * (num / den - _valid(c, r)) + (1.0 - w) * est
+        est = w * (num / den - valid(c, r)) + (1.0 - w) * est
     return np.where(centre_ch == ch_s, est, centre_p)
 
 
@@ -294,7 +282,7 @@ def lum_lowpass(m: np.ndarray) -> np.ndarray:
 def chroma_input(m: np.ndarray, ylp: np.ndarray, mod: np.ndarray) -> np.ndarray:
     """B5 * ((m - ylp) mod) on ylp's window (m, mod: ylp's window grown by D_RADIUS): the demodulated
     high band, ~ C plus luminance leaking near (pi, pi). Shrinks ylp's window by PRE_RADIUS."""
-    return correlate_valid((_valid(m, D_RADIUS) - ylp) * _valid(mod, D_RADIUS), B5)
+    return correlate_valid((valid(m, D_RADIUS) - ylp) * valid(mod, D_RADIUS), B5)
 
 
 def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, noise: ChannelNoise | None,
@@ -307,16 +295,16 @@ def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, no
     r = COMBINE_RADIUS
     y = m - c * mod
     d = y - ylp
-    centre_d, centre_ylp, centre_c = _valid(d, r), _valid(ylp, r), _valid(c, r)
+    centre_d, centre_ylp, centre_c = valid(d, r), valid(ylp, r), valid(c, r)
     if noise is None:
         lum = centre_ylp + centre_d
     else:
         e = correlate_valid(d * d, np.ones((5, 5)) / 25.0)
         vn = LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
         w = np.where(e > 0, np.maximum(e - blend_k * vn, 0.0) / np.where(e > 0, e, 1.0), 0.0)
-        ybl = 0.5 * _valid(m, r) + 0.125 * (_valid(m, r, -1, 0) + _valid(m, r, 1, 0)
-                                            + _valid(m, r, 0, -1) + _valid(m, r, 0, 1))
-        lum = ybl + w * (_valid(y, r) - ybl)
+        ybl = 0.5 * valid(m, r) + 0.125 * (valid(m, r, -1, 0) + valid(m, r, 1, 0)
+                                            + valid(m, r, 0, -1) + valid(m, r, 0, 1))
+        lum = ybl + w * (valid(y, r) - ybl)
     return np.stack([lum + centre_c, lum - centre_c], axis=-1)
 
 
@@ -327,7 +315,7 @@ def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: Cha
     is_s = (ch == ch_s).astype(np.float64)
     res = is_s * (p - g)
     interp = correlate_valid(res, TENT) / correlate_valid(is_s, TENT)
-    centre_g = _valid(g, RI_RADIUS)
+    centre_g = valid(g, RI_RADIUS)
     if noise is None:
         return centre_g + interp
     ones = np.ones((2 * RI_RADIUS + 1,) * 2)
@@ -391,11 +379,11 @@ class DemosaicLMSGuided(Stage):
         prm, r = self.params, self.params.chroma_radius
         ylp = lum_lowpass(m)
         cin = chroma_input(m, ylp, mod)
-        ylp_c = _valid(ylp, PRE_RADIUS)
+        ylp_c = valid(ylp, PRE_RADIUS)
         shot = LUM_NOISE_GAIN * 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m])
         floor = LUM_NOISE_GAIN * 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
         c = guided_filter(ylp_c, cin, None, r, prm.chroma_eps, shot, floor, True)
-        return c, _valid(ylp_c, 2 * r)
+        return c, valid(ylp_c, 2 * r)
 
     def _m_at_s(self, p: np.ndarray, ch: np.ndarray, guide: np.ndarray, r: int,
                 directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -404,7 +392,7 @@ class DemosaicLMSGuided(Stage):
         prm, noise = self.params, self.pixel_noise
         fits = [guided_filter(guide, p, ch == c, r, prm.ms_eps, noise.shot[c], noise.floor[c], False)
                 for c in (self.ch_m, self.ch_s)]
-        return m_at_s_combine(_valid(p, 2 * r), _valid(ch, 2 * r), fits[0], fits[1], self.ch_m, self.ch_s,
+        return m_at_s_combine(valid(p, 2 * r), valid(ch, 2 * r), fits[0], fits[1], self.ch_m, self.ch_s,
                               self.noise, directional, prm.dir_kappa, prm.dir_eps)
 
     @property
@@ -418,26 +406,26 @@ class DemosaicLMSGuided(Stage):
         mod = np.where(ch == self.ch_l, 1.0, -1.0)
         o = D_RADIUS                                             # offset of the current window in p
         guide = l_guide(p, ch, self.ch_l)
-        m = self._m_at_s(_valid(p, o), _valid(ch, o), guide, prm.ms_radius1, None)
+        m = self._m_at_s(valid(p, o), valid(ch, o), guide, prm.ms_radius1, None)
         o += 2 * prm.ms_radius1 + COMBINE_RADIUS
-        c, ylp = self._chroma(m, _valid(mod, o), noise)
+        c, ylp = self._chroma(m, valid(mod, o), noise)
         k = D_RADIUS + PRE_RADIUS + 2 * prm.chroma_radius
         o += k
-        y = _valid(m, k) - c * _valid(mod, o)
+        y = valid(m, k) - c * valid(mod, o)
         r2 = prm.ms_radius2
-        m = self._m_at_s(_valid(p, o), _valid(ch, o), y, r2,
-                         (_valid(y, 2 * r2), _valid(c, 2 * r2), _valid(ylp, 2 * r2)))
+        m = self._m_at_s(valid(p, o), valid(ch, o), y, r2,
+                         (valid(y, 2 * r2), valid(c, 2 * r2), valid(ylp, 2 * r2)))
         o += 2 * r2 + COMBINE_RADIUS
-        c, ylp = self._chroma(m, _valid(mod, o), noise)
+        c, ylp = self._chroma(m, valid(mod, o), noise)
         o += k
-        lm = lm_output(_valid(m, k), c, ylp, _valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k)
+        lm = lm_output(valid(m, k), c, ylp, valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k)
         o += COMBINE_RADIUS
         rs = prm.s_radius
-        g = guided_filter(lm[..., 1], _valid(p, o), _valid(ch, o) == self.ch_s, rs, prm.s_eps,
+        g = guided_filter(lm[..., 1], valid(p, o), valid(ch, o) == self.ch_s, rs, prm.s_eps,
                           noise.shot[self.ch_s], noise.floor[self.ch_s], False)
         o += 2 * rs
-        s = s_output(_valid(p, o), _valid(ch, o), g, self.ch_s, self.noise)
-        return np.concatenate([_valid(lm, 2 * rs + RI_RADIUS), s[..., None]], axis=-1)
+        s = s_output(valid(p, o), valid(ch, o), g, self.ch_s, self.noise)
+        return np.concatenate([valid(lm, 2 * rs + RI_RADIUS), s[..., None]], axis=-1)
 
     # -- OpenCL ---------------------------------------------------------------------------------
     # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each

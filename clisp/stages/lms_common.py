@@ -66,3 +66,18 @@ def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int,
     if not (np.all(is_l == ((yy + xx) % 2 == 0)) or np.all(is_l == ((yy + xx) % 2 == 1))):
         raise ClispError(f"CFA {cfa.name}: L does not fill a quincunx")
     return ch_l, ch_m, ch_s
+
+
+def valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:
+    """a shrunk by r on every side, shifted by (dy, dx): a[r+dy : H-r+dy, r+dx : W-r+dx]."""
+    h, w = a.shape[:2]
+    return a[r + dy:h - r + dy, r + dx:w - r + dx]
+
+
+def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Valid-region correlation sum_t k[t] a[. + t] with an odd square kernel (zero taps skipped)."""
+    r = k.shape[0] // 2
+    out = np.zeros((a.shape[0] - 2 * r, a.shape[1] - 2 * r))
+    for dy, dx in np.argwhere(k != 0) - r:
+        out += k[dy + r, dx + r] * valid(a, r, dy, dx)
+    return out
