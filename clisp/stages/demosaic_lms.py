@@ -71,10 +71,9 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
-from ..rawimage import RawImage
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
+from .lms_common import NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
 
 A_RADIUS = 2
 """Radius of step A (M at S sites): E_v reads (y +- 2, x), the S-detail correction (y +- 2, x +- 2)."""
@@ -355,7 +354,7 @@ def s_joint_bilateral(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, params: 
 # ---------------------------------------------------------------------------------- the stage
 
 @dataclass
-class DemosaicLMSHybrid(Stage):
+class DemosaicLMSHybrid(NoiseFromRaw, Stage):
     """LMS mosaic (white-balanced, H x W) -> L, M, S ((H-2 halo) x (W-2 halo) x 3); see module doc.
 
     A flat field (L != M != S) comes back exactly:
@@ -371,11 +370,6 @@ class DemosaicLMSHybrid(Stage):
     cfa: CFA
     params: LMSHybridParams = field(default_factory=LMSHybridParams)
     noise: ChannelNoise | None = None
-
-    @classmethod
-    def for_raw(cls, raw: "RawImage", params: LMSHybridParams | None = None) -> "DemosaicLMSHybrid":
-        """The stage for a RawImage: its CFA, and its noise from the metadata's gain and noise model."""
-        return cls(raw.cfa, params or LMSHybridParams(), ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains()))
     name = "demosaic_lms_hybrid"
     cfa_kinds = ("lms",)
     in_channels = 1

@@ -68,7 +68,6 @@ Example: a flat mosaic comes back flat::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -77,7 +76,7 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
+from .lms_common import NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
 
 D_RADIUS = 4
 """Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
@@ -327,7 +326,7 @@ def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: Cha
 # ---------------------------------------------------------------------------------- the stage
 
 @dataclass
-class DemosaicLMSGuided(Stage):
+class DemosaicLMSGuided(NoiseFromRaw, Stage):
     """LMS mosaic (white-balanced, H x W) -> L, M, S ((H-2 halo) x (W-2 halo) x 3); see module doc.
 
     ``noise``: a :class:`ChannelNoise` (per-channel variance of a white-balanced sample) or None for a
@@ -345,12 +344,6 @@ class DemosaicLMSGuided(Stage):
     def __post_init__(self) -> None:
         self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa, "guided LMS demosaic")
         self.shift = lattice_shift(self.cfa, self.ch_l, self.ch_s)
-
-    @classmethod
-    def for_raw(cls, raw: Any, params: LMSGuidedParams | None = None) -> "DemosaicLMSGuided":
-        """The stage for a RawImage: its CFA, and its noise from metadata gain/noise and pass-1 gains."""
-        noise = ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains())
-        return cls(raw.cfa, params or LMSGuidedParams(), noise)
 
     # -- geometry ---------------------------------------------------------------------------------
     @property

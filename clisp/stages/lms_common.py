@@ -5,6 +5,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
+from ..noise import ChannelNoise
 
 
 def binomial(n: int) -> np.ndarray:
@@ -81,3 +82,14 @@ def correlate_valid(a: np.ndarray, k: np.ndarray) -> np.ndarray:
     for dy, dx in np.argwhere(k != 0) - r:
         out += k[dy + r, dx + r] * valid(a, r, dy, dx)
     return out
+
+
+class NoiseFromRaw:
+    """Mixin for demosaic dataclasses with fields (cfa, params, noise): build from a RawImage."""
+
+    @classmethod
+    def for_raw(cls, raw, params=None):
+        """The stage for ``raw``: its CFA, its noise from the metadata's gain and noise model (None
+        for noiseless or camera raws), and ``params`` (the stage's defaults when None)."""
+        noise = ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains())
+        return cls(raw.cfa, noise=noise) if params is None else cls(raw.cfa, params, noise)
