@@ -35,6 +35,13 @@
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 inline float min_f(const float a, const float b) { return a < b ? a : b; }
 
+/* The shrink max(energy - alias, 0) / energy of a chroma deviation of energy `energy` of which `alias`
+ * is expected to be luminance aliased onto a chroma carrier; 1 where energy == 0. */
+inline float alias_gain(const float energy, const float alias)
+{
+    return energy > 0.0f ? max_f(energy - alias, 0.0f) / energy : 1.0f;
+}
+
 /* CFA membership of image pixel (y, x), y and x possibly negative (& is exact in two's complement). */
 inline int at_l(const int y, const int x) { return ((x + y + L_PAR) & 1) == 0; }
 inline int at_s(const int y, const int x) { return ((y + S_Y) & 1) == 0 && ((x - y + S_D) & 3) == 0; }
@@ -176,15 +183,19 @@ __kernel void gf_apply(__global const float *rows_ab, __global const float *guid
  * sites of the 5 x 5 of (p - Mfit)^2. DIRECTIONAL: mixed with the edge-directed estimate yd - c by
  * w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2, err_d the mean squared error of
  * the 2-tap predictor along d at the non-S pixels of the 3 x 3, yd = sum_d E_d / (eps + err_d) /
- * sum_d 1 / (eps + err_d). mfit, sfit on the kernel's window (width in_w); p, y and c, ylp on windows
- * larger by p_off, y_off, l_off (widths p_w, y_w, l_w). R = 2. */
+ * sum_d 1 / (eps + err_d); then alias suppression toward the neutral mn = m_from_s p: dev = est - mn,
+ * est = mn + alias_gain(dev^2, alias_m E_sig) dev, E_sig = max(hf / kappa - blend_k vn, 0), vn =
+ * lum_shot max(ylp, 0) + lum_floor. mfit, sfit on the kernel's window (width in_w); p, y and c, ylp
+ * on windows larger by p_off, y_off, l_off (widths p_w, y_w, l_w). R = 2. */
 __kernel void m_at_s_combine(__global const float *p, __global const float *mfit, __global const float *sfit,
                              __global const float *yg, __global const float *cg, __global const float *ylpg,
                              __global float *dst, const int in_w, const int p_w, const int p_off,
                              const int y_w, const int y_off, const int l_w, const int l_off,
                              const int out_w, const int oy, const int ox,
                              const float shot_m, const float floor_m, const float shot_s, const float floor_s,
-                             const float kappa, const float dir_eps)
+                             const float kappa, const float dir_eps, const float blend_k,
+                             const float lum_shot, const float lum_floor, const float alias_m,
+                             const float m_from_s)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -248,10 +259,15 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
             hf += dd * dd;
         }
     }
-    hf *= kappa / 25.0f;
+    const float e5 = hf * (1.0f / 25.0f);
+    hf = kappa * e5;
     const float total = hf + err_min;
     const float w = total > 0.0f ? hf / total : 0.0f;
     est = w * (num / den - cg[iy0]) + (1.0f - w) * est;
+    const float e_sig = max_f(e5 - blend_k * (lum_shot * max_f(ylpg[il0], 0.0f) + lum_floor), 0.0f);
+    const float mn = m_from_s * pc;
+    const float dev = est - mn;
+    est = mn + alias_gain(dev * dev, alias_m * e_sig) * dev;
 #endif
     dst[y * out_w + x] = at_s(yc + oy, xc + ox) ? est : pc;
 }
@@ -302,47 +318,56 @@ __kernel void keep_luminance(__global const float *m, __global const float *c, _
     dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
 }
 
-/* lm_output: L, M (planes 0, 1): y = m - c mod, d = y - ylp; noiseless Y = ylp + d (= y); noisy
- * Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial neighbours) / 8 (the flat-field target: zero
- * at the (pi, pi) chroma carrier, noise gain 0.3125), w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2,
- * vn = lum_shot max(ylp, 0) + lum_floor (the noise of d); L = Y + c, M = Y - c. c on the kernel's window
- * (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
+/* lm_output: L, M, E_sig (planes 0, 1, 2): y = m - c mod, d = y - ylp, E = 5 x 5 mean of d^2,
+ * E_sig = max(E - blend_k vn, 0), vn = lum_shot max(ylp, 0) + lum_floor (the noise of d; 0 noiseless);
+ * noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial
+ * neighbours) / 8 (the flat-field target: zero at the (pi, pi) chroma carrier, noise gain 0.3125),
+ * w = E_sig / E. Alias suppression of the chroma toward the neutral cn ylp: dev = c - cn ylp,
+ * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'. c on the
+ * kernel's window (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
 __kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
                         __global float *dst, const int in_w, const int m_w, const int m_off, const int l_w,
                         const int l_off, const int out_w, const int out_h, const int oy, const int ox,
-                        const float blend_k, const float lum_shot, const float lum_floor)
+                        const float blend_k, const float lum_shot, const float lum_floor,
+                        const float chroma_neutral, const float alias_c)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int yc = y + 2, xc = x + 2, ic = yc * in_w + xc;
     const int il = (yc + l_off) * l_w + xc + l_off;
     const float dc = m[(yc + m_off) * m_w + xc + m_off] - c[ic] * mod_f(yc + oy, xc + ox) - ylp[il];
-#if NOISY
-    float e = 0.0f;
+    float e = 0.0f, c2 = 0.0f;
     #pragma unroll
     for (int dy = -2; dy <= 2; ++dy) {
         #pragma unroll
         for (int dx = -2; dx <= 2; ++dx) {
-            const float d = m[(yc + dy + m_off) * m_w + xc + dx + m_off]
-                          - c[ic + dy * in_w + dx] * mod_f(yc + dy + oy, xc + dx + ox) - ylp[il + dy * l_w + dx];
+            const float ck = c[ic + dy * in_w + dx], lk = ylp[il + dy * l_w + dx];
+            const float d = m[(yc + dy + m_off) * m_w + xc + dx + m_off] - ck * mod_f(yc + dy + oy, xc + dx + ox) - lk;
+            const float dev = ck - chroma_neutral * lk;
             e += d * d;
+            c2 += dev * dev;
         }
     }
     e *= 1.0f / 25.0f;
-    const float vn = lum_shot * max_f(ylp[il], 0.0f) + lum_floor;
-    const float w = e > 0.0f ? max_f(e - blend_k * vn, 0.0f) / e : 0.0f;
+    c2 *= 1.0f / 25.0f;
+    const float e_sig = max_f(e - blend_k * (lum_shot * max_f(ylp[il], 0.0f) + lum_floor), 0.0f);
+#if NOISY
+    const float w = e > 0.0f ? e_sig / e : 0.0f;
     const int im = (yc + m_off) * m_w + xc + m_off;
     const float ybl = 0.5f * m[im] + 0.125f * (m[im - m_w] + m[im + m_w] + m[im - 1] + m[im + 1]);
     const float lum = ybl + w * (m[im] - c[ic] * mod_f(yc + oy, xc + ox) - ybl);
 #else
     const float lum = ylp[il] + dc;
 #endif
-    const int i = y * out_w + x;
-    dst[i] = lum + c[ic];
-    dst[out_w * out_h + i] = lum - c[ic];
+    const float cn = chroma_neutral * ylp[il];
+    const float c_out = cn + alias_gain(c2, alias_c * e_sig) * (c[ic] - cn);
+    const int i = y * out_w + x, plane = out_w * out_h;
+    dst[i] = lum + c_out;
+    dst[plane + i] = lum - c_out;
+    dst[2 * plane + i] = e_sig;
 }
 
-/* s_output: the three output planes: L, M copied from lm (a window larger by lm_off on every side of
+/* s_output: the three planes L, M, S before s_alias: L, M copied from lm (a window larger by lm_off on every side of
  * the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the S sites of
  * the 7 x 7 of the residuals p - g), gamma_S = 1 (noiseless) or max(E - var_S(g), 0) / E, E = mean over
  * those S sites of (p - g)^2. g on the kernel's window (width in_w), p on a window larger by p_off.
@@ -386,4 +411,33 @@ __kernel void s_output(__global const float *p, __global const float *g, __globa
     dst[i] = lm[li];
     dst[plane + i] = lm[lm_w * lm_h + li];
     dst[2 * plane + i] = g0 + gamma * num / den;
+}
+
+/* s_alias: the three output planes: L, M copied, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2,
+ * alias_s E_sig) sd, sd = S - s_from_m M (alias suppression toward the neutral). lms: 3 planes on the
+ * kernel's window (in_w x in_h); E_sig: plane 2 of lm (lm_w x lm_h) on a window larger by lm_off. R = 2. */
+__kernel void s_alias(__global const float *lms, __global const float *lm, __global float *dst,
+                      const int in_w, const int in_h, const int lm_w, const int lm_h, const int lm_off,
+                      const int out_w, const int out_h, const float s_from_m, const float alias_s)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = in_w * in_h, ic = (y + 2) * in_w + x + 2;
+    float s2 = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const int k = ic + dy * in_w + dx;
+            const float sd = lms[2 * plane + k] - s_from_m * lms[plane + k];
+            s2 += sd * sd;
+        }
+    }
+    s2 *= 1.0f / 25.0f;
+    const float e_sig = lm[2 * lm_w * lm_h + (y + 2 + lm_off) * lm_w + x + 2 + lm_off];
+    const float mn = s_from_m * lms[plane + ic];
+    const int i = y * out_w + x, out_plane = out_w * out_h;
+    dst[i] = lms[ic];
+    dst[out_plane + i] = lms[plane + ic];
+    dst[2 * out_plane + i] = mn + alias_gain(s2, alias_s * e_sig) * (lms[2 * plane + ic] - mn);
 }

@@ -30,8 +30,20 @@ Steps (one function per kernel below; radius = halo the step consumes)::
                             noiseless Y = ylp + (y - ylp) = y; L = Y + c, M = Y - c
     S                 r 11  g = GF over S sites of p against M (radius 4); residual interpolation:
                             S = g + gamma_S * tent-interpolation over the S lattice of (p - g)
+    S alias           r 2   S toward the neutral s_from_m M where luminance detail can alias (below)
 
-Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 = 55 px with the default radii (``halo``).
+Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 + 2 = 57 px with the default radii (``halo``).
+
+Alias suppression (the last three steps; ``alias_*`` parameters). Where the luminance has strong
+detail beyond the quincunx baseband (the diamond |wx| + |wy| < pi), its harmonics and the S-lattice
+aliases land on the chroma carriers ((pi, pi) for L - M; (0, pi), (pi, 0), (pi/2, pi/2) for S), and
+there a grey pattern and a colour give the same samples: no local estimate separates them (a neutral
+zone plate turns green/magenta). Each chroma deviation from the neutral (``neutral``, the white-balanced
+LMS of grey: C / Y = cn, S / M and M / S ratios) is then shrunk as an LMMSE estimate whose "noise" is
+the expected alias, a fixed fraction alpha of the luminance detail energy E_sig = max(E - k vn, 0)
+(E = 5 x 5 mean of (y - ylp)^2, the noise share removed): dev' = dev max(D - alpha E_sig, 0) / D, D the
+deviation's energy (5 x 5 mean for L - M and S - M, the pixel's own for M at S sites). Saturated
+colour (D >> alpha E_sig) and flat or noisy-flat regions (E_sig ~ 0) are untouched.
 
 Edge-directed estimate (M at S, pass 2): for the four 2-tap predictors d in {h, v, d1, d2} of y from its
 neighbours along d, err_d = mean squared error of the same predictor at the known (non-S) pixels of the
@@ -141,6 +153,13 @@ class LMSGuidedParams:
     """M at S, pass 2: floor of the predictor errors in the direction weights (signal^2)."""
     blend_k: float = 2.0
     """Luminance blend: noise over-subtraction factor k in w = max(E - k vn, 0) / E (dimensionless)."""
+    alias_c: float = 0.1
+    """Alias suppression of the L-M chroma: alias variance per unit luminance detail energy E_sig
+    (dimensionless; 0 disables)."""
+    alias_m: float = 0.5
+    """Alias suppression of M at S sites (pass 2): the same for the S-M difference there."""
+    alias_s: float = 1.0
+    """Alias suppression of S: the same for S - M everywhere."""
 
     def __post_init__(self) -> None:
         for name in ("ms_radius1", "ms_radius2", "chroma_radius", "s_radius"):
@@ -148,16 +167,36 @@ class LMSGuidedParams:
                 raise ClispError(f"{name} must be >= 2 px (the S covering radius of the LMS CFA)")
         if min(self.ms_eps, self.chroma_eps, self.s_eps, self.dir_eps) <= 0:
             raise ClispError("the guided-filter regularisers and dir_eps must be > 0")
-        if self.dir_kappa < 0 or self.blend_k < 0:
-            raise ClispError("dir_kappa and blend_k must be >= 0")
+        if min(self.dir_kappa, self.blend_k, self.alias_c, self.alias_m, self.alias_s) < 0:
+            raise ClispError("dir_kappa, blend_k and the alias_* strengths must be >= 0")
 
 
 # ---------------------------------------------------------------------------------- helpers
 
+def detail_energy(y: np.ndarray, ylp: np.ndarray, vn: np.ndarray | float, k: float) -> np.ndarray:
+    """E_sig = max(E - k vn, 0), E = 5 x 5 mean of (y - ylp)^2: the luminance detail beyond the
+    quincunx baseband (the diamond |wx| + |wy| < pi) with its noise share removed; vn on the output
+    window (y, ylp on one window, shrunk by COMBINE_RADIUS)."""
+    e = correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
+    return np.maximum(e - k * vn, 0.0)
 
 
+def alias_gain(energy: np.ndarray, alias: np.ndarray) -> np.ndarray:
+    """The shrink max(energy - alias, 0) / energy of a chroma deviation whose energy is ``energy`` when
+    ``alias`` of it is expected to be luminance aliased onto a chroma carrier (LMMSE-style, as the
+    luminance blend); 1 where energy == 0."""
+    pos = energy > 0
+    return np.where(pos, np.maximum(energy - alias, 0.0) / np.where(pos, energy, 1.0), 1.0)
 
 
+def neutral_of(colour_matrix: np.ndarray) -> tuple[float, float, float]:
+    """White-balanced L, M, S of a neutral: colour_matrix^-1 (1, 1, 1) (1.0106, 1.0153, 1.0654 for the
+    paper's P: P is not white-preserving). (1, 1, 1) if the matrix gives no positive finite answer."""
+    try:
+        n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), np.ones(3))
+    except np.linalg.LinAlgError:
+        return (1.0, 1.0, 1.0)
+    return tuple(float(v) for v in n) if np.all(np.isfinite(n)) and np.all(n > 0) else (1.0, 1.0, 1.0)
 
 
 # ---------------------------------------------------------------------------------- reference steps
@@ -236,11 +275,14 @@ def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: 
 
 def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.ndarray, ch_m: int, ch_s: int,
                    noise: ChannelNoise | None, directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
-                   kappa: float, dir_eps: float) -> np.ndarray:
+                   kappa: float, dir_eps: float,
+                   alias: tuple[np.ndarray, float, float] | None = None) -> np.ndarray:
     """The L/M quincunx m (shrunk by COMBINE_RADIUS; all inputs on one window): p where not S; at S
     sites M = Mfit + gamma (S - Sfit), gamma = sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0),
     E_M = mean over the M sites of the 5 x 5 of (p - Mfit)^2; gamma = 1 when noiseless.
-    ``directional`` = (y, c, ylp) mixes in the edge-directed estimate (module doc)."""
+    ``directional`` = (y, c, ylp) mixes in the edge-directed estimate (module doc). ``alias`` =
+    (E_sig on the output window, alias_m, m_from_s) then shrinks M toward the neutral m_from_s S:
+    dev = M - m_from_s S, M = m_from_s S + alias_gain(dev^2, alias_m E_sig) dev."""
     r = COMBINE_RADIUS
     centre_p, centre_ch = valid(p, r), valid(ch, r)
     est = valid(mfit, r)
@@ -270,6 +312,10 @@ def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.nda
         total = hf + err_min
         w = np.where(total > 0, hf / np.where(total > 0, total, 1.0), 0.0)
         est = w * (num / den - valid(c, r)) + (1.0 - w) * est
+    if alias is not None:
+        e_sig, strength, m_from_s = alias
+        dev = est - m_from_s * centre_p
+        est = m_from_s * centre_p + alias_gain(dev * dev, strength * e_sig) * dev
     return np.where(centre_ch == ch_s, est, centre_p)
 
 
@@ -285,26 +331,33 @@ def chroma_input(m: np.ndarray, ylp: np.ndarray, mod: np.ndarray) -> np.ndarray:
 
 
 def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, noise: ChannelNoise | None,
-              ch_l: int, ch_m: int, blend_k: float) -> np.ndarray:
-    """L, M (shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod, d = y - ylp; noiseless
-    Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = B * m with B = delta / 2 + (4 axial taps) / 8
-    (the flat-field target: DC gain 1, zero at the (pi, pi) chroma carrier, noise gain 0.3125 against
-    sum(D^2) = 0.405 for ylp), w = max(E - k vn, 0) / E, E = 5 x 5 mean of d^2, vn = sum(D^2)
-    (var_L + var_M) / 2 at the level ylp (the noise of d); L = Y + c, M = Y - c."""
+              ch_l: int, ch_m: int, blend_k: float, chroma_neutral: float = 0.0,
+              alias_c: float = 0.0) -> np.ndarray:
+    """L, M and E_sig (3 planes, shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod,
+    d = y - ylp; noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = B * m with
+    B = delta / 2 + (4 axial taps) / 8 (the flat-field target: DC gain 1, zero at the (pi, pi) chroma
+    carrier, noise gain 0.3125 against sum(D^2) = 0.405 for ylp), w = E_sig / E, E_sig = max(E - k vn, 0)
+    (``detail_energy``), vn = sum(D^2) (var_L + var_M) / 2 at the level ylp (the noise of d).
+    Alias suppression of the chroma: dev = c - cn ylp (cn = ``chroma_neutral``, c / Y of a neutral),
+    c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'."""
     r = COMBINE_RADIUS
     y = m - c * mod
-    d = y - ylp
-    centre_d, centre_ylp, centre_c = valid(d, r), valid(ylp, r), valid(c, r)
+    centre_ylp = valid(ylp, r)
+    vn = 0.0 if noise is None else \
+        LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
+    e_sig = detail_energy(y, ylp, vn, blend_k)
     if noise is None:
-        lum = centre_ylp + centre_d
+        lum = valid(y, r)
     else:
-        e = correlate_valid(d * d, np.ones((5, 5)) / 25.0)
-        vn = LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
-        w = np.where(e > 0, np.maximum(e - blend_k * vn, 0.0) / np.where(e > 0, e, 1.0), 0.0)
+        e = correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
+        w = np.where(e > 0, e_sig / np.where(e > 0, e, 1.0), 0.0)
         ybl = 0.5 * valid(m, r) + 0.125 * (valid(m, r, -1, 0) + valid(m, r, 1, 0)
                                             + valid(m, r, 0, -1) + valid(m, r, 0, 1))
         lum = ybl + w * (valid(y, r) - ybl)
-    return np.stack([lum + centre_c, lum - centre_c], axis=-1)
+    dev = c - chroma_neutral * ylp
+    c2 = correlate_valid(dev * dev, np.ones((5, 5)) / 25.0)
+    c_out = chroma_neutral * centre_ylp + alias_gain(c2, alias_c * e_sig) * valid(dev, r)
+    return np.stack([lum + c_out, lum - c_out, e_sig], axis=-1)
 
 
 def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: ChannelNoise | None) -> np.ndarray:
@@ -323,6 +376,17 @@ def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: Cha
     return centre_g + gamma * interp
 
 
+def s_alias(lms: np.ndarray, e_sig: np.ndarray, s_from_m: float, alias_s: float) -> np.ndarray:
+    """Alias suppression of S: L, M, S (H x W x 3) and E_sig (H x W) on one window -> L, M, S shrunk by
+    COMBINE_RADIUS, sd = S - s_from_m M, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2, alias_s E_sig) sd."""
+    r = COMBINE_RADIUS
+    sd = lms[..., 2] - s_from_m * lms[..., 1]
+    s2 = correlate_valid(sd * sd, np.ones((5, 5)) / 25.0)
+    centre = valid(lms, r)
+    s = s_from_m * centre[..., 1] + alias_gain(s2, alias_s * valid(e_sig, r)) * valid(sd, r)
+    return np.concatenate([centre[..., :2], s[..., None]], axis=-1)
+
+
 # ---------------------------------------------------------------------------------- the stage
 
 @dataclass
@@ -336,6 +400,9 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
     cfa: CFA
     params: LMSGuidedParams = field(default_factory=LMSGuidedParams)
     noise: ChannelNoise | None = None
+    neutral: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """White-balanced L, M, S of a neutral (``neutral_of(colour_matrix)``): what alias suppression
+    shrinks toward."""
     name = "demosaic_lms_guided"
     cfa_kinds = ("lms",)
     in_channels = 1
@@ -344,6 +411,18 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
     def __post_init__(self) -> None:
         self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa, "guided LMS demosaic")
         self.shift = lattice_shift(self.cfa, self.ch_l, self.ch_s)
+        n_l, n_m, n_s = (float(v) for v in self.neutral)
+        if not min(n_l, n_m, n_s) > 0:
+            raise ClispError(f"neutral {self.neutral}: every channel must be > 0")
+        self.chroma_neutral = (n_l - n_m) / (n_l + n_m)
+        """C / Y = (L - M) / (L + M) of a neutral."""
+        self.m_from_s, self.s_from_m = n_m / n_s, n_s / n_m
+
+    @classmethod
+    def for_raw(cls, raw, params=None):
+        """As NoiseFromRaw.for_raw, with the neutral of the raw's colour matrix."""
+        stage = super().for_raw(raw, params)
+        return cls(stage.cfa, stage.params, stage.noise, neutral_of(raw.colour_matrix))
 
     # -- geometry ---------------------------------------------------------------------------------
     @property
@@ -353,7 +432,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         chroma = D_RADIUS + PRE_RADIUS + 2 * prm.chroma_radius
         return {"l_guide": D_RADIUS, "ms1_fit": 2 * prm.ms_radius1, "ms1_combine": COMBINE_RADIUS,
                 "chroma1": chroma, "ms2_fit": 2 * prm.ms_radius2, "ms2_combine": COMBINE_RADIUS,
-                "chroma2": chroma, "lm_output": COMBINE_RADIUS, "s_fit": 2 * prm.s_radius, "s_output": RI_RADIUS}
+                "chroma2": chroma, "lm_output": COMBINE_RADIUS, "s_fit": 2 * prm.s_radius, "s_output": RI_RADIUS,
+                "s_alias": COMBINE_RADIUS}
 
     @property
     def halo(self) -> int:
@@ -385,8 +465,19 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         prm, noise = self.params, self.pixel_noise
         fits = [guided_filter(guide, p, ch == c, r, prm.ms_eps, noise.shot[c], noise.floor[c], False)
                 for c in (self.ch_m, self.ch_s)]
+        alias = None
+        if directional is not None:
+            y, _, ylp = directional
+            e_sig = detail_energy(y, ylp, self._lum_variance(valid(ylp, COMBINE_RADIUS)), prm.blend_k)
+            alias = (e_sig, prm.alias_m, self.m_from_s)
         return m_at_s_combine(valid(p, 2 * r), valid(ch, 2 * r), fits[0], fits[1], self.ch_m, self.ch_s,
-                              self.noise, directional, prm.dir_kappa, prm.dir_eps)
+                              self.noise, directional, prm.dir_kappa, prm.dir_eps, alias)
+
+    def _lum_variance(self, level: np.ndarray) -> np.ndarray | float:
+        """Noise variance of ylp (and of y - ylp) at ``level``: sum(D^2) (var_L + var_M) / 2; 0 noiseless."""
+        if self.noise is None:
+            return 0.0
+        return LUM_NOISE_GAIN * 0.5 * (self.noise.variance(self.ch_l, level) + self.noise.variance(self.ch_m, level))
 
     @property
     def pixel_noise(self) -> ChannelNoise:
@@ -411,14 +502,17 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         o += 2 * r2 + COMBINE_RADIUS
         c, ylp = self._chroma(m, valid(mod, o), noise)
         o += k
-        lm = lm_output(valid(m, k), c, ylp, valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k)
+        lm = lm_output(valid(m, k), c, ylp, valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k,
+                       self.chroma_neutral, prm.alias_c)
         o += COMBINE_RADIUS
         rs = prm.s_radius
         g = guided_filter(lm[..., 1], valid(p, o), valid(ch, o) == self.ch_s, rs, prm.s_eps,
                           noise.shot[self.ch_s], noise.floor[self.ch_s], False)
         o += 2 * rs
         s = s_output(valid(p, o), valid(ch, o), g, self.ch_s, self.noise)
-        return np.concatenate([valid(lm, 2 * rs + RI_RADIUS), s[..., None]], axis=-1)
+        k = 2 * rs + RI_RADIUS
+        lms = np.concatenate([valid(lm[..., :2], k), s[..., None]], axis=-1)
+        return s_alias(lms, valid(lm[..., 2], k), self.s_from_m, prm.alias_s)
 
     # -- OpenCL ---------------------------------------------------------------------------------
     # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each
@@ -521,7 +615,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                      i32(o_fit - o_y), i32(ylp.width), i32(o_fit - o_l), i32(w),
                      *self._origin((origin[0] + o_fit, origin[1] + o_fit)), f32(noise.shot[self.ch_m]),
                      f32(noise.floor[self.ch_m]), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]),
-                     f32(prm.dir_kappa), f32(prm.dir_eps), directional=directional is not None)
+                     f32(prm.dir_kappa), f32(prm.dir_eps), f32(prm.blend_k), *(f32(v) for v in self._lum_noise()),
+                     f32(prm.alias_m), f32(self.m_from_s), directional=directional is not None)
         for fit in fits:
             rt.release(fit)
         return dst
@@ -585,11 +680,12 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         c, ylp = self.enqueue_chroma(rt, m, at(o_m))
         o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
         h, w = c.height - 2 * COMBINE_RADIUS, c.width - 2 * COMBINE_RADIUS
-        lm = rt.acquire(2, h, w)
+        lm = rt.acquire(3, h, w)
         lum_shot, lum_floor = self._lum_noise()
         self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, lm.buffer, i32(c.width), i32(m.width),
                      i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(w), i32(h),
-                     *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot), f32(lum_floor))
+                     *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot), f32(lum_floor),
+                     f32(self.chroma_neutral), f32(prm.alias_c))
         for image in (m, c, ylp):
             rt.release(image)
         o_lm = o_c + COMBINE_RADIUS
@@ -598,12 +694,18 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                                 (noise.shot[self.ch_s], noise.floor[self.ch_s]), False, g_plane=1)
         o_g = o_lm + 2 * rs
         out_h, out_w = g.height - 2 * RI_RADIUS, g.width - 2 * RI_RADIUS
-        dst = rt.acquire(3, out_h, out_w)
-        self._launch(rt, "s_output", out_w, out_h, src.buffer, g.buffer, lm.buffer, dst.buffer, i32(g.width),
+        lms = rt.acquire(3, out_h, out_w)
+        self._launch(rt, "s_output", out_w, out_h, src.buffer, g.buffer, lm.buffer, lms.buffer, i32(g.width),
                      i32(src.width), i32(o_g), i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(out_w),
                      i32(out_h), *self._origin(at(o_g)), rt.constant(as_f32(_weights(TENT))),
                      f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
         rt.release(g)
+        fin_h, fin_w = out_h - 2 * COMBINE_RADIUS, out_w - 2 * COMBINE_RADIUS
+        dst = rt.acquire(3, fin_h, fin_w)
+        self._launch(rt, "s_alias", fin_w, fin_h, lms.buffer, lm.buffer, dst.buffer, i32(out_w), i32(out_h),
+                     i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(fin_w), i32(fin_h),
+                     f32(self.s_from_m), f32(self.params.alias_s))
+        rt.release(lms)
         rt.release(lm)
         return dst
 
