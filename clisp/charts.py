@@ -103,20 +103,24 @@ def _gray(plane: np.ndarray) -> np.ndarray:
     return np.repeat(plane[:, :, None].astype(np.float64), 3, axis=2)
 
 
-def zone_plate(size: int = 256, lo: float = 0.1, hi: float = 0.9) -> np.ndarray:
+def zone_plate(size: int = 256, lo: float = 0.1, hi: float = 0.9, encoding: str = "srgb") -> np.ndarray:
     """Neutral circular zone plate, size x size x 3 linear sRGB.
 
     The sRGB-ENCODED value is (lo+hi)/2 + (hi-lo)/2 * cos(k r^2), r in px from the centre, with
     k = pi / (2 R), R = size/2, so the local frequency k r / pi cycles/px reaches Nyquist (0.5) at the
     edge of the inscribed disc; outside the disc the encoded value is (lo+hi)/2. Decoded to linear.
+    ``encoding`` "linear": the same cosine in LINEAR values (a sinusoidal reflectance; the decoded
+    sRGB cosine is far from sinusoidal, with strong harmonics up to 2-5x the local frequency).
     """
+    if encoding not in ("srgb", "linear"):
+        raise ValueError(f"zone plate encoding {encoding!r}: expected 'srgb' or 'linear'")
     c = size / 2.0
     y, x = np.mgrid[0:size, 0:size].astype(np.float64) + 0.5 - c
     r2 = x * x + y * y
     k = np.pi / (2.0 * c)
     mid, amp = (lo + hi) / 2.0, (hi - lo) / 2.0
     encoded = np.where(r2 <= c * c, mid + amp * np.cos(k * r2), mid)
-    return _gray(srgb_decode(encoded))
+    return _gray(srgb_decode(encoded) if encoding == "srgb" else encoded)
 
 
 def siemens_star(size: int = 256, spokes: int = 36, lo: float = 0.05, hi: float = 0.75,

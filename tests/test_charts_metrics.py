@@ -201,3 +201,14 @@ def test_ciede2000() -> None:
     de = metrics.ciede2000(shifted, truth)
     assert 0.5 < de < 20
     assert metrics.ciede2000(shifted, truth, region=(0, 8, 0, 16)) > 0
+
+
+def test_zone_plate_linear_encoding() -> None:
+    """encoding="linear": the same cosine in linear values (range lo..hi, mean (lo+hi)/2 off-disc);
+    an unknown encoding is an error."""
+    lin = charts.zone_plate(64, encoding="linear")
+    assert lin.min() == pytest.approx(0.1, abs=0.01) and lin.max() == pytest.approx(0.9, abs=0.01)
+    assert lin[0, 0, 0] == pytest.approx(0.5)
+    np.testing.assert_allclose(srgb_decode(lin), charts.zone_plate(64), rtol=1e-12)
+    with pytest.raises(ValueError):
+        charts.zone_plate(64, encoding="gamma")

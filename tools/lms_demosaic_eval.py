@@ -3,9 +3,10 @@
 Per image: ``clisp.simulate(scene, cfa, gain=None)`` (optics on: Airy r0 = 1 px) -> ``clisp.process(raw,
 demosaic=NAME)`` (OpenCL) -> ``clisp.metrics.psnr(out, truth)`` (tone-mapped sRGB, 10 px border; truth =
 the optics-blurred clean scene). Scene sizes are cropped to multiples of 4. A set's score is the mean of
-its per-image dB. Zone plate: ``clisp.charts.zone_plate(256)`` simulated the same way, scored over the
-full 256 x 256 with border 10. LMS demosaics: bilinear, hybrid and any --demosaic NAME; Bayer (RGGB):
-bilinear, dlmmse and any --bayer NAME, each only if registered in clisp.pipeline.DEMOSAICS.
+its per-image dB. Zone plate: ``clisp.charts.zone_plate(256)`` (the demo's: a cosine in sRGB-encoded
+values up to Nyquist) simulated the same way, scored over the full 256 x 256 with border 10; "linear zp"
+is the same plate with the cosine in linear values (``encoding="linear"``). LMS demosaics: bilinear,
+hybrid and any --demosaic NAME; Bayer (RGGB): bilinear, dlmmse and any --bayer NAME, each only if registered in clisp.pipeline.DEMOSAICS.
 
     python tools/lms_demosaic_eval.py [--data ../shared/data] [--subset N] [--demosaic NAME ...]
                                       [--bayer NAME ...] [--crops DIR] [--bench]
@@ -93,9 +94,10 @@ def evaluate_sets(data: Path, subset: int | None, methods: list[tuple[str, str]]
     return results
 
 
-def zone_plate(methods: list[tuple[str, str]]) -> tuple[dict, np.ndarray, dict]:
-    """Zone plate dB per method, the truth and the outputs (linear sRGB)."""
-    scene = charts.zone_plate(ZONE_SIZE)
+def zone_plate(methods: list[tuple[str, str]], encoding: str = "srgb") -> tuple[dict, np.ndarray, dict]:
+    """Zone plate dB per method, the truth and the outputs (linear sRGB); ``encoding`` of the cosine
+    (charts.zone_plate: "srgb" is the demo's)."""
+    scene = charts.zone_plate(ZONE_SIZE, encoding=encoding)
     db, images, truth = {}, {}, None
     for cfa in dict.fromkeys(c for c, _ in methods):
         sim = clisp.simulate(scene, cfa, gain=None)
@@ -173,21 +175,23 @@ def main(argv: list[str] | None = None) -> int:
     methods = [("lms", n) for n in lms] + [("bayer", n) for n in bayer]
     results = {} if args.no_sets else evaluate_sets(Path(args.data), args.subset, methods)
     zone_db, truth, images = zone_plate(methods)
+    zone_linear_db = zone_plate(methods, "linear")[0]
     speed = bench(lms) if args.bench else {}
 
-    header = f"{'CFA':6} {'demosaic':12}" + "".join(f"{s:>10}" for s in results) + f"{'zone plate':>12}"
+    header = f"{'CFA':6} {'demosaic':12}" + "".join(f"{s:>10}" for s in results) + f"{'zone plate':>12}{'linear zp':>11}"
     header += f"{'MP/s':>9}{'x bilinear':>12}" if speed else ""
     print(header)
     for cfa, name in methods:
         row = f"{cfa:6} {name:12}"
         for per in results.values():
             row += f"{np.mean(per[(cfa, name)]):10.2f}"
-        row += f"{zone_db[(cfa, name)]:12.2f}"
+        row += f"{zone_db[(cfa, name)]:12.2f}{zone_linear_db[(cfa, name)]:11.2f}"
         if speed and cfa == "lms":
             row += f"{speed[name]:9.1f}{speed[name] / speed['bilinear']:12.3f}"
         print(row)
     counts = ", ".join(f"{s} {len(next(iter(per.values())))} images" for s, per in results.items())
-    print(f"(noiseless, Airy r0 = 1 px, PSNR tone-mapped, border {BORDER}, set means; {counts or 'no sets'})")
+    print(f"(noiseless, Airy r0 = 1 px, PSNR tone-mapped, border {BORDER}, set means; {counts or 'no sets'}; "
+          "zone plate = the demo's sRGB cosine, linear zp = the same cosine in linear values)")
     if args.crops:
         save_crops(Path(args.crops), truth, images)
     return 0
