@@ -60,14 +60,15 @@ Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the 
 comes from; on detail w -> 1 and every sample is kept.
 
 Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
-means): Kodak 24 37.46 dB, McMaster 18 34.42 dB (Bayer DLMMSE 36.21 / 32.73, hybrid 33.90 / 32.09);
-charts.zone_plate(256) 28.67 dB (Bayer DLMMSE 29.64, hybrid 14.97). Gray-panel SNR lead over Bayer
-DLMMSE (ideal chroma denoiser, mean of six panels) +4.05 / +4.15 / +3.99 / +3.88 / +4.38 dB at gains
-4 / 8 / 16 / 32 / 64. Known limit: false colour on the zone plate where luminance sits on a chroma
-carrier (the sRGB cosine's 2nd harmonic at (pi, pi), the S-lattice carriers near Nyquist).
+means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.02 dB, McMaster 18 34.46 dB (Bayer DLMMSE 36.21 /
+32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 40.63 dB (Bayer DLMMSE 29.64, hybrid 14.97).
+Alias suppression traded Kodak 37.46 -> 37.02 and McMaster 34.42 -> 34.46 for the zone plate
+28.67 -> 40.63 (its three strengths, one at a time: L-M costs Kodak 0.58 dB, S and M at S gain 0.1).
+Known limit: a dot of about 4 px of residual false colour where the plate's 2nd harmonic sits
+exactly on (pi, pi) (stronger L-M suppression removes it at a further Kodak cost).
 
-Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata); a raw without a gain
-in its metadata is treated as noiseless.
+Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata, neutral from its
+colour matrix); a raw without a gain in its metadata is treated as noiseless.
 
 Example: a flat mosaic comes back flat::
 
