@@ -39,6 +39,9 @@ DEFAULT_DATA = REPO.parent / "shared" / "data"
 SETS = {"kodak": ("kodak", "*.png"), "mcmaster": ("mcmaster", "*.tif")}
 BORDER = 10
 ZONE_SIZE = 256
+SPOT = (44, 84)
+"""Rows/columns of the zone-plate crop around (64, 64), where the sRGB cosine's 2nd harmonic sits on the
+(pi, pi) L-M carrier (local frequency (0.25, 0.25) cycles/px)."""
 
 
 def load_scene(path: Path) -> np.ndarray:
@@ -118,9 +121,15 @@ def save_crops(folder: Path, truth: np.ndarray, images: dict) -> None:
         strip.append(np.repeat(np.repeat(quadrant, 2, axis=0), 2, axis=1))
         strip.append(np.ones((strip[-1].shape[0], 8, 3)))
     write_image(folder / "zone_plate_quadrant_strip.png", np.concatenate(strip[:-1], axis=1))
+    spot = []
+    for _, image in panels:       # around (64, 64): local frequency (0.25, 0.25) cycles/px, 2nd harmonic at (pi, pi)
+        crop = tone_map(image)[SPOT[0]:SPOT[1], SPOT[0]:SPOT[1]]
+        spot += [np.repeat(np.repeat(crop, 8, axis=0), 8, axis=1), np.ones((8 * (SPOT[1] - SPOT[0]), 8, 3))]
+    write_image(folder / "zone_plate_spot_8x.png", np.concatenate(spot[:-1], axis=1))
     (folder / "zone_plate_quadrant_strip.txt").write_text(
         "left to right: " + ", ".join(label for label, _ in panels) + "\n"
-        "bottom-right quadrant (rows/cols 128..255) of the 256 px zone plate, 2x nearest neighbour\n")
+        "bottom-right quadrant (rows/cols 128..255) of the 256 px zone plate, 2x nearest neighbour\n"
+        f"zone_plate_spot_8x.png: rows/cols {SPOT[0]}..{SPOT[1] - 1}, 8x nearest neighbour, same order\n")
     print(f"crops written to {folder}", file=sys.stderr)
 
 
