@@ -12,3 +12,12 @@ inline int cfa_channel(__constant const char *pattern, const int y, const int x)
     const int px = ((x % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
     return pattern[py * CFA_PERIOD + px];
 }
+
+#ifdef L_PAR
+/* LMS CFA membership of image pixel (y, x) in closed form, for programs built with the defines
+ * L_PAR, S_Y, S_D (clisp.stages.lms_common.LATTICE; the CFA phase is folded into the image
+ * coordinates by lattice_shift): L iff x + y + L_PAR is even; S iff y + S_Y is even and x - y + S_D
+ * is a multiple of 4; M otherwise. y and x may be negative (& is exact in two's complement). */
+inline int at_l(const int y, const int x) { return ((x + y + L_PAR) & 1) == 0; }
+inline int at_s(const int y, const int x) { return ((y + S_Y) & 1) == 0 && ((x - y + S_D) & 3) == 0; }
+#endif

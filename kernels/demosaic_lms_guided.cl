@@ -1,12 +1,13 @@
 /* Guided LMS demosaic (issue 3): one kernel per algorithm step, in run order; NumPy twins of the same
- * names in clisp/stages/demosaic_lms_guided.py.
+ * names in clisp/stages/demosaic_lms_guided.py. Its guided filters (M at S, chroma, S) run the kernels of
+ * guided_filter.cl.
  *
  * Defines from the host:
  *   L_PAR, S_Y, S_D  the CFA (checked by check_lms_structure): L iff x + y + L_PAR is even; S iff
- *                    y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (image coordinates)
+ *                    y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (image coordinates;
+ *                    at_l, at_s in common.h)
  *   NOISY            0: noiseless, every LMMSE gain is 1 and no noise term is computed
  *   DIRECTIONAL      1 in the program of the pass-2 m_at_s_combine (edge-directed estimate mixed in)
- *   GF_R             radius of the guided-filter kernels of this program (0 where unused)
  * Host-generated: D_TAPS, the off-centre support of the 9 x 9 diamond half-band D, and TENT_TAPS, the
  * support of the 7 x 7 residual-interpolation tent, as X(dy, dx, t) (weights in constant buffers).
  *
@@ -17,20 +18,8 @@
  *
  * No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
  * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
- * DemosaicLMSGuided._launch. Bodies are branch-free (selects) with compile-time loop bounds, which
+ * lms_common.launch_exact. Bodies are branch-free (selects) with compile-time loop bounds, which
  * PoCL unrolls and vectorises across work-items. */
-
-/* Each program is built with only the defines its kernels read (DemosaicLMSGuided.defines); the others
- * get these placeholders so that the file compiles, and are never used by the kernels launched. */
-#ifndef GF_R
-#define GF_R 1
-#endif
-#ifndef NOISY
-#define NOISY 0
-#endif
-#ifndef DIRECTIONAL
-#define DIRECTIONAL 0
-#endif
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 inline float min_f(const float a, const float b) { return a < b ? a : b; }
@@ -42,9 +31,7 @@ inline float alias_gain(const float energy, const float alias)
     return energy > 0.0f ? max_f(energy - alias, 0.0f) / energy : 1.0f;
 }
 
-/* CFA membership of image pixel (y, x), y and x possibly negative (& is exact in two's complement). */
-inline int at_l(const int y, const int x) { return ((x + y + L_PAR) & 1) == 0; }
-inline int at_s(const int y, const int x) { return ((y + S_Y) & 1) == 0 && ((x - y + S_D) & 3) == 0; }
+/* The (pi, pi) carrier: +1 at L sites, -1 elsewhere (at_l: common.h, from the defines L_PAR, S_Y, S_D). */
 inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f; }
 
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
@@ -60,122 +47,6 @@ __kernel void l_guide(__global const float *p, __global float *dst, const int in
     D_TAPS
 #undef X
     dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
-}
-
-/* gf_row_moments: row sums over x-r .. x+r (r = GF_R) of the masked moments, the guide centred on the
- * row centre value c = I(y, x+r): n, sum d, sum d^2, sum v, sum d v (planes 0..4), d = I - c, over the
- * pixels selected by `mask` (0: every pixel, 1: the M sites, 2: the S sites).
- * Output (y, x) is centred on own-window pixel (y, x + r); the guide (element g_base on) and v live on
- * windows larger by g_off, v_off. Centring keeps var = E[d^2] - E[d]^2 free of float32 cancellation.
- * Reads +-r along x. */
-__kernel void gf_row_moments(__global const float *guide, __global const float *v, __global float *mom,
-                             const int g_base, const int g_w, const int g_off, const int v_w, const int v_off,
-                             const int out_w, const int out_h, const int mask, const int oy, const int ox)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *gc = guide + g_base + (y + g_off) * g_w + x + GF_R + g_off;
-    __global const float *vc = v + (y + v_off) * v_w + x + GF_R + v_off;
-    const float c = gc[0];
-    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
-    #pragma unroll
-    for (int k = -GF_R; k <= GF_R; ++k) {
-        const int iy = y + oy, ix = x + GF_R + k + ox;
-        const int s_site = at_s(iy, ix);
-        const int m_site = !s_site && !at_l(iy, ix);
-        const float chi = mask == 0 ? 1.0f : ((mask == 2 ? s_site : m_site) ? 1.0f : 0.0f);
-        const float dk = chi * (gc[k] - c);
-        const float vk = chi * vc[k];
-        n += chi;
-        s1 += dk;
-        s2 += dk * dk;
-        sv += vk;
-        sdv += dk * vk;
-    }
-    const int plane = out_w * out_h, i = y * out_w + x;
-    mom[i] = n;
-    mom[plane + i] = s1;
-    mom[2 * plane + i] = s2;
-    mom[3 * plane + i] = sv;
-    mom[4 * plane + i] = sdv;
-}
-
-/* gf_coefficients: column sums over y-r .. y+r of the row moments, each moved from its row centre c_j
- * to the output's c (delta = c_j - c: s1 += s1_j + n_j delta, s2 += s2_j + 2 delta s1_j + n_j delta^2,
- * sdv += sdv_j + delta sv_j); mu_I = c + s1/n, mu_v = sv/n, var = s2/n - (s1/n)^2, cov = sdv/n -
- * (s1/n) mu_v; eps = eps0 + shot max(level, 0) + floor, level = mu_I (level_from_guide) or mu_v;
- * a = cov / (var + eps), b = mu_v - a mu_I (planes a, b). Output (y, x) <-> rows (y + r, x), the own
- * window's pixel (y + r, x + r), the guide's (y + r + g_off, x + r + g_off) (the row centres; guide
- * from element g_base). Reads +-r along y. */
-__kernel void gf_coefficients(__global const float *rows, __global const float *guide, __global float *ab,
-                              const int rows_w, const int rows_h, const int g_base, const int g_w,
-                              const int g_off, const int out_w, const int out_h, const float eps0,
-                              const float shot, const float floor_, const int level_from_guide)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = rows_w * rows_h;
-    __global const float *rc = rows + (y + GF_R) * rows_w + x;
-    __global const float *gc = guide + g_base + (y + GF_R + g_off) * g_w + x + GF_R + g_off;
-    const float c = gc[0];
-    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
-    #pragma unroll
-    for (int j = -GF_R; j <= GF_R; ++j) {
-        const int o = j * rows_w;
-        const float delta = gc[j * g_w] - c;
-        const float n_j = rc[o], s1_j = rc[plane + o], sv_j = rc[3 * plane + o];
-        n += n_j;
-        s1 += s1_j + n_j * delta;
-        s2 += rc[2 * plane + o] + delta * (2.0f * s1_j + n_j * delta);
-        sv += sv_j;
-        sdv += rc[4 * plane + o] + delta * sv_j;
-    }
-    const float inv_n = 1.0f / n;
-    const float mean_d = s1 * inv_n, mu_v = sv * inv_n;
-    const float var = s2 * inv_n - mean_d * mean_d;
-    const float cov = sdv * inv_n - mean_d * mu_v;
-    const float mu_i = c + mean_d;
-    const float level = level_from_guide ? mu_i : mu_v;
-    const float a = cov / (var + eps0 + shot * max_f(level, 0.0f) + floor_);
-    const int i = y * out_w + x;
-    ab[i] = a;
-    ab[out_w * out_h + i] = mu_v - a * mu_i;
-}
-
-/* box_rows: dst(y, x) = sum of src(y, x .. x + 2r), r = GF_R, every plane (planes stacked: out_h =
- * planes * height). Reads +2r along x. */
-__kernel void box_rows(__global const float *src, __global float *dst, const int in_w, const int out_w)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *c = src + y * in_w + x;
-    float acc = 0.0f;
-    #pragma unroll
-    for (int k = 0; k <= 2 * GF_R; ++k)
-        acc += c[k];
-    dst[y * out_w + x] = acc;
-}
-
-/* gf_apply: q = mean(a) I + mean(b), the means over the (2r+1)^2 windows covering the pixel (column
- * sums of the row sums of a, b; planes of rows_ab, rows_h high), r = GF_R. Output (y, x) <-> rows
- * (y + r, x), the own window's pixel (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off)
- * (guide from element g_base). Reads +-r along y. */
-__kernel void gf_apply(__global const float *rows_ab, __global const float *guide, __global float *dst,
-                       const int rows_w, const int rows_h, const int g_base, const int g_w, const int g_off,
-                       const int out_w)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = rows_w * rows_h;
-    __global const float *rc = rows_ab + y * rows_w + x;
-    float sa = 0.0f, sb = 0.0f;
-    #pragma unroll
-    for (int j = 0; j <= 2 * GF_R; ++j) {
-        sa += rc[j * rows_w];
-        sb += rc[plane + j * rows_w];
-    }
-    const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));
-    dst[y * out_w + x] = (sa * guide[g_base + (y + 2 * GF_R + g_off) * g_w + x + 2 * GF_R + g_off] + sb) * inv;
 }
 
 /* m_at_s_combine: the L/M quincunx m; p where not S; at S sites M = Mfit + gamma (p - Sfit), gamma = 1

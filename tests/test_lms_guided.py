@@ -29,8 +29,9 @@ from clisp.stages.colour import ColourMatrix
 from clisp.stages.lms_common import valid
 from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
                                               RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
-                                              chroma_input, guided_filter, l_guide, lm_output,
-                                              lum_lowpass, m_at_s_combine, neutral_of, s_alias, s_output)
+                                              chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
+                                              neutral_of, s_alias, s_output)
+from clisp.stages.guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
 
@@ -183,9 +184,10 @@ def test_kernel_guided_filter(rt, window, channel_name):
     shot, floor = (0.01, 1e-5) if channel < 0 else (NOISE.shot[channel], NOISE.floor[channel])
     mask = None if channel < 0 else ch == channel
     ref = guided_filter(guide, x[off:-off, off:-off].astype(np.float64), mask, r, 1e-4, shot, floor, channel < 0)
-    out = stage.enqueue_guided(rt, guide.shape, (origin[0] + off, origin[1] + off),
-                               rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, channel, 1e-4,
-                               (shot, floor), channel < 0)
+    mask_arg = {None: MASK_ALL, "M": MASK_M, "S": MASK_S}[channel_name]
+    out = enqueue_guided_filter(rt, guide.shape, (origin[0] + off, origin[1] + off), stage.shift,
+                                rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, mask_arg, 1e-4,
+                                (shot, floor), channel < 0)
     assert_close(download(rt, out), ref, f"guided filter {channel_name}")
 
 

@@ -10,9 +10,10 @@ luminance only where the noise model says the detail is noise. Input: the white-
 (H x W); output L, M, S, (H - 2 halo) x (W - 2 halo) x 3. ``mod`` = +1 at L sites, -1 elsewhere (the
 (pi, pi) carrier of C). GF = He et al.'s guided filter with box windows of radius r (mean of the
 per-window coefficients a, b over the windows that cover a pixel), statistics over the sites of one
-CFA channel where "masked".
+CFA channel where "masked"; it lives in ``guided_filter`` (reference and host) and
+kernels/guided_filter.cl, shared with the hybrid.
 
-Steps (one function per kernel below; radius = halo the step consumes)::
+Steps (one function per kernel below, the GF's in ``guided_filter``; radius = halo the step consumes)::
 
     l_guide           r 4   I0 = L at L sites, 2 (D * L-samples) elsewhere (D: 9 x 9 diamond half-band)
     M at S, pass 1    r 8   GF of the M samples and of the S samples against I0 (radius r1 = 3):
@@ -89,7 +90,9 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
+from .guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
+from .lms_common import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
+                         diamond_halfband, lattice_shift, launch_exact, valid)
 
 D_RADIUS = 4
 """Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
@@ -102,8 +105,6 @@ RI_RADIUS = 3
 """Radius of the residual interpolation over the S lattice: the support of the lattice's tent."""
 DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 """The 2-tap predictors of the edge-directed estimate: y(q - d) and y(q + d) for each d = (dy, dx)."""
-WORK_GROUP = (64, 4)
-"""Work-group shape (x, y) of this stage's kernels (the hybrid's measured choice on PoCL)."""
 i32, f32 = np.int32, np.float32
 
 
@@ -211,67 +212,6 @@ def l_guide(p: np.ndarray, ch: np.ndarray, ch_l: int) -> np.ndarray:
     off[D_RADIUS, D_RADIUS] = 0.0
     centre = valid(p, D_RADIUS)
     return np.where(valid(ch, D_RADIUS) == ch_l, centre, 2.0 * correlate_valid(p, off))
-
-
-def gf_row_moments(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int) -> np.ndarray:
-    """Row sums over x - r .. x + r of the masked moments, the guide centred on the row centre value
-    c = guide(y, x): (n, sum d, sum d^2, sum v, sum d v), d = guide - c; H x (W - 2r) x 5.
-    ``mask`` None: every pixel."""
-    c = guide[:, r:guide.shape[1] - r]
-    out = np.zeros(c.shape + (5,))
-    for k in range(-r, r + 1):
-        chi = (np.ones_like(c) if mask is None else mask[:, r + k:mask.shape[1] - r + k].astype(np.float64))
-        d = chi * (guide[:, r + k:guide.shape[1] - r + k] - c)
-        s = chi * v[:, r + k:v.shape[1] - r + k]
-        out += np.stack([chi, d, d * d, s, d * s], axis=-1)
-    return out
-
-
-def gf_coefficients(rows: np.ndarray, guide: np.ndarray, r: int, eps0: float, shot: float, floor: float,
-                    level_from_guide: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Column sums over y - r .. y + r of the row moments, each moved from its row centre c_j to the
-    output's c = guide(y, x) (exact algebra); ``guide`` holds the row centres (rows.shape[:2]).
-    a = cov / (var + eps), b = mu_v - a mu_I, eps = eps0 + shot max(level, 0) + floor, level = mu_I
-    (``level_from_guide``) or mu_v. Returns a, b, (H - 2r) x W'."""
-    h = rows.shape[0] - 2 * r
-    c = guide[r:r + h]
-    n = s1 = s2 = sv = sdv = 0.0
-    for j in range(-r, r + 1):
-        nj, s1j, s2j, svj, sdvj = (rows[r + j:r + j + h, :, q] for q in range(5))
-        delta = guide[r + j:r + j + h] - c
-        n = n + nj
-        s1 = s1 + s1j + nj * delta
-        s2 = s2 + s2j + 2.0 * delta * s1j + nj * delta * delta
-        sv = sv + svj
-        sdv = sdv + sdvj + delta * svj
-    mean_d, mu_v = s1 / n, sv / n
-    var = s2 / n - mean_d * mean_d
-    cov = sdv / n - mean_d * mu_v
-    mu_i = c + mean_d
-    level = mu_i if level_from_guide else mu_v
-    a = cov / (var + eps0 + shot * np.maximum(level, 0.0) + floor)
-    return a, mu_v - a * mu_i
-
-
-def box_rows(x: np.ndarray, r: int) -> np.ndarray:
-    """Sum over x - r .. x + r (along the second axis); x may have a trailing channel axis."""
-    return sum(x[:, r + k:x.shape[1] - r + k] for k in range(-r, r + 1))
-
-
-def gf_apply(guide: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray, r: int) -> np.ndarray:
-    """Mean a and b over the (2r+1)^2 windows covering the pixel (column sums of the row sums),
-    applied: q = mean(a) I + mean(b); ``guide`` at the output pixels."""
-    def cols(x: np.ndarray) -> np.ndarray:
-        return sum(x[r + k:x.shape[0] - r + k] for k in range(-r, r + 1)) / (2 * r + 1) ** 2
-    return cols(rows_a) * guide + cols(rows_b)
-
-
-def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int, eps0: float,
-                  shot: float, floor: float, level_from_guide: bool) -> np.ndarray:
-    """The four GF steps in a row: guide and v (and mask) on one window; output shrunk by 2r."""
-    rows = gf_row_moments(guide, v, mask, r)
-    a, b = gf_coefficients(rows, guide[:, r:guide.shape[1] - r], r, eps0, shot, floor, level_from_guide)
-    return gf_apply(valid(guide, 2 * r), box_rows(a, r), box_rows(b, r), r)
 
 
 def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.ndarray, ch_m: int, ch_s: int,
@@ -519,15 +459,11 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
     # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each
     # side); a kernel reads inputs on larger windows through offsets relative to its own window.
 
-    def defines(self, kernel_name: str, directional: bool = False, gf_r: int = 0) -> dict[str, int]:
-        """Compile-time constants of kernels/demosaic_lms_guided.cl (see its header). Each kernel gets
-        only the defines it reads, so programs (and PoCL's per-kernel compilations) are shared: the
-        guided-filter kernels between noisy and noiseless raws, all kernels between CFA phases (the
-        phase is folded into the origin, see ``_origin``)."""
-        base = dict(LATTICE)
-        if kernel_name in GF_KERNELS:
-            return {**base, "GF_R": int(gf_r)}
-        return {**base, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional)}
+    def defines(self, directional: bool = False) -> dict[str, int]:
+        """Compile-time constants of kernels/demosaic_lms_guided.cl (see its header). No CFA phase among
+        them: it is folded into the origin (``_origin``), so all phases share the programs. The guided
+        filters' kernels (kernels/guided_filter.cl) get LATTICE and their radius instead."""
+        return {**LATTICE, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional)}
 
     def _origin(self, origin: tuple[int, int]) -> tuple[np.int32, np.int32]:
         """Kernel arguments (oy, ox) for image ``origin``: shifted by the translation that maps this CFA
@@ -544,20 +480,11 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                 f"#define D_TAPS {d}\n#define TENT_TAPS {tent}\n")
 
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object,
-                directional: bool = False, gf_r: int = 0) -> None:
-        """Enqueue ``kernel_name`` over exactly width x height outputs without bounds checks: whole
-        WORK_GROUP groups over the largest multiple-of-group block, then the ragged right/bottom strips
-        as one group-wide launch shifted inward to end at the edge (recomputing some outputs with
-        identical values); a side shorter than the group gets the largest power of two that fits."""
-        kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(kernel_name, directional, gf_r),
-                           self.generated_source())
-        lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (width, height)))
-        full_w, full_h = width // lx * lx, height // ly * ly
-        xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
-        ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])
-        for x0, gw in xs:
-            for y0, gh in ys:
-                kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0, y0))
+                directional: bool = False) -> None:
+        """Enqueue ``kernel_name`` of kernels/demosaic_lms_guided.cl over exactly width x height outputs
+        (``lms_common.launch_exact``)."""
+        kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(directional), self.generated_source())
+        launch_exact(rt, kernel, width, height, *args)
 
     def enqueue_l_guide(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """I0 on p's window shrunk by D_RADIUS."""
@@ -567,34 +494,6 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                      rt.constant(as_f32(_weights(D9, centre=False))))
         return dst
 
-    def enqueue_guided(self, rt: Runtime, own: tuple[int, int], origin: tuple[int, int], guide: DeviceImage,
-                       g_off: int, v: DeviceImage, v_off: int, r: int, channel: int, eps0: float,
-                       noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0) -> DeviceImage:
-        """The guided filter of v against plane ``g_plane`` of guide over the own window (own = (h, w),
-        image ``origin``; guide, v on windows larger by g_off, v_off), statistics over CFA channel
-        ``channel`` (-1: all): gf_row_moments, gf_coefficients, box_rows, gf_apply. Output shrunk by 2r."""
-        h, w = own
-        g_base = i32(g_plane * guide.height * guide.width)
-        mask = {-1: 0, self.ch_m: 1, self.ch_s: 2}[channel]
-        rows = rt.acquire(5, h, w - 2 * r)
-        self._launch(rt, "gf_row_moments", w - 2 * r, h, guide.buffer, v.buffer, rows.buffer, g_base,
-                     i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(w - 2 * r), i32(h), i32(mask),
-                     *self._origin(origin), gf_r=r)
-        ab = rt.acquire(2, h - 2 * r, w - 2 * r)
-        self._launch(rt, "gf_coefficients", w - 2 * r, h - 2 * r, rows.buffer, guide.buffer, ab.buffer,
-                     i32(w - 2 * r), i32(h), g_base, i32(guide.width), i32(g_off), i32(w - 2 * r), i32(h - 2 * r),
-                     f32(eps0), f32(noise[0]), f32(noise[1]), i32(level_from_guide), gf_r=r)
-        rt.release(rows)
-        ab_rows = rt.acquire(2, h - 2 * r, w - 4 * r)
-        self._launch(rt, "box_rows", w - 4 * r, 2 * (h - 2 * r), ab.buffer, ab_rows.buffer, i32(w - 2 * r),
-                     i32(w - 4 * r), gf_r=r)
-        rt.release(ab)
-        q = rt.acquire(1, h - 4 * r, w - 4 * r)
-        self._launch(rt, "gf_apply", w - 4 * r, h - 4 * r, ab_rows.buffer, guide.buffer, q.buffer,
-                     i32(w - 4 * r), i32(h - 2 * r), g_base, i32(guide.width), i32(g_off), i32(w - 4 * r), gf_r=r)
-        rt.release(ab_rows)
-        return q
-
     def enqueue_m_at_s(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int], guide: DeviceImage,
                        o_guide: int, r: int, directional: tuple[DeviceImage, DeviceImage, DeviceImage, int, int]
                        | None = None) -> DeviceImage:
@@ -602,8 +501,9 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         (y, c, ylp, o_y, o_ylp): y and c on the window p's shrunk by o_y, ylp by o_ylp."""
         prm, noise = self.params, self.pixel_noise
         own, g_origin = (guide.height, guide.width), (origin[0] + o_guide, origin[1] + o_guide)
-        fits = [self.enqueue_guided(rt, own, g_origin, guide, 0, p, o_guide, r, c, prm.ms_eps,
-                                    (noise.shot[c], noise.floor[c]), False) for c in (self.ch_m, self.ch_s)]
+        fits = [enqueue_guided_filter(rt, own, g_origin, self.shift, guide, 0, p, o_guide, r, mask, prm.ms_eps,
+                                      (noise.shot[c], noise.floor[c]), False)
+                for c, mask in ((self.ch_m, MASK_M), (self.ch_s, MASK_S))]
         o_fit = o_guide + 2 * r
         h, w = fits[0].height - 2 * COMBINE_RADIUS, fits[0].width - 2 * COMBINE_RADIUS
         dst = rt.acquire(1, h, w)
@@ -642,8 +542,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         self._launch(rt, "chroma_input", wc, hc, m.buffer, ylp.buffer, cin.buffer, i32(w), i32(m.width), i32(wc),
                      *self._origin(y_origin), rt.constant(as_f32(B5)))
         c_origin = (y_origin[0] + PRE_RADIUS, y_origin[1] + PRE_RADIUS)
-        c = self.enqueue_guided(rt, (hc, wc), c_origin, ylp, PRE_RADIUS, cin, 0, r, -1, prm.chroma_eps,
-                                self._lum_noise(), True)
+        c = enqueue_guided_filter(rt, (hc, wc), c_origin, self.shift, ylp, PRE_RADIUS, cin, 0, r, MASK_ALL,
+                                  prm.chroma_eps, self._lum_noise(), True)
         rt.release(cin)
         return c, ylp
 
@@ -691,8 +591,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
             rt.release(image)
         o_lm = o_c + COMBINE_RADIUS
         rs = prm.s_radius
-        g = self.enqueue_guided(rt, (h, w), at(o_lm), lm, 0, src, o_lm, rs, self.ch_s, prm.s_eps,
-                                (noise.shot[self.ch_s], noise.floor[self.ch_s]), False, g_plane=1)
+        g = enqueue_guided_filter(rt, (h, w), at(o_lm), self.shift, lm, 0, src, o_lm, rs, MASK_S, prm.s_eps,
+                                  (noise.shot[self.ch_s], noise.floor[self.ch_s]), False, g_plane=1)
         o_g = o_lm + 2 * rs
         out_h, out_w = g.height - 2 * RI_RADIUS, g.width - 2 * RI_RADIUS
         lms = rt.acquire(3, out_h, out_w)
@@ -724,24 +624,3 @@ def _weights(k: np.ndarray, centre: bool = True) -> np.ndarray:
     """Weights of ``_support(k, centre)``, in order."""
     r = k.shape[0] // 2
     return np.array([k[dy + r, dx + r] for dy, dx in _support(k, centre)])
-
-
-LATTICE = {"L_PAR": 0, "S_Y": 0, "S_D": 1}
-"""The kernels' closed form of the base LMS tile (SPEC section 1, phase (0, 0)): L iff x + y + L_PAR is
-even; S iff y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise."""
-GF_KERNELS = ("gf_row_moments", "gf_coefficients", "box_rows", "gf_apply")
-"""The kernels that read GF_R (and nothing noise- or pass-dependent)."""
-
-
-def lattice_shift(cfa: CFA, ch_l: int, ch_s: int) -> tuple[int, int]:
-    """(ty, tx) with channel(y, x) = base tile at (y + ty, x + tx) for every pixel, where the base tile
-    is LATTICE's; every CFA that passes check_lms_structure is such a translate (SPEC section 1)."""
-    yy, xx = np.mgrid[0:cfa.period, 0:cfa.period]
-    for ty in range(4):
-        for tx in range(4):
-            y, x = yy + ty, xx + tx
-            is_l = (x + y + LATTICE["L_PAR"]) % 2 == 0
-            is_s = ((y + LATTICE["S_Y"]) % 2 == 0) & ((x - y + LATTICE["S_D"]) % 4 == 0)
-            if np.array_equal(is_l, cfa.pattern == ch_l) and np.array_equal(is_s, cfa.pattern == ch_s):
-                return ty, tx
-    raise ClispError(f"CFA {cfa.name}: not a translate of the paper's LMS tile")

@@ -1,0 +1,199 @@
+"""The masked guided filter of both LMS demosaics: NumPy reference and host side of kernels/guided_filter.cl.
+
+He et al.'s guided filter of a target v against a guide I with box windows of radius r, the statistics
+taken only over the pixels of one CFA channel (chi = 1 there, 0 elsewhere; or every pixel), box = mean
+over the (2r+1)^2 window (``guided_filter_spec`` writes it out)::
+
+    n = box(chi); muI = box(chi I)/n; muv = box(chi v)/n
+    a = (box(chi I v)/n - muI muv) / (box(chi I^2)/n - muI^2 + eps); b = muv - a muI
+    q = box(a) I + box(b)        eps = eps0 + shot max(level, 0) + floor, level = muI or muv
+
+eps0 is the regulariser (signal units^2), shot and floor the affine noise variance of the level's
+quantity. Computed separably, one function and one kernel per step (same names): ``gf_row_moments``
+(masked moments summed along rows, the guide centred on the row's centre value), ``gf_coefficients``
+(column sums moved to the output pixel's centre value: exact algebra that keeps the variance free of
+float32 cancellation; then a, b), ``box_rows`` (row sums of a, b) and ``gf_apply`` (their column sums,
+applied). The output is the window shrunk by 2r on every side.
+
+Users: ``demosaic_lms_guided`` (M at S, chroma and S passes). On the device the CFA membership is a closed form
+(``lms_common.LATTICE``), the CFA phase folded into the image coordinates by ``lattice_shift``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ClispError
+from ..runtime import DeviceImage, Runtime
+from .lms_common import LATTICE, correlate_valid, launch_exact, valid
+
+MASK_ALL, MASK_M, MASK_S = 0, 1, 2
+"""``mask`` argument of the kernels: statistics over every pixel, the M sites or the S sites."""
+i32, f32 = np.int32, np.float32
+"""Kernel argument types."""
+
+
+# ---------------------------------------------------------------------------------- reference
+# Float64 windows; ``mask`` (bool, the window's shape) selects the pixels of the statistics, None: all.
+
+def guided_filter_spec(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int, eps0: float,
+                       shot: float, floor: float, level_from_guide: bool) -> np.ndarray:
+    """The filter written with window means (module doc); guide, v, mask on one H x W window, output
+    (H - 4r) x (W - 4r). :func:`guided_filter` computes the same separably."""
+    chi = np.ones(guide.shape) if mask is None else mask.astype(np.float64)
+
+    def box(a: np.ndarray) -> np.ndarray:
+        return correlate_valid(a, np.full((2 * r + 1, 2 * r + 1), 1.0 / (2 * r + 1) ** 2))
+
+    n = box(chi)
+    mu_i, mu_v = box(chi * guide) / n, box(chi * v) / n
+    cov = box(chi * guide * v) / n - mu_i * mu_v
+    var = box(chi * guide * guide) / n - mu_i * mu_i
+    level = mu_i if level_from_guide else mu_v
+    a = cov / (var + eps0 + shot * np.maximum(level, 0.0) + floor)
+    b = mu_v - a * mu_i
+    return box(a) * valid(guide, 2 * r) + box(b)
+
+
+def gf_row_moments(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int) -> np.ndarray:
+    """Row sums over x - r .. x + r of the masked moments, the guide centred on the row centre value
+    c = guide(y, x): (n, sum d, sum d^2, sum v, sum d v), d = guide - c; H x (W - 2r) x 5 for H x W
+    inputs. ``mask`` None: every pixel."""
+    c = guide[:, r:guide.shape[1] - r]
+    out = np.zeros(c.shape + (5,))
+    for k in range(-r, r + 1):
+        chi = (np.ones_like(c) if mask is None else mask[:, r + k:mask.shape[1] - r + k].astype(np.float64))
+        d = chi * (guide[:, r + k:guide.shape[1] - r + k] - c)
+        s = chi * v[:, r + k:v.shape[1] - r + k]
+        out += np.stack([chi, d, d * d, s, d * s], axis=-1)
+    return out
+
+
+def gf_coefficients(rows: np.ndarray, guide: np.ndarray, r: int, eps0: float, shot: float, floor: float,
+                    level_from_guide: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Column sums over y - r .. y + r of the row moments, each moved from its row centre c_j to the
+    output's c = guide(y, x) (exact algebra); ``guide`` holds the row centres (rows.shape[:2]).
+    a = cov / (var + eps), b = mu_v - a mu_I, eps = eps0 + shot max(level, 0) + floor, level = mu_I
+    (``level_from_guide``) or mu_v. Returns a, b, (H - 2r) x W' for rows H x W' x 5."""
+    h = rows.shape[0] - 2 * r
+    c = guide[r:r + h]
+    n = s1 = s2 = sv = sdv = 0.0
+    for j in range(-r, r + 1):
+        nj, s1j, s2j, svj, sdvj = (rows[r + j:r + j + h, :, q] for q in range(5))
+        delta = guide[r + j:r + j + h] - c
+        n = n + nj
+        s1 = s1 + s1j + nj * delta
+        s2 = s2 + s2j + 2.0 * delta * s1j + nj * delta * delta
+        sv = sv + svj
+        sdv = sdv + sdvj + delta * svj
+    mean_d, mu_v = s1 / n, sv / n
+    var = s2 / n - mean_d * mean_d
+    cov = sdv / n - mean_d * mu_v
+    mu_i = c + mean_d
+    level = mu_i if level_from_guide else mu_v
+    a = cov / (var + eps0 + shot * np.maximum(level, 0.0) + floor)
+    return a, mu_v - a * mu_i
+
+
+def box_rows(x: np.ndarray, r: int) -> np.ndarray:
+    """Sum over x - r .. x + r (along the second axis): H x W -> H x (W - 2r); x may have a trailing
+    channel axis."""
+    return sum(x[:, r + k:x.shape[1] - r + k] for k in range(-r, r + 1))
+
+
+def gf_apply(guide: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray, r: int) -> np.ndarray:
+    """Mean a and b over the (2r+1)^2 windows covering the pixel (column sums of the row sums, H x W ->
+    (H - 2r) x W), applied: q = mean(a) I + mean(b); ``guide`` at the output pixels."""
+    def cols(x: np.ndarray) -> np.ndarray:
+        return sum(x[r + k:x.shape[0] - r + k] for k in range(-r, r + 1)) / (2 * r + 1) ** 2
+    return cols(rows_a) * guide + cols(rows_b)
+
+
+def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: int, eps0: float,
+                  shot: float, floor: float, level_from_guide: bool) -> np.ndarray:
+    """The four GF steps in a row: guide and v (and mask) on one H x W window; output (H - 4r) x (W - 4r)."""
+    rows = gf_row_moments(guide, v, mask, r)
+    a, b = gf_coefficients(rows, guide[:, r:guide.shape[1] - r], r, eps0, shot, floor, level_from_guide)
+    return gf_apply(valid(guide, 2 * r), box_rows(a, r), box_rows(b, r), r)
+
+
+# ---------------------------------------------------------------------------------- OpenCL
+# The filter runs on an "own" window (h, w); the guide (plane g_plane) and v live on device images whose
+# pixel (g_off, g_off), resp. (v_off, v_off), is own-window pixel (0, 0). ``origin``: image coordinates
+# of own-window pixel (0, 0); ``shift``: lms_common.lattice_shift of the CFA.
+
+def _kernel(rt: Runtime, name: str, r: int) -> object:
+    """Kernel ``name`` of kernels/guided_filter.cl for radius r (one program per radius)."""
+    return rt.kernel("guided_filter", name, {**LATTICE, "GF_R": int(r)})
+
+
+def _plane_base(image: DeviceImage, plane: int) -> np.int32:
+    """Element offset of plane ``plane`` of a planar device image."""
+    return i32(plane * image.height * image.width)
+
+
+def enqueue_row_moments(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                        guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int,
+                        g_plane: int = 0) -> DeviceImage:
+    """gf_row_moments: 5 planes, h x (w - 2r); output (y, x) is centred on own-window pixel (y, x + r).
+    ``mask``: MASK_ALL, MASK_M or MASK_S."""
+    h, w = own
+    dst = rt.acquire(5, h, w - 2 * r)
+    launch_exact(rt, _kernel(rt, "gf_row_moments", r), dst.width, h, guide.buffer, v.buffer, dst.buffer,
+                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(v.width), i32(v_off),
+                 i32(dst.width), i32(h), i32(mask), i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
+    return dst
+
+
+def enqueue_coefficients(rt: Runtime, rows: DeviceImage, guide: DeviceImage, g_off: int, r: int, eps0: float,
+                         noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0) -> DeviceImage:
+    """gf_coefficients: planes a, b, (rows.height - 2r) x rows.width; output (y, x) <-> rows (y + r, x),
+    own-window pixel (y + r, x + r). ``noise``: (shot, floor) of the level's variance."""
+    h = rows.height - 2 * r
+    dst = rt.acquire(2, h, rows.width)
+    launch_exact(rt, _kernel(rt, "gf_coefficients", r), rows.width, h, rows.buffer, guide.buffer, dst.buffer,
+                 i32(rows.width), i32(rows.height), _plane_base(guide, g_plane), i32(guide.width), i32(g_off),
+                 i32(rows.width), i32(h), f32(eps0), f32(noise[0]), f32(noise[1]), i32(level_from_guide))
+    return dst
+
+
+def enqueue_box_rows(rt: Runtime, src: DeviceImage, r: int) -> DeviceImage:
+    """box_rows: sums over 2r+1 neighbours along x of every plane; width shrinks by 2r."""
+    w = src.width - 2 * r
+    dst = rt.acquire(src.channels, src.height, w)
+    launch_exact(rt, _kernel(rt, "box_rows", r), w, src.channels * src.height, src.buffer, dst.buffer,
+                 i32(src.width), i32(w))
+    return dst
+
+
+def enqueue_apply(rt: Runtime, rows_ab: DeviceImage, guide: DeviceImage, g_off: int, r: int,
+                  g_plane: int = 0, out: tuple[DeviceImage, int] | None = None) -> DeviceImage:
+    """gf_apply: q, (rows_ab.height - 2r) x rows_ab.width; output (y, x) <-> rows_ab (y + r, x), own-window
+    pixel (y + 2r, x + 2r). ``out`` = (image, plane): write q into that plane of an existing image of
+    q's size instead of a new one-plane image. Returns the image written."""
+    h, w = rows_ab.height - 2 * r, rows_ab.width
+    dst, plane = (rt.acquire(1, h, w), 0) if out is None else out
+    if (dst.height, dst.width) != (h, w) or not 0 <= plane < dst.channels:
+        raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
+                         f"cannot take {h} x {w}")
+    launch_exact(rt, _kernel(rt, "gf_apply", r), w, h, rows_ab.buffer, guide.buffer, dst.buffer, i32(w),
+                 i32(rows_ab.height), _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(w),
+                 _plane_base(dst, plane))
+    return dst
+
+
+def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                          guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int,
+                          eps0: float, noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0,
+                          out: tuple[DeviceImage, int] | None = None) -> DeviceImage:
+    """The guided filter of v against plane ``g_plane`` of guide over the own window, statistics over
+    ``mask`` (MASK_ALL, MASK_M, MASK_S); eps = eps0 + noise[0] max(level, 0) + noise[1]. Output: the own
+    window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Intermediates (5,
+    2 and 2 planes) come from the pool and go back to it."""
+    rows = enqueue_row_moments(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, g_plane)
+    ab = enqueue_coefficients(rt, rows, guide, g_off, r, eps0, noise, level_from_guide, g_plane)
+    rt.release(rows)
+    ab_rows = enqueue_box_rows(rt, ab, r)
+    rt.release(ab)
+    q = enqueue_apply(rt, ab_rows, guide, g_off, r, g_plane, out)
+    rt.release(ab_rows)
+    return q
