@@ -2,15 +2,17 @@
  * NumPy twins of the same names in clisp/stages/demosaic_lms.py.
  * Defines from the host: CFA_PERIOD; CH_L, CH_M, CH_S (channel indices of the CFA description);
  * SELECT (0 soft, 1 hard, 2 iso: step A direction choice); NOISY (0: noiseless, eps constant);
- * LUM_R (h_lum radius); CHROMA_R (radius of the chroma binomial); GF_R (guided filter radius);
+ * LUM_R (h_lum radius); CHROMA_R (radius of the chroma binomial);
  * BL_R, BL_RATIO (bilateral option radius; 1: interpolate S/I, 0: S - I); MAX_SITES (longest list
  * of S-site offsets, for s_joint_bilateral). Host-generated: LUM_SUPPORT (see luma_lowpass).
+ * Step C's default, the masked guided filter, runs the kernels of guided_filter.cl (shared with the
+ * guided LMS demosaic); this file holds its bilateral option.
  * Geometry: every kernel writes an out_w x out_h image; "at" arguments give the pixel of an input
  * that output pixel (0, 0) is centred on; (oy, ox) are image coordinates (CFA phase) of a pixel. */
 
 /* No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
  * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
- * DemosaicLMSHybrid._launch. With no control flow in its body PoCL vectorises a kernel across
+ * lms_common.launch_exact. With no control flow in its body PoCL vectorises a kernel across
  * work-items (an 81-tap luma_lowpass on 6 MP: 364 ms with a bounds check, 24 ms without). Hence also
  * branch-free bodies: selections, not ifs. */
 
@@ -144,123 +146,9 @@ __kernel void lm_combine(__global const float *lum, __global const float *rows, 
     dst[out_w * out_h + i] = l - chr;
 }
 
-/* guided_row_moments (step C statistics, rows): over the S sites q in row Y, columns X-GF_R .. X+GF_R,
- * with the guide centred on its value at the row's centre, c = I(Y, X):
- *   n = sum chi, i1 = sum chi (I-c), i2 = sum chi (I-c)^2, s1 = sum chi S, is = sum chi (I-c) S
- * (planes 0..4). Centring keeps var = E[(I-c)^2] - E[I-c]^2 free of float32 cancellation: both
- * terms are small where I is flat, where uncentred E[I^2] - E[I]^2 would lose ~1e-8 against an
- * eps of 1e-4. Centre (Y, X) = lum (y + at_y, x + at_x), p (y + p_y, x + p_x); (oy, ox): image
- * pixel of that centre for output (0, 0). Reads +-GF_R along x. */
-__kernel void guided_row_moments(__global const float *lum, __global const float *p, __global float *mom,
-                                 const int lum_w, const int p_w, const int out_w, const int out_h,
-                                 const int at_y, const int at_x, const int p_y, const int p_x,
-                                 const int oy, const int ox, __constant const char *pattern)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *lc = lum + (y + at_y) * lum_w + x + at_x;
-    __global const float *pc = p + (y + p_y) * p_w + x + p_x;
-    const float c = lc[0];
-    float n = 0.0f, i1 = 0.0f, i2 = 0.0f, s1 = 0.0f, is = 0.0f;
-    #pragma unroll
-    for (int k = -GF_R; k <= GF_R; ++k) {
-        const float chi = cfa_channel(pattern, y + oy, x + ox + k) == CH_S ? 1.0f : 0.0f;
-        const float d = chi * (lc[k] - c);
-        const float sv = chi * pc[k];
-        n += chi;
-        i1 += d;
-        i2 += d * d;
-        s1 += sv;
-        is += d * sv;
-    }
-    const int plane = out_w * out_h, i = y * out_w + x;
-    mom[i] = n;
-    mom[plane + i] = i1;
-    mom[2 * plane + i] = i2;
-    mom[3 * plane + i] = s1;
-    mom[4 * plane + i] = is;
-}
-
-/* guided_coefficients (step C statistics, columns): sums the row moments of rows Y-GF_R .. Y+GF_R
- * (planes rows_h high; row Y+j centred at c_j = I(Y+j, X)) after moving each to the output's centre
- * c = I(Y, X), d = c_j - c:  i1 += i1_j + n_j d,  i2 += i2_j + 2 d i1_j + n_j d^2,  is += is_j + d s1_j.
- * Then over the window's S sites: muI = c + i1/n, muS = s1/n, var = i2/n - (i1/n)^2,
- * cov = is/n - (i1/n) muS; eps = gf_eps + shot_s * muS + floor_s; a = cov / (var + eps),
- * b = muS - a muI (planes a, b of ab). Output (y, x): rows (y + GF_R, x), lum (y + at_y, x + at_x).
- * Reads +-GF_R along y. */
-__kernel void guided_coefficients(__global const float *rows, __global const float *lum, __global float *ab,
-                                  const int rows_w, const int rows_h, const int lum_w, const int out_w,
-                                  const int out_h, const int at_y, const int at_x, const float gf_eps,
-                                  const float shot_s, const float floor_s)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = rows_w * rows_h;
-    __global const float *rc = rows + (y + GF_R) * rows_w + x;
-    __global const float *lc = lum + (y + at_y) * lum_w + x + at_x;
-    const float c = lc[0];
-    float n = 0.0f, i1 = 0.0f, i2 = 0.0f, s1 = 0.0f, is = 0.0f;
-    #pragma unroll
-    for (int j = -GF_R; j <= GF_R; ++j) {
-        const int o = j * rows_w;
-        const float d = lc[j * lum_w] - c;
-        const float n_j = rc[o], i1_j = rc[plane + o], s1_j = rc[3 * plane + o];
-        n += n_j;
-        i1 += i1_j + n_j * d;
-        i2 += rc[2 * plane + o] + d * (2.0f * i1_j + n_j * d);
-        s1 += s1_j;
-        is += rc[4 * plane + o] + d * s1_j;
-    }
-    const float inv_n = 1.0f / n;
-    const float mi = i1 * inv_n, mu_s = s1 * inv_n;
-    const float var = i2 * inv_n - mi * mi;
-    const float cov = is * inv_n - mi * mu_s;
-    const float a = cov / (var + gf_eps + shot_s * max_f(mu_s, 0.0f) + floor_s);
-    const int i = y * out_w + x;
-    ab[i] = a;
-    ab[out_w * out_h + i] = mu_s - a * (c + mi);
-}
-
-/* box_rows (step C): dst(y, x) = sum of src(y, x .. x + 2 GF_R), every plane (planes stacked, so
- * out_h = planes * height). Reads +2 GF_R along x. */
-__kernel void box_rows(__global const float *src, __global float *dst, const int in_w, const int out_w,
-                       const int out_h)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *c = src + y * in_w + x;
-    float acc = 0.0f;
-    #pragma unroll
-    for (int k = 0; k <= 2 * GF_R; ++k)
-        acc += c[k];
-    dst[y * out_w + x] = acc;
-}
-
-/* guided_apply (step C): S = box(a) I + box(b) into plane 2 of dst; box = column sum of the row sums
- * (planes a, b of rows, rows_h high each) over y .. y + 2 GF_R, divided by (2 GF_R + 1)^2; I = lum at
- * (y + at_y, x + at_x). Reads +2 GF_R along y. */
-__kernel void guided_apply(__global const float *lum, __global const float *rows, __global float *dst,
-                           const int lum_w, const int rows_w, const int rows_h, const int out_w,
-                           const int out_h, const int at_y, const int at_x)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *ra = rows + y * rows_w + x;
-    __global const float *rb = ra + rows_h * rows_w;
-    float sum_a = 0.0f, sum_b = 0.0f;
-    #pragma unroll
-    for (int k = 0; k <= 2 * GF_R; ++k) {
-        sum_a += ra[k * rows_w];
-        sum_b += rb[k * rows_w];
-    }
-    const float norm = 1.0f / ((2 * GF_R + 1) * (2 * GF_R + 1));
-    const float guide = lum[(y + at_y) * lum_w + x + at_x];
-    dst[2 * out_w * out_h + y * out_w + x] = (sum_a * guide + sum_b) * norm;
-}
-
 /* s_joint_bilateral (step C option): S = I * sum w v / sum w (BL_RATIO: v = S / max(I, floor)) or
- * I + sum w v / sum w (v = S - I) over the S sites within BL_R (site lists as in
- * guided_coefficients), w = exp(e - max e), e = -d^2 inv_2ss - (I_q - I)^2 / (2 sigma_r^2)
+ * I + sum w v / sum w (v = S - I) over the S sites within BL_R (per-phase site
+ * lists from the host), w = exp(e - max e), e = -d^2 inv_2ss - (I_q - I)^2 / (2 sigma_r^2)
  * (shifting by the largest exponent keeps the best site's weight at 1, so no window underflows to
  * 0/0), sigma_r = max(sr_min, sr_k * std of lum), var(lum) = lum_shot * I + lum_floor. Into plane 2
  * of dst. Centres: lum (y + at_y, x + at_x), p (y + p_y, x + p_x); (oy, ox): image pixel of output

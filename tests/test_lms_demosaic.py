@@ -24,10 +24,12 @@ from clisp.pipeline import Pipeline
 from clisp.runtime import DeviceImage
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
-                                       LMSHybridParams, box_rows, chroma_demodulate_rows,
-                                       diamond_halfband, frequency_response, guided_apply, guided_coefficients,
-                                       guided_filter_spec, guided_row_moments, lm_combine,
-                                       luma_filter, luma_lowpass, m_at_s, s_joint_bilateral)
+                                       LMSHybridParams, chroma_demodulate_rows, diamond_halfband,
+                                       frequency_response, lm_combine, luma_filter, luma_lowpass, m_at_s,
+                                       s_joint_bilateral)
+from clisp.stages.guided_filter import (MASK_S, box_rows, enqueue_apply, enqueue_box_rows, enqueue_coefficients,
+                                        enqueue_row_moments, gf_apply, gf_coefficients, gf_row_moments,
+                                        guided_filter_spec)
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
 
@@ -175,25 +177,24 @@ def test_guided_filter_kernels(rt, phase, origin, noise) -> None:
     lum, p = smooth_pair(4)
     is_s = stage.cfa.channel_map(*p.shape, origin) == stage.ch_s
     lum_d, p_d = upload(rt, lum), upload(rt, p)
-    # row moments centred on lum (y, x + r), covering every row
-    rows = stage.enqueue_guided_row_moments(rt, lum_d, p_d, origin, (0, r), (0, r), lum.shape[0],
-                                            lum.shape[1] - 2 * r)
+    noise_s = (stage.pixel_noise.shot[stage.ch_s], stage.pixel_noise.floor[stage.ch_s])
+    # row moments centred on lum (y, x + r), covering every row (the filter's window is lum's)
+    rows = enqueue_row_moments(rt, lum.shape, origin, stage.shift, lum_d, 0, p_d, 0, r, MASK_S)
     rows_host = download(rt, rows)
-    assert_close(rows_host, guided_row_moments(f64(lum), f64(p), is_s, r), "guided_row_moments")
-    ab = stage.enqueue_guided_coefficients(rt, rows, lum_d, (r, r))
-    a, b = guided_coefficients(f64(rows_host), f64(lum)[:, r:-r], r, stage.params.gf_eps, stage.pixel_noise,
-                               stage.ch_s)
+    assert_close(rows_host, gf_row_moments(f64(lum), f64(p), is_s, r), "gf_row_moments")
+    ab = enqueue_coefficients(rt, rows, lum_d, 0, r, stage.params.gf_eps, noise_s, False)
+    a, b = gf_coefficients(f64(rows_host), f64(lum)[:, r:-r], r, stage.params.gf_eps, *noise_s, False)
     ab_host = download(rt, ab)
-    assert_close(ab_host, np.stack([a, b], axis=-1), "guided_coefficients")
-    ab_rows = stage.enqueue_box_rows(rt, ab)
+    assert_close(ab_host, np.stack([a, b], axis=-1), "gf_coefficients")
+    ab_rows = enqueue_box_rows(rt, ab, r)
     ab_rows_host = download(rt, ab_rows)
     assert_close(ab_rows_host, box_rows(f64(ab_host), r), "box_rows")
-    # apply: output (y, x) at lum (y + 2r, x + 2r) and ab_rows (y + r, x)
+    # apply into plane 2 (S) of a 3-plane image: output (y, x) at lum (y + 2r, x + 2r) and ab_rows (y + r, x)
     dst = rt.acquire(3, ab_rows.height - 2 * r, ab_rows.width)
-    stage.enqueue_guided_apply(rt, lum_d, ab_rows, dst, (2 * r, 2 * r))
-    ref_s = guided_apply(f64(lum)[2 * r:-2 * r, 2 * r:-2 * r], f64(ab_rows_host[..., 0]),
-                         f64(ab_rows_host[..., 1]), r)
-    assert_close(download(rt, dst)[..., 2], ref_s, "guided_apply")
+    enqueue_apply(rt, ab_rows, lum_d, 0, r, out=(dst, 2))
+    ref_s = gf_apply(f64(lum)[2 * r:-2 * r, 2 * r:-2 * r], f64(ab_rows_host[..., 0]),
+                     f64(ab_rows_host[..., 1]), r)
+    assert_close(download(rt, dst)[..., 2], ref_s, "gf_apply")
     for image in (lum_d, p_d, rows, ab, ab_rows, dst):
         rt.release(image)
 
@@ -205,10 +206,11 @@ def test_guided_steps_equal_the_spec_formula() -> None:
     r = stage.params.gf_radius
     lum, p = f64(random_window(12, lo=0.1, hi=0.9)), f64(random_window(13))
     is_s = stage.cfa.channel_map(*p.shape, (3, -1)) == stage.ch_s
-    a, b = guided_coefficients(guided_row_moments(lum, p, is_s, r), lum[:, r:-r], r, stage.params.gf_eps,
-                               NOISE, stage.ch_s)
-    steps = guided_apply(lum[2 * r:-2 * r, 2 * r:-2 * r], box_rows(a, r), box_rows(b, r), r)
-    spec = guided_filter_spec(lum, p, is_s, r, stage.params.gf_eps, NOISE, stage.ch_s)
+    noise_s = (NOISE.shot[stage.ch_s], NOISE.floor[stage.ch_s])
+    a, b = gf_coefficients(gf_row_moments(lum, p, is_s, r), lum[:, r:-r], r, stage.params.gf_eps, *noise_s,
+                           False)
+    steps = gf_apply(lum[2 * r:-2 * r, 2 * r:-2 * r], box_rows(a, r), box_rows(b, r), r)
+    spec = guided_filter_spec(lum, p, is_s, r, stage.params.gf_eps, *noise_s, False)
     np.testing.assert_allclose(steps, spec, rtol=1e-10, atol=1e-12)
 
 

@@ -38,9 +38,10 @@ Frequency response: 1 at DC; 0 at the (pi, pi) chroma carrier (|H| < 1e-15; with
 normalisation 0.00382 = alpha * 0.00509, the windowed diamond's leak); 0.625 at (0, pi) and (pi, 0);
 0.609 at (pi/2, pi/2). Flat-field noise gain sum(h^2) = 0.463 (-3.34 dB of pixel noise).
 
-Step C, S (``guided_row_moments``, ``guided_coefficients``, ``box_rows``, ``guided_apply``): He et
-al.'s guided filter with guide I = lum and statistics over the S sites only (chi = S indicator, box =
-window mean over (2r+1)^2; ``guided_filter_spec`` writes it out)::
+Step C, S: He et al.'s guided filter with guide I = lum and statistics over the S sites only (chi = S
+indicator, box = window mean over (2r+1)^2), the masked guided filter that both LMS demosaics share
+(``clisp.stages.guided_filter``: reference ``guided_filter``, written out as ``guided_filter_spec``;
+kernels/guided_filter.cl, run by ``enqueue_s_guided``)::
 
     n = box(chi); muI = box(chi I)/n; muS = box(chi S)/n
     a = (box(chi I S)/n - muI muS) / (box(chi I^2)/n - muI^2 + eps); b = muS - a muI
@@ -48,7 +49,7 @@ window mean over (2r+1)^2; ``guided_filter_spec`` writes it out)::
 
 computed with separable box sums: row sums of the masked moments with I centred on the row's centre
 value, then column sums moved to the output pixel's centre value (exact algebra; it keeps the variance
-free of float32 cancellation, see the kernels).
+free of float32 cancellation, see kernels/guided_filter.cl).
 
 or, with ``s_method='bilateral'`` (``s_joint_bilateral``), joint bilateral interpolation of S/I (or
 S - I) over the S sites within radius r_b, spatial sigma sigma_s, range kernel on I with
@@ -73,7 +74,9 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .lms_common import NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband, valid
+from .guided_filter import MASK_S, enqueue_guided_filter, guided_filter
+from .lms_common import (NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband,
+                         lattice_shift, launch_exact, valid)
 
 A_RADIUS = 2
 """Radius of step A (M at S sites): E_v reads (y +- 2, x), the S-detail correction (y +- 2, x +- 2)."""
@@ -86,11 +89,6 @@ S_METHODS = ("guided", "bilateral")
 BILATERAL_DOMAINS = ("ratio", "difference")
 i32, f32 = np.int32, np.float32
 """Kernel argument types."""
-WORK_GROUP = (64, 4)
-"""Work-group shape (x, y) of this stage's kernels. On PoCL (2 cores, shared machine, best of 5,
-interleaved), whole stage at 6 and 24 MP: (32, 4) 22 / 31 MP/s, (64, 2) 27 / 37, (128, 1) 27 / 36,
-(64, 4) 29 / 39. Wider along x gives each vectorised work-group longer rows; 4 rows share the
-vertical taps."""
 
 
 # ---------------------------------------------------------------------------------- filters
@@ -255,70 +253,6 @@ def lm_combine(lum: np.ndarray, rows: np.ndarray, g: np.ndarray) -> np.ndarray:
     return np.stack([centre + chr_, centre - chr_], axis=-1)
 
 
-def guided_filter_spec(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int, eps: float,
-                       noise: ChannelNoise, ch_s: int) -> np.ndarray:
-    """SPEC section 4 step C written out (box = window mean; output shrunk by 2r). The stage computes
-    the same quantities as :func:`guided_row_moments` + :func:`guided_coefficients` + box of a, b."""
-    chi = is_s.astype(np.float64)
-
-    def box(a: np.ndarray) -> np.ndarray:
-        return correlate_valid(a, np.full((2 * r + 1, 2 * r + 1), 1.0 / (2 * r + 1) ** 2))
-
-    n = box(chi)
-    mu_i, mu_s = box(chi * lum) / n, box(chi * p) / n
-    cov = box(chi * lum * p) / n - mu_i * mu_s
-    var = box(chi * lum * lum) / n - mu_i * mu_i
-    a = cov / (var + eps + noise.variance(ch_s, mu_s))
-    b = mu_s - a * mu_i
-    return box(a) * valid(lum, 2 * r) + box(b)
-
-
-def guided_row_moments(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, r: int) -> np.ndarray:
-    """Step C, rows: over the S sites of the 2r+1 row neighbours, with the guide centred on the row
-    centre c = I(y, x): n, sum (I-c), sum (I-c)^2, sum S, sum (I-c) S; H x (W-2r) x 5."""
-    centre = lum[:, r:lum.shape[1] - r]
-    out = np.zeros(centre.shape + (5,))
-    for k in range(-r, r + 1):
-        chi = is_s[:, r + k:is_s.shape[1] - r + k].astype(np.float64)
-        d = chi * (lum[:, r + k:lum.shape[1] - r + k] - centre)
-        s = chi * p[:, r + k:p.shape[1] - r + k]
-        out += np.stack([chi, d, d * d, s, d * s], axis=-1)
-    return out
-
-
-def guided_coefficients(rows: np.ndarray, lum: np.ndarray, r: int, eps: float, noise: ChannelNoise,
-                        ch_s: int) -> tuple[np.ndarray, np.ndarray]:
-    """Step C, columns: (a, b) from the row moments of rows y-r .. y+r, each moved from its row centre
-    c_j = I(y+j, x) to the output's c = I(y, x); ``lum`` holds the row centres (same shape as
-    ``rows[..., 0]``); outputs shrunk by r along y. a = cov/(var + eps + var_S(muS)), b = muS - a muI."""
-    h = rows.shape[0] - 2 * r
-    c = lum[r:r + h]
-    n = i1 = i2 = s1 = cross = 0.0
-    for j in range(-r, r + 1):
-        n_j, i1_j, i2_j, s1_j, x_j = (rows[r + j:r + j + h, :, q] for q in range(5))
-        d = lum[r + j:r + j + h] - c
-        n, i1, s1 = n + n_j, i1 + i1_j + n_j * d, s1 + s1_j
-        i2 = i2 + i2_j + 2 * d * i1_j + n_j * d * d
-        cross = cross + x_j + d * s1_j
-    mean_d, mu_s = i1 / n, s1 / n
-    var = i2 / n - mean_d ** 2
-    cov = cross / n - mean_d * mu_s
-    a = cov / (var + eps + noise.variance(ch_s, mu_s))
-    return a, mu_s - a * (c + mean_d)
-
-
-def box_rows(x: np.ndarray, r: int) -> np.ndarray:
-    """Sum over 2r+1 neighbours along x; H x (W-2r) (x may have a trailing channel axis)."""
-    return sum(x[:, r + k:x.shape[1] - r + k] for k in range(-r, r + 1))
-
-
-def guided_apply(lum: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray, r: int) -> np.ndarray:
-    """Step C: S^ = box(a) I + box(b) from the row sums of a and b; I = lum at the output pixels."""
-    def cols(x: np.ndarray) -> np.ndarray:
-        return sum(x[r + k:x.shape[0] - r + k] for k in range(-r, r + 1)) / (2 * r + 1) ** 2
-    return cols(rows_a) * lum + cols(rows_b)
-
-
 def s_joint_bilateral(lum: np.ndarray, p: np.ndarray, is_s: np.ndarray, params: LMSHybridParams,
                       lum_noise_gain: float, noise: ChannelNoise, ch_l: int, ch_m: int) -> np.ndarray:
     """Step C option: joint bilateral interpolation of S/I (or S - I) over the S sites within r_b.
@@ -377,6 +311,7 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
 
     def __post_init__(self) -> None:
         self.ch_l, self.ch_m, self.ch_s = check_lms_structure(self.cfa, "LMS hybrid demosaic")
+        self.shift = lattice_shift(self.cfa, self.ch_l, self.ch_s)      # for the guided filter's kernels
         self.h_lum = luma_filter(self.params.alpha, self.params.exact_halfband)
         self.g_c = binomial(2 * CHROMA_RADIUS + 1)
         self.lum_support = np.argwhere(self.h_lum != 0) - LUM_RADIUS     # (dy, dx), row order
@@ -418,11 +353,8 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         p_s = valid(p, s0 + o_lum)
         is_s = valid(channel, s0 + o_lum) == self.ch_s
         if prm.s_method == "guided":
-            r = prm.gf_radius
-            rows_m = guided_row_moments(lum_s, p_s, is_s, r)
-            centres = lum_s[:, r:lum_s.shape[1] - r]
-            a, b = guided_coefficients(rows_m, centres, r, prm.gf_eps, noise, self.ch_s)
-            s = guided_apply(valid(lum_s, 2 * r), box_rows(a, r), box_rows(b, r), r)
+            s = guided_filter(lum_s, p_s, is_s, prm.gf_radius, prm.gf_eps, noise.shot[self.ch_s],
+                              noise.floor[self.ch_s], False)
         else:
             s = s_joint_bilateral(lum_s, p_s, is_s, prm, float(np.sum(self.h_lum ** 2)), noise,
                                   self.ch_l, self.ch_m)
@@ -434,7 +366,7 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         """Compile-time constants of kernels/demosaic_lms.cl (see its header)."""
         return {"CFA_PERIOD": self.cfa.period, "CH_L": self.ch_l, "CH_M": self.ch_m, "CH_S": self.ch_s,
                 "SELECT": select, "NOISY": int(self.noise is not None), "LUM_R": LUM_RADIUS,
-                "CHROMA_R": CHROMA_RADIUS, "GF_R": self.params.gf_radius, "BL_R": self.params.bl_radius,
+                "CHROMA_R": CHROMA_RADIUS, "BL_R": self.params.bl_radius,
                 "BL_RATIO": int(self.params.bl_domain == "ratio"),
                 "MAX_SITES": self.site_offsets.shape[1]}
 
@@ -444,22 +376,10 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         return f"/* generated by clisp: support of h_lum */\n#define LUM_SUPPORT {taps}\n"
 
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object) -> None:
-        """Enqueue ``kernel_name`` over exactly width x height outputs without bounds checks.
-
-        Schedule: whole WORK_GROUP work-groups over the largest multiple-of-group block, then the
-        ragged right/bottom strips as one group-wide launch shifted inward to end at the edge (it
-        recomputes some outputs with identical values). A side shorter than the group gets the largest
-        power of two that fits (few distinct shapes, so few work-group compilations on PoCL). Kernels thus carry no bounds check and PoCL vectorises them (6-15x, measured; see
-        kernels/demosaic_lms.cl).
-        """
+        """Enqueue ``kernel_name`` of kernels/demosaic_lms.cl over exactly width x height outputs
+        (``lms_common.launch_exact``: no bounds checks in the kernels)."""
         kernel = rt.kernel("demosaic_lms", kernel_name, self.defines(), self.generated_source())
-        lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (width, height)))
-        full_w, full_h = width // lx * lx, height // ly * ly
-        xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
-        ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])
-        for x0, gw in xs:
-            for y0, gh in ys:
-                kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0, y0))
+        launch_exact(rt, kernel, width, height, *args)
 
     def _noise_args(self, channel: int) -> tuple[np.float32, np.float32]:
         """(shot, floor) of ``channel`` as kernel arguments."""
@@ -511,42 +431,15 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
                      i32(lum.width), i32(rows.width), i32(dst.width), i32(dst.height), i32(at[0]), i32(at[1]),
                      rt.constant(as_f32(self.g_c)))
 
-    def enqueue_guided_row_moments(self, rt: Runtime, lum: DeviceImage, src: DeviceImage,
-                                   lum_origin: tuple[int, int], at: tuple[int, int],
-                                   src_at: tuple[int, int], out_h: int, out_w: int) -> DeviceImage:
-        """Step C row moments (5 planes); output (y, x) is centred on lum (y + at), src (y + src_at)."""
-        dst = rt.acquire(5, out_h, out_w)
-        self._launch(rt, "guided_row_moments", out_w, out_h, lum.buffer, src.buffer, dst.buffer,
-                     i32(lum.width), i32(src.width), i32(out_w), i32(out_h), i32(at[0]), i32(at[1]),
-                     i32(src_at[0]), i32(src_at[1]), i32(lum_origin[0] + at[0]), i32(lum_origin[1] + at[1]),
-                     rt.constant(self.cfa.pattern))
-        return dst
-
-    def enqueue_guided_coefficients(self, rt: Runtime, rows: DeviceImage, lum: DeviceImage,
-                                    at: tuple[int, int]) -> DeviceImage:
-        """Step C coefficients: planes a, b, rows.height - 2r high; output (y, x) is centred on
-        rows (y + r, x) and lum (y + at)."""
-        h = rows.height - 2 * self.params.gf_radius
-        dst = rt.acquire(2, h, rows.width)
-        self._launch(rt, "guided_coefficients", rows.width, h, rows.buffer, lum.buffer, dst.buffer,
-                     i32(rows.width), i32(rows.height), i32(lum.width), i32(rows.width), i32(h), i32(at[0]),
-                     i32(at[1]), f32(self.params.gf_eps), *self._noise_args(self.ch_s))
-        return dst
-
-    def enqueue_box_rows(self, rt: Runtime, src: DeviceImage) -> DeviceImage:
-        """Step C: sums over 2r+1 neighbours along x of every plane; width shrinks by 2r."""
-        w = src.width - 2 * self.params.gf_radius
-        dst = rt.acquire(src.channels, src.height, w)
-        rows = src.channels * src.height
-        self._launch(rt, "box_rows", w, rows, src.buffer, dst.buffer, i32(src.width), i32(w), i32(rows))
-        return dst
-
-    def enqueue_guided_apply(self, rt: Runtime, lum: DeviceImage, rows: DeviceImage, dst: DeviceImage,
-                             at: tuple[int, int]) -> None:
-        """Step C apply: plane 2 (S) of ``dst``; dst (y, x) is lum (y + at) and rows (y + r, x)."""
-        self._launch(rt, "guided_apply", dst.width, dst.height, lum.buffer, rows.buffer, dst.buffer,
-                     i32(lum.width), i32(rows.width), i32(rows.height), i32(dst.width), i32(dst.height),
-                     i32(at[0]), i32(at[1]))
+    def enqueue_s_guided(self, rt: Runtime, lum: DeviceImage, src: DeviceImage, dst: DeviceImage,
+                         lum_origin: tuple[int, int], at: int, src_at: int) -> None:
+        """Step C: the masked guided filter (``guided_filter``) of S over the S sites against lum into
+        plane 2 of ``dst``; dst (y, x) is lum (y + at, x + at) and src (y + src_at, x + src_at); lum (0, 0)
+        is image pixel ``lum_origin``."""
+        r, o = self.params.gf_radius, at - 2 * self.params.gf_radius     # the filter's window in lum
+        enqueue_guided_filter(rt, (dst.height + 4 * r, dst.width + 4 * r), (lum_origin[0] + o, lum_origin[1] + o),
+                              self.shift, lum, o, src, src_at - 2 * r, r, MASK_S, self.params.gf_eps,
+                              self._noise_args(self.ch_s), False, out=(dst, 2))
 
     def enqueue_s_joint_bilateral(self, rt: Runtime, lum: DeviceImage, src: DeviceImage, dst: DeviceImage,
                                   lum_origin: tuple[int, int], at: tuple[int, int],
@@ -580,17 +473,7 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         rt.release(rows)
         rt.release(m)
         if prm.s_method == "guided":
-            r = prm.gf_radius
-            rows_at = (at - 2 * r, at - r)                               # row moments (0, 0) in lum
-            moments = self.enqueue_guided_row_moments(rt, lum, src, lum_origin, rows_at,
-                                                      (rows_at[0] + o_lum, rows_at[1] + o_lum),
-                                                      out_h + 4 * r, out_w + 2 * r)
-            ab = self.enqueue_guided_coefficients(rt, moments, lum, (at - r, at - r))
-            rt.release(moments)
-            ab_rows = self.enqueue_box_rows(rt, ab)
-            rt.release(ab)
-            self.enqueue_guided_apply(rt, lum, ab_rows, dst, (at, at))
-            rt.release(ab_rows)
+            self.enqueue_s_guided(rt, lum, src, dst, lum_origin, at, big_r)
         else:
             self.enqueue_s_joint_bilateral(rt, lum, src, dst, lum_origin, (at, at), (big_r, big_r))
         rt.release(lum)

@@ -15,7 +15,8 @@ quantity. Computed separably, one function and one kernel per step (same names):
 float32 cancellation; then a, b), ``box_rows`` (row sums of a, b) and ``gf_apply`` (their column sums,
 applied). The output is the window shrunk by 2r on every side.
 
-Users: ``demosaic_lms_guided`` (M at S, chroma and S passes). On the device the CFA membership is a closed form
+Users: ``demosaic_lms`` (the hybrid, step C: S over the S sites against lum, level muS) and
+``demosaic_lms_guided`` (M at S, chroma and S passes). On the device the CFA membership is a closed form
 (``lms_common.LATTICE``), the CFA phase folded into the image coordinates by ``lattice_shift``.
 """
 from __future__ import annotations
