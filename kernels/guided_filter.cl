@@ -3,8 +3,11 @@
  * side in clisp/stages/guided_filter.py. Four kernels, run in this order:
  *   gf_row_moments -> gf_coefficients -> box_rows (of a, b) -> gf_apply.
  *
- * Defines from the host: GF_R (the radius r); L_PAR, S_Y, S_D (the LMS CFA in closed form, at_l and
- * at_s in common.h; the CFA phase is folded into the image coordinates (oy, ox) by lattice_shift).
+ * Defines from the host: GF_R (the radius r); GF_MASK (the pixels of the statistics: 0 every pixel,
+ * 1 the M sites, 2 the S sites); GF_LEVEL_GUIDE (1: the noise term of eps at the level mu_I, 0: at
+ * mu_v); L_PAR, S_Y, S_D (the LMS CFA in closed form, at_l and at_s in common.h; the CFA phase is folded
+ * into the image coordinates (oy, ox) by lattice_shift). Mask and level are compile-time so that the
+ * selections fold away (as kernel arguments they cost gf_row_moments 30% and gf_coefficients 10%).
  *
  * Geometry: the filter runs on an "own" window of h x w pixels and returns its (h - 4r) x (w - 4r)
  * centre. Kernel outputs are planar out_w x out_h images; the guide (plane from element g_base) and
@@ -20,11 +23,11 @@ inline float max_f(const float a, const float b) { return a > b ? a : b; }
 
 /* gf_row_moments: row sums over x-r .. x+r (r = GF_R) of the masked moments, the guide centred on the
  * row centre value c = I(y, x+r): n, sum d, sum d^2, sum v, sum d v (planes 0..4), d = I - c, over the
- * pixels selected by `mask` (0: every pixel, 1: the M sites, 2: the S sites).
+ * pixels selected by GF_MASK.
  * Output (y, x) is centred on own-window pixel (y, x + r); h x (w - 2r). Halo: reads +-r along x. */
 __kernel void gf_row_moments(__global const float *guide, __global const float *v, __global float *mom,
                              const int g_base, const int g_w, const int g_off, const int v_w, const int v_off,
-                             const int out_w, const int out_h, const int mask, const int oy, const int ox)
+                             const int out_w, const int out_h, const int oy, const int ox)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -37,7 +40,7 @@ __kernel void gf_row_moments(__global const float *guide, __global const float *
         const int iy = y + oy, ix = x + GF_R + k + ox;
         const int s_site = at_s(iy, ix);
         const int m_site = !s_site && !at_l(iy, ix);
-        const float chi = mask == 0 ? 1.0f : ((mask == 2 ? s_site : m_site) ? 1.0f : 0.0f);
+        const float chi = GF_MASK == 0 ? 1.0f : ((GF_MASK == 2 ? s_site : m_site) ? 1.0f : 0.0f);
         const float dk = chi * (gc[k] - c);
         const float vk = chi * vc[k];
         n += chi;
@@ -57,14 +60,14 @@ __kernel void gf_row_moments(__global const float *guide, __global const float *
 /* gf_coefficients: column sums over y-r .. y+r of the row moments, each moved from its row centre c_j
  * to the output's c (delta = c_j - c: s1 += s1_j + n_j delta, s2 += s2_j + 2 delta s1_j + n_j delta^2,
  * sdv += sdv_j + delta sv_j); mu_I = c + s1/n, mu_v = sv/n, var = s2/n - (s1/n)^2, cov = sdv/n -
- * (s1/n) mu_v; eps = eps0 + shot max(level, 0) + floor, level = mu_I (level_from_guide) or mu_v;
+ * (s1/n) mu_v; eps = eps0 + shot max(level, 0) + floor, level = mu_I (GF_LEVEL_GUIDE) or mu_v;
  * a = cov / (var + eps), b = mu_v - a mu_I (planes a, b). Output (y, x) <-> rows (y + r, x), the own
  * window's pixel (y + r, x + r), the guide's (y + r + g_off, x + r + g_off) (the row centres);
  * (h - 2r) x (w - 2r). Halo: reads +-r along y. */
 __kernel void gf_coefficients(__global const float *rows, __global const float *guide, __global float *ab,
                               const int rows_w, const int rows_h, const int g_base, const int g_w,
                               const int g_off, const int out_w, const int out_h, const float eps0,
-                              const float shot, const float floor_, const int level_from_guide)
+                              const float shot, const float floor_)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -89,7 +92,7 @@ __kernel void gf_coefficients(__global const float *rows, __global const float *
     const float var = s2 * inv_n - mean_d * mean_d;
     const float cov = sdv * inv_n - mean_d * mu_v;
     const float mu_i = c + mean_d;
-    const float level = level_from_guide ? mu_i : mu_v;
+    const float level = GF_LEVEL_GUIDE ? mu_i : mu_v;
     const float a = cov / (var + eps0 + shot * max_f(level, 0.0f) + floor_);
     const int i = y * out_w + x;
     ab[i] = a;

@@ -28,7 +28,8 @@ from ..runtime import DeviceImage, Runtime
 from .lms_common import LATTICE, correlate_valid, launch_exact, valid
 
 MASK_ALL, MASK_M, MASK_S = 0, 1, 2
-"""``mask`` argument of the kernels: statistics over every pixel, the M sites or the S sites."""
+"""``mask`` of the host functions (the kernels' GF_MASK): statistics over every pixel, the M sites or
+the S sites."""
 i32, f32 = np.int32, np.float32
 """Kernel argument types."""
 
@@ -122,9 +123,11 @@ def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: 
 # pixel (g_off, g_off), resp. (v_off, v_off), is own-window pixel (0, 0). ``origin``: image coordinates
 # of own-window pixel (0, 0); ``shift``: lms_common.lattice_shift of the CFA.
 
-def _kernel(rt: Runtime, name: str, r: int) -> object:
-    """Kernel ``name`` of kernels/guided_filter.cl for radius r (one program per radius)."""
-    return rt.kernel("guided_filter", name, {**LATTICE, "GF_R": int(r)})
+def _kernel(rt: Runtime, name: str, r: int, mask: int = MASK_ALL, level_from_guide: bool = False) -> object:
+    """Kernel ``name`` of kernels/guided_filter.cl built for radius r, ``mask`` and the eps level (one
+    program per combination; the kernels that do not read mask or level get the defaults)."""
+    return rt.kernel("guided_filter", name,
+                     {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide)})
 
 
 def _plane_base(image: DeviceImage, plane: int) -> np.int32:
@@ -139,9 +142,9 @@ def enqueue_row_moments(rt: Runtime, own: tuple[int, int], origin: tuple[int, in
     ``mask``: MASK_ALL, MASK_M or MASK_S."""
     h, w = own
     dst = rt.acquire(5, h, w - 2 * r)
-    launch_exact(rt, _kernel(rt, "gf_row_moments", r), dst.width, h, guide.buffer, v.buffer, dst.buffer,
-                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(v.width), i32(v_off),
-                 i32(dst.width), i32(h), i32(mask), i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
+    launch_exact(rt, _kernel(rt, "gf_row_moments", r, mask=mask), dst.width, h, guide.buffer, v.buffer,
+                 dst.buffer, _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(v.width), i32(v_off),
+                 i32(dst.width), i32(h), i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
     return dst
 
 
@@ -151,9 +154,9 @@ def enqueue_coefficients(rt: Runtime, rows: DeviceImage, guide: DeviceImage, g_o
     own-window pixel (y + r, x + r). ``noise``: (shot, floor) of the level's variance."""
     h = rows.height - 2 * r
     dst = rt.acquire(2, h, rows.width)
-    launch_exact(rt, _kernel(rt, "gf_coefficients", r), rows.width, h, rows.buffer, guide.buffer, dst.buffer,
-                 i32(rows.width), i32(rows.height), _plane_base(guide, g_plane), i32(guide.width), i32(g_off),
-                 i32(rows.width), i32(h), f32(eps0), f32(noise[0]), f32(noise[1]), i32(level_from_guide))
+    launch_exact(rt, _kernel(rt, "gf_coefficients", r, level_from_guide=level_from_guide), rows.width, h,
+                 rows.buffer, guide.buffer, dst.buffer, i32(rows.width), i32(rows.height), _plane_base(guide, g_plane),
+                 i32(guide.width), i32(g_off), i32(rows.width), i32(h), f32(eps0), f32(noise[0]), f32(noise[1]))
     return dst
 
 
