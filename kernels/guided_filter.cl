@@ -133,5 +133,6 @@ __kernel void gf_apply(__global const float *rows_ab, __global const float *guid
         sb += rc[plane + j * rows_w];
     }
     const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));
-    dst[d_base + y * out_w + x] = (sa * guide[g_base + (y + 2 * GF_R + g_off) * g_w + x + 2 * GF_R + g_off] + sb) * inv;
+    const float g = guide[g_base + (y + 2 * GF_R + g_off) * g_w + x + 2 * GF_R + g_off];
+    dst[d_base + y * out_w + x] = (sa * g + sb) * inv;
 }

@@ -142,9 +142,10 @@ def enqueue_row_moments(rt: Runtime, own: tuple[int, int], origin: tuple[int, in
     ``mask``: MASK_ALL, MASK_M or MASK_S."""
     h, w = own
     dst = rt.acquire(5, h, w - 2 * r)
-    launch_exact(rt, _kernel(rt, "gf_row_moments", r, mask=mask), dst.width, h, guide.buffer, v.buffer,
-                 dst.buffer, _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(v.width), i32(v_off),
-                 i32(dst.width), i32(h), i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
+    kernel = _kernel(rt, "gf_row_moments", r, mask=mask)
+    launch_exact(rt, kernel, dst.width, h, guide.buffer, v.buffer, dst.buffer, _plane_base(guide, g_plane),
+                 i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(dst.width), i32(h),
+                 i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
     return dst
 
 
@@ -154,9 +155,10 @@ def enqueue_coefficients(rt: Runtime, rows: DeviceImage, guide: DeviceImage, g_o
     own-window pixel (y + r, x + r). ``noise``: (shot, floor) of the level's variance."""
     h = rows.height - 2 * r
     dst = rt.acquire(2, h, rows.width)
-    launch_exact(rt, _kernel(rt, "gf_coefficients", r, level_from_guide=level_from_guide), rows.width, h,
-                 rows.buffer, guide.buffer, dst.buffer, i32(rows.width), i32(rows.height), _plane_base(guide, g_plane),
-                 i32(guide.width), i32(g_off), i32(rows.width), i32(h), f32(eps0), f32(noise[0]), f32(noise[1]))
+    kernel = _kernel(rt, "gf_coefficients", r, level_from_guide=level_from_guide)
+    launch_exact(rt, kernel, rows.width, h, rows.buffer, guide.buffer, dst.buffer, i32(rows.width), i32(rows.height),
+                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(rows.width), i32(h), f32(eps0),
+                 f32(noise[0]), f32(noise[1]))
     return dst
 
 
