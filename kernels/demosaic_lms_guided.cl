@@ -189,48 +189,65 @@ __kernel void keep_luminance(__global const float *m, __global const float *c, _
     dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
 }
 
+/* lm_energy: the two per-pixel energies whose 5 x 5 means lm_output needs (planes 0, 1): d^2 with
+ * d = y - ylp = m - c mod - ylp (luminance detail beyond the quincunx baseband), and dev^2 with
+ * dev = c - chroma_neutral ylp (the chroma's deviation from grey). c on the kernel's window (width
+ * out_w), m and ylp on windows larger by m_off, l_off. R = 0 (box_rows and lm_output do the 5 x 5). */
+__kernel void lm_energy(__global const float *m, __global const float *c, __global const float *ylp,
+                        __global float *dst, const int m_w, const int m_off, const int l_w, const int l_off,
+                        const int out_w, const int out_h, const int oy, const int ox,
+                        const float chroma_neutral)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int i = y * out_w + x;
+    const float lk = ylp[(y + l_off) * l_w + x + l_off];
+    const float d = m[(y + m_off) * m_w + x + m_off] - c[i] * mod_f(y + oy, x + ox) - lk;
+    const float dev = c[i] - chroma_neutral * lk;
+    dst[i] = d * d;
+    dst[out_w * out_h + i] = dev * dev;
+}
+
 /* lm_output: L, M, E_sig (planes 0, 1, 2): y = m - c mod, d = y - ylp, E = 5 x 5 mean of d^2,
  * E_sig = max(E - blend_k vn, 0), vn = lum_shot max(ylp, 0) + lum_floor (the noise of d; 0 noiseless);
  * noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial
  * neighbours) / 8 (the flat-field target: zero at the (pi, pi) chroma carrier, noise gain 0.3125),
  * w = E_sig / E. Alias suppression of the chroma toward the neutral cn ylp: dev = c - cn ylp,
- * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'. c on the
- * kernel's window (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
+ * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'.
+ * rows: the row sums over x .. x + 4 of lm_energy's planes (box_rows, r = 2; rows_w x rows_h each),
+ * summed here over y .. y + 4. c on the kernel's window (width in_w), m and ylp on windows larger by
+ * m_off, l_off. R = 2. */
 __kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
-                        __global float *dst, const int in_w, const int m_w, const int m_off, const int l_w,
-                        const int l_off, const int out_w, const int out_h, const int oy, const int ox,
-                        const float blend_k, const float lum_shot, const float lum_floor,
-                        const float chroma_neutral, const float alias_c)
+                        __global const float *rows, __global float *dst, const int in_w, const int m_w,
+                        const int m_off, const int l_w, const int l_off, const int rows_w, const int rows_h,
+                        const int out_w, const int out_h, const int oy, const int ox, const float blend_k,
+                        const float lum_shot, const float lum_floor, const float chroma_neutral,
+                        const float alias_c)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int yc = y + 2, xc = x + 2, ic = yc * in_w + xc;
     const int il = (yc + l_off) * l_w + xc + l_off;
-    const float dc = m[(yc + m_off) * m_w + xc + m_off] - c[ic] * mod_f(yc + oy, xc + ox) - ylp[il];
+    const int im = (yc + m_off) * m_w + xc + m_off;
     float e = 0.0f, c2 = 0.0f;
     #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
-        #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
-            const float ck = c[ic + dy * in_w + dx], lk = ylp[il + dy * l_w + dx];
-            const float d = m[(yc + dy + m_off) * m_w + xc + dx + m_off] - ck * mod_f(yc + dy + oy, xc + dx + ox) - lk;
-            const float dev = ck - chroma_neutral * lk;
-            e += d * d;
-            c2 += dev * dev;
-        }
+    for (int j = 0; j < 5; ++j) {
+        e += rows[(y + j) * rows_w + x];
+        c2 += rows[rows_w * rows_h + (y + j) * rows_w + x];
     }
     e *= 1.0f / 25.0f;
     c2 *= 1.0f / 25.0f;
-    const float e_sig = max_f(e - blend_k * (lum_shot * max_f(ylp[il], 0.0f) + lum_floor), 0.0f);
+    const float lc = ylp[il];
+    const float e_sig = max_f(e - blend_k * (lum_shot * max_f(lc, 0.0f) + lum_floor), 0.0f);
+    const float yv = m[im] - c[ic] * mod_f(yc + oy, xc + ox);
 #if NOISY
     const float w = e > 0.0f ? e_sig / e : 0.0f;
-    const int im = (yc + m_off) * m_w + xc + m_off;
     const float ybl = 0.5f * m[im] + 0.125f * (m[im - m_w] + m[im + m_w] + m[im - 1] + m[im + 1]);
-    const float lum = ybl + w * (m[im] - c[ic] * mod_f(yc + oy, xc + ox) - ybl);
+    const float lum = ybl + w * (yv - ybl);
 #else
-    const float lum = ylp[il] + dc;
+    const float lum = lc + (yv - lc);
 #endif
-    const float cn = chroma_neutral * ylp[il];
+    const float cn = chroma_neutral * lc;
     const float c_out = cn + alias_gain(c2, alias_c * e_sig) * (c[ic] - cn);
     const int i = y * out_w + x, plane = out_w * out_h;
     dst[i] = lum + c_out;

@@ -90,7 +90,7 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
+from .guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_box_rows, enqueue_guided_filter, guided_filter
 from .lms_common import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
                          diamond_halfband, lattice_shift, launch_exact, valid)
 
@@ -581,13 +581,19 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         c, ylp = self.enqueue_chroma(rt, m, at(o_m))
         o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
         h, w = c.height - 2 * COMBINE_RADIUS, c.width - 2 * COMBINE_RADIUS
+        energy = rt.acquire(2, c.height, c.width)
+        self._launch(rt, "lm_energy", c.width, c.height, m.buffer, c.buffer, ylp.buffer, energy.buffer,
+                     i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(c.width), i32(c.height),
+                     *self._origin(at(o_c)), f32(self.chroma_neutral))
+        rows = enqueue_box_rows(rt, energy, COMBINE_RADIUS)
+        rt.release(energy)
         lm = rt.acquire(3, h, w)
         lum_shot, lum_floor = self._lum_noise()
-        self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, lm.buffer, i32(c.width), i32(m.width),
-                     i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(w), i32(h),
-                     *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot), f32(lum_floor),
-                     f32(self.chroma_neutral), f32(prm.alias_c))
-        for image in (m, c, ylp):
+        self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, rows.buffer, lm.buffer, i32(c.width),
+                     i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(rows.width),
+                     i32(c.height), i32(w), i32(h), *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot),
+                     f32(lum_floor), f32(self.chroma_neutral), f32(prm.alias_c))
+        for image in (m, c, ylp, rows):
             rt.release(image)
         o_lm = o_c + COMBINE_RADIUS
         rs = prm.s_radius
