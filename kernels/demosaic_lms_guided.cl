@@ -49,7 +49,19 @@ __kernel void l_guide(__global const float *p, __global float *dst, const int in
     dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
 }
 
-/* m_at_s_combine: the L/M quincunx m; p where not S; at S sites M = Mfit + gamma (p - Sfit), gamma = 1
+/* m_keep: dst = p on the kernel's window (p on a window larger by p_off): the L/M quincunx m outside
+ * the S sites, which m_at_s_combine then fills in. R = 0. */
+__kernel void m_keep(__global const float *p, __global float *dst, const int p_w, const int p_off,
+                     const int out_w)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    dst[y * out_w + x] = p[(y + p_off) * p_w + x + p_off];
+}
+
+/* m_at_s_combine: M at the S sites of m (the other pixels are m_keep's p), one work-item per S site:
+ * work-item (gx, gy) takes the S site in output row 2 gy + (row parity) and columns 4 gx .. 4 gx + 3;
+ * items past the window's edge return. At S sites M = Mfit + gamma (p - Sfit), gamma = 1
  * (noiseless) or sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0), E_M = mean over the M
  * sites of the 5 x 5 of (p - Mfit)^2. DIRECTIONAL: mixed with the edge-directed estimate yd - c by
  * w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2, err_d the mean squared error of
@@ -57,7 +69,8 @@ __kernel void l_guide(__global const float *p, __global float *dst, const int in
  * sum_d 1 / (eps + err_d); then alias suppression toward the neutral mn = m_from_s p: dev = est - mn,
  * est = mn + alias_gain(dev^2, alias_m E_sig) dev, E_sig = max(hf / kappa - blend_k vn, 0), vn =
  * lum_shot max(ylp, 0) + lum_floor. mfit, sfit on the kernel's window (width in_w); p, y and c, ylp
- * on windows larger by p_off, y_off, l_off (widths p_w, y_w, l_w). R = 2. */
+ * on windows larger by p_off, y_off, l_off (widths p_w, y_w, l_w); dst (out_w x out_h) is the window
+ * shrunk by R; (oy, ox): image coordinates of the kernel's window pixel (0, 0). R = 2. */
 __kernel void m_at_s_combine(__global const float *p, __global const float *mfit, __global const float *sfit,
                              __global const float *yg, __global const float *cg, __global const float *ylpg,
                              __global float *dst, const int in_w, const int p_w, const int p_off,
@@ -66,10 +79,13 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
                              const float shot_m, const float floor_m, const float shot_s, const float floor_s,
                              const float kappa, const float dir_eps, const float blend_k,
                              const float lum_shot, const float lum_floor, const float alias_m,
-                             const float m_from_s)
+                             const float m_from_s, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    /* the S site of this work-item's 2 x 4 cell, in output coordinates (image row yc + oy) */
+    const int y = 2 * get_global_id(1) + ((2 + oy + S_Y) & 1);
+    const int x = 4 * get_global_id(0) + ((y + 2 + oy - S_D - 2 - ox) & 3);
+    if (y >= out_h || x >= out_w)
+        return;
     const int yc = y + 2, xc = x + 2;
     const int ic = yc * in_w + xc;
     const float pc = p[(yc + p_off) * p_w + xc + p_off];
@@ -140,7 +156,7 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     const float dev = est - mn;
     est = mn + alias_gain(dev * dev, alias_m * e_sig) * dev;
 #endif
-    dst[y * out_w + x] = at_s(yc + oy, xc + ox) ? est : pc;
+    dst[y * out_w + x] = est;
 }
 
 /* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre support D_TAPS). R = 4. */

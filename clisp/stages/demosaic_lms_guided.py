@@ -511,13 +511,15 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
             y, c, ylp, o_y, o_l = fits[0], fits[0], fits[0], o_fit, o_fit          # unread placeholders
         else:
             y, c, ylp, o_y, o_l = directional
-        self._launch(rt, "m_at_s_combine", w, h, p.buffer, fits[0].buffer, fits[1].buffer, y.buffer, c.buffer,
+        self._launch(rt, "m_keep", w, h, p.buffer, dst.buffer, i32(p.width), i32(o_fit + COMBINE_RADIUS), i32(w))
+        self._launch(rt, "m_at_s_combine", (w + 3) // 4, (h + 1) // 2, p.buffer, fits[0].buffer, fits[1].buffer,
+                     y.buffer, c.buffer,
                      ylp.buffer, dst.buffer, i32(fits[0].width), i32(p.width), i32(o_fit), i32(y.width),
                      i32(o_fit - o_y), i32(ylp.width), i32(o_fit - o_l), i32(w),
                      *self._origin((origin[0] + o_fit, origin[1] + o_fit)), f32(noise.shot[self.ch_m]),
                      f32(noise.floor[self.ch_m]), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]),
                      f32(prm.dir_kappa), f32(prm.dir_eps), f32(prm.blend_k), *(f32(v) for v in self._lum_noise()),
-                     f32(prm.alias_m), f32(self.m_from_s), directional=directional is not None)
+                     f32(prm.alias_m), f32(self.m_from_s), i32(h), directional=directional is not None)
         for fit in fits:
             rt.release(fit)
         return dst
