@@ -205,23 +205,39 @@ __kernel void keep_luminance(__global const float *m, __global const float *c, _
     dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
 }
 
-/* lm_energy: the two per-pixel energies whose 5 x 5 means lm_output needs (planes 0, 1): d^2 with
- * d = y - ylp = m - c mod - ylp (luminance detail beyond the quincunx baseband), and dev^2 with
- * dev = c - chroma_neutral ylp (the chroma's deviation from grey). c on the kernel's window (width
- * out_w), m and ylp on windows larger by m_off, l_off. R = 0 (box_rows and lm_output do the 5 x 5). */
+/* lm_energy: the four per-pixel energies whose 5 x 5 means lm_output needs (planes 0..3): d^2 with
+ * d = y - ylp = m - c mod - ylp (luminance detail beyond the quincunx baseband); dev^2 with
+ * dev = c - chroma_neutral ylp (the chroma's deviation from grey); bp^2 with bp = the 9 x 9 half-Nyquist
+ * diagonal band-pass of ylp (bp_w: its 1-D weights at offsets -4, -2, 0, 2, 4; response sin^4 wx
+ * sin^4 wy); ac^2 with ac = ylp - its 5 x 5 mean. c on the kernel's window (width out_w), m and ylp on
+ * windows larger by m_off and l_off (l_off >= 4). R = 0 here; reads ylp +-4. */
 __kernel void lm_energy(__global const float *m, __global const float *c, __global const float *ylp,
                         __global float *dst, const int m_w, const int m_off, const int l_w, const int l_off,
                         const int out_w, const int out_h, const int oy, const int ox,
-                        const float chroma_neutral)
+                        const float chroma_neutral, __constant const float *bp_w)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int i = y * out_w + x;
-    const float lk = ylp[(y + l_off) * l_w + x + l_off];
+    __global const float *lc = ylp + (y + l_off) * l_w + x + l_off;
+    const float lk = lc[0];
     const float d = m[(y + m_off) * m_w + x + m_off] - c[i] * mod_f(y + oy, x + ox) - lk;
     const float dev = c[i] - chroma_neutral * lk;
+    float bp = 0.0f, mean = 0.0f;
+    #pragma unroll
+    for (int u = -2; u <= 2; ++u) {
+        #pragma unroll
+        for (int v = -2; v <= 2; ++v) {
+            bp += bp_w[u + 2] * bp_w[v + 2] * lc[2 * u * l_w + 2 * v];
+            mean += lc[u * l_w + v];
+        }
+    }
+    const float ac = lk - mean * (1.0f / 25.0f);
+    const int plane = out_w * out_h;
     dst[i] = d * d;
-    dst[out_w * out_h + i] = dev * dev;
+    dst[plane + i] = dev * dev;
+    dst[2 * plane + i] = bp * bp;
+    dst[3 * plane + i] = ac * ac;
 }
 
 /* lm_output: L, M, E_sig (planes 0, 1, 2): y = m - c mod, d = y - ylp, E = 5 x 5 mean of d^2,
@@ -229,30 +245,39 @@ __kernel void lm_energy(__global const float *m, __global const float *c, __glob
  * noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial
  * neighbours) / 8 (the flat-field target: zero at the (pi, pi) chroma carrier, noise gain 0.3125),
  * w = E_sig / E. Alias suppression of the chroma toward the neutral cn ylp: dev = c - cn ylp,
- * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'.
- * rows: the row sums over x .. x + 4 of lm_energy's planes (box_rows, r = 2; rows_w x rows_h each),
- * summed here over y .. y + 4. c on the kernel's window (width in_w), m and ylp on windows larger by
- * m_off, l_off. R = 2. */
+ * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig + alias_h tone) dev, tone = E_h tau^2,
+ * tau = min(E_h / E_ac, 1) (E_h, E_ac: 5 x 5 means of bp^2, ac^2; tau = 0 where E_ac = 0; TONE_POWER
+ * = 2 in clisp); L = Y + c', M = Y - c'. rows: the row sums over x .. x + 4 of lm_energy's four planes
+ * (box_rows, r = 2; rows_w x rows_h each), summed here over y .. y + 4. c on the kernel's window
+ * (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
 __kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
                         __global const float *rows, __global float *dst, const int in_w, const int m_w,
                         const int m_off, const int l_w, const int l_off, const int rows_w, const int rows_h,
                         const int out_w, const int out_h, const int oy, const int ox, const float blend_k,
                         const float lum_shot, const float lum_floor, const float chroma_neutral,
-                        const float alias_c)
+                        const float alias_c, const float alias_h)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int yc = y + 2, xc = x + 2, ic = yc * in_w + xc;
     const int il = (yc + l_off) * l_w + xc + l_off;
     const int im = (yc + m_off) * m_w + xc + m_off;
-    float e = 0.0f, c2 = 0.0f;
+    const int rplane = rows_w * rows_h;
+    float e = 0.0f, c2 = 0.0f, e_h = 0.0f, e_ac = 0.0f;
     #pragma unroll
     for (int j = 0; j < 5; ++j) {
-        e += rows[(y + j) * rows_w + x];
-        c2 += rows[rows_w * rows_h + (y + j) * rows_w + x];
+        const int k = (y + j) * rows_w + x;
+        e += rows[k];
+        c2 += rows[rplane + k];
+        e_h += rows[2 * rplane + k];
+        e_ac += rows[3 * rplane + k];
     }
     e *= 1.0f / 25.0f;
     c2 *= 1.0f / 25.0f;
+    e_h *= 1.0f / 25.0f;
+    e_ac *= 1.0f / 25.0f;
+    const float tau = e_ac > 0.0f ? min_f(e_h / e_ac, 1.0f) : 0.0f;
+    const float tone = e_h * tau * tau;
     const float lc = ylp[il];
     const float e_sig = max_f(e - blend_k * (lum_shot * max_f(lc, 0.0f) + lum_floor), 0.0f);
     const float yv = m[im] - c[ic] * mod_f(yc + oy, xc + ox);
@@ -264,7 +289,7 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
     const float lum = lc + (yv - lc);
 #endif
     const float cn = chroma_neutral * lc;
-    const float c_out = cn + alias_gain(c2, alias_c * e_sig) * (c[ic] - cn);
+    const float c_out = cn + alias_gain(c2, alias_c * e_sig + alias_h * tone) * (c[ic] - cn);
     const int i = y * out_w + x, plane = out_w * out_h;
     dst[i] = lum + c_out;
     dst[plane + i] = lum - c_out;

@@ -30,7 +30,7 @@ from clisp.stages.lms_common import valid
 from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
                                               RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
                                               chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
-                                              neutral_of, s_alias, s_output)
+                                              neutral_of, s_alias, s_output, tonal_energy)
 from clisp.stages.guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
@@ -363,3 +363,19 @@ def test_alias_suppression_clears_zone_plate_false_colour():
     with_alias = _zone_plate_psnr(LMSGuidedParams())
     without = _zone_plate_psnr(LMSGuidedParams(alias_c=0.0, alias_m=0.0, alias_s=0.0))
     assert with_alias >= 40.0 and with_alias > without + 10.0, (with_alias, without)
+
+
+def test_tonal_energy_picks_periodic_half_nyquist_diagonals():
+    """tonal_energy: a cosine at (pi/2, pi/2) (whose 2nd harmonic is the L-M carrier) gives its full band
+    energy A^2 / 2 with tonality 1; white noise of the same power and a diagonal cosine at (pi/4, pi/4)
+    give far less; a flat field gives 0."""
+    yy, xx = np.mgrid[0:40, 0:40].astype(np.float64)
+    amp = 0.2
+    tone = tonal_energy(0.5 + amp * np.cos(np.pi / 2 * (xx + yy)))
+    np.testing.assert_allclose(tone, amp ** 2 / 2, rtol=0.05)      # 5 x 5 window: +-1/25 of the (pi, pi) term
+    noise = tonal_energy(0.5 + amp * np.random.default_rng(2).standard_normal((40, 40)))
+    assert noise.mean() < 0.02 * amp ** 2 / 2
+    slow = tonal_energy(0.5 + amp * np.cos(np.pi / 4 * (xx + yy)))
+    assert slow.max() < 0.01 * amp ** 2 / 2
+    assert tonal_energy(np.full((20, 20), 0.3)).max() < 1e-30
+    assert tone.shape == (40 - 12, 40 - 12)

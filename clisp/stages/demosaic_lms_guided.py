@@ -44,7 +44,11 @@ LMS of grey: C / Y = cn, S / M and M / S ratios) is then shrunk as an LMMSE esti
 the expected alias, a fixed fraction alpha of the luminance detail energy E_sig = max(E - k vn, 0)
 (E = 5 x 5 mean of (y - ylp)^2, the noise share removed): dev' = dev max(D - alpha E_sig, 0) / D, D the
 deviation's energy (5 x 5 mean for L - M and S - M, the pixel's own for M at S sites). Saturated
-colour (D >> alpha E_sig) and flat or noisy-flat regions (E_sig ~ 0) are untouched.
+colour (D >> alpha E_sig) and flat or noisy-flat regions (E_sig ~ 0) are untouched. The L - M alias
+variance has a second, specific term alias_h E_h tau^2 (``tonal_energy``): a periodic luminance
+pattern near (pi/2, pi/2) puts its 2nd harmonic exactly on (pi, pi), where the generic term would need
+to be strong (and desaturate thin coloured detail everywhere) to remove it; tau, the share of the
+local detail energy in that band, keeps broadband texture out.
 
 Edge-directed estimate (M at S, pass 2): for the four 2-tap predictors d in {h, v, d1, d2} of y from its
 neighbours along d, err_d = mean squared error of the same predictor at the known (non-S) pixels of the
@@ -61,12 +65,10 @@ Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the 
 comes from; on detail w -> 1 and every sample is kept.
 
 Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
-means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.02 dB, McMaster 18 34.46 dB (Bayer DLMMSE 36.21 /
-32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 40.63 dB (Bayer DLMMSE 29.64, hybrid 14.97).
-Alias suppression traded Kodak 37.46 -> 37.02 and McMaster 34.42 -> 34.46 for the zone plate
-28.67 -> 40.63 (its three strengths, one at a time: L-M costs Kodak 0.58 dB, S and M at S gain 0.1).
-Known limit: a dot of about 4 px of residual false colour where the plate's 2nd harmonic sits
-exactly on (pi, pi) (stronger L-M suppression removes it at a further Kodak cost).
+means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.53 dB, McMaster 18 34.55 dB (Bayer DLMMSE 36.21 /
+32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 41.24 dB (Bayer DLMMSE 29.64, hybrid 14.97).
+Without alias suppression: Kodak 37.46, McMaster 34.42, zone plate 28.67 (with the generic L - M term
+alone strong enough for 40 dB, alias_c = 0.1, Kodak fell to 37.02).
 
 Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata, neutral from its
 colour matrix); a raw without a gain in its metadata is treated as noiseless.
@@ -119,6 +121,26 @@ def ri_tent() -> np.ndarray:
     return np.clip(1 - np.abs(dy + dx) / 4.0, 0, None) * np.clip(1 - np.abs(dy - dx) / 4.0, 0, None)
 
 
+BP_RADIUS = 4
+"""Radius of the half-Nyquist diagonal band-pass of the tonal alias detector (``tonal_energy``)."""
+TONE_POWER = 2
+"""Exponent of the tonality (band share of the local detail energy) in ``tonal_energy``."""
+
+
+HALF_NYQUIST_TAPS = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / 16.0
+"""1-D weights of the band-pass at offsets -4, -2, 0, 2, 4 (response sin^4 w)."""
+
+
+def half_nyquist_bandpass() -> np.ndarray:
+    """9 x 9 band-pass k k^T, k = HALF_NYQUIST_TAPS on the even offsets: response sin^4(wx) sin^4(wy),
+    1 at (+-pi/2, +-pi/2), whose 2nd harmonic lands exactly on the (pi, pi) L-M carrier; 1/16 at
+    (pi/4, pi/4), 0 on both axes and at (pi, pi)."""
+    k = np.zeros(2 * BP_RADIUS + 1)
+    k[::2] = HALF_NYQUIST_TAPS
+    return np.outer(k, k)
+
+
+HALF_NYQUIST_BP = half_nyquist_bandpass()
 D9 = diamond_halfband()
 B5 = np.outer(binomial(5), binomial(5))
 TENT = ri_tent()
@@ -155,9 +177,12 @@ class LMSGuidedParams:
     """M at S, pass 2: floor of the predictor errors in the direction weights (signal^2)."""
     blend_k: float = 2.0
     """Luminance blend: noise over-subtraction factor k in w = max(E - k vn, 0) / E (dimensionless)."""
-    alias_c: float = 0.1
+    alias_c: float = 0.03
     """Alias suppression of the L-M chroma: alias variance per unit luminance detail energy E_sig
     (dimensionless; 0 disables)."""
+    alias_h: float = 1.0
+    """Alias suppression of the L-M chroma: alias variance per unit tonal half-Nyquist energy
+    (``tonal_energy``: periodic luminance at (pi/2, pi/2), whose 2nd harmonic sits on (pi, pi))."""
     alias_m: float = 0.5
     """Alias suppression of M at S sites (pass 2): the same for the S-M difference there."""
     alias_s: float = 1.0
@@ -169,7 +194,7 @@ class LMSGuidedParams:
                 raise ClispError(f"{name} must be >= 2 px (the S covering radius of the LMS CFA)")
         if min(self.ms_eps, self.chroma_eps, self.s_eps, self.dir_eps) <= 0:
             raise ClispError("the guided-filter regularisers and dir_eps must be > 0")
-        if min(self.dir_kappa, self.blend_k, self.alias_c, self.alias_m, self.alias_s) < 0:
+        if min(self.dir_kappa, self.blend_k, self.alias_c, self.alias_h, self.alias_m, self.alias_s) < 0:
             raise ClispError("dir_kappa, blend_k and the alias_* strengths must be >= 0")
 
 
@@ -189,6 +214,23 @@ def alias_gain(energy: np.ndarray, alias: np.ndarray) -> np.ndarray:
     luminance blend); 1 where energy == 0."""
     pos = energy > 0
     return np.where(pos, np.maximum(energy - alias, 0.0) / np.where(pos, energy, 1.0), 1.0)
+
+
+def tonal_energy(ylp: np.ndarray) -> np.ndarray:
+    """E_h tau^TONE_POWER: the half-Nyquist diagonal band energy of the low-passed luminance, weighted
+    by its tonality tau = min(E_h / E_ac, 1). E_h = 5 x 5 mean of (HALF_NYQUIST_BP * ylp)^2, E_ac = 5 x 5
+    mean of (ylp - its 5 x 5 mean)^2. A periodic pattern near (pi/2, pi/2) (tau ~ 1) puts its 2nd
+    harmonic on the L-M carrier; broadband texture (tau << 1) does not. ylp on a window grown by
+    BP_RADIUS + COMBINE_RADIUS around the output."""
+    r = COMBINE_RADIUS
+    box = np.ones((5, 5)) / 25.0
+    bp = correlate_valid(ylp, HALF_NYQUIST_BP)
+    ac = valid(ylp, BP_RADIUS) - correlate_valid(valid(ylp, BP_RADIUS - r), box)
+    e_h = correlate_valid(bp * bp, box)
+    e_ac = correlate_valid(ac * ac, box)
+    pos = e_ac > 0
+    tau = np.where(pos, np.minimum(e_h / np.where(pos, e_ac, 1.0), 1.0), 0.0)
+    return e_h * tau ** TONE_POWER
 
 
 def neutral_of(colour_matrix: np.ndarray) -> tuple[float, float, float]:
@@ -273,14 +315,15 @@ def chroma_input(m: np.ndarray, ylp: np.ndarray, mod: np.ndarray) -> np.ndarray:
 
 def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, noise: ChannelNoise | None,
               ch_l: int, ch_m: int, blend_k: float, chroma_neutral: float = 0.0,
-              alias_c: float = 0.0) -> np.ndarray:
+              alias_c: float = 0.0, tone: np.ndarray | float = 0.0, alias_h: float = 0.0) -> np.ndarray:
     """L, M and E_sig (3 planes, shrunk by COMBINE_RADIUS; inputs on one window): y = m - c mod,
     d = y - ylp; noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = B * m with
     B = delta / 2 + (4 axial taps) / 8 (the flat-field target: DC gain 1, zero at the (pi, pi) chroma
     carrier, noise gain 0.3125 against sum(D^2) = 0.405 for ylp), w = E_sig / E, E_sig = max(E - k vn, 0)
     (``detail_energy``), vn = sum(D^2) (var_L + var_M) / 2 at the level ylp (the noise of d).
     Alias suppression of the chroma: dev = c - cn ylp (cn = ``chroma_neutral``, c / Y of a neutral),
-    c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig) dev; L = Y + c', M = Y - c'."""
+    c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig + alias_h tone) dev (``tone``: the
+    ``tonal_energy`` on the output window); L = Y + c', M = Y - c'."""
     r = COMBINE_RADIUS
     y = m - c * mod
     centre_ylp = valid(ylp, r)
@@ -297,7 +340,7 @@ def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, no
         lum = ybl + w * (valid(y, r) - ybl)
     dev = c - chroma_neutral * ylp
     c2 = correlate_valid(dev * dev, np.ones((5, 5)) / 25.0)
-    c_out = chroma_neutral * centre_ylp + alias_gain(c2, alias_c * e_sig) * valid(dev, r)
+    c_out = chroma_neutral * centre_ylp + alias_gain(c2, alias_c * e_sig + alias_h * tone) * valid(dev, r)
     return np.stack([lum + c_out, lum - c_out, e_sig], axis=-1)
 
 
@@ -388,8 +431,10 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         return 4.0 * 20
 
     # -- reference ------------------------------------------------------------------------------
-    def _chroma(self, m: np.ndarray, mod: np.ndarray, noise: ChannelNoise) -> tuple[np.ndarray, np.ndarray]:
-        """(c, ylp) on m's window shrunk by D + PRE + 2 chroma_radius; mod on m's window."""
+    def _chroma(self, m: np.ndarray, mod: np.ndarray, noise: ChannelNoise,
+                margin: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(c, ylp): c on m's window shrunk by D + PRE + 2 chroma_radius, ylp on that window grown by
+        ``margin`` (<= PRE + 2 chroma_radius); mod on m's window."""
         prm, r = self.params, self.params.chroma_radius
         ylp = lum_lowpass(m)
         cin = chroma_input(m, ylp, mod)
@@ -397,7 +442,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         shot = LUM_NOISE_GAIN * 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m])
         floor = LUM_NOISE_GAIN * 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
         c = guided_filter(ylp_c, cin, None, r, prm.chroma_eps, shot, floor, True)
-        return c, valid(ylp_c, 2 * r)
+        return c, valid(ylp_c, 2 * r - margin)
 
     def _m_at_s(self, p: np.ndarray, ch: np.ndarray, guide: np.ndarray, r: int,
                 directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -441,10 +486,11 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         m = self._m_at_s(valid(p, o), valid(ch, o), y, r2,
                          (valid(y, 2 * r2), valid(c, 2 * r2), valid(ylp, 2 * r2)))
         o += 2 * r2 + COMBINE_RADIUS
-        c, ylp = self._chroma(m, valid(mod, o), noise)
+        c, ylp_wide = self._chroma(m, valid(mod, o), noise, BP_RADIUS)
         o += k
-        lm = lm_output(valid(m, k), c, ylp, valid(mod, o), self.noise, self.ch_l, self.ch_m, prm.blend_k,
-                       self.chroma_neutral, prm.alias_c)
+        lm = lm_output(valid(m, k), c, valid(ylp_wide, BP_RADIUS), valid(mod, o), self.noise, self.ch_l,
+                       self.ch_m, prm.blend_k, self.chroma_neutral, prm.alias_c, tonal_energy(ylp_wide),
+                       prm.alias_h)
         o += COMBINE_RADIUS
         rs = prm.s_radius
         g = guided_filter(lm[..., 1], valid(p, o), valid(ch, o) == self.ch_s, rs, prm.s_eps,
@@ -583,10 +629,11 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         c, ylp = self.enqueue_chroma(rt, m, at(o_m))
         o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
         h, w = c.height - 2 * COMBINE_RADIUS, c.width - 2 * COMBINE_RADIUS
-        energy = rt.acquire(2, c.height, c.width)
+        energy = rt.acquire(4, c.height, c.width)
         self._launch(rt, "lm_energy", c.width, c.height, m.buffer, c.buffer, ylp.buffer, energy.buffer,
                      i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(c.width), i32(c.height),
-                     *self._origin(at(o_c)), f32(self.chroma_neutral))
+                     *self._origin(at(o_c)), f32(self.chroma_neutral),
+                     rt.constant(as_f32(HALF_NYQUIST_TAPS)))
         rows = enqueue_box_rows(rt, energy, COMBINE_RADIUS)
         rt.release(energy)
         lm = rt.acquire(3, h, w)
@@ -594,7 +641,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, rows.buffer, lm.buffer, i32(c.width),
                      i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(rows.width),
                      i32(c.height), i32(w), i32(h), *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot),
-                     f32(lum_floor), f32(self.chroma_neutral), f32(prm.alias_c))
+                     f32(lum_floor), f32(self.chroma_neutral), f32(prm.alias_c), f32(prm.alias_h))
         for image in (m, c, ylp, rows):
             rt.release(image)
         o_lm = o_c + COMBINE_RADIUS
