@@ -342,16 +342,50 @@ __kernel void s_output(__global const float *p, __global const float *g, __globa
     dst[2 * plane + i] = g0 + gamma * num / den;
 }
 
-/* s_alias: the three output planes: L, M copied, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2,
- * alias_s E_sig) sd, sd = S - s_from_m M (alias suppression toward the neutral). lms: 3 planes on the
- * kernel's window (in_w x in_h); E_sig: plane 2 of lm (lm_w x lm_h) on a window larger by lm_off. R = 2. */
-__kernel void s_alias(__global const float *lms, __global const float *lm, __global float *dst,
-                      const int in_w, const int in_h, const int lm_w, const int lm_h, const int lm_off,
-                      const int out_w, const int out_h, const float s_from_m, const float alias_s)
+/* s_tone_energy: the two per-pixel energies of the axial tonal alias detector (planes 0, 1), on the
+ * window of lms shrunk by 2: hx^2 + hy^2 with hx = hp * Y, hy = hp^T * Y (hp: the 3 x 3 AXIAL_HP weights,
+ * row order; high-pass across x, low-pass along y), and ac^2 with ac = Y - its 5 x 5 mean; Y = (L + M) / 2
+ * from planes 0, 1 of lms (in_w x in_h). Reads +-2. */
+__kernel void s_tone_energy(__global const float *lms, __global float *dst, const int in_w, const int in_h,
+                            const int out_w, const int out_h, __constant const float *hp)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int plane = in_w * in_h, ic = (y + 2) * in_w + x + 2;
+    float hx = 0.0f, hy = 0.0f, mean = 0.0f;
+    #pragma unroll
+    for (int dy = -2; dy <= 2; ++dy) {
+        #pragma unroll
+        for (int dx = -2; dx <= 2; ++dx) {
+            const int k = ic + dy * in_w + dx;
+            const float lum = 0.5f * (lms[k] + lms[plane + k]);
+            mean += lum;
+            if (dy >= -1 && dy <= 1 && dx >= -1 && dx <= 1) {       /* resolved at compile time */
+                hx += hp[(dy + 1) * 3 + dx + 1] * lum;
+                hy += hp[(dx + 1) * 3 + dy + 1] * lum;
+            }
+        }
+    }
+    const float ac = 0.5f * (lms[ic] + lms[plane + ic]) - mean * (1.0f / 25.0f);
+    const int i = y * out_w + x;
+    dst[i] = hx * hx + hy * hy;
+    dst[out_w * out_h + i] = ac * ac;
+}
+
+/* s_alias: the three output planes: L, M copied, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2,
+ * alias_s E_sig + alias_st tone) sd, sd = S - s_from_m M (alias suppression toward the neutral);
+ * tone = E_ax tau^2, tau = min(E_ax / E_ac, 1) (0 where E_ac = 0; TONE_POWER = 2 in clisp), E_ax and
+ * E_ac the 5 x 5 means of s_tone_energy's planes (rows: their row sums over x .. x + 4, rows_w x rows_h
+ * each, summed here over y .. y + 4). lms: 3 planes on the kernel's window (in_w x in_h); E_sig: plane 2
+ * of lm (lm_w x lm_h) on a window larger by lm_off. R = 4. */
+__kernel void s_alias(__global const float *lms, __global const float *lm, __global const float *rows,
+                      __global float *dst, const int in_w, const int in_h, const int lm_w, const int lm_h,
+                      const int lm_off, const int rows_w, const int rows_h, const int out_w, const int out_h,
+                      const float s_from_m, const float alias_s, const float alias_st)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = in_w * in_h, ic = (y + 4) * in_w + x + 4;
     float s2 = 0.0f;
     #pragma unroll
     for (int dy = -2; dy <= 2; ++dy) {
@@ -363,10 +397,20 @@ __kernel void s_alias(__global const float *lms, __global const float *lm, __glo
         }
     }
     s2 *= 1.0f / 25.0f;
-    const float e_sig = lm[2 * lm_w * lm_h + (y + 2 + lm_off) * lm_w + x + 2 + lm_off];
+    float e_ax = 0.0f, e_ac = 0.0f;
+    #pragma unroll
+    for (int j = 0; j < 5; ++j) {
+        e_ax += rows[(y + j) * rows_w + x];
+        e_ac += rows[rows_w * rows_h + (y + j) * rows_w + x];
+    }
+    e_ax *= 1.0f / 25.0f;
+    e_ac *= 1.0f / 25.0f;
+    const float tau = e_ac > 0.0f ? min_f(e_ax / e_ac, 1.0f) : 0.0f;
+    const float e_sig = lm[2 * lm_w * lm_h + (y + 4 + lm_off) * lm_w + x + 4 + lm_off];
+    const float alias = alias_s * e_sig + alias_st * e_ax * tau * tau;
     const float mn = s_from_m * lms[plane + ic];
     const int i = y * out_w + x, out_plane = out_w * out_h;
     dst[i] = lms[ic];
     dst[out_plane + i] = lms[plane + ic];
-    dst[2 * out_plane + i] = mn + alias_gain(s2, alias_s * e_sig) * (lms[2 * plane + ic] - mn);
+    dst[2 * out_plane + i] = mn + alias_gain(s2, alias) * (lms[2 * plane + ic] - mn);
 }

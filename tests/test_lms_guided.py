@@ -30,7 +30,8 @@ from clisp.stages.lms_common import valid
 from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
                                               RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
                                               chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
-                                              neutral_of, s_alias, s_output, tonal_energy)
+                                              neutral_of, s_alias, s_output, tonal_energy,
+                                              S_ALIAS_RADIUS, axial_tonal_energy)
 from clisp.stages.guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
@@ -86,10 +87,10 @@ def test_stage_matches_reference(rt, phase, noisy):
 
 def test_halo_and_shapes():
     stage = DemosaicLMSGuided(lms_cfa())
-    assert stage.halo == sum(stage.radii.values()) == 57
-    assert stage.reference(np.full((124, 135), 0.3), (0, 0)).shape == (10, 21, 3)
+    assert stage.halo == sum(stage.radii.values()) == 59
+    assert stage.reference(np.full((128, 139), 0.3), (0, 0)).shape == (10, 21, 3)
     small = DemosaicLMSGuided(lms_cfa(), LMSGuidedParams(ms_radius1=2, chroma_radius=2, s_radius=2))
-    assert small.halo == 57 - 2 - 2 * 2 - 4
+    assert small.halo == 59 - 2 - 2 * 2 - 4
 
 
 @pytest.mark.parametrize("noisy", [False, True])
@@ -248,7 +249,7 @@ def test_reference_steps_compose():
     mod = np.where(cfa.channel_map(40, 44) == stage.ch_l, 1.0, -1.0)
     lm = lm_output(m, c, ylp, mod, NOISE, stage.ch_l, stage.ch_m, 2.0)
     assert lm.shape == (40 - 2 * COMBINE_RADIUS, 44 - 2 * COMBINE_RADIUS, 3)
-    assert s_alias(np.dstack([m, m, ylp]), m, 1.05, 1.0).shape == (36, 40, 3)
+    assert s_alias(np.dstack([m, m, ylp]), m, 1.05, 1.0, 1.0).shape == (32, 36, 3)
     g = rng.uniform(0.1, 0.9, (40, 44))
     s = s_output(m, cfa.channel_map(40, 44), g, stage.ch_s, NOISE)
     assert s.shape == (40 - 2 * RI_RADIUS, 44 - 2 * RI_RADIUS)
@@ -340,13 +341,31 @@ def test_s_alias_shrinks_toward_neutral():
     s_from_m M; with E_sig = 0 (or strength 0) S is kept; L and M are never touched."""
     rng = np.random.default_rng(4)
     lms = rng.uniform(0.2, 0.8, (20, 24, 3))
-    centre = valid(lms, COMBINE_RADIUS)
+    centre = valid(lms, S_ALIAS_RADIUS)
     kept = s_alias(lms, np.zeros((20, 24)), 1.05, 1.0)
     np.testing.assert_allclose(kept, centre, rtol=1e-12)
     np.testing.assert_allclose(s_alias(lms, np.ones((20, 24)), 1.05, 0.0), centre, rtol=1e-12)
     gone = s_alias(lms, np.full((20, 24), 10.0), 1.05, 1.0)
     np.testing.assert_array_equal(gone[..., :2], centre[..., :2])
     np.testing.assert_allclose(gone[..., 2], 1.05 * centre[..., 1], rtol=1e-12)
+
+
+def test_axial_tonal_energy_and_s_alias_tone_term():
+    """axial_tonal_energy: vertical or horizontal stripes at Nyquist (an S-lattice carrier) give their
+    full energy with tonality 1; noise and a diagonal (pi/2, pi/2) pattern much less; flat 0. With that
+    term alone (E_sig = 0), S on Nyquist stripes becomes the neutral s_from_m M."""
+    yy, xx = np.mgrid[0:30, 0:34].astype(np.float64)
+    amp = 0.2
+    for stripes in (np.cos(np.pi * xx), np.cos(np.pi * yy)):
+        np.testing.assert_allclose(axial_tonal_energy(0.5 + amp * stripes), amp ** 2, rtol=0.05)
+    assert axial_tonal_energy(0.5 + amp * np.random.default_rng(1).standard_normal((30, 34))).mean() < 0.1 * amp ** 2
+    assert axial_tonal_energy(0.5 + amp * np.cos(np.pi / 2 * (xx + yy))).max() < 0.1 * amp ** 2
+    assert axial_tonal_energy(np.full((20, 20), 0.3)).max() < 1e-30
+    lum = 0.5 + amp * np.cos(np.pi * xx)
+    lms = np.dstack([lum, lum, np.full_like(lum, 0.5)])                  # S flat where M has stripes
+    out = s_alias(lms, np.zeros(lum.shape), 1.05, 1.0, alias_st=10.0)
+    np.testing.assert_allclose(out[..., 2], 1.05 * valid(lum, S_ALIAS_RADIUS), rtol=1e-9)
+    np.testing.assert_allclose(s_alias(lms, np.zeros(lum.shape), 1.05, 1.0)[..., 2], 0.5, rtol=1e-12)
 
 
 def _zone_plate_psnr(params: LMSGuidedParams) -> float:

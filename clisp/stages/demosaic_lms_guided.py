@@ -31,9 +31,9 @@ Steps (one function per kernel below, the GF's in ``guided_filter``; radius = ha
                             noiseless Y = ylp + (y - ylp) = y; L = Y + c, M = Y - c
     S                 r 11  g = GF over S sites of p against M (radius 4); residual interpolation:
                             S = g + gamma_S * tent-interpolation over the S lattice of (p - g)
-    S alias           r 2   S toward the neutral s_from_m M where luminance detail can alias (below)
+    S alias           r 4   S toward the neutral s_from_m M where luminance detail can alias (below)
 
-Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 + 2 = 57 px with the default radii (``halo``).
+Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 + 4 = 59 px with the default radii (``halo``).
 
 Alias suppression (the last three steps; ``alias_*`` parameters). Where the luminance has strong
 detail beyond the quincunx baseband (the diamond |wx| + |wy| < pi), its harmonics and the S-lattice
@@ -48,7 +48,9 @@ colour (D >> alpha E_sig) and flat or noisy-flat regions (E_sig ~ 0) are untouch
 variance has a second, specific term alias_h E_h tau^2 (``tonal_energy``): a periodic luminance
 pattern near (pi/2, pi/2) puts its 2nd harmonic exactly on (pi, pi), where the generic term would need
 to be strong (and desaturate thin coloured detail everywhere) to remove it; tau, the share of the
-local detail energy in that band, keeps broadband texture out.
+local detail energy in that band, keeps broadband texture out. S has the same kind of second term,
+alias_st E_ax tau^2 (``axial_tonal_energy``), for periodic luminance at the axial Nyquist carriers
+(pi, 0), (0, pi) of the S lattice, where every S sample sees the same phase.
 
 Edge-directed estimate (M at S, pass 2): for the four 2-tap predictors d in {h, v, d1, d2} of y from its
 neighbours along d, err_d = mean squared error of the same predictor at the known (non-S) pixels of the
@@ -65,7 +67,7 @@ Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the 
 comes from; on detail w -> 1 and every sample is kept.
 
 Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
-means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.53 dB, McMaster 18 34.55 dB (Bayer DLMMSE 36.21 /
+means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.50 dB, McMaster 18 34.55 dB (Bayer DLMMSE 36.21 /
 32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 41.24 dB (Bayer DLMMSE 29.64, hybrid 14.97).
 Without alias suppression: Kodak 37.46, McMaster 34.42, zone plate 28.67 (with the generic L - M term
 alone strong enough for 40 dB, alias_c = 0.1, Kodak fell to 37.02).
@@ -141,6 +143,11 @@ def half_nyquist_bandpass() -> np.ndarray:
 
 
 HALF_NYQUIST_BP = half_nyquist_bandpass()
+AXIAL_HP = np.outer([1.0, 2.0, 1.0], [-1.0, 2.0, -1.0]) / 16.0
+"""3 x 3 axial Nyquist detector: high-pass (1 - cos wx) / 2 across x times low-pass (1 + cos wy) / 2
+along y; 1 at (0, pi) in (wy, wx), 0 at DC and at (pi, pi)."""
+S_ALIAS_RADIUS = 4
+"""Radius of s_alias: 5 x 5 means of energies of a 3 x 3 high-pass and of a 5 x 5 mean's residual."""
 D9 = diamond_halfband()
 B5 = np.outer(binomial(5), binomial(5))
 TENT = ri_tent()
@@ -187,6 +194,9 @@ class LMSGuidedParams:
     """Alias suppression of M at S sites (pass 2): the same for the S-M difference there."""
     alias_s: float = 1.0
     """Alias suppression of S: the same for S - M everywhere."""
+    alias_st: float = 1.0
+    """Alias suppression of S: alias variance per unit tonal axial-Nyquist energy
+    (``axial_tonal_energy``: periodic luminance at (pi, 0), (0, pi), carriers of the S lattice)."""
 
     def __post_init__(self) -> None:
         for name in ("ms_radius1", "ms_radius2", "chroma_radius", "s_radius"):
@@ -194,7 +204,8 @@ class LMSGuidedParams:
                 raise ClispError(f"{name} must be >= 2 px (the S covering radius of the LMS CFA)")
         if min(self.ms_eps, self.chroma_eps, self.s_eps, self.dir_eps) <= 0:
             raise ClispError("the guided-filter regularisers and dir_eps must be > 0")
-        if min(self.dir_kappa, self.blend_k, self.alias_c, self.alias_h, self.alias_m, self.alias_s) < 0:
+        if min(self.dir_kappa, self.blend_k, self.alias_c, self.alias_h, self.alias_m, self.alias_s,
+               self.alias_st) < 0:
             raise ClispError("dir_kappa, blend_k and the alias_* strengths must be >= 0")
 
 
@@ -360,14 +371,34 @@ def s_output(p: np.ndarray, ch: np.ndarray, g: np.ndarray, ch_s: int, noise: Cha
     return centre_g + gamma * interp
 
 
-def s_alias(lms: np.ndarray, e_sig: np.ndarray, s_from_m: float, alias_s: float) -> np.ndarray:
+def axial_tonal_energy(lum: np.ndarray) -> np.ndarray:
+    """E_ax tau^TONE_POWER for S: the energy of the luminance near the axial Nyquist carriers (pi, 0)
+    and (0, pi) (S-lattice carriers: a periodic pattern there makes the S samples all see one phase),
+    weighted by its tonality tau = min(E_ax / E_ac, 1). E_ax = 5 x 5 mean of hx^2 + hy^2, hx = AXIAL_HP *
+    lum (high-pass (1 - cos wx) / 2 across, low-pass (1 + cos wy) / 2 along), hy its transpose; E_ac =
+    5 x 5 mean of (lum - its 5 x 5 mean)^2. Shrinks by S_ALIAS_RADIUS."""
+    box = np.ones((5, 5)) / 25.0
+    hx = valid(correlate_valid(lum, AXIAL_HP), 1)
+    hy = valid(correlate_valid(lum, AXIAL_HP.T), 1)
+    ac = valid(lum, 2) - correlate_valid(lum, box)
+    e_ax = correlate_valid(hx * hx + hy * hy, box)
+    e_ac = correlate_valid(ac * ac, box)
+    pos = e_ac > 0
+    tau = np.where(pos, np.minimum(e_ax / np.where(pos, e_ac, 1.0), 1.0), 0.0)
+    return e_ax * tau ** TONE_POWER
+
+
+def s_alias(lms: np.ndarray, e_sig: np.ndarray, s_from_m: float, alias_s: float,
+            alias_st: float = 0.0) -> np.ndarray:
     """Alias suppression of S: L, M, S (H x W x 3) and E_sig (H x W) on one window -> L, M, S shrunk by
-    COMBINE_RADIUS, sd = S - s_from_m M, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2, alias_s E_sig) sd."""
-    r = COMBINE_RADIUS
+    S_ALIAS_RADIUS, sd = S - s_from_m M, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2, alias_s E_sig
+    + alias_st axial_tonal_energy((L + M) / 2)) sd."""
+    r = S_ALIAS_RADIUS
     sd = lms[..., 2] - s_from_m * lms[..., 1]
-    s2 = correlate_valid(sd * sd, np.ones((5, 5)) / 25.0)
+    s2 = valid(correlate_valid(sd * sd, np.ones((5, 5)) / 25.0), r - COMBINE_RADIUS)
+    tone = axial_tonal_energy(0.5 * (lms[..., 0] + lms[..., 1]))
     centre = valid(lms, r)
-    s = s_from_m * centre[..., 1] + alias_gain(s2, alias_s * valid(e_sig, r)) * valid(sd, r)
+    s = s_from_m * centre[..., 1] + alias_gain(s2, alias_s * valid(e_sig, r) + alias_st * tone) * valid(sd, r)
     return np.concatenate([centre[..., :2], s[..., None]], axis=-1)
 
 
@@ -417,7 +448,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         return {"l_guide": D_RADIUS, "ms1_fit": 2 * prm.ms_radius1, "ms1_combine": COMBINE_RADIUS,
                 "chroma1": chroma, "ms2_fit": 2 * prm.ms_radius2, "ms2_combine": COMBINE_RADIUS,
                 "chroma2": chroma, "lm_output": COMBINE_RADIUS, "s_fit": 2 * prm.s_radius, "s_output": RI_RADIUS,
-                "s_alias": COMBINE_RADIUS}
+                "s_alias": S_ALIAS_RADIUS}
 
     @property
     def halo(self) -> int:
@@ -499,7 +530,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         s = s_output(valid(p, o), valid(ch, o), g, self.ch_s, self.noise)
         k = 2 * rs + RI_RADIUS
         lms = np.concatenate([valid(lm[..., :2], k), s[..., None]], axis=-1)
-        return s_alias(lms, valid(lm[..., 2], k), self.s_from_m, prm.alias_s)
+        return s_alias(lms, valid(lm[..., 2], k), self.s_from_m, prm.alias_s, prm.alias_st)
 
     # -- OpenCL ---------------------------------------------------------------------------------
     # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each
@@ -656,12 +687,19 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                      i32(out_h), *self._origin(at(o_g)), rt.constant(as_f32(_weights(TENT))),
                      f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
         rt.release(g)
-        fin_h, fin_w = out_h - 2 * COMBINE_RADIUS, out_w - 2 * COMBINE_RADIUS
+        tone = rt.acquire(2, out_h - 4, out_w - 4)
+        self._launch(rt, "s_tone_energy", out_w - 4, out_h - 4, lms.buffer, tone.buffer, i32(out_w), i32(out_h),
+                     i32(out_w - 4), i32(out_h - 4), rt.constant(as_f32(AXIAL_HP.ravel())))
+        rows = enqueue_box_rows(rt, tone, 2)
+        rt.release(tone)
+        fin_h, fin_w = out_h - 2 * S_ALIAS_RADIUS, out_w - 2 * S_ALIAS_RADIUS
         dst = rt.acquire(3, fin_h, fin_w)
-        self._launch(rt, "s_alias", fin_w, fin_h, lms.buffer, lm.buffer, dst.buffer, i32(out_w), i32(out_h),
-                     i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(fin_w), i32(fin_h),
-                     f32(self.s_from_m), f32(self.params.alias_s))
+        self._launch(rt, "s_alias", fin_w, fin_h, lms.buffer, lm.buffer, rows.buffer, dst.buffer, i32(out_w),
+                     i32(out_h), i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(rows.width),
+                     i32(out_h - 4), i32(fin_w), i32(fin_h), f32(self.s_from_m), f32(prm.alias_s),
+                     f32(prm.alias_st))
         rt.release(lms)
+        rt.release(rows)
         rt.release(lm)
         return dst
 
