@@ -8,6 +8,7 @@
  *                    at_l, at_s in common.h)
  *   NOISY            0: noiseless, every LMMSE gain is 1 and no noise term is computed
  *   DIRECTIONAL      1 in the program of the pass-2 m_at_s_combine (edge-directed estimate mixed in)
+ *   TONE_POWER       exponent of the tonality in tonal() (clisp TONE_POWER)
  * Host-generated: D_TAPS, the off-centre support of the 9 x 9 diamond half-band D, and TENT_TAPS, the
  * support of the 7 x 7 residual-interpolation tent, as X(dy, dx, t) (weights in constant buffers).
  *
@@ -23,6 +24,14 @@
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 inline float min_f(const float a, const float b) { return a < b ? a : b; }
+
+/* e_band tau^TONE_POWER, tau = min(e_band / e_ac, 1) (0 where e_ac == 0): the band's share of the local
+ * detail energy (its tonality) weighting the band energy. */
+inline float tonal(const float e_band, const float e_ac)
+{
+    const float tau = e_ac > 0.0f ? min_f(e_band / e_ac, 1.0f) : 0.0f;
+    return e_band * pown(tau, TONE_POWER);
+}
 
 /* The shrink max(energy - alias, 0) / energy of a chroma deviation of energy `energy` of which `alias`
  * is expected to be luminance aliased onto a chroma carrier; 1 where energy == 0. */
@@ -245,9 +254,8 @@ __kernel void lm_energy(__global const float *m, __global const float *c, __glob
  * noiseless Y = ylp + d (= y); noisy Y = ybl + w (y - ybl), ybl = m / 2 + (sum of m's 4 axial
  * neighbours) / 8 (the flat-field target: zero at the (pi, pi) chroma carrier, noise gain 0.3125),
  * w = E_sig / E. Alias suppression of the chroma toward the neutral cn ylp: dev = c - cn ylp,
- * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig + alias_h tone) dev, tone = E_h tau^2,
- * tau = min(E_h / E_ac, 1) (E_h, E_ac: 5 x 5 means of bp^2, ac^2; tau = 0 where E_ac = 0; TONE_POWER
- * = 2 in clisp); L = Y + c', M = Y - c'. rows: the row sums over x .. x + 4 of lm_energy's four planes
+ * c' = cn ylp + alias_gain(5 x 5 mean of dev^2, alias_c E_sig + alias_h tonal(E_h, E_ac)) dev
+ * (E_h, E_ac: 5 x 5 means of bp^2, ac^2); L = Y + c', M = Y - c'. rows: the row sums over x .. x + 4 of lm_energy's four planes
  * (box_rows, r = 2; rows_w x rows_h each), summed here over y .. y + 4. c on the kernel's window
  * (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
 __kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
@@ -276,8 +284,7 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
     c2 *= 1.0f / 25.0f;
     e_h *= 1.0f / 25.0f;
     e_ac *= 1.0f / 25.0f;
-    const float tau = e_ac > 0.0f ? min_f(e_h / e_ac, 1.0f) : 0.0f;
-    const float tone = e_h * tau * tau;
+    const float tone = tonal(e_h, e_ac);
     const float lc = ylp[il];
     const float e_sig = max_f(e - blend_k * (lum_shot * max_f(lc, 0.0f) + lum_floor), 0.0f);
     const float yv = m[im] - c[ic] * mod_f(yc + oy, xc + ox);
@@ -373,9 +380,8 @@ __kernel void s_tone_energy(__global const float *lms, __global float *dst, cons
 }
 
 /* s_alias: the three output planes: L, M copied, S' = s_from_m M + alias_gain(5 x 5 mean of sd^2,
- * alias_s E_sig + alias_st tone) sd, sd = S - s_from_m M (alias suppression toward the neutral);
- * tone = E_ax tau^2, tau = min(E_ax / E_ac, 1) (0 where E_ac = 0; TONE_POWER = 2 in clisp), E_ax and
- * E_ac the 5 x 5 means of s_tone_energy's planes (rows: their row sums over x .. x + 4, rows_w x rows_h
+ * alias_s E_sig + alias_st tonal(E_ax, E_ac)) sd, sd = S - s_from_m M (alias suppression toward the
+ * neutral); E_ax and E_ac the 5 x 5 means of s_tone_energy's planes (rows: their row sums over x .. x + 4, rows_w x rows_h
  * each, summed here over y .. y + 4). lms: 3 planes on the kernel's window (in_w x in_h); E_sig: plane 2
  * of lm (lm_w x lm_h) on a window larger by lm_off. R = 4. */
 __kernel void s_alias(__global const float *lms, __global const float *lm, __global const float *rows,
@@ -405,9 +411,8 @@ __kernel void s_alias(__global const float *lms, __global const float *lm, __glo
     }
     e_ax *= 1.0f / 25.0f;
     e_ac *= 1.0f / 25.0f;
-    const float tau = e_ac > 0.0f ? min_f(e_ax / e_ac, 1.0f) : 0.0f;
     const float e_sig = lm[2 * lm_w * lm_h + (y + 4 + lm_off) * lm_w + x + 4 + lm_off];
-    const float alias = alias_s * e_sig + alias_st * e_ax * tau * tau;
+    const float alias = alias_s * e_sig + alias_st * tonal(e_ax, e_ac);
     const float mn = s_from_m * lms[plane + ic];
     const int i = y * out_w + x, out_plane = out_w * out_h;
     dst[i] = lms[ic];

@@ -211,12 +211,24 @@ class LMSGuidedParams:
 
 # ---------------------------------------------------------------------------------- helpers
 
+def mean5(x: np.ndarray) -> np.ndarray:
+    """5 x 5 box mean (valid region: shrinks by COMBINE_RADIUS)."""
+    return correlate_valid(x, np.ones((5, 5)) / 25.0)
+
+
+def tonal(e_band: np.ndarray, e_ac: np.ndarray) -> np.ndarray:
+    """e_band tau^TONE_POWER with the tonality tau = min(e_band / e_ac, 1) (0 where e_ac == 0): the share
+    of the local detail energy e_ac that one band holds; ~1 for a periodic pattern in the band."""
+    pos = e_ac > 0
+    tau = np.where(pos, np.minimum(e_band / np.where(pos, e_ac, 1.0), 1.0), 0.0)
+    return e_band * tau ** TONE_POWER
+
+
 def detail_energy(y: np.ndarray, ylp: np.ndarray, vn: np.ndarray | float, k: float) -> np.ndarray:
     """E_sig = max(E - k vn, 0), E = 5 x 5 mean of (y - ylp)^2: the luminance detail beyond the
     quincunx baseband (the diamond |wx| + |wy| < pi) with its noise share removed; vn on the output
     window (y, ylp on one window, shrunk by COMBINE_RADIUS)."""
-    e = correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
-    return np.maximum(e - k * vn, 0.0)
+    return np.maximum(mean5((y - ylp) ** 2) - k * vn, 0.0)
 
 
 def alias_gain(energy: np.ndarray, alias: np.ndarray) -> np.ndarray:
@@ -233,15 +245,9 @@ def tonal_energy(ylp: np.ndarray) -> np.ndarray:
     mean of (ylp - its 5 x 5 mean)^2. A periodic pattern near (pi/2, pi/2) (tau ~ 1) puts its 2nd
     harmonic on the L-M carrier; broadband texture (tau << 1) does not. ylp on a window grown by
     BP_RADIUS + COMBINE_RADIUS around the output."""
-    r = COMBINE_RADIUS
-    box = np.ones((5, 5)) / 25.0
     bp = correlate_valid(ylp, HALF_NYQUIST_BP)
-    ac = valid(ylp, BP_RADIUS) - correlate_valid(valid(ylp, BP_RADIUS - r), box)
-    e_h = correlate_valid(bp * bp, box)
-    e_ac = correlate_valid(ac * ac, box)
-    pos = e_ac > 0
-    tau = np.where(pos, np.minimum(e_h / np.where(pos, e_ac, 1.0), 1.0), 0.0)
-    return e_h * tau ** TONE_POWER
+    ac = valid(ylp, BP_RADIUS) - mean5(valid(ylp, BP_RADIUS - COMBINE_RADIUS))
+    return tonal(mean5(bp * bp), mean5(ac * ac))
 
 
 def neutral_of(colour_matrix: np.ndarray) -> tuple[float, float, float]:
@@ -302,7 +308,7 @@ def m_at_s_combine(p: np.ndarray, ch: np.ndarray, mfit: np.ndarray, sfit: np.nda
             num = num + weight * valid(pred, 1)
             den = den + weight
             err_min = np.minimum(err_min, err)
-        hf = kappa * correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
+        hf = kappa * mean5((y - ylp) ** 2)
         total = hf + err_min
         w = np.where(total > 0, hf / np.where(total > 0, total, 1.0), 0.0)
         est = w * (num / den - valid(c, r)) + (1.0 - w) * est
@@ -340,17 +346,17 @@ def lm_output(m: np.ndarray, c: np.ndarray, ylp: np.ndarray, mod: np.ndarray, no
     centre_ylp = valid(ylp, r)
     vn = 0.0 if noise is None else \
         LUM_NOISE_GAIN * 0.5 * (noise.variance(ch_l, centre_ylp) + noise.variance(ch_m, centre_ylp))
-    e_sig = detail_energy(y, ylp, vn, blend_k)
+    e = mean5((y - ylp) ** 2)
+    e_sig = np.maximum(e - blend_k * vn, 0.0)
     if noise is None:
         lum = valid(y, r)
     else:
-        e = correlate_valid((y - ylp) ** 2, np.ones((5, 5)) / 25.0)
         w = np.where(e > 0, e_sig / np.where(e > 0, e, 1.0), 0.0)
         ybl = 0.5 * valid(m, r) + 0.125 * (valid(m, r, -1, 0) + valid(m, r, 1, 0)
                                             + valid(m, r, 0, -1) + valid(m, r, 0, 1))
         lum = ybl + w * (valid(y, r) - ybl)
     dev = c - chroma_neutral * ylp
-    c2 = correlate_valid(dev * dev, np.ones((5, 5)) / 25.0)
+    c2 = mean5(dev * dev)
     c_out = chroma_neutral * centre_ylp + alias_gain(c2, alias_c * e_sig + alias_h * tone) * valid(dev, r)
     return np.stack([lum + c_out, lum - c_out, e_sig], axis=-1)
 
@@ -377,15 +383,10 @@ def axial_tonal_energy(lum: np.ndarray) -> np.ndarray:
     weighted by its tonality tau = min(E_ax / E_ac, 1). E_ax = 5 x 5 mean of hx^2 + hy^2, hx = AXIAL_HP *
     lum (high-pass (1 - cos wx) / 2 across, low-pass (1 + cos wy) / 2 along), hy its transpose; E_ac =
     5 x 5 mean of (lum - its 5 x 5 mean)^2. Shrinks by S_ALIAS_RADIUS."""
-    box = np.ones((5, 5)) / 25.0
     hx = valid(correlate_valid(lum, AXIAL_HP), 1)
     hy = valid(correlate_valid(lum, AXIAL_HP.T), 1)
-    ac = valid(lum, 2) - correlate_valid(lum, box)
-    e_ax = correlate_valid(hx * hx + hy * hy, box)
-    e_ac = correlate_valid(ac * ac, box)
-    pos = e_ac > 0
-    tau = np.where(pos, np.minimum(e_ax / np.where(pos, e_ac, 1.0), 1.0), 0.0)
-    return e_ax * tau ** TONE_POWER
+    ac = valid(lum, COMBINE_RADIUS) - mean5(lum)
+    return tonal(mean5(hx * hx + hy * hy), mean5(ac * ac))
 
 
 def s_alias(lms: np.ndarray, e_sig: np.ndarray, s_from_m: float, alias_s: float,
@@ -395,7 +396,7 @@ def s_alias(lms: np.ndarray, e_sig: np.ndarray, s_from_m: float, alias_s: float,
     + alias_st axial_tonal_energy((L + M) / 2)) sd."""
     r = S_ALIAS_RADIUS
     sd = lms[..., 2] - s_from_m * lms[..., 1]
-    s2 = valid(correlate_valid(sd * sd, np.ones((5, 5)) / 25.0), r - COMBINE_RADIUS)
+    s2 = valid(mean5(sd * sd), r - COMBINE_RADIUS)
     tone = axial_tonal_energy(0.5 * (lms[..., 0] + lms[..., 1]))
     centre = valid(lms, r)
     s = s_from_m * centre[..., 1] + alias_gain(s2, alias_s * valid(e_sig, r) + alias_st * tone) * valid(sd, r)
@@ -540,7 +541,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         """Compile-time constants of kernels/demosaic_lms_guided.cl (see its header). No CFA phase among
         them: it is folded into the origin (``_origin``), so all phases share the programs. The guided
         filters' kernels (kernels/guided_filter.cl) get LATTICE and their radius instead."""
-        return {**LATTICE, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional)}
+        return {**LATTICE, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional),
+                "TONE_POWER": TONE_POWER}
 
     def _origin(self, origin: tuple[int, int]) -> tuple[np.int32, np.int32]:
         """Kernel arguments (oy, ox) for image ``origin``: shifted by the translation that maps this CFA
