@@ -35,7 +35,7 @@ Steps (one function per kernel below, the GF's in ``guided_filter``; radius = ha
 
 Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 + 4 = 59 px with the default radii (``halo``).
 
-Alias suppression (the last three steps; ``alias_*`` parameters). Where the luminance has strong
+Alias suppression (in M at S pass 2, the L, M output and S alias; ``alias_*`` parameters). Where the luminance has strong
 detail beyond the quincunx baseband (the diamond |wx| + |wy| < pi), its harmonics and the S-lattice
 aliases land on the chroma carriers ((pi, pi) for L - M; (0, pi), (pi, 0), (pi/2, pi/2) for S), and
 there a grey pattern and a colour give the same samples: no local estimate separates them (a neutral
