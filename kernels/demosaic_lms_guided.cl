@@ -30,7 +30,11 @@ inline float min_f(const float a, const float b) { return a < b ? a : b; }
 inline float tonal(const float e_band, const float e_ac)
 {
     const float tau = e_ac > 0.0f ? min_f(e_band / e_ac, 1.0f) : 0.0f;
-    return e_band * pown(tau, TONE_POWER);
+    float w = e_band;
+    #pragma unroll
+    for (int i = 0; i < TONE_POWER; ++i)       /* multiplications, not pown: pown stops PoCL vectorising */
+        w *= tau;
+    return w;
 }
 
 /* The shrink max(energy - alias, 0) / energy of a chroma deviation of energy `energy` of which `alias`
