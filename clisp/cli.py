@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from pathlib import Path
@@ -18,7 +20,10 @@ import numpy as np
 
 from . import __version__
 from .errors import ClispError
+from .profile import host_timer
 from .tiling import Tile
+
+_LOADED = time.perf_counter()
 
 EXIT_ERROR = 2
 
@@ -73,6 +78,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
+    p.add_argument("--profile", action="store_true",
+                   help="print where the time went: device time per stage and kernel (OpenCL event "
+                        "profiling), host time for decode, reading, writing and waiting")
     p.set_defaults(func=cmd_process)
 
 
@@ -190,14 +198,44 @@ def cmd_process(args: argparse.Namespace) -> int:
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
     denoise = _denoise_option(args)
-    raw = read_raw(args.raw, lazy=True)
+    profile = _start_profile() if args.profile else None
+    with host_timer("decode raw file (header, camera raw pixels)"):
+        raw = read_raw(args.raw, lazy=True)
     (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=denoise, wb2=args.wb2)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
+    if profile is not None:
+        wall = _process_seconds()
+        print(profile.report(stats.megapixels, wall))
+        print(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
     return 0
+
+
+_STARTUP: dict[str, float] = {}
+
+
+def _process_seconds() -> float:
+    """Seconds since this process started (Linux /proc), else since the CLI module loaded."""
+    try:
+        ticks = os.sysconf("SC_CLK_TCK")
+        with open("/proc/self/stat") as f:
+            started = int(f.read().rsplit(")", 1)[1].split()[19]) / ticks
+        with open("/proc/uptime") as f:
+            return float(f.read().split()[0]) - started
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - _LOADED
+
+
+def _start_profile() -> "object":
+    """Profiling runtime and a fresh clisp.profile.Profile; notes the start-up time so far."""
+    from . import profile
+    from .runtime import get_runtime
+    get_runtime(profiling=True)
+    _STARTUP["s"] = _process_seconds()
+    return profile.start()
 
 
 def _denoise_option(args: argparse.Namespace) -> "bool | None | object":

@@ -17,6 +17,7 @@ import numpy as np
 
 from .colorimetry import srgb_decode
 from .errors import ClispError
+from .profile import host_timer
 
 LINEAR_EXTENSIONS = (".exr",)
 ENCODED_EXTENSIONS = (".tif", ".tiff", ".png")
@@ -186,6 +187,10 @@ class ImageWriter:
         if y0 != self.next_row or rows.shape[1:] != (self.width, self.channels):
             raise ClispError(f"{self.path}: band {rows.shape} at row {y0} does not follow row "
                              f"{self.next_row} of a {self.width}x{self.height}x{self.channels} image")
+        with host_timer("write output", rows.nbytes):
+            self._write_rows(rows)
+
+    def _write_rows(self, rows: np.ndarray) -> None:
         for start in range(0, rows.shape[0], WRITE_ROWS):
             pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
             if self.kind == "srgb":

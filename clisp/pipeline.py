@@ -18,6 +18,7 @@ import numpy as np
 from .cfa import CFA
 from .errors import ClispError
 from .rawimage import RawImage
+from .profile import host_timer, stage_label
 from .runtime import get_runtime
 from .stages.base import Stage, fuse_stages
 from .stages.chroma_denoise import ChromaDenoiseParams, chroma_denoise_for
@@ -158,7 +159,8 @@ class Pipeline:
             compute = partial(self._compute_reference, halo)
 
         def read(t: Tile) -> np.ndarray:
-            return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period)
+            with host_timer("read tile windows"):
+                return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period)
 
         start = time.perf_counter()
         try:
@@ -206,11 +208,14 @@ class Pipeline:
         rt = get_runtime()
         if window.dtype not in (np.uint16, np.float32):
             window = window.astype(np.float32)
+        stage_label("upload")
         src, origin = rt.upload(window), (t.y0 - halo, t.x0 - halo)
         for stage in schedule:
+            stage_label(stage.name)
             dst = stage.enqueue(rt, src, origin)
             rt.release(src)
             src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
+        stage_label("download")
         if not src.interleaved:
             planar, src = src, rt.interleave(src)
             rt.release(planar)

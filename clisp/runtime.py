@@ -123,16 +123,28 @@ class DeviceImage:
 class Runtime:
     """OpenCL context, in-order queue, program cache and buffer pool for one device."""
 
-    def __init__(self, spec: str | None = None) -> None:
+    def __init__(self, spec: str | None = None, profiling: bool = False) -> None:
         cl = _import_cl()
         self.cl = cl
         self.platform, self.device = choose_device(spec if spec is not None else os.environ.get("CLISP_DEVICE"))
         self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.context)
+        self.profiling = profiling
+        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        self.queue = cl.CommandQueue(self.context, properties=props)
         self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
         self._free: dict[int, list[Any]] = defaultdict(list)
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
+
+    def enable_profiling(self) -> None:
+        """Switch to a queue with event profiling (same context, so every buffer stays valid);
+        kernels are re-wrapped so that their launches are recorded (clisp.profile)."""
+        if not self.profiling:
+            self.queue.finish()
+            self.queue = self.cl.CommandQueue(self.context,
+                                              properties=self.cl.command_queue_properties.PROFILING_ENABLE)
+            self.profiling = True
+            self._kernels.clear()
 
     def describe(self) -> str:
         """One line naming platform and device, e.g. for ``clisp info --device``."""
@@ -170,7 +182,8 @@ class Runtime:
         flags = tuple(_define_flags(defines or {}))
         key = (name, flags + (generated,), kernel_name)
         if key not in self._kernels:
-            self._kernels[key] = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+            kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+            self._kernels[key] = _ProfiledKernel(kernel, kernel_name) if self.profiling else kernel
         return self._kernels[key]
 
     # -- buffers --------------------------------------------------------------------------
@@ -203,7 +216,7 @@ class Runtime:
         channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
-        self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False)
+        _record("upload", self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False))
         return image
 
     def interleave(self, image: DeviceImage) -> DeviceImage:
@@ -241,10 +254,10 @@ class Runtime:
             raise ValueError(f"download target {into.shape} {into.dtype} does not fit device image "
                              f"{image.height}x{image.width}x{image.channels} {image.dtype}")
         pixel = image.channels * np.dtype(image.dtype).itemsize
-        return self.cl.enqueue_copy(self.queue, into, image.buffer, is_blocking=False,
-                                    buffer_origin=(0, 0, 0), host_origin=(x0 * pixel, y0, 0),
-                                    region=(cols * pixel, rows, 1), buffer_pitches=(image.width * pixel,),
-                                    host_pitches=(into.shape[1] * pixel,))
+        return _record("download", self.cl.enqueue_copy(
+            self.queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
+            host_origin=(x0 * pixel, y0, 0), region=(cols * pixel, rows, 1),
+            buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,)))
 
     def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
         """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
@@ -253,12 +266,34 @@ class Runtime:
         kernel(self.queue, gsize, LOCAL_SIZE, *args)
 
 
+def _record(what: str, event: Any) -> Any:
+    """Hand ``event`` to the active profile (clisp.profile), if any; returns it."""
+    from . import profile
+    active = profile.active()
+    if active is not None:
+        active.record(what, event)
+    return event
+
+
+class _ProfiledKernel:
+    """A kernel whose every launch is recorded in the active profile (profiling runtimes only)."""
+
+    def __init__(self, kernel: Any, name: str) -> None:
+        self.kernel, self.name = kernel, name
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return _record(self.name, self.kernel(*args, **kwargs))
+
+
 _RUNTIME: Runtime | None = None
 
 
-def get_runtime() -> Runtime:
-    """The process-wide runtime, created on first use."""
+def get_runtime(profiling: bool = False) -> Runtime:
+    """The process-wide runtime, created on first use. ``profiling``: create it with event
+    profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue)."""
     global _RUNTIME
     if _RUNTIME is None:
-        _RUNTIME = Runtime()
+        _RUNTIME = Runtime(profiling=profiling)
+    elif profiling:
+        _RUNTIME.enable_profiling()
     return _RUNTIME

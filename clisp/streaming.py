@@ -28,6 +28,7 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 import numpy as np
 
 from .errors import ClispError
+from .profile import host_timer
 from .tiling import Tile, TilePlan, gather, gather_window, window_indices
 
 
@@ -172,7 +173,8 @@ class BandSink:
     def target(self, tile: Tile) -> tuple[np.ndarray, int, int]:
         slot = self._slot(tile)
         if tile.x0 == 0 and self.pending[slot] is not None:
-            self.pending[slot].result()                      # that buffer's band is written
+            with host_timer("wait for writer (main thread)"):
+                self.pending[slot].result()                  # that buffer's band is written
             self.pending[slot] = None
         if self.buffers[slot] is None:
             self.buffers[slot] = np.empty(self.shape, dtype=np.float32)
@@ -202,7 +204,8 @@ def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray],
         previous: tuple[Tile, Any] | None = None
         try:
             for i, tile in enumerate(tiles):
-                window = ahead.result()
+                with host_timer("wait for reader (main thread)"):
+                    window = ahead.result()
                 if i + 1 < len(tiles):
                     ahead = reader.submit(read, tiles[i + 1])
                 event = compute(tile, window, sink.target(tile))
@@ -217,7 +220,8 @@ def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray],
 
 def _finish(tile: Tile, event: Any, sink: TileSink, progress: Callable[[Tile], None] | None) -> None:
     if event is not None:
-        event.wait()
+        with host_timer("wait for device (main thread)"):
+            event.wait()
     sink.done(tile)
     if progress is not None:
         progress(tile)

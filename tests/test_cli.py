@@ -176,3 +176,16 @@ def test_compression_option(tmp_path: Path, scene_png: Path, capsys) -> None:
     assert zipped.stat().st_size < plain.stat().st_size
     code, _, err = run(["process", raw_path, "-o", tmp_path / "bad.exr", "--compression", "bogus"], capsys)
     assert code == 2 and "bogus" in err and not (tmp_path / "bad.exr").exists()
+
+
+def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png: Path, capsys) -> None:
+    """``--profile`` prints the device time of the run's stages and kernels and the host activities."""
+    raw_path = tmp_path / "r.dng"
+    assert run(["simulate", scene_png, "-o", raw_path, "--cfa", "bayer", "--gain", "4"], capsys)[0] == 0
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "o.tif", "--profile"], capsys)
+    assert code == 0, err
+    for expected in ("device: stage / kernel", "demosaic_dlmmse", "chroma_denoise", "joint_bilateral",
+                     "upload", "download", "write output", "device total", "start-up"):
+        assert expected in out, f"{expected!r} missing from the profile:\n{out}"
+    total = float(next(line for line in out.splitlines() if "device total" in line).split()[-1])
+    assert total > 0
