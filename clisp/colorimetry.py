@@ -42,6 +42,36 @@ SRGB_ENCODING = {"SRGB_THRESHOLD": 0.0031308, "SRGB_SLOPE": 12.92, "SRGB_SCALE":
 """IEC 61966-2-1 encoding constants, shared by the NumPy reference and the kernel's defines."""
 
 
+SRGB_LUT_STEPS_LOG2 = 7
+"""Table nodes per octave of the float exponent: 2^7 = 128 (mantissa bits used as the index)."""
+
+SRGB_LUT_OCTAVES = 9
+"""The table covers [2^-9, 1]; 2^-9 = 0.00195 lies below SRGB_THRESHOLD (0.0031308), where the
+linear segment takes over."""
+
+
+def srgb_table() -> tuple[np.ndarray, dict[str, int]]:
+    """The sRGB transfer function at the float32 values whose low 23 - SRGB_LUT_STEPS_LOG2 mantissa
+    bits are zero, from 2^-SRGB_LUT_OCTAVES up to and past 1.0, as float32 (for kernels/srgb.h),
+    with the defines that index it."""
+    shift = 23 - SRGB_LUT_STEPS_LOG2
+    base = (127 - SRGB_LUT_OCTAVES) << SRGB_LUT_STEPS_LOG2
+    count = (SRGB_LUT_OCTAVES << SRGB_LUT_STEPS_LOG2) + 2
+    nodes = ((np.arange(count, dtype=np.uint32) + base) << shift).view(np.float32).astype(np.float64)
+    k = SRGB_ENCODING
+    values = k["SRGB_SCALE"] * np.power(nodes, k["SRGB_INV_GAMMA"]) - k["SRGB_OFFSET"]
+    return values.astype(np.float32), {"SRGB_LUT_SHIFT": shift, "SRGB_LUT_BASE": base}
+
+
+def srgb_table_source() -> str:
+    """OpenCL source defining SRGB_LUT and its index constants (to precede kernels/srgb.h)."""
+    values, defines = srgb_table()
+    lines = [f"#define {key} {value}" for key, value in defines.items()]
+    body = ",".join(f"{v:.9e}f" for v in values.tolist())
+    lines.append(f"__constant float SRGB_LUT[{len(values)}] = {{{body}}};")
+    return "\n".join(lines)
+
+
 def srgb_encode(x: np.ndarray) -> np.ndarray:
     """Linear -> sRGB-encoded (IEC 61966-2-1), after clipping to [0, 1]. Same shape and dtype."""
     k = SRGB_ENCODING
@@ -49,6 +79,11 @@ def srgb_encode(x: np.ndarray) -> np.ndarray:
     encoded = np.where(x <= k["SRGB_THRESHOLD"], k["SRGB_SLOPE"] * x,
                        k["SRGB_SCALE"] * np.power(x, k["SRGB_INV_GAMMA"]) - k["SRGB_OFFSET"])
     return encoded.astype(x.dtype)
+
+
+def quantize16(encoded: np.ndarray) -> np.ndarray:
+    """Encoded values in [0, 1] (clipped) to the nearest 16-bit code, uint16 (as kernels/srgb.h)."""
+    return np.floor(np.clip(encoded, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
 
 
 def srgb_decode(v: np.ndarray) -> np.ndarray:

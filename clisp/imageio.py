@@ -183,7 +183,8 @@ class ImageWriter:
         return self
 
     def write_rows(self, y0: int, rows: np.ndarray) -> None:
-        """Write rows y0..y0+h (h x W x C float); bands must follow each other without gaps."""
+        """Write rows y0..y0+h (h x W x C float, or uint16 codes for TIFF/PNG); bands must follow
+        each other without gaps."""
         if y0 != self.next_row or rows.shape[1:] != (self.width, self.channels):
             raise ClispError(f"{self.path}: band {rows.shape} at row {y0} does not follow row "
                              f"{self.next_row} of a {self.width}x{self.height}x{self.channels} image")
@@ -191,6 +192,12 @@ class ImageWriter:
             self._write_rows(rows)
 
     def _write_rows(self, rows: np.ndarray) -> None:
+        if rows.dtype == np.uint16 and self.kind == "srgb":      # 16-bit codes: written as they are
+            if not self._out.write_scanlines(self.next_row, self.next_row + rows.shape[0], 0,
+                                             np.ascontiguousarray(rows)):
+                raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
+            self.next_row += rows.shape[0]
+            return
         for start in range(0, rows.shape[0], WRITE_ROWS):
             pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
             if self.kind == "srgb":

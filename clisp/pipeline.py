@@ -54,7 +54,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. Explicit options override."""
 
 DEFAULT_PRESET = "quality"
-OUTPUTS = ("linear", "srgb")
+OUTPUTS = ("linear", "srgb", "srgb16")
 
 
 DEFAULT_BUDGET = 2**30
@@ -102,6 +102,11 @@ class Pipeline:
     def out_channels(self) -> int:
         return self.stages[-1].out_channels
 
+    @property
+    def out_dtype(self) -> np.dtype:
+        """float32, or uint16 when the pipeline ends in 16-bit codes (output 'srgb16')."""
+        return self.stages[-1].out_dtype
+
     def describe(self) -> str:
         return " -> ".join(stage.name for stage in self.stages)
 
@@ -112,7 +117,7 @@ class Pipeline:
         the fused schedule) and an interleaved result. Host: TILES_IN_FLIGHT windows and results.
         """
         raw_bytes = float(np.dtype(raw_dtype).itemsize)
-        out_bytes = 4.0 * self.out_channels
+        out_bytes = float(self.out_dtype.itemsize * self.out_channels)
         stage_bytes = [float(stage.bytes_per_pixel) for stage in self.stages]
         return TileNeeds(halo=self.halo, align=self.align,
                          device_bytes=raw_bytes + sum(stage_bytes) + out_bytes,
@@ -131,7 +136,8 @@ class Pipeline:
 
     def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
             fuse: bool = True, budget: int = DEFAULT_BUDGET) -> np.ndarray:
-        """Process an H x W raw mosaic (DN, uint16 or float32) into H x W x 3 float32.
+        """Process an H x W raw mosaic (DN, uint16 or float32) into H x W x 3 float32 (uint16
+        for a pipeline built with output 'srgb16').
 
         ``tile``: output tile side in pixels; None (default) chooses tiles from ``budget`` (bytes)
         and the device's limits, 0 runs the whole image as one tile.
@@ -141,7 +147,7 @@ class Pipeline:
         A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
         """
         self._check(data.shape, backend)
-        out = np.empty((data.shape[0], data.shape[1], self.out_channels), dtype=np.float32)
+        out = np.empty((data.shape[0], data.shape[1], self.out_channels), dtype=self.out_dtype)
         plan = self.plan(data.shape, data.dtype, tile, budget, backend)
         with closing(window_source(data)) as source:
             self.stream(source, ArraySink(out), plan, backend, fuse)
@@ -262,8 +268,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     """Stages for ``raw``: normalise, WB pass 1, demosaic, colour (+ chroma denoise), WB pass 2,
     tone curve.
 
-    ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve
-    (for 16-bit TIFF/PNG). ``denoise``: None = the preset's depth, False = off, True = on (the
+    ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
+    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``denoise``: None = the preset's depth, False = off, True = on (the
     preset's depth, at least 1 level), or explicit ChromaDenoiseParams; its noise comes from the
     raw's sensor model, else it is estimated from the raw. ``wb2``: white balance pass 2 from
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
@@ -285,8 +291,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     gains2 = estimate_wb2(raw, wb2)
     if not np.allclose(gains2, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(gains2))
-    if output == "srgb":
-        stages.append(ToneCurve())
+    if output in ("srgb", "srgb16"):
+        stages.append(ToneCurve(quantize=output == "srgb16"))
     return Pipeline(cfa, stages)
 
 
@@ -349,7 +355,8 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     """
     from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
-    pipeline = build_pipeline(raw, output=output_kind(path), **options)
+    kind = output_kind(path)
+    pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
     flip = int(raw.metadata.get("flip", 0) or 0)
     if flip:                    # rotated output rows are input columns: orient the whole result
         image = orient(pipeline.run(raw.data, tile=tile, backend=backend, budget=budget), flip)
@@ -360,6 +367,6 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
     with closing(window_source(raw.data)) as source, ImageWriter(path, width, height, channels, compression) as writer, \
-            BandSink(writer.write_rows, plan, width, channels) as sink, bar as update:
+            BandSink(writer.write_rows, plan, width, channels, pipeline.out_dtype) as sink, bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
     return raw.shape, replace(stats, seconds=time.perf_counter() - start)    # the last write included

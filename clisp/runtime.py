@@ -176,6 +176,14 @@ class Runtime:
             self._programs[key] = prg
         return self._programs[key]
 
+    def header(self, name: str) -> str:
+        """Text of ``kernels/<name>`` (a header for host-generated program text)."""
+        path = kernel_dir() / name
+        try:
+            return path.read_text()
+        except OSError as exc:
+            raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
+
     def kernel(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
                generated: str = "") -> Any:
         """A cached kernel object from ``kernels/<name>.cl`` (see :meth:`program`)."""

@@ -137,7 +137,7 @@ class ArraySink:
 
 class BandSink:
     """Tiles assembled into full-width bands (one tile row each); every complete band is passed
-    to ``write(y0, rows)`` (rows: h x W x C float32) on a writer thread, in order.
+    to ``write(y0, rows)`` (rows: h x W x C of ``dtype``) on a writer thread, in order.
 
     ``buffers`` band buffers rotate, so writing band b overlaps computing band b+1; a new band
     waits for the write of the band that last used its buffer. Use as a context manager: leaving
@@ -145,8 +145,9 @@ class BandSink:
     """
 
     def __init__(self, write: Callable[[int, np.ndarray], None], plan: TilePlan, width: int,
-                 channels: int = 3, buffers: int = 2) -> None:
+                 channels: int = 3, dtype: Any = np.float32, buffers: int = 2) -> None:
         self.write = write
+        self.dtype = np.dtype(dtype)
         self.shape = (plan.tile_h, width, channels)
         self.band_h = plan.tile_h
         self.buffers: list[np.ndarray | None] = [None] * buffers
@@ -177,7 +178,7 @@ class BandSink:
                 self.pending[slot].result()                  # that buffer's band is written
             self.pending[slot] = None
         if self.buffers[slot] is None:
-            self.buffers[slot] = np.empty(self.shape, dtype=np.float32)
+            self.buffers[slot] = np.empty(self.shape, dtype=self.dtype)
         return self.buffers[slot], 0, tile.x0
 
     def done(self, tile: Tile) -> None:

@@ -16,16 +16,25 @@ __kernel void apply_matrix3(__global const float *src, __global float *dst,
     dst[2 * plane + i] = m[6] * a + m[7] * b + m[8] * c;
 }
 
-/* srgb_encode: clip to [0, 1], then the IEC 61966-2-1 transfer function. Halo 0.
- * Planes are stacked, so height = 3 H. SRGB_* constants come from the host (clisp.colorimetry). */
-__kernel void srgb_encode(__global const float *src, __global float *dst,
-                          const int width, const int height)
+/* srgb_encode: clip to [0, 1] and sRGB-encode (encode_srgb, kernels/srgb.h, prepended by the host)
+ * the 3 planes of a linear image. Halo 0. QUANTIZE (define): 1 writes 16-bit codes (ushort),
+ * 0 float. INTERLEAVED (define): 1 writes H x W x 3 (the host layout), 0 three planes. */
+#ifdef SRGB_LUT_SHIFT
+#if QUANTIZE
+typedef ushort out_t;
+#define STORE(v) quantize16(v)
+#else
+typedef float out_t;
+#define STORE(v) (v)
+#endif
+__kernel void srgb_encode(__global const float *src, __global out_t *dst, const int width, const int height)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     if (x >= width || y >= height) return;
+    const int plane = width * height;
     const int i = y * width + x;
-    const float v = clamp(src[i], 0.0f, 1.0f);
-    dst[i] = (v <= SRGB_THRESHOLD) ? SRGB_SLOPE * v
-                                   : SRGB_SCALE * pow(v, SRGB_INV_GAMMA) - SRGB_OFFSET;
+    for (int c = 0; c < 3; ++c)
+        dst[INTERLEAVED ? 3 * i + c : c * plane + i] = STORE(encode_srgb(src[c * plane + i]));
 }
+#endif

@@ -1,6 +1,6 @@
 /* Per-phase linear filters on the raw mosaic: the fast demosaic family.
  * Defines from the host: CFA_PERIOD (P), NOUT (output planes), RADIUS (halo R), RAW_T (input type),
- * PHASE_Y/PHASE_X (CFA phase of output pixel (0, 0)), ENCODE_SRGB (0/1), SRGB_* (tone curve),
+ * PHASE_Y/PHASE_X (CFA phase of output pixel (0, 0)), ENCODE_SRGB (0/1), QUANTIZE (0/1: 16-bit out),
  * INTERLEAVED (0: NOUT planes; 1: H x W x NOUT, the host's layout, when this is the last stage).
  * The host also prepends generated code: phase_apply(k, v, o, w, bias) sets o[c] for CFA phase k
  * from the window v[(2R+1)^2], summing only the taps the filter can use (its support, fixed by the
@@ -8,18 +8,25 @@
 #define SIDE (2 * RADIUS + 1)
 #define TAPS (SIDE * SIDE)
 
-inline float encode_srgb(const float x)
-{
-    const float v = clamp(x, 0.0f, 1.0f);
-    return (v <= SRGB_THRESHOLD) ? SRGB_SLOPE * v : SRGB_SCALE * pow(v, SRGB_INV_GAMMA) - SRGB_OFFSET;
-}
+/* With ENCODE_SRGB the host prepends kernels/srgb.h (encode_srgb, quantize16) and its table;
+ * QUANTIZE (define) then writes 16-bit codes instead of float. */
+#if ENCODE_SRGB && QUANTIZE
+typedef ushort out_t;
+#define STORE(v) quantize16(encode_srgb(v))
+#elif ENCODE_SRGB
+typedef float out_t;
+#define STORE(v) encode_srgb(v)
+#else
+typedef float out_t;
+#define STORE(v) (v)
+#endif
 
 /* phase_filter: out_c(y, x) = bias[k][c] + sum_t w[k][c][t] * src(y + dy_t, x + dx_t), k the CFA
  * phase of output pixel (y, x), taps t over the (2R+1)^2 window in row order. Halo RADIUS.
  * One work-item computes one P x P block; both block loops unroll and k is a compile-time
  * constant in each, so phase_apply folds to straight-line code and every weight load is uniform
  * across work-items. w: [P*P][NOUT][TAPS], bias: [P*P][NOUT]. */
-__kernel void phase_filter(__global const RAW_T *src, __global float *dst,
+__kernel void phase_filter(__global const RAW_T *src, __global out_t *dst,
                            const int in_w, const int out_w, const int out_h,
                            __constant const float *w, __constant const float *bias)
 {
@@ -43,7 +50,7 @@ __kernel void phase_filter(__global const RAW_T *src, __global float *dst,
                 #pragma unroll
                 for (int c = 0; c < NOUT; ++c) {
                     const int index = INTERLEAVED ? (y * out_w + x) * NOUT + c : c * plane + y * out_w + x;
-                    dst[index] = ENCODE_SRGB ? encode_srgb(o[c]) : o[c];
+                    dst[index] = STORE(o[c]);
                 }
             }
         }

@@ -30,6 +30,12 @@ class Stage(ABC):
     out_channels: ClassVar[int] = 3
 
     @property
+    def out_dtype(self) -> np.dtype:
+        """Element type of the stage's output: float32, or uint16 for a stage that ends in 16-bit
+        codes (ToneCurve(quantize=True))."""
+        return np.dtype(np.float32)
+
+    @property
     def halo(self) -> int:
         """Pixels of input needed on each side of an output pixel."""
         return 0

@@ -2,15 +2,16 @@
 
 ColourMatrix: white-balanced camera channels -> linear sRGB. WhiteBalance2: von Kries gains on
 linear sRGB (colour constancy, SPEC.md section 7), a diagonal matrix through the same kernel.
-ToneCurve: clip to [0, 1] and sRGB-encode, for integer outputs.
+ToneCurve: clip to [0, 1] and sRGB-encode (by table, kernels/srgb.h), optionally to 16-bit codes,
+for integer outputs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..colorimetry import SRGB_ENCODING, srgb_encode
+from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_table_source
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 
@@ -47,18 +48,40 @@ class WhiteBalance2(ColourMatrix):
         super().__init__(np.diag(np.asarray(gains, dtype=np.float64)))
 
 
+def srgb_source(rt: Runtime) -> str:
+    """Program text that defines ``encode_srgb`` and ``quantize16`` (the table, then kernels/srgb.h);
+    pass as ``generated`` to :meth:`Runtime.kernel`."""
+    return srgb_table_source() + "\n" + rt.header("srgb.h")
+
+
 @dataclass
 class ToneCurve(Stage):
-    """Linear sRGB -> sRGB-encoded in [0, 1] (clip, then IEC 61966-2-1); H x W x 3."""
+    """Linear sRGB -> sRGB-encoded in [0, 1] (clip, then IEC 61966-2-1); H x W x 3.
 
+    ``quantize``: output 16-bit codes (uint16, for TIFF/PNG) instead of float32, so the device
+    downloads half the bytes and the writer converts nothing. ``interleaved``: write H x W x 3
+    (the host layout; set by the pipeline when this is the last stage)."""
+
+    quantize: bool = False
+    interleaved: bool = False
     name = "tone_curve"
 
+    @property
+    def out_dtype(self) -> np.dtype:
+        return np.dtype(np.uint16 if self.quantize else np.float32)
+
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        return srgb_encode(x.astype(np.float64))
+        encoded = srgb_encode(x.astype(np.float64))
+        return quantize16(encoded) if self.quantize else encoded
+
+    def with_interleaved_output(self) -> "ToneCurve":
+        return replace(self, interleaved=True)
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
-        kernel = rt.kernel("colour", "srgb_encode", SRGB_ENCODING)
-        dst = rt.acquire(3, src.height, src.width)
-        rt.launch(kernel, src.width, 3 * src.height, src.buffer, dst.buffer,
-                  np.int32(src.width), np.int32(3 * src.height))
+        defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
+        kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
+        dst = rt.acquire(3, src.height, src.width, self.out_dtype)
+        rt.launch(kernel, src.width, src.height, src.buffer, dst.buffer,
+                  np.int32(src.width), np.int32(src.height))
+        dst.interleaved = self.interleaved
         return dst

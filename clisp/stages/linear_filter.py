@@ -13,10 +13,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..cfa import CFA
-from ..colorimetry import SRGB_ENCODING, srgb_encode
+from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .colour import ColourMatrix, ToneCurve
+from .colour import ColourMatrix, ToneCurve, srgb_source
 
 
 def tap_offsets(radius: int) -> np.ndarray:
@@ -35,13 +35,15 @@ def tap_channels(cfa: CFA, radius: int) -> np.ndarray:
 
 @dataclass
 class LinearPhaseFilter(Stage):
-    """H x W mosaic -> H x W x n_out; weights (P*P, n_out, T), bias (P*P, n_out); optional sRGB encode."""
+    """H x W mosaic -> H x W x n_out; weights (P*P, n_out, T), bias (P*P, n_out); optional sRGB encode
+    (``encode``), to 16-bit codes (``quantize``)."""
 
     cfa: CFA
     radius: int
     weights: np.ndarray
     bias: np.ndarray
     encode: bool = False
+    quantize: bool = False
     interleaved: bool = False
     support: np.ndarray | None = None
     name = "phase_filter"
@@ -51,6 +53,10 @@ class LinearPhaseFilter(Stage):
     def __post_init__(self) -> None:
         if self.support is None:
             self.support = self.weights != 0
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        return np.dtype(np.uint16 if self.quantize else np.float32)
 
     @property
     def halo(self) -> int:
@@ -68,7 +74,9 @@ class LinearPhaseFilter(Stage):
         x = x.astype(np.float64)
         for t, (dy, dx) in enumerate(tap_offsets(r)):
             out += self.weights[phase, :, t] * x[r + dy:r + dy + oh, r + dx:r + dx + ow, None]
-        return srgb_encode(out) if self.encode else out
+        if not self.encode:
+            return out
+        return quantize16(srgb_encode(out)) if self.quantize else srgb_encode(out)
 
     def generated_source(self) -> str:
         """OpenCL source of ``phase_apply(k, v, o, w, bias)``: one inline function per CFA phase
@@ -96,12 +104,13 @@ class LinearPhaseFilter(Stage):
         defines = {"CFA_PERIOD": p, "NOUT": self.weights.shape[1], "RADIUS": r,
                    "RAW_T": "ushort" if src.dtype == np.uint16 else "float",
                    "PHASE_Y": (origin[0] + r) % p, "PHASE_X": (origin[1] + r) % p,
-                   "ENCODE_SRGB": int(self.encode), "INTERLEAVED": int(self.interleaved), **SRGB_ENCODING}
+                   "ENCODE_SRGB": int(self.encode), "QUANTIZE": int(self.quantize),
+                   "INTERLEAVED": int(self.interleaved), **SRGB_ENCODING}
         if not hasattr(self, "_source"):
-            self._source = self.generated_source()
+            self._source = (srgb_source(rt) + "\n" if self.encode else "") + self.generated_source()
         kernel = rt.kernel("demosaic_linear", "phase_filter", defines, self._source)
         out_h, out_w = self.output_shape(src.height, src.width)
-        dst = rt.acquire(self.weights.shape[1], out_h, out_w)
+        dst = rt.acquire(self.weights.shape[1], out_h, out_w, self.out_dtype)
         rt.launch(kernel, -(-out_w // p), -(-out_h // p), src.buffer, dst.buffer,
                   np.int32(src.width), np.int32(out_w), np.int32(out_h),
                   rt.constant(as_f32(self.weights)), rt.constant(as_f32(self.bias)))
@@ -127,5 +136,5 @@ class LinearPhaseFilter(Stage):
             return replace(self, weights=np.einsum("ij,kjt->kit", m, self.weights),
                            bias=self.bias @ m.T, support=mixed)
         if isinstance(following, ToneCurve):
-            return replace(self, encode=True)
+            return replace(self, encode=True, quantize=following.quantize)
         return None
