@@ -28,7 +28,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from .cfa import CFA
 from .errors import ClispError
@@ -58,6 +57,7 @@ def _phase_residuals(plane: np.ndarray, clipped: np.ndarray) -> tuple[np.ndarray
     unclipped; texture = squared Sobel gradient magnitude."""
     if min(plane.shape) < 3:
         return np.empty(0), np.empty(0), np.empty(0)
+    from scipy import ndimage          # imported where used: scipy costs 0.15 s of start-up
     resid = ndimage.correlate(plane, IMMERKAER, mode="nearest")[1:-1, 1:-1]
     level = ndimage.uniform_filter(plane, 3, mode="nearest")[1:-1, 1:-1]
     texture = (ndimage.correlate(plane, SOBEL, mode="nearest") ** 2
