@@ -19,7 +19,7 @@ __kernel void apply_matrix3(__global const float *src, __global float *dst,
 /* srgb_encode: clip to [0, 1] and sRGB-encode (encode_srgb, kernels/srgb.h, prepended by the host)
  * the 3 planes of a linear image. Halo 0. QUANTIZE (define): 1 writes 16-bit codes (ushort),
  * 0 float. INTERLEAVED (define): 1 writes H x W x 3 (the host layout), 0 three planes. */
-#ifdef SRGB_LUT_SHIFT
+#ifdef SRGB_M0
 #if QUANTIZE
 typedef ushort out_t;
 #define STORE(v) quantize16(v)

@@ -32,7 +32,9 @@ __kernel void phase_filter(__global const RAW_T *src, __global out_t *dst,
 {
     const int bx = get_global_id(0) * CFA_PERIOD;
     const int by = get_global_id(1) * CFA_PERIOD;
+#if !EXACT
     if (bx >= out_w || by >= out_h) return;
+#endif
     const int plane = out_w * out_h;
     #pragma unroll
     for (int i = 0; i < CFA_PERIOD; ++i) {
@@ -40,7 +42,10 @@ __kernel void phase_filter(__global const RAW_T *src, __global out_t *dst,
         for (int j = 0; j < CFA_PERIOD; ++j) {
             const int y = by + i;
             const int x = bx + j;
-            if (y < out_h && x < out_w) {
+#if !EXACT
+            if (y < out_h && x < out_w)
+#endif
+            {
                 float v[TAPS];
                 float o[NOUT];
                 #pragma unroll

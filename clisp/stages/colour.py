@@ -2,7 +2,7 @@
 
 ColourMatrix: white-balanced camera channels -> linear sRGB. WhiteBalance2: von Kries gains on
 linear sRGB (colour constancy, SPEC.md section 7), a diagonal matrix through the same kernel.
-ToneCurve: clip to [0, 1] and sRGB-encode (by table, kernels/srgb.h), optionally to 16-bit codes,
+ToneCurve: clip to [0, 1] and sRGB-encode (by polynomial, kernels/srgb.h), optionally to 16-bit codes,
 for integer outputs.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_table_source
+from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 
@@ -49,9 +49,10 @@ class WhiteBalance2(ColourMatrix):
 
 
 def srgb_source(rt: Runtime) -> str:
-    """Program text that defines ``encode_srgb`` and ``quantize16`` (the table, then kernels/srgb.h);
-    pass as ``generated`` to :meth:`Runtime.kernel`."""
-    return srgb_table_source() + "\n" + rt.header("srgb.h")
+    """Program text that defines ``encode_srgb`` and ``quantize16`` (the polynomial's constants, then
+    kernels/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`."""
+    constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
+    return "\n".join(constants + [rt.header("srgb.h")])
 
 
 @dataclass
