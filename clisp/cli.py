@@ -66,8 +66,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compression", default=None, metavar="NAME",
                    help="EXR/TIFF compression: none (default, fastest), zip, piz, dwaa, lzw, ...")
     p.add_argument("--mem", type=memory_size, default=DEFAULT_BUDGET, metavar="SIZE",
-                   help="memory budget for the tiles in flight, e.g. 512M or 2G (default 1G); "
-                        "the image is streamed from the raw file to the output in tiles")
+                   help="peak memory (resident set) of the whole process, e.g. 512M or 2G (default 1G): "
+                        "the image is streamed from the raw file to the output in tiles as large as "
+                        "fit; below the minimum for the raw and preset, an error says what it is")
     p.add_argument("--no-denoise", action="store_true", help="no chroma denoising (plain colour matrix)")
     p.add_argument("--denoise-scale", type=float, default=1.0, metavar="K",
                    help="multiply the noise levels the chroma denoiser assumes (default 1: the raw's noise "

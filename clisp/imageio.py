@@ -192,15 +192,13 @@ class ImageWriter:
             self._write_rows(rows)
 
     def _write_rows(self, rows: np.ndarray) -> None:
-        if rows.dtype == np.uint16 and self.kind == "srgb":      # 16-bit codes: written as they are
-            if not self._out.write_scanlines(self.next_row, self.next_row + rows.shape[0], 0,
-                                             np.ascontiguousarray(rows)):
-                raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
-            self.next_row += rows.shape[0]
-            return
+        codes = rows.dtype == np.uint16 and self.kind == "srgb"     # 16-bit codes: written as they are
         for start in range(0, rows.shape[0], WRITE_ROWS):
-            pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
-            if self.kind == "srgb":
+            if codes:
+                pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS])
+            else:
+                pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
+            if self.kind == "srgb" and not codes:
                 pixels = np.clip(pixels, 0.0, 1.0)
             if not self._out.write_scanlines(self.next_row, self.next_row + pixels.shape[0], 0, pixels):
                 raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")

@@ -33,7 +33,7 @@ from .streaming import (ArraySink, BandSink, TileSink, WindowSource, progress_ba
                         window_source)
 from .noise_estimate import NoiseEstimateError
 from .white_balance2 import estimate_wb2
-from .tiling import DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
+from .tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
 DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "bilinear": DemosaicBilinear,
@@ -58,12 +58,24 @@ OUTPUTS = ("linear", "srgb", "srgb16")
 
 
 DEFAULT_BUDGET = 2**30
-"""Memory budget of the tile planner in bytes (``clisp process --mem``): host and device
-buffers of the tiles in flight, not the interpreter or the output array of the in-memory API."""
+"""Memory budget in bytes. ``clisp process --mem`` / :func:`process_file`: the peak resident set
+of the whole process (clisp.memory). :meth:`Pipeline.run` (the in-memory API): the host and device
+buffers of the tiles in flight, not the interpreter or the output array."""
 
 TILES_IN_FLIGHT = 3
 """Host copies of a tile's window and result alive at once: one being read or written, one
-being computed, one queued (see streaming.run_tiles)."""
+being computed, one queued (see streaming.run_tiles). For the per-pixel estimate (reference)."""
+
+READ_WINDOWS = 4
+"""Raw windows alive on the host at once (Pipeline.tile_cost): one uploading, one read ahead, and
+the reader's block and gathered copy while it reads."""
+
+SINK_BANDS = 2
+"""Output band buffers of a streamed file (streaming.BandSink's rotation)."""
+
+WRITER_ROWS = 2 * 128
+"""Rows of float32 the writer converts at once (imageio.WRITE_ROWS), counted twice for the
+library's own copy."""
 
 
 @dataclass
@@ -125,14 +137,58 @@ class Pipeline:
                          largest_bytes=max(stage_bytes + [raw_bytes, out_bytes]))
 
     def plan(self, shape: tuple[int, int], raw_dtype: Any, tile: int | None = None,
-             budget: int = DEFAULT_BUDGET, backend: str = "opencl") -> TilePlan:
-        """Tiles for an H x W raw: ``tile`` None = from ``budget`` and the device's limits,
-        0 = the whole image, N = N x N (see tiling.make_plan)."""
+             budget: int = DEFAULT_BUDGET, backend: str = "opencl", sink_bands: bool = False) -> TilePlan:
+        """Tiles for an H x W raw: ``tile`` None = from ``budget`` (bytes for the tiles in flight)
+        and the device's limits, 0 = the whole image, N = N x N (see tiling.make_plan).
+
+        On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
+        count the band buffers and writer rows of a streamed output file (process_file)."""
         limits = DeviceLimits()
+        needs = self.needs(raw_dtype)
         if backend == "opencl":
             device = get_runtime().device
             limits = DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
-        return make_plan(shape[0], shape[1], self.needs(raw_dtype), tile, budget, limits)
+            needs = replace(needs, cost=self.tile_cost(raw_dtype, shape[1], limits, sink_bands))
+        return make_plan(shape[0], shape[1], needs, tile, budget, limits)
+
+    def tile_cost(self, raw_dtype: Any, image_width: int, limits: DeviceLimits,
+                  sink_bands: bool) -> Callable[[int, int], float]:
+        """Bytes one tile of (rows, columns) output pixels takes while it runs, as a function:
+        its device buffers, measured by enqueueing the tile's schedule in a metering run (exact,
+        whatever the stages allocate), counted as host memory when the device shares it (a CPU
+        device: PoCL's buffers are resident pages of this process); READ_WINDOWS raw windows; with
+        ``sink_bands`` SINK_BANDS output bands of the image's width and the writer's converted rows.
+        inf past DEVICE_SHARE of the device's memory or its largest allocation."""
+        rt = get_runtime()
+        schedule = self.schedule()
+        shared = bool(rt.device.host_unified_memory) or bool(rt.device.type & rt.cl.device_type.CPU)
+        raw_item = np.dtype(raw_dtype).itemsize
+        out_px = self.out_channels * self.out_dtype.itemsize
+        halo = self.halo
+        metered: dict[tuple[int, int], tuple[int, int]] = {}
+
+        def cost(rows: int, cols: int) -> float:
+            window = (rows + 2 * halo, cols + 2 * halo)
+            if window not in metered:
+                metered[window] = self.metered_tile(schedule, window, raw_dtype)
+            created, largest = metered[window]
+            if (limits.global_mem and created > DEVICE_SHARE * limits.global_mem) or \
+                    (limits.max_alloc and largest > limits.max_alloc):
+                return math.inf
+            host = READ_WINDOWS * window[0] * window[1] * raw_item
+            if sink_bands:
+                host += SINK_BANDS * rows * image_width * out_px + WRITER_ROWS * image_width * self.out_channels * 4
+            return host + (created if shared else 0)
+        return cost
+
+    def metered_tile(self, schedule: list[Stage], window: tuple[int, int], raw_dtype: Any) -> tuple[int, int]:
+        """(bytes of all device buffers, bytes of the largest) that one tile of input ``window``
+        (rows, columns) creates, from a metering run of :meth:`_enqueue_tile` (nothing runs)."""
+        rt = get_runtime()
+        with rt.metering() as meter:
+            src = rt.acquire(1, window[0], window[1], raw_dtype)
+            rt.release(self._enqueue_tile(rt, schedule, src, (0, 0)))
+        return meter.created, meter.largest
 
     def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
             fuse: bool = True, budget: int = DEFAULT_BUDGET) -> np.ndarray:
@@ -159,6 +215,8 @@ class Pipeline:
         :attr:`stats`."""
         self._check(source.shape, backend)
         halo, (win_h, win_w) = plan.halo, plan.window_shape
+        if backend == "opencl":
+            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
         if backend == "opencl":                      # halo passed on: stages recompute it per call
             compute = partial(self._compute_opencl, self.schedule(fuse), halo)
         else:
@@ -207,6 +265,20 @@ class Pipeline:
             schedule[-1] = last
         return schedule
 
+    @staticmethod
+    def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int]) -> Any:
+        """Enqueue every stage of ``schedule`` on the uploaded window ``src`` (released on the
+        way); returns the interleaved result."""
+        for stage in schedule:
+            stage_label(stage.name)
+            dst = stage.enqueue(rt, src, origin)
+            rt.release(src)
+            src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
+        if not src.interleaved:
+            planar, src = src, rt.interleave(src)
+            rt.release(planar)
+        return src
+
     def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray,
                         target: tuple[np.ndarray, int, int]) -> Any:
         """Enqueue one window's upload, every stage and the download of the kept pixels into
@@ -215,16 +287,8 @@ class Pipeline:
         if window.dtype not in (np.uint16, np.float32):
             window = window.astype(np.float32)
         stage_label("upload")
-        src, origin = rt.upload(window), (t.y0 - halo, t.x0 - halo)
-        for stage in schedule:
-            stage_label(stage.name)
-            dst = stage.enqueue(rt, src, origin)
-            rt.release(src)
-            src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
+        src = self._enqueue_tile(rt, schedule, rt.upload(window), (t.y0 - halo, t.x0 - halo))
         stage_label("download")
-        if not src.interleaved:
-            planar, src = src, rt.interleave(src)
-            rt.release(planar)
         host, y, x = target
         event = rt.download_region(src, host, y, x, t.h, t.w)
         rt.release(src)                               # the in-order queue copies before reuse
@@ -346,8 +410,10 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
-    written band by band (imageio.ImageWriter), so memory stays within ``budget`` plus fixed
-    overheads whatever the image size. Raws with a camera rotation are oriented in memory.
+    written band by band (imageio.ImageWriter). ``budget`` bounds the peak resident memory of the
+    whole process (clisp.memory): what the process holds when planning, plus the tiles' counted
+    bytes, plus RSS_MARGIN; ClispError when even the smallest tile does not fit, naming the
+    minimum. Raws with a camera rotation are oriented in memory (the whole output counts).
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
     compression (default imageio.DEFAULT_COMPRESSION). ``options``: :func:`build_pipeline`'s
     (the output kind follows the extension). Atomic: on failure no file.
@@ -358,11 +424,14 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
     flip = int(raw.metadata.get("flip", 0) or 0)
+    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=bool(flip))
     if flip:                    # rotated output rows are input columns: orient the whole result
-        image = orient(pipeline.run(raw.data, tile=tile, backend=backend, budget=budget), flip)
-        write_image(path, image, compression=compression)
-        return image.shape[:2], pipeline.stats
-    plan = pipeline.plan(raw.shape, raw.data.dtype, tile, budget, backend)
+        image = np.empty(raw.shape + (pipeline.out_channels,), dtype=pipeline.out_dtype)
+        with closing(window_source(raw.data)) as source:
+            pipeline.stream(source, ArraySink(image), plan, backend)
+        oriented = orient(image, flip)
+        write_image(path, oriented, compression=compression)
+        return oriented.shape[:2], pipeline.stats
     (height, width), channels = raw.shape, pipeline.out_channels
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
@@ -370,3 +439,31 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
             BandSink(writer.write_rows, plan, width, channels, pipeline.out_dtype) as sink, bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
     return raw.shape, replace(stats, seconds=time.perf_counter() - start)    # the last write included
+
+
+def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, tile: int | None, budget: int,
+                        backend: str, in_memory: bool) -> TilePlan:
+    """The plan of :func:`process_file` for a whole-process ``budget`` (see clisp.memory): the
+    tiles get what the process does not already hold. ``in_memory``: the whole output is held
+    (oriented raws) and counts too. ClispError naming the minimum when nothing fits."""
+    from .memory import RSS_MARGIN, format_bytes, resident_bytes
+    shape, dtype = raw.shape, raw.data.dtype
+    if backend != "opencl":
+        return pipeline.plan(shape, dtype, tile, budget, backend)
+    rt = get_runtime()
+    limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
+    cost = pipeline.tile_cost(dtype, shape[1], limits, sink_bands=not in_memory)
+    smallest = cost(min(shape[0], MIN_TILE), min(shape[1], MIN_TILE))   # also builds the programs
+    held = resident_bytes() + RSS_MARGIN
+    if in_memory:
+        held += shape[0] * shape[1] * pipeline.out_channels * pipeline.out_dtype.itemsize
+    if budget - held < smallest:
+        raise ClispError(f"{path}: --mem {format_bytes(budget)} is below the minimum of "
+                         f"{format_bytes(held + smallest)} for this {shape[1]}x{shape[0]} raw and these "
+                         f"settings ({format_bytes(held)} for the process itself, "
+                         f"{format_bytes(smallest)} for the smallest tile)")
+    needs = replace(pipeline.needs(dtype), cost=cost)
+    try:
+        return make_plan(shape[0], shape[1], needs, tile, budget - held, limits)
+    except ClispError as exc:
+        raise ClispError(f"{path}: {exc}") from exc

@@ -10,12 +10,14 @@ Device choice (``CLISP_DEVICE``):
 """
 from __future__ import annotations
 
+import bisect
 import os
 import warnings
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -114,6 +116,7 @@ class DeviceImage:
     width: int
     dtype: np.dtype
     interleaved: bool = False
+    capacity: int = 0           # bytes of ``buffer`` (at least nbytes: pooled buffers are reused larger)
 
     @property
     def nbytes(self) -> int:
@@ -133,8 +136,9 @@ class Runtime:
         self.queue = cl.CommandQueue(self.context, properties=props)
         self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
-        self._free: dict[int, list[Any]] = defaultdict(list)
+        self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
+        self._meter: BufferPool | None = None
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -191,20 +195,50 @@ class Runtime:
         key = (name, flags + (generated,), kernel_name)
         if key not in self._kernels:
             kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
-            self._kernels[key] = _ProfiledKernel(kernel, kernel_name) if self.profiling else kernel
+            if self._meter is not None:
+                kernel = _skipped_launch
+            elif self.profiling:
+                kernel = _ProfiledKernel(kernel, kernel_name)
+            self._kernels[key] = kernel
         return self._kernels[key]
 
     # -- buffers --------------------------------------------------------------------------
     def acquire(self, channels: int, height: int, width: int, dtype: Any = np.float32) -> DeviceImage:
-        """A device image from the pool (reused when a buffer of the same size was released)."""
+        """A device image from the pool: the smallest released buffer that is large enough, else
+        a new one (see BufferPool)."""
         nbytes = max(1, channels * height * width * np.dtype(dtype).itemsize)
-        pool = self._free[nbytes]
-        buf = pool.pop() if pool else self.cl.Buffer(self.context, self.cl.mem_flags.READ_WRITE, nbytes)
-        return DeviceImage(buf, channels, height, width, np.dtype(dtype))
+        pool = self._meter if self._meter is not None else self.pool
+        buf, capacity = pool.acquire(nbytes)
+        return DeviceImage(buf, channels, height, width, np.dtype(dtype), capacity=capacity)
 
     def release(self, image: DeviceImage) -> None:
         """Return a device image's buffer to the pool."""
-        self._free[max(1, image.nbytes)].append(image.buffer)
+        pool = self._meter if self._meter is not None else self.pool
+        pool.release(image.buffer, image.capacity)
+
+    def trim_pool(self) -> None:
+        """Free every pooled buffer not in use (before a run whose tiles have other sizes, so that
+        the pool holds what this run needs and no more). Only when no queued work uses them."""
+        self.queue.finish()
+        self.pool.trim()
+
+    @contextmanager
+    def metering(self) -> Iterator["BufferPool"]:
+        """Within the block nothing is allocated or run: acquire/release act on a simulated pool
+        (empty at the start, same policy as the real one) and every kernel launch is skipped. A
+        pipeline's tile enqueued here measures exactly the device buffers that tile would create
+        from an empty pool (.created, .largest); programs are built as usual, so a metered run
+        also compiles what the real one needs."""
+        if self._meter is not None:
+            raise RuntimeError("metering runs do not nest")
+        self._meter = BufferPool(lambda n: object())
+        saved = self._kernels
+        self._kernels = {}
+        try:
+            yield self._meter
+        finally:
+            self._meter = None
+            self._kernels = saved
 
     def constant(self, values: np.ndarray) -> Any:
         """A small read-only device buffer holding ``values`` (CFA patterns, per-channel constants),
@@ -272,6 +306,52 @@ class Runtime:
         lx, ly = LOCAL_SIZE
         gsize = ((width + lx - 1) // lx * lx, (height + ly - 1) // ly * ly)
         kernel(self.queue, gsize, LOCAL_SIZE, *args)
+
+
+class BufferPool:
+    """Device buffers kept for reuse. ``acquire(n)`` hands out the smallest free buffer of at
+    least n bytes, else creates one of exactly n bytes. Windows shrink by each stage's halo, so
+    buffers released by early stages serve later ones: on a 24 MP LMS raw (quality preset) the
+    pool created 363 bytes per window pixel when it reused only equal sizes, 85 with best fit
+    (the peak of buffers in use at once is 44; Bayer quality: 100, 68 and 41). ``created``: bytes of all buffers alive;
+    ``largest``: the largest one."""
+
+    def __init__(self, create: Any) -> None:
+        self._create = create
+        self._sizes: list[int] = []          # free buffers, sorted by size
+        self._buffers: list[Any] = []
+        self.created = 0
+        self.largest = 0
+
+    def acquire(self, nbytes: int) -> tuple[Any, int]:
+        """(buffer, its size in bytes) of at least ``nbytes``."""
+        i = bisect.bisect_left(self._sizes, nbytes)
+        if i < len(self._sizes):
+            return self._buffers.pop(i), self._sizes.pop(i)
+        buffer = self._create(nbytes)
+        self.created += nbytes
+        self.largest = max(self.largest, nbytes)
+        return buffer, nbytes
+
+    def release(self, buffer: Any, size: int) -> None:
+        """Return ``buffer`` (of ``size`` bytes) for reuse."""
+        i = bisect.bisect_left(self._sizes, size)
+        self._sizes.insert(i, size)
+        self._buffers.insert(i, buffer)
+
+    def trim(self) -> None:
+        """Free every buffer not in use."""
+        for buffer, size in zip(self._buffers, self._sizes):
+            self.created -= size
+            release = getattr(buffer, "release", None)
+            if release is not None:
+                release()
+        self._sizes, self._buffers = [], []
+
+
+def _skipped_launch(*args: Any, **kwargs: Any) -> None:
+    """A kernel launch during a metering run: nothing happens."""
+    return None
 
 
 def _record(what: str, event: Any) -> Any:

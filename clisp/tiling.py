@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -57,6 +58,9 @@ class TileNeeds:
     device_bytes   device memory per window pixel: input plus every stage's buffers, B/px
     host_bytes     host memory per window pixel for the tiles in flight (read, run, write), B/px
     largest_bytes  bytes per pixel of the largest single device buffer, B/px
+    cost           optional exact count: bytes that tiles of (rows, columns) output pixels take
+                   (device buffers, host buffers in flight; inf past a device limit). When set,
+                   the planner uses it instead of the per-pixel figures (Pipeline.tile_cost).
     """
 
     halo: int
@@ -64,6 +68,7 @@ class TileNeeds:
     device_bytes: float
     host_bytes: float
     largest_bytes: float
+    cost: Callable[[int, int], float] | None = None
 
 
 @dataclass(frozen=True)
@@ -113,7 +118,9 @@ def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None
     (:func:`auto_tile_shape`); 0 processes the whole image as one tile; N gives N x N tiles
     (rounded down to ``needs.align``).
     """
-    if tile is None:
+    if tile is None and needs.cost is not None:
+        step_h, step_w = costed_tile_shape(height, width, needs, budget)
+    elif tile is None:
         step_h, step_w = auto_tile_shape(height, width, needs, budget, limits)
     elif tile == 0 or tile >= max(height, width):
         step_h, step_w = height, width
@@ -145,6 +152,42 @@ def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
         raise ClispError(f"memory budget of {budget / 2**20:.0f} MiB is too small: one "
                          f"{MIN_TILE}x{MIN_TILE} tile needs {need / 2**20:.1f} MiB ({per_px:.0f} B/px)")
     return even_split(height, side, align), even_split(width, side, align)
+
+
+def costed_tile_shape(height: int, width: int, needs: TileNeeds, budget: float) -> tuple[int, int]:
+    """Tile (rows, columns) as :func:`auto_tile_shape` chooses them, with ``needs.cost`` deciding
+    what fits ``budget``: the whole image if it fits the target size; else full-width bands of the
+    target height (at least MIN_BAND_ROWS), or the tallest that fit; else the largest squares.
+    Raises ClispError naming the smallest tile's bytes when not even a MIN_TILE square fits."""
+    cost, halo, align = needs.cost, needs.halo, needs.align
+    assert cost is not None
+    target = max(TARGET_TILE_PIXELS, halo_target_pixels(width, halo))
+    if (height + 2 * halo) * (width + 2 * halo) <= target and cost(height, width) <= budget:
+        return height, width
+    want = max(target // (width + 2 * halo) - 2 * halo, MIN_BAND_ROWS)
+    rows = largest_fitting(lambda r: cost(r, width) <= budget, min(want, height))
+    if rows >= MIN_TILE:
+        return even_split(height, rows, align), width
+    side = largest_fitting(lambda s: cost(s, s) <= budget, min(height, width))
+    if side < MIN_TILE:
+        need = cost(MIN_TILE, MIN_TILE)
+        raise ClispError(f"memory budget of {budget / 2**20:.0f} MiB for tiles is too small: one "
+                         f"{MIN_TILE}x{MIN_TILE} tile needs {need / 2**20:.1f} MiB")
+    return even_split(height, side, align), even_split(width, side, align)
+
+
+def largest_fitting(fits: Callable[[int], bool], most: int) -> int:
+    """The largest n in [1, most] with fits(n), for fits monotone (true up to some n); 0 if none."""
+    if most < 1 or not fits(1):
+        return 0
+    lo, hi = 1, most
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if fits(mid):
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
 
 
 HALO_ROWS_FACTOR = 8

@@ -21,7 +21,10 @@ from clisp.cli import image_size, main, memory_size
 from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.errors import ClispError
 from clisp.imageio import ImageWriter, read_image
+import clisp.memory
+from clisp.memory import RSS_MARGIN
 from clisp.pipeline import PRESETS, Pipeline, build_pipeline, process_file
+from clisp.runtime import get_runtime
 from clisp.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.rawimage import RawImage
 from clisp.simulate import mirror_repeat_index, simulate, simulate_large
@@ -92,13 +95,48 @@ def test_streamed_files_equal_in_memory(tmp_path: Path, kind: str) -> None:
     assert isinstance(lazy.data, np.memmap)
     linear, encoded = clisp.process(raw), clisp.process(raw, output="srgb")
     for tile in (None, 64, 256):
-        process_file(lazy, tmp_path / "o.exr", tile=tile, budget=2**20 * 64)   # several tiles
+        _, stats = process_file(lazy, tmp_path / "o.exr", tile=tile)
+        assert stats.tiles > 1 or tile is None
         image, is_float = read_image(tmp_path / "o.exr")
         assert is_float
         assert_close(image, linear, f"EXR, tile {tile}")
     process_file(lazy, tmp_path / "o.png", tile=64)
     png, _ = read_image(tmp_path / "o.png")
     assert np.abs(png - encoded).max() <= 1.0 / 65535 + 1e-6
+
+
+@pytest.mark.parametrize("preset", ["fast", "quality"])
+def test_whole_process_budget_plans_counted_bytes(tmp_path: Path, preset: str,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """process_file's budget is the whole process: what it holds when planning, RSS_MARGIN and
+    the tiles' counted bytes (device buffers by a metering run, host windows, output bands) fit
+    it; below the minimum the error names the file and the minimum."""
+    raw = make_raw("lms", shape=(301, 517), dtype=np.float32)
+    pipeline = build_pipeline(raw, preset=preset)
+    rt = get_runtime()
+    limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
+    cost = pipeline.tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
+    assert cost(64, 517) > cost(32, 517) > cost(16, 16) > 0
+    monkeypatch.setattr(clisp.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
+    budget = 100 * 2**20 + RSS_MARGIN + 6 * 2**20
+    _, stats = process_file(raw, tmp_path / "o.exr", budget=budget, preset=preset)
+    rows, cols = stats.tile_shape
+    assert cost(rows, cols) <= 6 * 2**20 and stats.tiles > 1
+    with pytest.raises(ClispError, match=r"o2.exr: --mem 64M is below the minimum of \d+"):
+        process_file(raw, tmp_path / "o2.exr", budget=64 * 2**20, preset=preset)
+    assert not (tmp_path / "o2.exr").exists()
+
+
+def test_metering_run_counts_what_the_tile_creates() -> None:
+    """A metering run creates nothing and predicts the pool of a real tile exactly."""
+    raw = make_raw("lms", shape=(301, 517))
+    pipeline = build_pipeline(raw, preset="quality")
+    rt = get_runtime()
+    created, largest = pipeline.metered_tile(pipeline.schedule(), (301, 517), raw.data.dtype)
+    pipeline.run(raw.data, tile=0)             # one tile: window = image + halo
+    window = (301 + 2 * pipeline.halo, 517 + 2 * pipeline.halo)
+    assert pipeline.metered_tile(pipeline.schedule(), window, raw.data.dtype)[0] == rt.pool.created
+    assert 0 < largest <= created
 
 
 def test_rotated_camera_raw_to_file(tmp_path: Path) -> None:
@@ -109,15 +147,18 @@ def test_rotated_camera_raw_to_file(tmp_path: Path) -> None:
     assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw), "rotated")
 
 
-def test_cli_streams_silently(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_streams_silently(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                              monkeypatch: pytest.MonkeyPatch) -> None:
     raw = make_raw("lms", shape=(300, 400))
     write_raw(tmp_path / "r.dng", raw)
-    code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", "8M",
+    monkeypatch.setattr(clisp.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
+    assert RSS_MARGIN <= 96 * 2**20                      # so 4 MiB are left for tiles: several bands
+    code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", "200M",
                  "--preset", "fast"])
     out, err = capsys.readouterr()
     assert code == 0 and err == "", err                   # no progress bar when stderr is no terminal
     assert "tiles of 400x" in out and " 1 tiles" not in out
-    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw, preset="fast"), "CLI --mem 8M")
+    assert_close(read_image(tmp_path / "o.exr")[0], clisp.process(raw, preset="fast"), "CLI --mem 200M")
 
 
 # ------------------------------------------------------------------------------------------
