@@ -49,3 +49,43 @@ def test_reproduce_paper_markdown():
     result = dict(rows=rows, scenes=["x"], speed_scene="x", speed_shape=(8, 8), repeat=1, device="cpu")
     text = "\n".join(rp.md_bench(result, "bench.csv", "bench.png"))
     assert "30.00 * +" in text and "bench.png" in text
+
+
+def _bench_peers_small(tmp_path, data, capsys) -> tuple[list[dict[str, str]], str]:
+    """tools/bench_peers.py on 256 x 192, one run, clisp fast and rawpy only: (CSV rows, stdout)."""
+    import bench_peers
+
+    out = tmp_path / "peers.csv"
+    code = bench_peers.main(["--size", "256x192", "--repeat", "1", "--only", "^clisp fast bayer|^rawpy",
+                             "--data", str(data), "--work", str(tmp_path / "work"), "--csv", str(out),
+                             "--results", str(tmp_path / "RESULTS.md"), "--quiet"])
+    assert code == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["tool"], r["preset"], r["output_format"]) for r in rows] == [
+        ("clisp", "fast", "tif"), ("clisp", "fast", "exr"),
+        ("rawpy", "LINEAR", "tif"), ("rawpy", "AHD", "tif"), ("rawpy", "DHT", "tif")]
+    for r in rows:
+        assert r["status"] == "ok" and r["runs"] == "1"
+        assert 0 < float(r["median_s"]) < float("inf") and 0 < float(r["peak_rss_mib"]) < float("inf")
+    assert 0 < float(rows[0]["vs rawpy LINEAR"]) < float("inf")
+    section = (tmp_path / "RESULTS.md").read_text()
+    assert section.count(bench_peers.MARK_START) == 1 and "rawpy LINEAR bayer→tif" in section
+    return rows, capsys.readouterr().out
+
+
+def test_bench_peers_simulated_bayer(tmp_path, capsys):
+    """Without camera data (a user's clone): the Bayer input is a simulated raw of the demo chart."""
+    _, text = _bench_peers_small(tmp_path, tmp_path / "no-data", capsys)
+    assert "Input bayer: simulated Bayer raw" in text and "demo_chart.png" in text
+
+
+def test_bench_peers_camera_bayer(tmp_path, capsys):
+    """With ../shared/data: the Bayer input is the Canon D30's mosaic, tiled."""
+    import bench_peers
+    import pytest
+
+    if not (bench_peers.DEFAULT_DATA / bench_peers.CAMERA_RAW).is_file():
+        pytest.skip("no camera raw in ../shared/data")
+    _, text = _bench_peers_small(tmp_path, bench_peers.DEFAULT_DATA, capsys)
+    assert "RAW_CANON_D30_SRGB.CRW's CFA mosaic tiled" in text
