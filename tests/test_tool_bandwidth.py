@@ -1,0 +1,22 @@
+"""Smoke test of tools/bench_bandwidth.py on a small simulated mosaic (no ../shared data)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+
+import bench_bandwidth  # noqa: E402  (tools/ is not a package)
+
+
+def test_bandwidth_figures_are_finite() -> None:
+    from clisp.runtime import get_runtime
+    rt = get_runtime()
+    assert bench_bandwidth.copy_bandwidth(rt, nbytes=4 * 2**20, repeat=1) > 0
+    raw = bench_bandwidth.test_raw((320, 240), None)
+    assert raw.shape == (240, 320) and raw.cfa.kind == "bayer"
+    for output in ("linear", "srgb16"):
+        seconds, rate, plan = bench_bandwidth.pipeline_bandwidth(raw, output, repeat=1)
+        assert np.isfinite(seconds) and seconds > 0 and rate > 0 and "tiles of" in plan

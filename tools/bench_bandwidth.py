@@ -1,0 +1,115 @@
+"""How close the per-pixel path comes to this machine's streaming bandwidth (issue 11).
+
+The ``fast`` preset is one fused per-pixel kernel (normalise, WB, bilinear demosaic, colour
+matrix, tone curve): its speed limit is moving bytes. This tool measures, in one process:
+
+* the streaming bandwidth through the OpenCL device: a copy kernel over 256 MiB (bytes read +
+  bytes written per second), and NumPy's single-threaded copy for reference;
+* the ``fast`` pipeline on a 24 MP mosaic in memory, processing only (no file read or write):
+  the tile loop of ``clisp process`` (reader thread, upload, kernel, download into the band
+  buffers, a writer that does nothing), for linear float output (EXR) and 16-bit codes (TIFF).
+  Bytes counted: raw in, its upload, the download and RGB out (every host-device copy counted,
+  as the issue asks), per second of wall time; best of ``--repeat`` runs after a warm-up.
+
+Usage::
+
+    python tools/bench_bandwidth.py [--size 6000x4000] [--repeat 5] [--raw RAW.dng]
+
+Without ``--raw`` the mosaic is a simulated Bayer raw of the built-in chart, repeated.
+"""
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import numpy as np
+
+
+def copy_bandwidth(rt, nbytes: int = 256 * 2**20, repeat: int = 5) -> float:
+    """Bytes read + written per second by a float copy kernel on the device."""
+    cl = rt.cl
+    n = nbytes // 4
+    a = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, n * 4)
+    b = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, n * 4)
+    kernel = cl.Kernel(cl.Program(rt.context, "__kernel void copy(__global const float *a, __global float *b)"
+                                              "{ const int i = get_global_id(0); b[i] = a[i]; }").build(), "copy")
+    kernel(rt.queue, (n,), (64,), a, b)
+    rt.queue.finish()
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        kernel(rt.queue, (n,), (64,), a, b)
+        rt.queue.finish()
+        best = min(best, time.perf_counter() - start)
+    return 2 * n * 4 / best
+
+
+def numpy_bandwidth(nbytes: int = 256 * 2**20, repeat: int = 5) -> float:
+    """Bytes read + written per second by np.copyto on one thread."""
+    src, dst = np.ones(nbytes // 4, np.float32), np.zeros(nbytes // 4, np.float32)
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        np.copyto(dst, src)
+        best = min(best, time.perf_counter() - start)
+    return 2 * nbytes / best
+
+
+def test_raw(size: tuple[int, int], path: str | None):
+    """A Bayer RawImage of ``size`` (W, H): the file's mosaic tiled, or the chart simulated."""
+    from dataclasses import replace
+    import clisp
+    from clisp.charts import demo_chart
+    from clisp.rawfile import read_raw
+    if path:
+        raw = read_raw(path)
+    else:
+        raw = clisp.simulate(demo_chart().image, cfa="bayer", gain=1, seed=0).raw
+    h, w = (s - s % 2 for s in raw.shape)
+    reps = (-(-size[1] // h), -(-size[0] // w))
+    data = np.ascontiguousarray(np.tile(raw.data[:h, :w], reps)[:size[1], :size[0]])
+    return replace(raw, data=data, metadata={})
+
+
+def pipeline_bandwidth(raw, output: str, repeat: int) -> tuple[float, float, str]:
+    """(seconds, bytes per second, plan) of the fast pipeline's tile loop, best of ``repeat``."""
+    from clisp.pipeline import build_pipeline
+    from clisp.streaming import ArrayWindows, BandSink
+    pipeline = build_pipeline(raw, preset="fast", output=output)
+    height, width = raw.shape
+    plan = pipeline.plan(raw.shape, raw.data.dtype, sink_bands=True)
+    out_bytes = height * width * pipeline.out_channels * pipeline.out_dtype.itemsize
+    moved = 2 * (raw.data.nbytes + out_bytes)                # raw in + upload, download + RGB out
+    with BandSink(lambda y, rows: None, plan, width, pipeline.out_channels, pipeline.out_dtype) as sink:
+        best = np.inf
+        for _ in range(repeat + 1):                          # the first is a warm-up
+            start = time.perf_counter()
+            pipeline.stream(ArrayWindows(raw.data), sink, plan)
+            best = min(best, time.perf_counter() - start)
+    return best, moved / best, f"{len(plan.tiles)} tiles of {plan.tile_w}x{plan.tile_h}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", default="6000x4000", help="mosaic W x H (default 6000x4000)")
+    parser.add_argument("--repeat", type=int, default=5, help="timed runs, best taken (default 5)")
+    parser.add_argument("--raw", default=None, help="a Bayer raw whose mosaic is tiled (default: simulated chart)")
+    args = parser.parse_args()
+    from clisp.runtime import get_runtime
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+    rt = get_runtime()
+    print(f"machine: {platform.processor() or platform.machine()}, device: {rt.describe()}")
+    device_bw, host_bw = copy_bandwidth(rt), numpy_bandwidth()
+    print(f"streaming bandwidth: device copy kernel {device_bw / 1e9:.1f} GB/s, NumPy copy (1 thread) "
+          f"{host_bw / 1e9:.1f} GB/s")
+    raw = test_raw(size, args.raw)
+    mp = raw.data.size / 1e6
+    for output, label in (("linear", "float RGB (EXR)"), ("srgb16", "16-bit codes (TIFF)")):
+        seconds, rate, plan = pipeline_bandwidth(raw, output, args.repeat)
+        print(f"fast -> {label}: {seconds * 1e3:.0f} ms for {mp:.1f} MP ({mp / seconds:.0f} MP/s), "
+              f"{rate / 1e9:.1f} GB/s = {rate / device_bw:.2f} x the device's streaming bandwidth ({plan})")
+
+
+if __name__ == "__main__":
+    main()
