@@ -19,7 +19,8 @@
  * vectorise and was 2.1x slower in total; helpers are always_inline because a helper left as a
  * call stops vectorisation (lmmse_fuse: 0.55 s -> 0.17 s). The steps are bandwidth-bound except
  * lmmse_fuse, which computes at G sites too (discarded): cheaper than a branch that would not
- * vectorise. */
+ * vectorise. Every kernel is launched over exactly its output (launch_exact) and has no bounds
+ * check, which would stop PoCL vectorising. */
 
 __constant char cfa_pattern[CFA_PERIOD * CFA_PERIOD] = CFA_PATTERN;
 __constant float interp_weights[2 * INTERP_RADIUS + 1] = INTERP_WEIGHTS;
@@ -38,7 +39,6 @@ __kernel void dlmmse_directional_differences(__global const RAW_T *raw, __global
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= out_w || y >= out_h) return;
     __global const RAW_T *centre = raw + (y + INTERP_RADIUS) * raw_w + x + INTERP_RADIUS;
     float f_h = 0.0f, f_v = 0.0f;
     #pragma unroll
@@ -60,7 +60,6 @@ __kernel void dlmmse_smooth(__global const float *diff, __global float *smoothed
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= out_w || y >= out_h) return;
     const int at = (y + SMOOTH_RADIUS) * in_w + x + SMOOTH_RADIUS;
     __global const float *d_h = diff + at;
     __global const float *d_v = diff + in_w * in_h + at;
@@ -114,7 +113,6 @@ __kernel void dlmmse_lmmse_fuse(__global const float *smoothed, __global const f
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= out_w || y >= out_h) return;
     const int s_at = (y + WINDOW_RADIUS) * s_w + x + WINDOW_RADIUS;
     const int d_at = (y + 2 * WINDOW_RADIUS) * d_w + x + 2 * WINDOW_RADIUS;
     const float2 h = lmmse_direction(smoothed + s_at, diff + d_at, 1, 1);            /* (u_H, e_H) */
@@ -153,7 +151,6 @@ __kernel void dlmmse_complete_rgb(__global const RAW_T *raw, __global const floa
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= out_w || y >= out_h) return;
     const int raw_offset = (raw_w - out_w) / 2;
     const float cfa = (float)raw[(y + raw_offset) * raw_w + x + raw_offset];
     const int w = delta_w, dy = y + FILL_RADIUS, dx = x + FILL_RADIUS;

@@ -47,6 +47,7 @@ from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 from .colour import ColourMatrix
 from .demosaic_malvar import check_bayer
+from .lms_common import launch_exact
 
 R, G, B = 0, 1, 2
 
@@ -246,19 +247,19 @@ class DemosaicDLMMSE(Stage):
 
         i32 = np.int32
         kernel, diff = step("directional_differences", src, 2)                # d_H, d_V
-        rt.launch(kernel, diff.width, diff.height,
+        launch_exact(rt, kernel, diff.width, diff.height,
                   src.buffer, diff.buffer, i32(src.width), i32(diff.width), i32(diff.height))
         kernel, smoothed = step("smooth", diff, 2)                             # s_H, s_V
-        rt.launch(kernel, smoothed.width, smoothed.height, diff.buffer, smoothed.buffer,
+        launch_exact(rt, kernel, smoothed.width, smoothed.height, diff.buffer, smoothed.buffer,
                   i32(diff.width), i32(diff.height), i32(smoothed.width), i32(smoothed.height))
         kernel, delta = step("lmmse_fuse", smoothed, 1)                        # G - X at R/B sites
-        rt.launch(kernel, delta.width, delta.height, smoothed.buffer, diff.buffer, delta.buffer,
+        launch_exact(rt, kernel, delta.width, delta.height, smoothed.buffer, diff.buffer, delta.buffer,
                   i32(smoothed.width), i32(smoothed.height), i32(diff.width), i32(diff.height),
                   i32(delta.width), i32(delta.height))
         rt.release(smoothed)
         rt.release(diff)
         kernel, rgb = step("complete_rgb", delta, 3)
-        rt.launch(kernel, rgb.width, rgb.height, src.buffer, delta.buffer, rgb.buffer,
+        launch_exact(rt, kernel, rgb.width, rgb.height, src.buffer, delta.buffer, rgb.buffer,
                   i32(src.width), i32(delta.width), i32(rgb.width), i32(rgb.height),
                   rt.constant(as_f32(matrix)))
         rt.release(delta)
