@@ -1,4 +1,5 @@
-/* Per-pixel colour steps on planar 3-channel images. */
+/* Per-pixel colour steps on planar 3-channel images. Launched over exactly width x height
+ * (launch_exact): no bounds checks, which would stop PoCL vectorising. */
 
 /* apply_matrix3: dst_i = sum_j m[3 i + j] * src_j. Halo 0. Colour conversion (camera -> linear
  * sRGB) and white balance pass 2 (a diagonal matrix) are both this kernel. */
@@ -7,7 +8,6 @@ __kernel void apply_matrix3(__global const float *src, __global float *dst,
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= width || y >= height) return;
     const int plane = width * height;
     const int i = y * width + x;
     const float a = src[i], b = src[plane + i], c = src[2 * plane + i];
@@ -31,7 +31,6 @@ __kernel void srgb_encode(__global const float *src, __global out_t *dst, const 
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= width || y >= height) return;
     const int plane = width * height;
     const int i = y * width + x;
     for (int c = 0; c < 3; ++c)

@@ -14,6 +14,7 @@ import numpy as np
 from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
+from .lms_common import launch_exact
 
 
 @dataclass
@@ -34,7 +35,7 @@ class ColourMatrix(Stage):
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         kernel = rt.kernel("colour", "apply_matrix3", SRGB_ENCODING)
         dst = rt.acquire(3, src.height, src.width)
-        rt.launch(kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
                   np.int32(src.height), rt.constant(as_f32(self.matrix)))
         return dst
 
@@ -82,7 +83,7 @@ class ToneCurve(Stage):
         defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
         kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
         dst = rt.acquire(3, src.height, src.width, self.out_dtype)
-        rt.launch(kernel, src.width, src.height, src.buffer, dst.buffer,
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
                   np.int32(src.width), np.int32(src.height))
         dst.interleaved = self.interleaved
         return dst
