@@ -64,7 +64,8 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
     p.add_argument("--compression", default=None, metavar="NAME",
-                   help="EXR/TIFF compression: none (default, fastest), zip, piz, dwaa, lzw, ...")
+                   help="EXR/TIFF/PNG compression: none (default, fastest; PNG then stores its rows "
+                        "uncompressed), zip, piz, dwaa, lzw, ...")
     p.add_argument("--mem", type=memory_size, default=DEFAULT_BUDGET, metavar="SIZE",
                    help="peak memory (resident set) of the whole process, e.g. 512M or 2G (default 1G): "
                         "the image is streamed from the raw file to the output in tiles as large as "

@@ -122,7 +122,7 @@ rows in parallel."""
 
 
 DEFAULT_COMPRESSION = "none"
-"""EXR/TIFF compression unless asked otherwise. Measured on 25 MP of noisy float32 (2-core machine):
+"""EXR/TIFF/PNG compression unless asked otherwise. Measured on 25 MP of noisy float32 (2-core machine):
 none 37 MP/s; zip 3.4 MP/s for a 4% smaller file; piz 3.3 MP/s, 12% smaller. A raw converter's
 output is noisy, so compression costs ten times the processing time for little; ``--compression
 zip`` (or piz, dwaa, ...; any OpenImageIO compression name) when size matters."""
@@ -132,7 +132,7 @@ COMPRESSIONS = {
     ".exr": ("none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"),
     ".tif": ("none", "lzw", "zip", "packbits"),
     ".tiff": ("none", "lzw", "zip", "packbits"),
-    ".png": ("none",),
+    ".png": ("none", "zip"),
 }
 """Compression names accepted per output extension (OpenImageIO's; 'zip:N' / 'dwaa:N' set a level)."""
 
@@ -144,6 +144,23 @@ def check_compression(path: str | Path, compression: str) -> None:
     if compression.split(":")[0] not in allowed:
         raise ClispError(f"{path}: compression {compression!r} is not available for {ext} "
                          f"(choose from {', '.join(allowed)})")
+
+
+PNG_ZIP_LEVEL = 6
+"""zlib level of ``--compression zip`` for PNG without a level ('zip:N' sets N)."""
+
+
+def _png_compression(spec: object, compression: str) -> None:
+    """PNG compression attributes: 'none' stores the rows in uncompressed deflate blocks, without
+    row filters (a valid PNG as large as the pixels; libpng's default filters and level 6 took
+    10 s for 24 MP of 16-bit RGB, this 0.5 s, like the uncompressed TIFF and EXR defaults);
+    'zip[:N]' deflates at level N (default PNG_ZIP_LEVEL) with libpng's adaptive filters."""
+    name, _, level = compression.partition(":")
+    if name == "none":
+        spec.attribute("png:compressionLevel", 0)
+        spec.attribute("png:filter", 8)                      # PNG_FILTER_NONE
+    else:
+        spec.attribute("png:compressionLevel", int(level) if level.isdigit() else PNG_ZIP_LEVEL)
 
 
 class ImageWriter:
@@ -170,7 +187,9 @@ class ImageWriter:
         oiio = _oiio()
         fmt = "float" if self.kind == "linear" else "uint16"
         spec = oiio.ImageSpec(self.width, self.height, self.channels, fmt)
-        if self.path.suffix.lower() != ".png":     # PNG is always deflated; OIIO keeps its default
+        if self.path.suffix.lower() == ".png":
+            _png_compression(spec, self.compression)
+        else:
             spec.attribute("compression", self.compression)
         if self.kind == "srgb":
             spec.attribute("oiio:ColorSpace", "sRGB")
