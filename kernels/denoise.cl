@@ -16,18 +16,29 @@
 #ifndef VEC
 #define VEC 1
 #endif
-#if VEC == 8
+/* max(a, b) for floatv a and floatv or float b: PoCL 3.0 / LLVM 14 fails to compile fmax on float16. */
+#define MAXV(a, b) ((a) > (floatv)(b) ? (a) : (floatv)(b))
+#if VEC == 16
+typedef float16 floatv;
+#define LOADV(p) vload16(0, (p))
+#define STOREV(v, p) vstore16((v), 0, (p))
+#define AS_FLOATV as_float16
+#define CONVERT_INTV convert_int16
+#define AS_INTV as_int16
+#elif VEC == 8
 typedef float8 floatv;
 #define LOADV(p) vload8(0, (p))
 #define STOREV(v, p) vstore8((v), 0, (p))
 #define AS_FLOATV as_float8
 #define CONVERT_INTV convert_int8
+#define AS_INTV as_int8
 #else
 typedef float floatv;
 #define LOADV(p) (*(p))
 #define STOREV(v, p) (*(p) = (v))
 #define AS_FLOATV as_float
 #define CONVERT_INTV convert_int
+#define AS_INTV as_int
 #endif
 
 /* exp(x) for x <= 0, as the bilateral weights need it: Cody-Waite reduction x = n ln2 + f,
@@ -40,12 +51,13 @@ typedef float floatv;
 #define EXP_CUT (-40.0f)
 inline floatv exp_neg(const floatv x)
 {
-    const floatv xc = fmax(x, EXP_CUT);
-    const floatv n = floor(xc * 1.44269504089f + 0.5f);
+    const floatv xc = x < EXP_CUT ? (floatv)EXP_CUT : x;
+    const floatv r = xc * 1.44269504089f + 12582912.0f;   /* 1.5 2^23: n = round(x / ln2) in the low bits */
+    const floatv n = r - 12582912.0f;
     const floatv f = (xc - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
     const floatv p = 1.0f + f * (1.0f + f * (0.5f + f * (1.6666667e-1f + f * (4.1666668e-2f
                    + f * (8.3333338e-3f + f * 1.3888889e-3f)))));
-    return select(p * AS_FLOATV((CONVERT_INTV(n) + 127) << 23), (floatv)0.0f, x < EXP_CUT);
+    return AS_FLOATV(AS_INTV(p) + (AS_INTV(r) << 23));
 }
 
 /* chroma_split: planes (Y, c_1..c_n) = m . camera, m row-major (NPLANES x 3), read from the window
@@ -123,12 +135,12 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
     const int in_plane = in_w * in_h;
     const int plane = width * height;
     const int ci = (y + SHRINK_RADIUS) * in_w + x + SHRINK_RADIUS;
-    const floatv s = fmax(LOADV(level + ci), 0.0f);
+    const floatv s = MAXV(LOADV(level + ci), 0.0f);
     for (int o = 0; o < 3; ++o) {
         floatv g_y = 0.0f;
         if (guide) {
             const floatv var_ny = coef[2 * o] * s + coef[2 * o + 1];
-            const floatv var_xy = fmax(window_energy(detail + o * NPLANES * in_plane, ci, in_w) - var_ny, 0.0f);
+            const floatv var_xy = MAXV(window_energy(detail + o * NPLANES * in_plane, ci, in_w) - var_ny, 0.0f);
             const floatv total = var_xy + var_ny;
             g_y = select((floatv)0.0f, var_xy / total, total > 0.0f);
         }
@@ -136,13 +148,13 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
             __global const float *d = detail + (o * NPLANES + 1 + k) * in_plane;
             const int c = 2 * (3 * (1 + k) + o);
             const floatv var_n = strength2[k] * (coef[c] * s + coef[c + 1]);
-            const floatv var_x = fmax(window_energy(d, ci, in_w) - var_n, 0.0f);
+            const floatv var_x = MAXV(window_energy(d, ci, in_w) - var_n, 0.0f);
             const floatv dc = LOADV(d + ci);
 #if SHRINK_RULE == 1
             const floatv total = var_x + var_n;
             const floatv shrunk = select((floatv)0.0f, dc * var_x / total, total > 0.0f);
 #else
-            const floatv shrunk = select((floatv)0.0f, copysign(fmax(fabs(dc) - var_n / sqrt(var_x), 0.0f), dc),
+            const floatv shrunk = select((floatv)0.0f, copysign(MAXV(fabs(dc) - var_n / sqrt(var_x), 0.0f), dc),
                                          var_x > 0.0f);
 #endif
             STOREV(shrunk + g_y * (dc - shrunk), dst + (o * NCHROMA + k) * plane + y * width + x);
@@ -156,8 +168,9 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
  * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n]: range variances aY max(Y,0) + bY and
  * a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y term.
  * w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))).
- * Each work item computes VEC consecutive pixels of a row (width >= VEC); the last one of a row
- * starts at width - VEC, recomputing a few pixels with identical results. */
+ * All planes in one pass: the guide tap and its spatial + luminance term are read and computed once
+ * per tap for every plane. Each work item computes VEC consecutive pixels of a row (width >= VEC);
+ * the last one of a row starts at width - VEC, recomputing a few pixels with identical results. */
 __kernel void joint_bilateral(__global const float *src, const int c_offset, __global const float *level,
                               __global float *dst, const int c_w, const int c_h, const int y_w,
                               const int y_shift, const int width, const int height, const int guide,
@@ -170,29 +183,34 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
     const int plane = width * height;
     const int ci = (y + RADIUS) * c_w + x + RADIUS;
     const int yi = (y + RADIUS + y_shift) * y_w + x + RADIUS + y_shift;
-    __global const float *c = src + c_offset;
+    __global const float *c = src + c_offset + ci;
+    __global const float *g = level + yi;
     const float inv2sd2 = prm[0], floor2 = prm[1];
-    const floatv yp = LOADV(level + yi);
-    const floatv s = fmax(yp, 0.0f);
-    const floatv inv_y = guide ? 0.5f / fmax(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
+    const floatv yp = LOADV(g);
+    const floatv s = MAXV(yp, 0.0f);
+    const floatv inv_y = guide ? 0.5f / MAXV(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
+    floatv cp[NCHROMA], inv_c[NCHROMA], num[NCHROMA], den[NCHROMA];
     for (int k = 0; k < NCHROMA; ++k) {
-        __global const float *ck = c + k * c_plane + ci;
-        const floatv cp = LOADV(ck);
-        const floatv inv_c = 0.5f / fmax(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
-        floatv num = 0.0f, den = 0.0f;
-        for (int dy = -RADIUS; dy <= RADIUS; ++dy) {
-            for (int dx = -RADIUS; dx <= RADIUS; ++dx) {
-                const floatv dyq = LOADV(level + yi + dy * y_w + dx) - yp;
-                const floatv cq = LOADV(ck + dy * c_w + dx);
-                const floatv dc = cq - cp;
-                const floatv w = exp_neg(-((float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y
-                                           + dc * dc * inv_c));
-                num += w * cq;
-                den += w;
+        cp[k] = LOADV(c + k * c_plane);
+        inv_c[k] = 0.5f / MAXV(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
+        num[k] = 0.0f;
+        den[k] = 0.0f;
+    }
+    for (int dy = -RADIUS; dy <= RADIUS; ++dy) {
+        for (int dx = -RADIUS; dx <= RADIUS; ++dx) {
+            const floatv dyq = LOADV(g + dy * y_w + dx) - yp;
+            const floatv base = (float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y;
+            for (int k = 0; k < NCHROMA; ++k) {
+                const floatv cq = LOADV(c + k * c_plane + dy * c_w + dx);
+                const floatv dc = cq - cp[k];
+                const floatv w = exp_neg(-(base + dc * dc * inv_c[k]));
+                num[k] += w * cq;
+                den[k] += w;
             }
         }
-        STOREV(num / den, dst + k * plane + y * width + x);
     }
+    for (int k = 0; k < NCHROMA; ++k)
+        STOREV(num[k] / den[k], dst + k * plane + y * width + x);
 }
 
 /* haar_synthesize: inverse of haar_analyze for the NCHROMA chroma planes, one output pixel per

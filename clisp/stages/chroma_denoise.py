@@ -552,7 +552,7 @@ class ChromaDenoise(Stage):
             rt.launch(analyze, w, h, levels[-1].buffer, approx.buffer, detail.buffer, np.int32(w), np.int32(h))
             if prm.shrink != "none":
                 shrunk = rt.acquire(3 * n, h - 2 * rw, w - 2 * rw)
-                v = vec if shrunk.width >= vec else 1
+                v = min(vec, 8) if shrunk.width >= vec else 1
                 rt.launch(rt.kernel("denoise", "bayes_shrink", {**defines, "VEC": v}),
                           -(-shrunk.width // v), shrunk.height,
                           detail.buffer, approx.buffer, shrunk.buffer, np.int32(w), np.int32(h),
