@@ -16,30 +16,28 @@
 #ifndef VEC
 #define VEC 1
 #endif
-/* max(a, b) for floatv a and floatv or float b: PoCL 3.0 / LLVM 14 fails to compile fmax on float16. */
-#define MAXV(a, b) ((a) > (floatv)(b) ? (a) : (floatv)(b))
-#if VEC == 16
-typedef float16 floatv;
-#define LOADV(p) vload16(0, (p))
-#define STOREV(v, p) vstore16((v), 0, (p))
-#define AS_FLOATV as_float16
-#define CONVERT_INTV convert_int16
-#define AS_INTV as_int16
-#elif VEC == 8
+/* PoCL 3.0 (this build) calls vload8 / vstore8 / fmax / select as out-of-line functions, also in
+ * the hot loops; loads through an under-aligned vector type and ?: compile inline
+ * (joint_bilateral X -> Y CPU-s). */
+#if VEC == 8
 typedef float8 floatv;
-#define LOADV(p) vload8(0, (p))
-#define STOREV(v, p) vstore8((v), 0, (p))
+typedef float8 floatv_u __attribute__((aligned(4)));
+typedef float4 float4_u __attribute__((aligned(4)));
+typedef int8 intv;
 #define AS_FLOATV as_float8
-#define CONVERT_INTV convert_int8
 #define AS_INTV as_int8
 #else
 typedef float floatv;
-#define LOADV(p) (*(p))
-#define STOREV(v, p) (*(p) = (v))
+typedef float floatv_u;
+typedef int intv;
 #define AS_FLOATV as_float
-#define CONVERT_INTV convert_int
 #define AS_INTV as_int
 #endif
+#define LOADV(p) (*(__global const floatv_u *)(p))
+#define STOREV(v, p) (*(__global floatv_u *)(p) = (v))
+/* max(a, b) and min(a, b) of floatv a and floatv or float b, inline (see above). */
+#define MAXV(a, b) ((a) > (floatv)(b) ? (a) : (floatv)(b))
+#define MINV(a, b) ((a) < (floatv)(b) ? (a) : (floatv)(b))
 
 /* exp(x) for x <= 0, as the bilateral weights need it: Cody-Waite reduction x = n ln2 + f,
  * |f| <= ln2/2, degree-6 Taylor polynomial for e^f (truncation < 1.3e-7 relative), 2^n from the
@@ -51,7 +49,7 @@ typedef float floatv;
 #define EXP_CUT (-40.0f)
 inline floatv exp_neg(const floatv x)
 {
-    const floatv xc = x < EXP_CUT ? (floatv)EXP_CUT : x;
+    const floatv xc = MAXV(x, EXP_CUT);
     const floatv r = xc * 1.44269504089f + 12582912.0f;   /* 1.5 2^23: n = round(x / ln2) in the low bits */
     const floatv n = r - 12582912.0f;
     const floatv f = (xc - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
@@ -103,16 +101,32 @@ __kernel void haar_analyze(__global const float *src, __global float *approx, __
 }
 
 /* window_energy: mean of d^2 over the (2 SHRINK_RADIUS + 1)^2 window centred on index ci
- * (VEC consecutive centres). */
+ * (VEC consecutive centres). VEC = 8, SHRINK_RADIUS = 2: column sums of the 12 columns the 8
+ * windows cover (one float8 and one float4 load per row), then 5 shifted float8 sums of them
+ * (28 vector operations instead of 50). */
 inline floatv window_energy(__global const float *d, const int ci, const int in_w)
 {
+#if VEC == 8 && SHRINK_RADIUS == 2
+    float8 a = 0.0f;
+    float4 b = 0.0f;
+    for (int dy = -2; dy <= 2; ++dy) {
+        __global const float *p = d + ci + dy * in_w - 2;
+        const float8 va = LOADV(p);
+        const float4 vb = *(__global const float4_u *)(p + 8);
+        a += va * va;
+        b += vb * vb;
+    }
+    const floatv energy = a + (float8)(a.s1234, a.s567, b.s0) + (float8)(a.s2345, a.s67, b.s01)
+                        + (float8)(a.s3456, a.s7, b.s012) + (float8)(a.s4567, b.s0123);
+#else
     floatv energy = 0.0f;
     for (int dy = -SHRINK_RADIUS; dy <= SHRINK_RADIUS; ++dy)
         for (int dx = -SHRINK_RADIUS; dx <= SHRINK_RADIUS; ++dx) {
             const floatv v = LOADV(d + ci + dy * in_w + dx);
             energy += v * v;
         }
-    return energy / (float)((2 * SHRINK_RADIUS + 1) * (2 * SHRINK_RADIUS + 1));
+#endif
+    return energy * (1.0f / (float)((2 * SHRINK_RADIUS + 1) * (2 * SHRINK_RADIUS + 1)));
 }
 
 /* bayes_shrink: shrink the chroma detail planes. Halo SHRINK_RADIUS: output (u, v) is input
@@ -142,7 +156,7 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
             const floatv var_ny = coef[2 * o] * s + coef[2 * o + 1];
             const floatv var_xy = MAXV(window_energy(detail + o * NPLANES * in_plane, ci, in_w) - var_ny, 0.0f);
             const floatv total = var_xy + var_ny;
-            g_y = select((floatv)0.0f, var_xy / total, total > 0.0f);
+            g_y = total > 0.0f ? var_xy / total : (floatv)0.0f;
         }
         for (int k = 0; k < NCHROMA; ++k) {
             __global const float *d = detail + (o * NPLANES + 1 + k) * in_plane;
@@ -152,10 +166,11 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
             const floatv dc = LOADV(d + ci);
 #if SHRINK_RULE == 1
             const floatv total = var_x + var_n;
-            const floatv shrunk = select((floatv)0.0f, dc * var_x / total, total > 0.0f);
+            const floatv shrunk = total > 0.0f ? dc * var_x / total : (floatv)0.0f;
 #else
-            const floatv shrunk = select((floatv)0.0f, copysign(MAXV(fabs(dc) - var_n / sqrt(var_x), 0.0f), dc),
-                                         var_x > 0.0f);
+            /* sign(d) max(|d| - t, 0) = d - clamp(d, -t, t), exactly; t = inf where var_x = 0 */
+            const floatv t = var_x > 0.0f ? var_n / sqrt(var_x) : (floatv)INFINITY;
+            const floatv shrunk = dc - (dc > t ? t : (dc < -t ? -t : dc));
 #endif
             STOREV(shrunk + g_y * (dc - shrunk), dst + (o * NCHROMA + k) * plane + y * width + x);
         }
