@@ -205,16 +205,20 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
     const floatv s = MAXV(yp, 0.0f);
     const floatv inv_y = guide ? 0.5f / MAXV(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
     floatv cp[NCHROMA], inv_c[NCHROMA], num[NCHROMA], den[NCHROMA];
+    #pragma unroll
     for (int k = 0; k < NCHROMA; ++k) {
         cp[k] = LOADV(c + k * c_plane);
         inv_c[k] = 0.5f / MAXV(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
         num[k] = 0.0f;
         den[k] = 0.0f;
     }
+    #pragma unroll
     for (int dy = -RADIUS; dy <= RADIUS; ++dy) {
+        #pragma unroll
         for (int dx = -RADIUS; dx <= RADIUS; ++dx) {
             const floatv dyq = LOADV(g + dy * y_w + dx) - yp;
             const floatv base = (float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y;
+            #pragma unroll
             for (int k = 0; k < NCHROMA; ++k) {
                 const floatv cq = LOADV(c + k * c_plane + dy * c_w + dx);
                 const floatv dc = cq - cp[k];
@@ -224,6 +228,7 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
             }
         }
     }
+    #pragma unroll
     for (int k = 0; k < NCHROMA; ++k)
         STOREV(num[k] / den[k], dst + k * plane + y * width + x);
 }
