@@ -3,33 +3,32 @@
  * a "level" image holds NPLANES = 1 + NCHROMA planes (Y, then the chroma planes); a "detail" image
  * holds 3 x NPLANES planes from haar_analyze, 3 x NCHROMA after bayes_shrink, orientation-major
  * (dx, dy, dd). Defines from the host: NCHROMA, RADIUS (bilateral), SHRINK_RADIUS and SHRINK_RULE
- * (detail shrinkage), VEC (joint_bilateral, bayes_shrink), INTERLEAVED (chroma_merge). Per tile:
+ * (detail shrinkage), VEC (all kernels but chroma_merge), INTERLEAVED (chroma_merge). Per tile:
  * chroma_split; J x (haar_analyze, bayes_shrink); from level J down: joint_bilateral,
  * haar_synthesize; joint_bilateral at level 0; chroma_merge. */
 
 #define NPLANES (NCHROMA + 1)
 
-/* VEC (define, 1 or 8): pixels along x per work item in joint_bilateral and bayes_shrink. PoCL on
+/* VEC (define, 1 or 8): pixels along x per work item in every kernel but chroma_merge. PoCL on
  * CPUs does not vectorise the scalar kernels across work items; explicit float8 made them 8x and
  * 2x cheaper there (a 1.5 MP single-plane 7x7 bilateral 0.54 -> 0.064 CPU-s; the whole stage's
  * bayes_shrink 0.15 -> 0.07 CPU-s). GPUs use VEC = 1 (one pixel per lane, coalesced). */
 #ifndef VEC
 #define VEC 1
 #endif
-/* PoCL 3.0 (this build) calls vload8 / vstore8 / fmax / select as out-of-line functions, also in
- * the hot loops; loads through an under-aligned vector type and ?: compile inline
- * (joint_bilateral X -> Y CPU-s). */
+/* PoCL 3.0 (this build) calls vload8 / vstore8 / fmax / select / min as out-of-line functions,
+ * also inside the hot loops (three calls per joint_bilateral tap); loads and stores through an
+ * under-aligned vector type and ?: compile inline (24 MP Bayer: joint_bilateral 1.15 -> 0.93 s,
+ * bayes_shrink 0.43 -> 0.10 s with its column sums). */
 #if VEC == 8
 typedef float8 floatv;
 typedef float8 floatv_u __attribute__((aligned(4)));
 typedef float4 float4_u __attribute__((aligned(4)));
-typedef int8 intv;
 #define AS_FLOATV as_float8
 #define AS_INTV as_int8
 #else
 typedef float floatv;
 typedef float floatv_u;
-typedef int intv;
 #define AS_FLOATV as_float
 #define AS_INTV as_int
 #endif
@@ -37,15 +36,15 @@ typedef int intv;
 #define STOREV(v, p) (*(__global floatv_u *)(p) = (v))
 /* max(a, b) and min(a, b) of floatv a and floatv or float b, inline (see above). */
 #define MAXV(a, b) ((a) > (floatv)(b) ? (a) : (floatv)(b))
-#define MINV(a, b) ((a) < (floatv)(b) ? (a) : (floatv)(b))
 
 /* exp(x) for x <= 0, as the bilateral weights need it: Cody-Waite reduction x = n ln2 + f,
- * |f| <= ln2/2, degree-6 Taylor polynomial for e^f (truncation < 1.3e-7 relative), 2^n from the
- * exponent bits. Exactly 0 below EXP_CUT: e^-40 = 4e-18 is far below float resolution of the
- * centre weight (1), and flushing keeps weights and weight * value products out of the denormal
- * range, which x86 handles in microcode (a safeguard: no difference measured on our test images).
- * Written out because PoCL's exp() is a scalar library call: this made joint_bilateral ~5x faster on
- * PoCL/CPU before vectorising, and it vectorises. */
+ * |f| <= ln2/2, degree-6 Taylor polynomial for e^f (truncation < 1.3e-7 relative), 2^n added to the
+ * exponent bits. n = round(x / ln2) by adding 1.5 2^23, which leaves n in the low mantissa bits of r
+ * (shifted into the exponent field as is): floor() and convert_int() cost PoCL out-of-line code
+ * (joint_bilateral 2.11 -> 1.15 s on 24 MP Bayer). x is clamped at EXP_CUT: the weight is then
+ * e^-40 = 4e-18, far below float resolution of the centre weight (1), and no weight or
+ * weight * value product becomes denormal (x86 handles those in microcode).
+ * Written out because PoCL's exp() is a scalar library call. */
 #define EXP_CUT (-40.0f)
 inline floatv exp_neg(const floatv x)
 {
@@ -59,44 +58,57 @@ inline floatv exp_neg(const floatv x)
 }
 
 /* chroma_split: planes (Y, c_1..c_n) = m . camera, m row-major (NPLANES x 3), read from the window
- * at (y + skip_y, x + skip_x) (the first pixel aligned to the decimation grid). Halo 0. */
+ * at (y + skip_y, x + skip_x) (the first pixel aligned to the decimation grid). Halo 0. VEC
+ * consecutive pixels per work item (width >= VEC; the last one of a row starts at width - VEC). */
 __kernel void chroma_split(__global const float *src, __global float *dst,
                            const int src_w, const int src_h, const int skip_y, const int skip_x,
                            const int width, const int height, __constant const float *m)
 {
-    const int x = get_global_id(0);
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
     const int y = get_global_id(1);
-    if (x >= width || y >= height) return;
+    if (gx >= width || y >= height) return;
     const int src_plane = src_w * src_h;
     const int si = (y + skip_y) * src_w + x + skip_x;
-    const float l = src[si], mm = src[src_plane + si], s = src[2 * src_plane + si];
+    const floatv l = LOADV(src + si), mm = LOADV(src + src_plane + si), s = LOADV(src + 2 * src_plane + si);
     const int plane = width * height;
     const int i = y * width + x;
+    #pragma unroll
     for (int p = 0; p < NPLANES; ++p)
-        dst[p * plane + i] = m[3 * p] * l + m[3 * p + 1] * mm + m[3 * p + 2] * s;
+        STOREV(m[3 * p] * l + m[3 * p + 1] * mm + m[3 * p + 2] * s, dst + p * plane + i);
 }
 
 /* haar_analyze: one Haar level on 2 x 2 blocks (block means and differences / 4) of all NPLANES
  * planes: approximation (NPLANES planes) and details dx, dy, dd (3 x NPLANES planes, orientation
- * major). Output width x height, input 2 width x 2 height. Halo 0 (blocks on the aligned grid). */
+ * major). Output width x height, input 2 width x 2 height. Halo 0 (blocks on the aligned grid).
+ * VEC consecutive outputs per work item (width >= VEC; the last one of a row starts at width - VEC):
+ * two float8 loads per input row, split into even and odd columns. */
 __kernel void haar_analyze(__global const float *src, __global float *approx, __global float *detail,
                            const int width, const int height)
 {
-    const int x = get_global_id(0);
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
     const int y = get_global_id(1);
-    if (x >= width || y >= height) return;
+    if (gx >= width || y >= height) return;
     const int src_w = 2 * width;
     const int src_plane = 4 * width * height;
     const int plane = width * height;
     const int i = y * width + x;
     const int s0 = 2 * y * src_w + 2 * x;
+    #pragma unroll
     for (int p = 0; p < NPLANES; ++p) {
         __global const float *a = src + p * src_plane + s0;
+#if VEC == 8
+        const float8 r0a = LOADV(a), r0b = LOADV(a + 8), r1a = LOADV(a + src_w), r1b = LOADV(a + src_w + 8);
+        const float8 x00 = (float8)(r0a.even, r0b.even), x01 = (float8)(r0a.odd, r0b.odd);
+        const float8 x10 = (float8)(r1a.even, r1b.even), x11 = (float8)(r1a.odd, r1b.odd);
+#else
         const float x00 = a[0], x01 = a[1], x10 = a[src_w], x11 = a[src_w + 1];
-        approx[p * plane + i] = 0.25f * (x00 + x01 + x10 + x11);
-        detail[p * plane + i]                 = 0.25f * (x00 - x01 + x10 - x11);
-        detail[(NPLANES + p) * plane + i]     = 0.25f * (x00 + x01 - x10 - x11);
-        detail[(2 * NPLANES + p) * plane + i] = 0.25f * (x00 - x01 - x10 + x11);
+#endif
+        STOREV(0.25f * (x00 + x01 + x10 + x11), approx + p * plane + i);
+        STOREV(0.25f * (x00 - x01 + x10 - x11), detail + p * plane + i);
+        STOREV(0.25f * (x00 + x01 - x10 - x11), detail + (NPLANES + p) * plane + i);
+        STOREV(0.25f * (x00 - x01 - x10 + x11), detail + (2 * NPLANES + p) * plane + i);
     }
 }
 
@@ -143,9 +155,10 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
                            __constant const float *coef, __constant const float *strength2,
                            const int guide)
 {
-    const int x = min((int)get_global_id(0) * VEC, width - VEC);
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
     const int y = get_global_id(1);
-    if ((int)get_global_id(0) * VEC >= width || y >= height) return;
+    if (gx >= width || y >= height) return;
     const int in_plane = in_w * in_h;
     const int plane = width * height;
     const int ci = (y + SHRINK_RADIUS) * in_w + x + SHRINK_RADIUS;
@@ -191,9 +204,10 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
                               const int y_shift, const int width, const int height, const int guide,
                               __constant const float *prm)
 {
-    const int x = min((int)get_global_id(0) * VEC, width - VEC);
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
     const int y = get_global_id(1);
-    if ((int)get_global_id(0) * VEC >= width || y >= height) return;
+    if (gx >= width || y >= height) return;
     const int c_plane = c_w * c_h;
     const int plane = width * height;
     const int ci = (y + RADIUS) * c_w + x + RADIUS;
@@ -233,32 +247,45 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
         STOREV(num[k] / den[k], dst + k * plane + y * width + x);
 }
 
-/* haar_synthesize: inverse of haar_analyze for the NCHROMA chroma planes, one output pixel per
- * work item: x_(sy,sx) = a + sx dx + sy dy + sx sy dd, sx = +1 on even columns, -1 on odd (sy
+/* haar_synthesize: inverse of haar_analyze for the NCHROMA chroma planes:
+ * x_(sy,sx) = a + sx dx + sy dy + sx sy dd, sx = +1 on even columns, -1 on odd (sy
  * alike). approx: NCHROMA planes a_w x a_h. detail: d_planes planes per orientation, d_w x d_h,
  * chroma k at plane d_first + k; coefficient (u + d_shift, v + d_shift) for approx (u, v).
- * Output 2 a_w x 2 a_h. Halo 0. */
+ * Output 2 a_w x 2 a_h. Halo 0. VEC consecutive outputs per work item (2 a_w >= VEC; the last one
+ * of a row starts at 2 a_w - VEC, even): VEC / 2 coefficients, even and odd columns interleaved. */
 __kernel void haar_synthesize(__global const float *approx, __global const float *detail,
                               __global float *dst, const int a_w, const int a_h,
                               const int d_w, const int d_h, const int d_shift,
                               const int d_planes, const int d_first)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
     const int width = 2 * a_w, height = 2 * a_h;
-    if (x >= width || y >= height) return;
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
+    const int y = get_global_id(1);
+    if (gx >= width || y >= height) return;
     const int u = y >> 1, v = x >> 1;
-    const float sx = (x & 1) ? -1.0f : 1.0f;
     const float sy = (y & 1) ? -1.0f : 1.0f;
     const int ai = u * a_w + v;
     const int di = (u + d_shift) * d_w + v + d_shift;
     const int a_plane = a_w * a_h, d_plane = d_w * d_h, plane = width * height;
+    #pragma unroll
     for (int k = 0; k < NCHROMA; ++k) {
+#if VEC == 8
+        const float4 a = *(__global const float4_u *)(approx + k * a_plane + ai);
+        const float4 ddx = *(__global const float4_u *)(detail + (d_first + k) * d_plane + di);
+        const float4 ddy = *(__global const float4_u *)(detail + (d_planes + d_first + k) * d_plane + di);
+        const float4 ddd = *(__global const float4_u *)(detail + (2 * d_planes + d_first + k) * d_plane + di);
+        const float4 e = a + ddx + sy * ddy + sy * ddd;        /* sx = +1 */
+        const float4 o = a - ddx + sy * ddy - sy * ddd;        /* sx = -1 */
+        STOREV((float8)(e.s0, o.s0, e.s1, o.s1, e.s2, o.s2, e.s3, o.s3), dst + k * plane + y * width + x);
+#else
+        const float sx = (x & 1) ? -1.0f : 1.0f;
         const float a = approx[k * a_plane + ai];
         const float ddx = detail[(d_first + k) * d_plane + di];
         const float ddy = detail[(d_planes + d_first + k) * d_plane + di];
         const float ddd = detail[(2 * d_planes + d_first + k) * d_plane + di];
         dst[k * plane + y * width + x] = a + sx * ddx + sy * ddy + sx * sy * ddd;
+#endif
     }
 }
 
