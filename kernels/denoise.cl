@@ -3,13 +3,13 @@
  * a "level" image holds NPLANES = 1 + NCHROMA planes (Y, then the chroma planes); a "detail" image
  * holds 3 x NPLANES planes from haar_analyze, 3 x NCHROMA after bayes_shrink, orientation-major
  * (dx, dy, dd). Defines from the host: NCHROMA, RADIUS (bilateral), SHRINK_RADIUS and SHRINK_RULE
- * (detail shrinkage), VEC (all kernels but chroma_merge), INTERLEAVED (chroma_merge). Per tile:
+ * (detail shrinkage), VEC (pixels per work item), INTERLEAVED (chroma_merge). Per tile:
  * chroma_split; J x (haar_analyze, bayes_shrink); from level J down: joint_bilateral,
  * haar_synthesize; joint_bilateral at level 0; chroma_merge. */
 
 #define NPLANES (NCHROMA + 1)
 
-/* VEC (define, 1 or 8): pixels along x per work item in every kernel but chroma_merge. PoCL on
+/* VEC (define, 1 or 8): pixels along x per work item in every kernel. PoCL on
  * CPUs does not vectorise the scalar kernels across work items; explicit float8 made them 8x and
  * 2x cheaper there (a 1.5 MP single-plane 7x7 bilateral 0.54 -> 0.064 CPU-s; the whole stage's
  * bayes_shrink 0.15 -> 0.07 CPU-s). GPUs use VEC = 1 (one pixel per lane, coalesced). */
@@ -292,7 +292,8 @@ __kernel void haar_synthesize(__global const float *approx, __global const float
 /* chroma_merge: RGB = m . (Y, c_1..c_n), m row-major (3 x NPLANES). Output (u, v) reads chroma
  * (u + c_shift_y, v + c_shift_x) of c_w x c_h planes and Y (u + y_shift_y, v + y_shift_x) of the
  * level-0 image (y_w wide). Halo 0. INTERLEAVED (define): write H x W x 3 (the host layout, when
- * this is the pipeline's last stage) instead of 3 planes. */
+ * this is the pipeline's last stage) instead of 3 planes. VEC consecutive pixels per work item
+ * (width >= VEC; the last one of a row starts at width - VEC). */
 #ifndef INTERLEAVED
 #define INTERLEAVED 0
 #endif
@@ -301,25 +302,40 @@ __kernel void chroma_merge(__global const float *level, __global const float *ch
                            const int c_w, const int c_h, const int c_shift_y, const int c_shift_x,
                            const int width, const int height, __constant const float *m)
 {
-    const int x = get_global_id(0);
+    const int gx = (int)get_global_id(0) * VEC;
+    const int x = gx < width - VEC ? gx : width - VEC;
     const int y = get_global_id(1);
-    if (x >= width || y >= height) return;
-    const float lum = level[(y + y_shift_y) * y_w + x + y_shift_x];
+    if (gx >= width || y >= height) return;
+    const floatv lum = LOADV(level + (y + y_shift_y) * y_w + x + y_shift_x);
     const int c_plane = c_w * c_h;
     const int ci = (y + c_shift_y) * c_w + x + c_shift_x;
-    float c[NCHROMA];
+    floatv c[NCHROMA], rgb[3];
+    #pragma unroll
     for (int k = 0; k < NCHROMA; ++k)
-        c[k] = chroma[k * c_plane + ci];
-    const int plane = width * height;
-    const int i = y * width + x;
+        c[k] = LOADV(chroma + k * c_plane + ci);
+    #pragma unroll
     for (int r = 0; r < 3; ++r) {
-        float v = m[r * NPLANES] * lum;
+        floatv v = m[r * NPLANES] * lum;
+        #pragma unroll
         for (int k = 0; k < NCHROMA; ++k)
             v += m[r * NPLANES + 1 + k] * c[k];
-#if INTERLEAVED
-        dst[3 * i + r] = v;
-#else
-        dst[r * plane + i] = v;
-#endif
+        rgb[r] = v;
     }
+    const int i = y * width + x;
+#if INTERLEAVED && VEC == 8
+    const float8 r = rgb[0], g = rgb[1], b = rgb[2];
+    __global floatv_u *o = (__global floatv_u *)(dst + 3 * i);
+    o[0] = (float8)(r.s0, g.s0, b.s0, r.s1, g.s1, b.s1, r.s2, g.s2);
+    o[1] = (float8)(b.s2, r.s3, g.s3, b.s3, r.s4, g.s4, b.s4, r.s5);
+    o[2] = (float8)(g.s5, b.s5, r.s6, g.s6, b.s6, r.s7, g.s7, b.s7);
+#elif INTERLEAVED
+    dst[3 * i] = rgb[0];
+    dst[3 * i + 1] = rgb[1];
+    dst[3 * i + 2] = rgb[2];
+#else
+    const int plane = width * height;
+    #pragma unroll
+    for (int r = 0; r < 3; ++r)
+        STOREV(rgb[r], dst + r * plane + i);
+#endif
 }

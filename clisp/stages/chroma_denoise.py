@@ -391,7 +391,7 @@ def chroma_merge(y: np.ndarray, c: np.ndarray, merge: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------- the stage
 
 def vector_width(rt: Runtime) -> int:
-    """Pixels per work item (VEC) of every kernel but ``chroma_merge``: 8 on CPU devices (PoCL
+    """Pixels per work item (VEC) of every kernel: 8 on CPU devices (PoCL
     does not vectorise the scalar kernels; float8 measured 8x cheaper for the bilateral), 1 on GPUs
     (one pixel per lane, coalesced). A launch whose rows are narrower than VEC uses 1."""
     return 8 if rt.device.type & rt.cl.device_type.CPU else 1
@@ -597,7 +597,8 @@ class ChromaDenoise(Stage):
             c, start = up, 2 * m[j]
         (cy, cx), (oh, ow) = plan.crop, plan.out
         dst = rt.acquire(3, oh, ow)
-        rt.launch(rt.kernel("denoise", "chroma_merge", {**defines, "INTERLEAVED": int(self.interleaved)}), ow, oh, levels[0].buffer, c.buffer,
+        merge, gx = vec_kernel("chroma_merge", ow, {"INTERLEAVED": int(self.interleaved)})
+        rt.launch(merge, gx, oh, levels[0].buffer, c.buffer,
                   dst.buffer, np.int32(nx), np.int32(m[0] + cy), np.int32(m[0] + cx), np.int32(c.width),
                   np.int32(c.height), np.int32(cy), np.int32(cx), np.int32(ow), np.int32(oh),
                   rt.constant(as_f32(sp.merge_matrix)))
