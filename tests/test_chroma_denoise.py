@@ -132,8 +132,11 @@ def test_kernel_options_match_reference(rt, params):
     assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), str(params))
 
 
-def test_fused_white_balance_and_interleaved_output(rt):
-    """A following WB pass 2 folds into the merge; the interleaved last-stage output is the same image."""
+@pytest.mark.parametrize("vec", [1, 8])
+def test_fused_white_balance_and_interleaved_output(rt, monkeypatch, vec):
+    """A following WB pass 2 folds into the merge; the interleaved last-stage output is the same
+    image (chroma_merge's interleaved stores at both vector widths)."""
+    monkeypatch.setattr(cd, "vector_width", lambda rt: vec)
     from clisp.stages.colour import WhiteBalance2
     space = SPACES["yuv"]
     stage = ChromaDenoise(space, random_table(space, seed=7))

@@ -391,9 +391,9 @@ def chroma_merge(y: np.ndarray, c: np.ndarray, merge: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------- the stage
 
 def vector_width(rt: Runtime) -> int:
-    """Pixels per work item of ``joint_bilateral`` and ``bayes_shrink``: 8 on CPU devices (PoCL
+    """Pixels per work item (VEC) of every kernel: 8 on CPU devices (PoCL
     does not vectorise the scalar kernels; float8 measured 8x cheaper for the bilateral), 1 on GPUs
-    (one pixel per lane, coalesced)."""
+    (one pixel per lane, coalesced). A launch whose rows are narrower than VEC uses 1."""
     return 8 if rt.device.type & rt.cl.device_type.CPU else 1
 
 
@@ -539,22 +539,28 @@ class ChromaDenoise(Stage):
         (sy, sx), (ny, nx) = plan.skip, plan.size
         m, r, rw = plan.margins, prm.radius, prm.shrink_radius
 
+        vec = vector_width(rt)
+
+        def vec_kernel(name: str, width: int, extra: dict | None = None) -> tuple:
+            """(kernel, work items along x) for ``width`` outputs per row, VEC = vec when width >= vec."""
+            v = vec if width >= vec else 1
+            return rt.kernel("denoise", name, {**defines, **(extra or {}), "VEC": v}), -(-width // v)
+
         levels = [rt.acquire(1 + n, ny, nx)]
-        rt.launch(rt.kernel("denoise", "chroma_split", defines), nx, ny, src.buffer, levels[0].buffer,
+        split, gx = vec_kernel("chroma_split", nx)
+        rt.launch(split, gx, ny, src.buffer, levels[0].buffer,
                   np.int32(src.width), np.int32(src.height), np.int32(sy), np.int32(sx),
                   np.int32(nx), np.int32(ny), rt.constant(as_f32(sp.split_matrix)))
         details: list[DeviceImage | None] = [None]
-        analyze = rt.kernel("denoise", "haar_analyze", defines)
-        vec = vector_width(rt)
         for j in range(1, prm.levels + 1):
             h, w = ny >> j, nx >> j
             approx, detail = rt.acquire(1 + n, h, w), rt.acquire(3 * (1 + n), h, w)
-            rt.launch(analyze, w, h, levels[-1].buffer, approx.buffer, detail.buffer, np.int32(w), np.int32(h))
+            analyze, gx = vec_kernel("haar_analyze", w)
+            rt.launch(analyze, gx, h, levels[-1].buffer, approx.buffer, detail.buffer, np.int32(w), np.int32(h))
             if prm.shrink != "none":
                 shrunk = rt.acquire(3 * n, h - 2 * rw, w - 2 * rw)
-                v = vec if shrunk.width >= vec else 1
-                rt.launch(rt.kernel("denoise", "bayes_shrink", {**defines, "VEC": v}),
-                          -(-shrunk.width // v), shrunk.height,
+                shrink, gx = vec_kernel("bayes_shrink", shrunk.width)
+                rt.launch(shrink, gx, shrunk.height,
                           detail.buffer, approx.buffer, shrunk.buffer, np.int32(w), np.int32(h),
                           np.int32(shrunk.width), np.int32(shrunk.height),
                           rt.constant(as_f32(detail_var[j])), strength2, np.int32(prm.shrink_guide))
@@ -563,15 +569,13 @@ class ChromaDenoise(Stage):
             levels.append(approx)
             details.append(detail)
 
-        synthesize = rt.kernel("denoise", "haar_synthesize", defines)
         top = levels[-1]
         c, c_offset, start = top, top.height * top.width, 0           # chroma planes of level J
         for j in range(prm.levels, -1, -1):
             lvl = levels[j]
             out = rt.acquire(n, c.height - 2 * r, c.width - 2 * r)
-            v = vec if out.width >= vec else 1
-            bilateral = rt.kernel("denoise", "joint_bilateral", {**defines, "VEC": v})
-            rt.launch(bilateral, -(-out.width // v), out.height, c.buffer, np.int32(c_offset), lvl.buffer,
+            bilateral, gx = vec_kernel("joint_bilateral", out.width)
+            rt.launch(bilateral, gx, out.height, c.buffer, np.int32(c_offset), lvl.buffer,
                       out.buffer, np.int32(c.width), np.int32(c.height), np.int32(lvl.width),
                       np.int32(start), np.int32(out.width), np.int32(out.height),
                       np.int32(prm.k_luma > 0), rt.constant(as_f32(self.bilateral_constants(j))))
@@ -584,7 +588,8 @@ class ChromaDenoise(Stage):
             shrunk = prm.shrink != "none"
             d_shift, d_planes, d_first = (m[j] - rw, n, 0) if shrunk else (m[j], 1 + n, 1)
             up = rt.acquire(n, 2 * c.height, 2 * c.width)
-            rt.launch(synthesize, up.width, up.height, c.buffer, d.buffer, up.buffer, np.int32(c.width),
+            synthesize, gx = vec_kernel("haar_synthesize", up.width)
+            rt.launch(synthesize, gx, up.height, c.buffer, d.buffer, up.buffer, np.int32(c.width),
                       np.int32(c.height), np.int32(d.width), np.int32(d.height), np.int32(d_shift),
                       np.int32(d_planes), np.int32(d_first))
             rt.release(c)
@@ -592,7 +597,8 @@ class ChromaDenoise(Stage):
             c, start = up, 2 * m[j]
         (cy, cx), (oh, ow) = plan.crop, plan.out
         dst = rt.acquire(3, oh, ow)
-        rt.launch(rt.kernel("denoise", "chroma_merge", {**defines, "INTERLEAVED": int(self.interleaved)}), ow, oh, levels[0].buffer, c.buffer,
+        merge, gx = vec_kernel("chroma_merge", ow, {"INTERLEAVED": int(self.interleaved)})
+        rt.launch(merge, gx, oh, levels[0].buffer, c.buffer,
                   dst.buffer, np.int32(nx), np.int32(m[0] + cy), np.int32(m[0] + cx), np.int32(c.width),
                   np.int32(c.height), np.int32(cy), np.int32(cx), np.int32(ow), np.int32(oh),
                   rt.constant(as_f32(sp.merge_matrix)))
