@@ -26,6 +26,7 @@ from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, Noi
                                          make_plan, yuv_space)
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_bilinear import DemosaicBilinear
+from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided
 from clisp.stages.raw_scale import normalize, white_balance1
 from clisp.white_balance2 import estimate_wb2, gray_pixel_gains, illuminant_gains
 from tolerance import TOL, assert_close
@@ -256,6 +257,19 @@ def test_calibration_follows_the_noise():
     v1 = t1.approx[0, 0, 0] * 0.2 + t1.approx[0, 0, 1]
     v4 = t4.approx[0, 0, 0] * 0.2 + t4.approx[0, 0, 1]
     assert 3.6 < v4 / v1 < 4.4
+
+
+def test_calibration_on_opencl_equals_reference():
+    """The calibration's flat fields through the demosaic's kernels give the reference's table
+    within float32 rounding (variances: relative 1e-4)."""
+    cfa = cfa_from_name("lms")
+    sp = SPACES["lms"]
+    noise = ChannelNoise.from_model(NoiseModel(), 8.0, np.array([1.0, 1.2191, 3.1397]) / 0.98951)
+    for dem in (DemosaicBilinear(cfa), DemosaicLMSGuided(cfa, noise=noise)):
+        ref = calibrate_noise(dem, cfa, sp, noise, size=128, backend="reference")
+        cl = calibrate_noise(dem, cfa, sp, noise, size=128, backend="opencl")
+        np.testing.assert_allclose(cl.approx, ref.approx, rtol=1e-4, atol=1e-12)
+        np.testing.assert_allclose(cl.detail, ref.detail, rtol=1e-4, atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------------
