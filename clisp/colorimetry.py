@@ -4,6 +4,8 @@ All matrices map white-balanced camera values to linear sRGB (D65), column vecto
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 P_LMS = np.array([[4.73, -3.87, 0.14],
@@ -59,6 +61,7 @@ def _chebyshev_fit(fn, lo: float, hi: float, degree: int, prefix: str) -> dict[s
     return defines
 
 
+@lru_cache(maxsize=1)
 def srgb_poly_defines() -> dict[str, float]:
     """Defines for kernels/srgb.h: the fits SRGB_M* of SRGB_SCALE * m^SRGB_INV_GAMMA on [1, 2)
     and SRGB_F* of 2^f on [0, 1) (see SRGB_POLY_DEGREES)."""

@@ -211,17 +211,26 @@ class ImageWriter:
             self._write_rows(rows)
 
     def _write_rows(self, rows: np.ndarray) -> None:
-        codes = rows.dtype == np.uint16 and self.kind == "srgb"     # 16-bit codes: written as they are
-        for start in range(0, rows.shape[0], WRITE_ROWS):
-            if codes:
-                pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS])
-            else:
-                pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
-            if self.kind == "srgb" and not codes:
-                pixels = np.clip(pixels, 0.0, 1.0)
+        for pixels in self._chunks(rows):
             if not self._out.write_scanlines(self.next_row, self.next_row + pixels.shape[0], 0, pixels):
                 raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
             self.next_row += pixels.shape[0]
+
+    def _chunks(self, rows: np.ndarray) -> Iterator[np.ndarray]:
+        """``rows`` as the contiguous arrays write_scanlines takes. 16-bit codes (TIFF/PNG from
+        the device) go as they are, a contiguous band in one call (TIFF: 0.13 s for 24 MP in
+        504-row bands, 0.28 s in 128-row chunks); float rows are converted (and for TIFF/PNG
+        clipped) WRITE_ROWS at a time, which bounds the converted copy."""
+        codes = rows.dtype == np.uint16 and self.kind == "srgb"
+        if codes and rows.flags.c_contiguous:
+            yield rows
+            return
+        for start in range(0, rows.shape[0], WRITE_ROWS):      # (a rotated view: copied in chunks)
+            if codes:
+                yield np.ascontiguousarray(rows[start:start + WRITE_ROWS])
+                continue
+            pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
+            yield np.clip(pixels, 0.0, 1.0) if self.kind == "srgb" else pixels
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
         out, self._out = self._out, None

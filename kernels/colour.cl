@@ -33,7 +33,17 @@ __kernel void srgb_encode(__global const float *src, __global out_t *dst, const 
     const int y = get_global_id(1);
     const int plane = width * height;
     const int i = y * width + x;
-    for (int c = 0; c < 3; ++c)
-        dst[INTERLEAVED ? 3 * i + c : c * plane + i] = STORE(encode_srgb(src[c * plane + i]));
+    const out_t r = STORE(encode_srgb(src[i]));             /* written out per channel: a loop over */
+    const out_t g = STORE(encode_srgb(src[plane + i]));     /* the planes ran 2.5x slower on PoCL */
+    const out_t b = STORE(encode_srgb(src[2 * plane + i]));
+#if INTERLEAVED
+    dst[3 * i] = r;
+    dst[3 * i + 1] = g;
+    dst[3 * i + 2] = b;
+#else
+    dst[i] = r;
+    dst[plane + i] = g;
+    dst[2 * plane + i] = b;
+#endif
 }
 #endif
