@@ -643,8 +643,10 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, backend: str) -> np.ndarra
     by its NumPy reference (float64) or its OpenCL kernels (float32, returned as float64)."""
     if backend == "reference":
         return demosaic.reference(mosaic, (0, 0))
+    from ..profile import stage_label
     from ..runtime import get_runtime
     rt = get_runtime()
+    stage_label("noise calibration (pipeline set-up)")
     src = rt.upload(np.ascontiguousarray(mosaic, dtype=np.float32))
     dst = demosaic.enqueue(rt, src, (0, 0))
     out = rt.download(dst)

@@ -12,6 +12,7 @@ import numpy as np
 from ..cfa import CFA
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
+from .lms_common import launch_exact
 
 
 @dataclass
@@ -47,7 +48,7 @@ class CfaAffine(Stage):
         raw_t = "ushort" if src.dtype == np.uint16 else "float"
         kernel = rt.kernel("raw", "cfa_affine", {"RAW_T": raw_t, "CFA_PERIOD": self.cfa.period})
         dst = rt.acquire(1, src.height, src.width)
-        rt.launch(kernel, src.width, src.height, src.buffer, dst.buffer,
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
                   np.int32(src.width), np.int32(src.height), np.int32(origin[0]), np.int32(origin[1]),
                   rt.constant(self.cfa.pattern), rt.constant(as_f32(self.offset)),
                   rt.constant(as_f32(self.scale)))
