@@ -72,6 +72,12 @@ __kernel void m_keep(__global const float *p, __global float *dst, const int p_w
     dst[y * out_w + x] = p[(y + p_off) * p_w + x + p_off];
 }
 
+/* The lattice seen from an S site, at offset (dy, dx): S iff dy is even and dx - dy a multiple of 4,
+ * L iff dy + dx is odd (at_s, at_l with the S site's own parities). Constant offsets fold at compile
+ * time: m_at_s_combine runs on S sites only, so its masks need no integer work per tap. */
+inline int s_rel(const int dy, const int dx) { return (dy & 1) == 0 && ((dx - dy) & 3) == 0; }
+inline int l_rel(const int dy, const int dx) { return ((dy + dx) & 1) != 0; }
+
 /* m_at_s_combine: M at the S sites of m (the other pixels are m_keep's p), one work-item per S site:
  * work-item (gx, gy) takes the S site in output row 2 gy + (row parity) and columns 4 gx .. 4 gx + 3;
  * items past the window's edge return. At S sites M = Mfit + gamma (p - Sfit), gamma = 1
@@ -109,8 +115,7 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     for (int dy = -2; dy <= 2; ++dy) {
         #pragma unroll
         for (int dx = -2; dx <= 2; ++dx) {
-            const int iy = yc + dy + oy, ix = xc + dx + ox;
-            const float chi = (!at_s(iy, ix) && !at_l(iy, ix)) ? 1.0f : 0.0f;
+            const float chi = (!s_rel(dy, dx) && !l_rel(dy, dx)) ? 1.0f : 0.0f;     /* compile time */
             const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
             e += chi * rm * rm;
             cnt += chi;
@@ -136,9 +141,8 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
             #pragma unroll
             for (int ux = -1; ux <= 1; ++ux) {
                 const int ui = iy0 + uy * y_w + ux;
-                const int u_y = yc + uy + oy, u_x = xc + ux + ox;
-                const float ok = (!at_s(u_y, u_x) && !at_s(u_y - dy, u_x - dx) && !at_s(u_y + dy, u_x + dx))
-                               ? 1.0f : 0.0f;
+                const float ok = (!s_rel(uy, ux) && !s_rel(uy - dy, ux - dx) && !s_rel(uy + dy, ux + dx))
+                               ? 1.0f : 0.0f;                                          /* compile time */
                 const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
                 err += ok * pe * pe;
                 cnt_k += ok;

@@ -187,19 +187,61 @@ def enqueue_apply(rt: Runtime, rows_ab: DeviceImage, guide: DeviceImage, g_off: 
     return dst
 
 
+GF_STRIP = 8
+"""Output rows per work-item of the fused strip kernels (gf_ab_strip, gf_apply_strip): each strip
+recomputes 2r rows of sums along x, so longer strips save work but cost registers."""
+
+
+def chi_rows(w: int, ox: int, mask: int, rows: int) -> np.ndarray:
+    """The mask table of gf_ab_strip, (4 + rows) x w float32: row t, column x = 1 where image pixel
+    (iy, x + ox) with iy & 3 == t & 3 is in ``mask`` (LATTICE's closed form, ox with the CFA shift folded
+    in), else 0. A strip starting at image row iy0 reads rows (iy0 & 3) + i, i < rows: a distinct row
+    for each of its rows (with 4 rows read over and over, PoCL did not vectorise). MASK_ALL: one unread
+    element."""
+    if mask == MASK_ALL:
+        return np.zeros(1, np.float32)
+    iy, ix = np.mgrid[0:4 + rows, ox:ox + w]
+    at_l = (ix + iy + LATTICE["L_PAR"]) % 2 == 0
+    at_s = ((iy + LATTICE["S_Y"]) % 2 == 0) & ((ix - iy + LATTICE["S_D"]) % 4 == 0)
+    return (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
+
+
+def _strip(h: int) -> int:
+    """Strip height for an output h rows high: GF_STRIP, or the largest power of two <= h below it."""
+    return min(GF_STRIP, 1 << (max(h, 1).bit_length() - 1))
+
+
 def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
                           guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int,
                           eps0: float, noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0,
                           out: tuple[DeviceImage, int] | None = None) -> DeviceImage:
     """The guided filter of v against plane ``g_plane`` of guide over the own window, statistics over
     ``mask`` (MASK_ALL, MASK_M, MASK_S); eps = eps0 + noise[0] max(level, 0) + noise[1]. Output: the own
-    window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Intermediates (5,
-    2 and 2 planes) come from the pool and go back to it."""
-    rows = enqueue_row_moments(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, g_plane)
-    ab = enqueue_coefficients(rt, rows, guide, g_off, r, eps0, noise, level_from_guide, g_plane)
-    rt.release(rows)
-    ab_rows = enqueue_box_rows(rt, ab, r)
+    window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Two fused kernels
+    (gf_ab_strip: row moments and coefficients; gf_apply_strip: box sums of a, b and q), the same sums
+    as the four step kernels; the a, b planes come from the pool and go back to it."""
+    h, w = own
+    ab_h, ab_w = h - 2 * r, w - 2 * r
+    ab = rt.acquire(2, ab_h, ab_w)
+    strip = _strip(ab_h)
+    chi = rt.constant(chi_rows(w, origin[1] + shift[1], mask, strip + 2 * r))
+    kernel = rt.kernel("guided_filter", "gf_ab_strip",
+                       {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
+                        "GF_STRIP": strip})
+    launch_exact(rt, kernel, ab_w, -(-ab_h // strip), guide.buffer, v.buffer, ab.buffer, chi, i32(w),
+                 _plane_base(guide, g_plane),
+                 i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(ab_w), i32(ab_h),
+                 i32(origin[0] + shift[0]), i32(origin[1] + shift[1]), f32(eps0), f32(noise[0]), f32(noise[1]))
+    q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
+    dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
+    if (dst.height, dst.width) != (q_h, q_w) or not 0 <= plane < dst.channels:
+        raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
+                         f"cannot take {q_h} x {q_w}")
+    strip = _strip(q_h)
+    kernel = rt.kernel("guided_filter", "gf_apply_strip", {**LATTICE, "GF_R": int(r), "GF_MASK": 0,
+                                                           "GF_LEVEL_GUIDE": 0, "GF_STRIP": strip})
+    launch_exact(rt, kernel, q_w, -(-q_h // strip), ab.buffer, guide.buffer, dst.buffer, i32(ab_w), i32(ab_h),
+                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(q_w), i32(q_h),
+                 _plane_base(dst, plane))
     rt.release(ab)
-    q = enqueue_apply(rt, ab_rows, guide, g_off, r, g_plane, out)
-    rt.release(ab_rows)
-    return q
+    return dst
