@@ -48,17 +48,16 @@ inline float alias_gain(const float energy, const float alias)
 inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f; }
 
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
- * on L sites only: the L quincunx interpolated). R = 4. */
+ * on L sites only: the L quincunx interpolated); D's weights are D_SUM's literals (d is unread). R = 4. */
 __kernel void l_guide(__global const float *p, __global float *dst, const int in_w, const int out_w,
                       const int oy, const int ox, __constant const float *d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = p + (y + 4) * in_w + (x + 4);
-    float acc = 0.0f;
-#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
-    D_TAPS
-#undef X
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    const float acc = D_SUM(P);
+#undef P
     dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
 }
 
@@ -176,23 +175,23 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     dst[y * out_w + x] = est;
 }
 
-/* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre support D_TAPS). R = 4. */
+/* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre taps, D_SUM; d is unread). R = 4. */
 __kernel void lum_lowpass(__global const float *m, __global float *dst, const int in_w, const int out_w,
                           __constant const float *d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = m + (y + 4) * in_w + (x + 4);
-    float acc = 0.5f * c[0];
-#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
-    D_TAPS
-#undef X
-    dst[y * out_w + x] = acc;
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    const float acc = D_SUM(P);
+#undef P
+    dst[y * out_w + x] = acc + 0.5f * c[0];
 }
 
 /* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);
  * ylp on the kernel's window (width in_w), m on a window larger by 4 (width m_w). b5: the 5 x 5
- * weights, row order. R = 2. */
+ * weights, row order. The carrier is +-1 with the checkerboard's sign, so it is taken out of the sum
+ * (mod(centre) (-1)^(dy + dx) at each tap, exact): no lattice test per tap. R = 2. */
 __kernel void chroma_input(__global const float *m, __global const float *ylp, __global float *dst,
                            const int in_w, const int m_w, const int out_w, const int oy, const int ox,
                            __constant const float *b5)
@@ -206,10 +205,11 @@ __kernel void chroma_input(__global const float *m, __global const float *ylp, _
         for (int dx = -2; dx <= 2; ++dx) {
             const int yy = y + 2 + dy, xx = x + 2 + dx;
             const float hi = m[(yy + 4) * m_w + xx + 4] - ylp[yy * in_w + xx];
-            acc += b5[(dy + 2) * 5 + dx + 2] * hi * mod_f(yy + oy, xx + ox);
+            const float sign = ((dy + dx) & 1) ? -1.0f : 1.0f;              /* compile time */
+            acc += b5[(dy + 2) * 5 + dx + 2] * hi * sign;
         }
     }
-    dst[y * out_w + x] = acc;
+    dst[y * out_w + x] = acc * mod_f(y + 2 + oy, x + 2 + ox);
 }
 
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
