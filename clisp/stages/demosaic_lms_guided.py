@@ -94,7 +94,8 @@ from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
 from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
-from .guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_box_rows, enqueue_guided_filter, guided_filter
+from .guided_filter import (MASK_ALL, MASK_S, enqueue_box_rows, enqueue_guided_filter, enqueue_guided_pair,
+                            guided_filter)
 from .lms_common import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
                          diamond_halfband, lattice_shift, launch_exact, valid)
 
@@ -586,9 +587,9 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         (y, c, ylp, o_y, o_ylp): y and c on the window p's shrunk by o_y, ylp by o_ylp."""
         prm, noise = self.params, self.pixel_noise
         own, g_origin = (guide.height, guide.width), (origin[0] + o_guide, origin[1] + o_guide)
-        fits = [enqueue_guided_filter(rt, own, g_origin, self.shift, guide, 0, p, o_guide, r, mask, prm.ms_eps,
-                                      (noise.shot[c], noise.floor[c]), False)
-                for c, mask in ((self.ch_m, MASK_M), (self.ch_s, MASK_S))]
+        fits = enqueue_guided_pair(rt, own, g_origin, self.shift, guide, 0, p, o_guide, r, prm.ms_eps,
+                                   (noise.shot[self.ch_m], noise.floor[self.ch_m]),
+                                   (noise.shot[self.ch_s], noise.floor[self.ch_s]), False)
         o_fit = o_guide + 2 * r
         h, w = fits[0].height - 2 * COMBINE_RADIUS, fits[0].width - 2 * COMBINE_RADIUS
         dst = rt.acquire(1, h, w)

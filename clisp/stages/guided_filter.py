@@ -27,9 +27,9 @@ from ..errors import ClispError
 from ..runtime import DeviceImage, Runtime
 from .lms_common import LATTICE, correlate_valid, launch_exact, valid
 
-MASK_ALL, MASK_M, MASK_S = 0, 1, 2
+MASK_ALL, MASK_M, MASK_S, MASK_PAIR = 0, 1, 2, 3
 """``mask`` of the host functions (the kernels' GF_MASK): statistics over every pixel, the M sites or
-the S sites."""
+the S sites; MASK_PAIR: the M and the S fit in one pass (``enqueue_guided_pair``)."""
 i32, f32 = np.int32, np.float32
 """Kernel argument types."""
 
@@ -220,28 +220,57 @@ def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, 
     window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Two fused kernels
     (gf_ab_strip: row moments and coefficients; gf_apply_strip: box sums of a, b and q), the same sums
     as the four step kernels; the a, b planes come from the pool and go back to it."""
+    return _enqueue_fits(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, eps0, [noise], level_from_guide,
+                         g_plane, [out])[0]
+
+
+def enqueue_guided_pair(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                        guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, eps0: float,
+                        noise_m: tuple[float, float], noise_s: tuple[float, float],
+                        level_from_guide: bool) -> tuple[DeviceImage, DeviceImage]:
+    """The two guided filters of v against guide over the M sites and over the S sites (eps noise terms
+    noise_m, noise_s), as two enqueue_guided_filter calls with MASK_M and MASK_S, in one pass of each
+    kernel (GF_MASK 3): guide and target are read once. Returns (M fit, S fit), new images."""
+    fm, fs = _enqueue_fits(rt, own, origin, shift, guide, g_off, v, v_off, r, MASK_PAIR, eps0, [noise_m, noise_s],
+                           level_from_guide, 0, [None, None])
+    return fm, fs
+
+
+def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                  guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int, eps0: float,
+                  noises: list[tuple[float, float]], level_from_guide: bool, g_plane: int,
+                  outs: list[tuple[DeviceImage, int] | None]) -> list[DeviceImage]:
+    """gf_ab_strip then gf_apply_strip for one fit (mask MASK_ALL, MASK_M, MASK_S) or the M and S pair
+    (MASK_PAIR: noises and outs for M, then S)."""
     h, w = own
     ab_h, ab_w = h - 2 * r, w - 2 * r
-    ab = rt.acquire(2, ab_h, ab_w)
+    fits = len(noises)
+    ab = rt.acquire(2 * fits, ab_h, ab_w)
     strip = _strip(ab_h)
-    chi = rt.constant(chi_rows(w, origin[1] + shift[1], mask, strip + 2 * r))
-    kernel = rt.kernel("guided_filter", "gf_ab_strip",
-                       {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
-                        "GF_STRIP": strip})
-    launch_exact(rt, kernel, ab_w, -(-ab_h // strip), guide.buffer, v.buffer, ab.buffer, chi, i32(w),
-                 _plane_base(guide, g_plane),
-                 i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(ab_w), i32(ab_h),
-                 i32(origin[0] + shift[0]), i32(origin[1] + shift[1]), f32(eps0), f32(noise[0]), f32(noise[1]))
+    ox = origin[1] + shift[1]
+    masks = [MASK_M, MASK_S] if mask == MASK_PAIR else [mask]
+    chi = rt.constant(np.concatenate([chi_rows(w, ox, m, strip + 2 * r).ravel() for m in masks]))
+    defines = {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
+               "GF_STRIP": strip}
+    n2 = noises[-1]
+    launch_exact(rt, rt.kernel("guided_filter", "gf_ab_strip", defines), ab_w, -(-ab_h // strip), guide.buffer,
+                 v.buffer, ab.buffer, chi, i32(w), _plane_base(guide, g_plane), i32(guide.width), i32(g_off),
+                 i32(v.width), i32(v_off), i32(ab_w), i32(ab_h), i32(origin[0] + shift[0]), i32(ox), f32(eps0),
+                 f32(noises[0][0]), f32(noises[0][1]), f32(n2[0]), f32(n2[1]))
     q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
-    dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
-    if (dst.height, dst.width) != (q_h, q_w) or not 0 <= plane < dst.channels:
-        raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
-                         f"cannot take {q_h} x {q_w}")
+    dsts = []
+    for out in outs:
+        dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
+        if (dst.height, dst.width) != (q_h, q_w) or not 0 <= plane < dst.channels:
+            raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
+                             f"cannot take {q_h} x {q_w}")
+        dsts.append((dst, plane))
     strip = _strip(q_h)
-    kernel = rt.kernel("guided_filter", "gf_apply_strip", {**LATTICE, "GF_R": int(r), "GF_MASK": 0,
-                                                           "GF_LEVEL_GUIDE": 0, "GF_STRIP": strip})
-    launch_exact(rt, kernel, q_w, -(-q_h // strip), ab.buffer, guide.buffer, dst.buffer, i32(ab_w), i32(ab_h),
-                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(q_w), i32(q_h),
-                 _plane_base(dst, plane))
+    defines = {**LATTICE, "GF_R": int(r), "GF_MASK": MASK_PAIR if fits == 2 else 0, "GF_LEVEL_GUIDE": 0,
+               "GF_STRIP": strip}
+    (d1, p1), (d2, p2) = dsts[0], dsts[-1]
+    launch_exact(rt, rt.kernel("guided_filter", "gf_apply_strip", defines), q_w, -(-q_h // strip), ab.buffer,
+                 guide.buffer, d1.buffer, d2.buffer, i32(ab_w), i32(ab_h), _plane_base(guide, g_plane),
+                 i32(guide.width), i32(g_off), i32(q_w), i32(q_h), _plane_base(d1, p1), _plane_base(d2, p2))
     rt.release(ab)
-    return dst
+    return [d for d, _ in dsts]
