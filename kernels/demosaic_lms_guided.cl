@@ -190,25 +190,20 @@ __kernel void lum_lowpass(__global const float *m, __global float *dst, const in
 
 /* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);
  * ylp on the kernel's window (width in_w), m on a window larger by 4 (width m_w). b5: the 5 x 5
- * weights, row order. The carrier is +-1 with the checkerboard's sign, so it is taken out of the sum
- * (mod(centre) (-1)^(dy + dx) at each tap, exact): no lattice test per tap. R = 2. */
+ * weights, row order (unread: B5_SUM has them as literals). The carrier is +-1 with the
+ * checkerboard's sign, so it is taken out of the sum (mod(centre) (-1)^(dy + dx) at each tap, exact):
+ * no lattice test per tap. R = 2. */
 __kernel void chroma_input(__global const float *m, __global const float *ylp, __global float *dst,
                            const int in_w, const int m_w, const int out_w, const int oy, const int ox,
                            __constant const float *b5)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    float acc = 0.0f;
-    #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
-        #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
-            const int yy = y + 2 + dy, xx = x + 2 + dx;
-            const float hi = m[(yy + 4) * m_w + xx + 4] - ylp[yy * in_w + xx];
-            const float sign = ((dy + dx) & 1) ? -1.0f : 1.0f;              /* compile time */
-            acc += b5[(dy + 2) * 5 + dx + 2] * hi * sign;
-        }
-    }
+    __global const float *mc = m + (y + 6) * m_w + x + 6;
+    __global const float *lc = ylp + (y + 2) * in_w + x + 2;
+#define P(dy, dx) (mc[(dy) * m_w + (dx)] - lc[(dy) * in_w + (dx)])
+    const float acc = B5_SUM(P);
+#undef P
     dst[y * out_w + x] = acc * mod_f(y + 2 + oy, x + 2 + ox);
 }
 
