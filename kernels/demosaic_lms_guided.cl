@@ -177,7 +177,7 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
 
 /* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre taps, D_SUM; d is unread). R = 4. */
 __kernel void lum_lowpass(__global const float *m, __global float *dst, const int in_w, const int out_w,
-                          __constant const float *d)
+                          const int oy, const int ox, __constant const float *d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -185,7 +185,9 @@ __kernel void lum_lowpass(__global const float *m, __global float *dst, const in
 #define P(dy, dx) c[(dy) * in_w + (dx)]
     const float acc = D_SUM(P);
 #undef P
-    dst[y * out_w + x] = acc + 0.5f * c[0];
+    /* two bitwise-equal forms (scaling by 2 is exact) selected by the lattice: PoCL then vectorises
+     * 8 wide, not 4 (measured 3x faster; a lone acc + c / 2 gets 4) */
+    dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? acc + 0.5f * c[0] : (2.0f * acc + c[0]) * 0.5f;
 }
 
 /* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);

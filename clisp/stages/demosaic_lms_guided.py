@@ -628,7 +628,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         prm, r = self.params, self.params.chroma_radius
         h, w = m.height - 2 * D_RADIUS, m.width - 2 * D_RADIUS
         ylp = rt.acquire(1, h, w)
-        self._launch(rt, "lum_lowpass", w, h, m.buffer, ylp.buffer, i32(m.width), i32(w),
+        self._launch(rt, "lum_lowpass", w, h, m.buffer, ylp.buffer, i32(m.width), i32(w), *self._origin(m_origin),
                      rt.constant(as_f32(_weights(D9, centre=False))))
         y_origin = (m_origin[0] + D_RADIUS, m_origin[1] + D_RADIUS)
         hc, wc = h - 2 * PRE_RADIUS, w - 2 * PRE_RADIUS

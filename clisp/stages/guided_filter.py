@@ -206,9 +206,13 @@ def chi_rows(w: int, ox: int, mask: int, rows: int) -> np.ndarray:
     return (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
 
 
-def _strip(h: int) -> int:
-    """Strip height for an output h rows high: GF_STRIP, or the largest power of two <= h below it."""
-    return min(GF_STRIP, 1 << (max(h, 1).bit_length() - 1))
+APPLY_STRIP = 8
+"""GF_STRIP of gf_apply_strip (two sums per row: registers allow longer strips)."""
+
+
+def _strip(h: int, strip: int = GF_STRIP) -> int:
+    """Strip height for an output h rows high: ``strip``, or the largest power of two <= h below it."""
+    return min(strip, 1 << (max(h, 1).bit_length() - 1))
 
 
 def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
@@ -265,7 +269,7 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
             raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
                              f"cannot take {q_h} x {q_w}")
         dsts.append((dst, plane))
-    strip = _strip(q_h)
+    strip = _strip(q_h, APPLY_STRIP)
     defines = {**LATTICE, "GF_R": int(r), "GF_MASK": MASK_PAIR if fits == 2 else 0, "GF_LEVEL_GUIDE": 0,
                "GF_STRIP": strip}
     (d1, p1), (d2, p2) = dsts[0], dsts[-1]
