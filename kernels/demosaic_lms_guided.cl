@@ -308,41 +308,52 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
     dst[2 * plane + i] = e_sig;
 }
 
-/* s_output: the three planes L, M, S before s_alias: L, M copied from lm (a window larger by lm_off on every side of
- * the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the S sites of
- * the 7 x 7 of the residuals p - g), gamma_S = 1 (noiseless) or max(E - var_S(g), 0) / E, E = mean over
- * those S sites of (p - g)^2. g on the kernel's window (width in_w), p on a window larger by p_off.
- * tent: the TENT_TAPS weights. R = 3. */
-__kernel void s_output(__global const float *p, __global const float *g, __global const float *lm,
-                       __global float *dst, const int in_w, const int p_w, const int p_off, const int lm_w,
+/* s_residual: rs = p - g at the S sites, 0 elsewhere (the residual s_output interpolates), on g's
+ * window (width in_w; p on a window larger by p_off). One lattice test per pixel instead of one per
+ * tap in s_output. R = 0. */
+__kernel void s_residual(__global const float *p, __global const float *g, __global float *dst, const int in_w,
+                         const int p_w, const int p_off, const int oy, const int ox)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int i = y * in_w + x;
+    dst[i] = at_s(y + oy, x + ox) ? p[(y + p_off) * p_w + x + p_off] - g[i] : 0.0f;
+}
+
+/* s_output: the three planes L, M, S before s_alias: L, M copied from lm (a window larger by lm_off on
+ * every side of the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the
+ * S sites of the 7 x 7 of the residuals rs = p - g, s_residual's plane), gamma_S = 1 (noiseless) or
+ * max(E - var_S(g), 0) / E, E = mean over those S sites of rs^2. g and rs on the kernel's window (width
+ * in_w). tent: the TENT_TAPS weights. lat: the lattice-only sums, 2 x 4 rows of in_w (host-made,
+ * s_output_lattice): row (image row & 3) the tent's weight over the S sites (the denominator), row
+ * 4 + (image row & 3) the count of S sites in the 7 x 7. R = 3. */
+__kernel void s_output(__global const float *rs, __global const float *g, __global const float *lm,
+                       __global float *dst, __global const float *lat, const int in_w, const int lm_w,
                        const int lm_h, const int lm_off, const int out_w, const int out_h, const int oy,
-                       const int ox, __constant const float *tent, const float shot_s, const float floor_s)
+                       __constant const float *tent, const float shot_s, const float floor_s)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int yc = y + 3, xc = x + 3;
-    __global const float *gc = g + yc * in_w + xc;
-    __global const float *pc = p + (yc + p_off) * p_w + xc + p_off;
-    float num = 0.0f, den = 0.0f;
-#define X(dy, dx, t) { const float chi = at_s(yc + (dy) + oy, xc + (dx) + ox) ? 1.0f : 0.0f; \
-                       num += tent[t] * chi * (pc[(dy) * p_w + (dx)] - gc[(dy) * in_w + (dx)]); \
-                       den += tent[t] * chi; }
+    __global const float *rc = rs + yc * in_w + xc;
+    __global const float *lr = lat + ((yc + oy) & 3) * in_w + xc;
+    float num = 0.0f;
+#define X(dy, dx, t) num += tent[t] * rc[(dy) * in_w + (dx)];
     TENT_TAPS
 #undef X
-    const float g0 = gc[0];
+    const float den = lr[0];
+    const float g0 = g[yc * in_w + xc];
 #if NOISY
-    float e = 0.0f, cnt = 0.0f;
+    float e = 0.0f;
     #pragma unroll
     for (int dy = -3; dy <= 3; ++dy) {
         #pragma unroll
         for (int dx = -3; dx <= 3; ++dx) {
-            const float chi = at_s(yc + dy + oy, xc + dx + ox) ? 1.0f : 0.0f;
-            const float res = pc[dy * p_w + dx] - gc[dy * in_w + dx];
-            e += chi * res * res;
-            cnt += chi;
+            const float res = rc[dy * in_w + dx];
+            e += res * res;
         }
     }
-    e /= cnt;
+    e /= lr[4 * in_w];
     const float gamma = e > 0.0f ? max_f(e - (shot_s * max_f(g0, 0.0f) + floor_s), 0.0f) / e : 0.0f;
 #else
     const float gamma = 1.0f;

@@ -649,6 +649,24 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                      i32(m_off), i32(c.width), *self._origin(c_origin))
         return dst
 
+    def enqueue_s_output(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int], g: DeviceImage, o_g: int,
+                         lm: DeviceImage, lm_off: int) -> DeviceImage:
+        """s_residual then s_output: L, M (planes 0, 1 of lm, on g's window grown by lm_off) and S on g's
+        window (src's shrunk by o_g) shrunk by RI_RADIUS."""
+        noise = self.pixel_noise
+        out_h, out_w = g.height - 2 * RI_RADIUS, g.width - 2 * RI_RADIUS
+        lms = rt.acquire(3, out_h, out_w)
+        res = rt.acquire(1, g.height, g.width)
+        oy_g, ox_g = self._origin((origin[0] + o_g, origin[1] + o_g))
+        self._launch(rt, "s_residual", g.width, g.height, src.buffer, g.buffer, res.buffer, i32(g.width),
+                     i32(src.width), i32(o_g), oy_g, ox_g)
+        self._launch(rt, "s_output", out_w, out_h, res.buffer, g.buffer, lm.buffer, lms.buffer,
+                     rt.constant(s_output_lattice(g.width, int(ox_g))), i32(g.width), i32(lm.width),
+                     i32(lm.height), i32(lm_off), i32(out_w), i32(out_h), oy_g,
+                     rt.constant(as_f32(_weights(TENT))), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
+        rt.release(res)
+        return lms
+
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """All steps on the device (module doc); intermediates from the pool, released when done."""
         if np.dtype(src.dtype) != np.float32:
@@ -695,12 +713,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         g = enqueue_guided_filter(rt, (h, w), at(o_lm), self.shift, lm, 0, src, o_lm, rs, MASK_S, prm.s_eps,
                                   (noise.shot[self.ch_s], noise.floor[self.ch_s]), False, g_plane=1)
         o_g = o_lm + 2 * rs
-        out_h, out_w = g.height - 2 * RI_RADIUS, g.width - 2 * RI_RADIUS
-        lms = rt.acquire(3, out_h, out_w)
-        self._launch(rt, "s_output", out_w, out_h, src.buffer, g.buffer, lm.buffer, lms.buffer, i32(g.width),
-                     i32(src.width), i32(o_g), i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(out_w),
-                     i32(out_h), *self._origin(at(o_g)), rt.constant(as_f32(_weights(TENT))),
-                     f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
+        lms = self.enqueue_s_output(rt, src, origin, g, o_g, lm, 2 * rs + RI_RADIUS)
+        out_h, out_w = lms.height, lms.width
         rt.release(g)
         tone = rt.acquire(2, out_h - 4, out_w - 4)
         self._launch(rt, "s_tone_energy", out_w - 4, out_h - 4, lms.buffer, tone.buffer, i32(out_w), i32(out_h),
@@ -717,6 +731,20 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         rt.release(rows)
         rt.release(lm)
         return dst
+
+
+def s_output_lattice(w: int, ox: int) -> np.ndarray:
+    """s_output's lattice-only sums, 8 x w float32: row p < 4, column x: sum of the TENT_TAPS weights
+    (float32, in tap order) over the S sites around image pixel (iy, x + ox), iy & 3 == p (LATTICE's
+    closed form, ox with the CFA shift folded in); row 4 + p: the number of S sites in its 7 x 7."""
+    r = RI_RADIUS
+    iy, ix = np.mgrid[-r:4 + r, ox - r:ox + w + r]
+    chi = (((iy + LATTICE["S_Y"]) % 2 == 0) & ((ix - iy + LATTICE["S_D"]) % 4 == 0)).astype(np.float32)
+    den = np.zeros((4, w), np.float32)
+    for (dy, dx), wt in zip(_support(TENT), as_f32(_weights(TENT))):
+        den += np.float32(wt) * chi[r + dy:r + dy + 4, r + dx:r + dx + w]
+    cnt = sum(chi[r + dy:r + dy + 4, r + dx:r + dx + w] for dy in range(-r, r + 1) for dx in range(-r, r + 1))
+    return np.concatenate([den, cnt]).astype(np.float32)
 
 
 def _support(k: np.ndarray, centre: bool = True) -> np.ndarray:
