@@ -114,10 +114,11 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     for (int dy = -2; dy <= 2; ++dy) {
         #pragma unroll
         for (int dx = -2; dx <= 2; ++dx) {
-            const float chi = (!s_rel(dy, dx) && !l_rel(dy, dx)) ? 1.0f : 0.0f;     /* compile time */
-            const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
-            e += chi * rm * rm;
-            cnt += chi;
+            if (!s_rel(dy, dx) && !l_rel(dy, dx)) {        /* the M sites; compile time (adding 0 * x: no-op) */
+                const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
+                e += rm * rm;
+                cnt += 1.0f;
+            }
         }
     }
     const float sig = max_f(e / cnt - (shot_m * max_f(mf, 0.0f) + floor_m), 0.0f);
@@ -140,11 +141,11 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
             #pragma unroll
             for (int ux = -1; ux <= 1; ++ux) {
                 const int ui = iy0 + uy * y_w + ux;
-                const float ok = (!s_rel(uy, ux) && !s_rel(uy - dy, ux - dx) && !s_rel(uy + dy, ux + dx))
-                               ? 1.0f : 0.0f;                                          /* compile time */
-                const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
-                err += ok * pe * pe;
-                cnt_k += ok;
+                if (!s_rel(uy, ux) && !s_rel(uy - dy, ux - dx) && !s_rel(uy + dy, ux + dx)) {   /* compile time */
+                    const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
+                    err += pe * pe;
+                    cnt_k += 1.0f;
+                }
             }
         }
         err /= cnt_k;
