@@ -170,7 +170,7 @@ __kernel void gf_ab_strip(__global const float *guide, __global const float *v, 
     float rn[GF_FITS][GF_NR], r1[GF_FITS][GF_NR], r2[GF_FITS][GF_NR], rv[GF_FITS][GF_NR], rdv[GF_FITS][GF_NR];
     float rc[GF_NR];
     const int plane = out_w * out_h;
-    const int table = (4 + GF_NR) * chi_w;                     /* one fit's mask table */
+    const int table = 2 * (4 + GF_NR) * chi_w;                 /* one fit's mask and count table */
     #pragma unroll
     for (int i = 0; i < GF_NR; ++i) {
         __global const float *gc = guide + g_base + (y0 + i + g_off) * g_w + x + GF_R + g_off;
@@ -179,8 +179,10 @@ __kernel void gf_ab_strip(__global const float *guide, __global const float *v, 
         const float c = gc[0];
         float n[GF_FITS], s1[GF_FITS], s2[GF_FITS], sv[GF_FITS], sdv[GF_FITS];
         #pragma unroll
-        for (int f = 0; f < GF_FITS; ++f)
-            n[f] = s1[f] = s2[f] = sv[f] = sdv[f] = 0.0f;
+        for (int f = 0; f < GF_FITS; ++f) {
+            n[f] = GF_MASK == 0 ? (float)GF_T : mrow[f * table + (4 + GF_NR) * chi_w];   /* the row's count */
+            s1[f] = s2[f] = sv[f] = sdv[f] = 0.0f;
+        }
         #pragma unroll
         for (int k = -GF_R; k <= GF_R; ++k) {
             const float d = gc[k] - c, vv = vc[k];
@@ -190,7 +192,6 @@ __kernel void gf_ab_strip(__global const float *guide, __global const float *v, 
                 const float dk = chi * d;
                 const float vk = chi != 0.0f ? vv : 0.0f;   /* not chi * v: PoCL's SLP pass pairs it with
                                                                dk and the work-item loop stays scalar */
-                n[f] += chi;
                 s1[f] += dk;
                 s2[f] += dk * dk;
                 sv[f] += vk;

@@ -192,18 +192,21 @@ GF_STRIP = 8
 recomputes 2r rows of sums along x, so longer strips save work but cost registers."""
 
 
-def chi_rows(w: int, ox: int, mask: int, rows: int) -> np.ndarray:
-    """The mask table of gf_ab_strip, (4 + rows) x w float32: row t, column x = 1 where image pixel
-    (iy, x + ox) with iy & 3 == t & 3 is in ``mask`` (LATTICE's closed form, ox with the CFA shift folded
-    in), else 0. A strip starting at image row iy0 reads rows (iy0 & 3) + i, i < rows: a distinct row
-    for each of its rows (with 4 rows read over and over, PoCL did not vectorise). MASK_ALL: one unread
+def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
+    """The mask table of gf_ab_strip, 2 (4 + rows) x w float32: row t < 4 + rows, column x = 1 where
+    image pixel (iy, x + ox) with iy & 3 == t & 3 is in ``mask`` (LATTICE's closed form, ox with the
+    CFA shift folded in), else 0; row 4 + rows + t: the sum of row t over x - r .. x + r (a row window's
+    count). A strip starting at image row iy0 reads rows (iy0 & 3) + i, i < rows: a distinct row for
+    each of its rows (with 4 rows read over and over, PoCL did not vectorise). MASK_ALL: one unread
     element."""
     if mask == MASK_ALL:
         return np.zeros(1, np.float32)
-    iy, ix = np.mgrid[0:4 + rows, ox:ox + w]
+    iy, ix = np.mgrid[0:4 + rows, ox - r:ox + w + r]
     at_l = (ix + iy + LATTICE["L_PAR"]) % 2 == 0
     at_s = ((iy + LATTICE["S_Y"]) % 2 == 0) & ((ix - iy + LATTICE["S_D"]) % 4 == 0)
-    return (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
+    chi = (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
+    count = sum(chi[:, r + k:chi.shape[1] - r + k] for k in range(-r, r + 1))
+    return np.concatenate([chi[:, r:chi.shape[1] - r], count]).astype(np.float32)
 
 
 APPLY_STRIP = 8
@@ -253,7 +256,7 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     strip = _strip(ab_h)
     ox = origin[1] + shift[1]
     masks = [MASK_M, MASK_S] if mask == MASK_PAIR else [mask]
-    chi = rt.constant(np.concatenate([chi_rows(w, ox, m, strip + 2 * r).ravel() for m in masks]))
+    chi = rt.constant(np.concatenate([chi_rows(w, ox, m, strip + 2 * r, r).ravel() for m in masks]))
     defines = {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
                "GF_STRIP": strip}
     n2 = noises[-1]
