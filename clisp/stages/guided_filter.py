@@ -209,7 +209,7 @@ def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
     return np.concatenate([chi[:, r:chi.shape[1] - r], count]).astype(np.float32)
 
 
-APPLY_STRIP = 8
+APPLY_STRIP = 16
 """GF_STRIP of gf_apply_strip (two sums per row: registers allow longer strips)."""
 
 
