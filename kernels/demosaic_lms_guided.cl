@@ -48,17 +48,16 @@ inline float alias_gain(const float energy, const float alias)
 inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f; }
 
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
- * on L sites only: the L quincunx interpolated). R = 4. */
+ * on L sites only: the L quincunx interpolated); D's weights are D_SUM's literals (d is unread). R = 4. */
 __kernel void l_guide(__global const float *p, __global float *dst, const int in_w, const int out_w,
                       const int oy, const int ox, __constant const float *d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = p + (y + 4) * in_w + (x + 4);
-    float acc = 0.0f;
-#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
-    D_TAPS
-#undef X
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    const float acc = D_SUM(P);
+#undef P
     dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
 }
 
@@ -71,6 +70,12 @@ __kernel void m_keep(__global const float *p, __global float *dst, const int p_w
     const int y = get_global_id(1);
     dst[y * out_w + x] = p[(y + p_off) * p_w + x + p_off];
 }
+
+/* The lattice seen from an S site, at offset (dy, dx): S iff dy is even and dx - dy a multiple of 4,
+ * L iff dy + dx is odd (at_s, at_l with the S site's own parities). Constant offsets fold at compile
+ * time: m_at_s_combine runs on S sites only, so its masks need no integer work per tap. */
+inline int s_rel(const int dy, const int dx) { return (dy & 1) == 0 && ((dx - dy) & 3) == 0; }
+inline int l_rel(const int dy, const int dx) { return ((dy + dx) & 1) != 0; }
 
 /* m_at_s_combine: M at the S sites of m (the other pixels are m_keep's p), one work-item per S site:
  * work-item (gx, gy) takes the S site in output row 2 gy + (row parity) and columns 4 gx .. 4 gx + 3;
@@ -109,11 +114,11 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     for (int dy = -2; dy <= 2; ++dy) {
         #pragma unroll
         for (int dx = -2; dx <= 2; ++dx) {
-            const int iy = yc + dy + oy, ix = xc + dx + ox;
-            const float chi = (!at_s(iy, ix) && !at_l(iy, ix)) ? 1.0f : 0.0f;
-            const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
-            e += chi * rm * rm;
-            cnt += chi;
+            if (!s_rel(dy, dx) && !l_rel(dy, dx)) {        /* the M sites; compile time (adding 0 * x: no-op) */
+                const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
+                e += rm * rm;
+                cnt += 1.0f;
+            }
         }
     }
     const float sig = max_f(e / cnt - (shot_m * max_f(mf, 0.0f) + floor_m), 0.0f);
@@ -136,12 +141,11 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
             #pragma unroll
             for (int ux = -1; ux <= 1; ++ux) {
                 const int ui = iy0 + uy * y_w + ux;
-                const int u_y = yc + uy + oy, u_x = xc + ux + ox;
-                const float ok = (!at_s(u_y, u_x) && !at_s(u_y - dy, u_x - dx) && !at_s(u_y + dy, u_x + dx))
-                               ? 1.0f : 0.0f;
-                const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
-                err += ok * pe * pe;
-                cnt_k += ok;
+                if (!s_rel(uy, ux) && !s_rel(uy - dy, ux - dx) && !s_rel(uy + dy, ux + dx)) {   /* compile time */
+                    const float pe = 0.5f * (yg[ui - o] + yg[ui + o]) - yg[ui];
+                    err += pe * pe;
+                    cnt_k += 1.0f;
+                }
             }
         }
         err /= cnt_k;
@@ -172,40 +176,38 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
     dst[y * out_w + x] = est;
 }
 
-/* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre support D_TAPS). R = 4. */
+/* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre taps, D_SUM; d is unread). R = 4. */
 __kernel void lum_lowpass(__global const float *m, __global float *dst, const int in_w, const int out_w,
-                          __constant const float *d)
+                          const int oy, const int ox, __constant const float *d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = m + (y + 4) * in_w + (x + 4);
-    float acc = 0.5f * c[0];
-#define X(dy, dx, t) acc += d[t] * c[(dy) * in_w + (dx)];
-    D_TAPS
-#undef X
-    dst[y * out_w + x] = acc;
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    const float acc = D_SUM(P);
+#undef P
+    /* two bitwise-equal forms (scaling by 2 is exact) selected by the lattice: PoCL then vectorises
+     * 8 wide, not 4 (measured 3x faster; a lone acc + c / 2 gets 4) */
+    dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? acc + 0.5f * c[0] : (2.0f * acc + c[0]) * 0.5f;
 }
 
 /* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);
  * ylp on the kernel's window (width in_w), m on a window larger by 4 (width m_w). b5: the 5 x 5
- * weights, row order. R = 2. */
+ * weights, row order (unread: B5_SUM has them as literals). The carrier is +-1 with the
+ * checkerboard's sign, so it is taken out of the sum (mod(centre) (-1)^(dy + dx) at each tap, exact):
+ * no lattice test per tap. R = 2. */
 __kernel void chroma_input(__global const float *m, __global const float *ylp, __global float *dst,
                            const int in_w, const int m_w, const int out_w, const int oy, const int ox,
                            __constant const float *b5)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    float acc = 0.0f;
-    #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
-        #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
-            const int yy = y + 2 + dy, xx = x + 2 + dx;
-            const float hi = m[(yy + 4) * m_w + xx + 4] - ylp[yy * in_w + xx];
-            acc += b5[(dy + 2) * 5 + dx + 2] * hi * mod_f(yy + oy, xx + ox);
-        }
-    }
-    dst[y * out_w + x] = acc;
+    __global const float *mc = m + (y + 6) * m_w + x + 6;
+    __global const float *lc = ylp + (y + 2) * in_w + x + 2;
+#define P(dy, dx) (mc[(dy) * m_w + (dx)] - lc[(dy) * in_w + (dx)])
+    const float acc = B5_SUM(P);
+#undef P
+    dst[y * out_w + x] = acc * mod_f(y + 2 + oy, x + 2 + ox);
 }
 
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
@@ -307,41 +309,52 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
     dst[2 * plane + i] = e_sig;
 }
 
-/* s_output: the three planes L, M, S before s_alias: L, M copied from lm (a window larger by lm_off on every side of
- * the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the S sites of
- * the 7 x 7 of the residuals p - g), gamma_S = 1 (noiseless) or max(E - var_S(g), 0) / E, E = mean over
- * those S sites of (p - g)^2. g on the kernel's window (width in_w), p on a window larger by p_off.
- * tent: the TENT_TAPS weights. R = 3. */
-__kernel void s_output(__global const float *p, __global const float *g, __global const float *lm,
-                       __global float *dst, const int in_w, const int p_w, const int p_off, const int lm_w,
+/* s_residual: rs = p - g at the S sites, 0 elsewhere (the residual s_output interpolates), on g's
+ * window (width in_w; p on a window larger by p_off). One lattice test per pixel instead of one per
+ * tap in s_output. R = 0. */
+__kernel void s_residual(__global const float *p, __global const float *g, __global float *dst, const int in_w,
+                         const int p_w, const int p_off, const int oy, const int ox)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int i = y * in_w + x;
+    dst[i] = at_s(y + oy, x + ox) ? p[(y + p_off) * p_w + x + p_off] - g[i] : 0.0f;
+}
+
+/* s_output: the three planes L, M, S before s_alias: L, M copied from lm (a window larger by lm_off on
+ * every side of the output, 2 planes of lm_w x lm_h) and S = g + gamma_S * (tent interpolation over the
+ * S sites of the 7 x 7 of the residuals rs = p - g, s_residual's plane), gamma_S = 1 (noiseless) or
+ * max(E - var_S(g), 0) / E, E = mean over those S sites of rs^2. g and rs on the kernel's window (width
+ * in_w). tent: the TENT_TAPS weights. lat: the lattice-only sums, 2 x 4 rows of in_w (host-made,
+ * s_output_lattice): row (image row & 3) the tent's weight over the S sites (the denominator), row
+ * 4 + (image row & 3) the count of S sites in the 7 x 7. R = 3. */
+__kernel void s_output(__global const float *rs, __global const float *g, __global const float *lm,
+                       __global float *dst, __global const float *lat, const int in_w, const int lm_w,
                        const int lm_h, const int lm_off, const int out_w, const int out_h, const int oy,
-                       const int ox, __constant const float *tent, const float shot_s, const float floor_s)
+                       __constant const float *tent, const float shot_s, const float floor_s)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int yc = y + 3, xc = x + 3;
-    __global const float *gc = g + yc * in_w + xc;
-    __global const float *pc = p + (yc + p_off) * p_w + xc + p_off;
-    float num = 0.0f, den = 0.0f;
-#define X(dy, dx, t) { const float chi = at_s(yc + (dy) + oy, xc + (dx) + ox) ? 1.0f : 0.0f; \
-                       num += tent[t] * chi * (pc[(dy) * p_w + (dx)] - gc[(dy) * in_w + (dx)]); \
-                       den += tent[t] * chi; }
+    __global const float *rc = rs + yc * in_w + xc;
+    __global const float *lr = lat + ((yc + oy) & 3) * in_w + xc;
+    float num = 0.0f;
+#define X(dy, dx, t) num += tent[t] * rc[(dy) * in_w + (dx)];
     TENT_TAPS
 #undef X
-    const float g0 = gc[0];
+    const float den = lr[0];
+    const float g0 = g[yc * in_w + xc];
 #if NOISY
-    float e = 0.0f, cnt = 0.0f;
+    float e = 0.0f;
     #pragma unroll
     for (int dy = -3; dy <= 3; ++dy) {
         #pragma unroll
         for (int dx = -3; dx <= 3; ++dx) {
-            const float chi = at_s(yc + dy + oy, xc + dx + ox) ? 1.0f : 0.0f;
-            const float res = pc[dy * p_w + dx] - gc[dy * in_w + dx];
-            e += chi * res * res;
-            cnt += chi;
+            const float res = rc[dy * in_w + dx];
+            e += res * res;
         }
     }
-    e /= cnt;
+    e /= lr[4 * in_w];
     const float gamma = e > 0.0f ? max_f(e - (shot_s * max_f(g0, 0.0f) + floor_s), 0.0f) / e : 0.0f;
 #else
     const float gamma = 1.0f;

@@ -32,7 +32,8 @@ from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_
                                               chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
                                               neutral_of, s_alias, s_output, tonal_energy,
                                               S_ALIAS_RADIUS, axial_tonal_energy)
-from clisp.stages.guided_filter import MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, guided_filter
+from clisp.stages.guided_filter import (MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
+                                       guided_filter)
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
 
@@ -190,6 +191,63 @@ def test_kernel_guided_filter(rt, window, channel_name):
                                 rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, mask_arg, 1e-4,
                                 (shot, floor), channel < 0)
     assert_close(download(rt, out), ref, f"guided filter {channel_name}")
+
+
+@pytest.mark.parametrize("r, rows", [(2, 90), (4, 90), (3, 19), (2, 13)])
+def test_kernel_guided_filter_strips(rt, window, r, rows):
+    """The fused strip kernels (gf_ab_strip, gf_apply_strip) at other radii and on windows whose
+    outputs are shorter than a strip (strip heights fall back to powers of two; ragged last strips
+    shift up), S sites and every pixel."""
+    cfa, x = window
+    x = x[:rows]
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    origin, off = (5, -2), 2
+    guide = x[off:-off, off:-off].astype(np.float64) ** 0.5
+    ch = cfa.channel_map(*guide.shape, (origin[0] + off, origin[1] + off))
+    for name, mask, mask_arg in (("S", ch == stage.ch_s, MASK_S), ("all", None, MASK_ALL)):
+        ref = guided_filter(guide, x[off:-off, off:-off].astype(np.float64), mask, r, 1e-4, 0.01, 1e-5, mask is None)
+        out = enqueue_guided_filter(rt, guide.shape, (origin[0] + off, origin[1] + off), stage.shift,
+                                    rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, mask_arg, 1e-4,
+                                    (0.01, 1e-5), mask is None)
+        assert_close(download(rt, out), ref, f"guided filter {name} r={r} rows={rows}")
+
+
+@pytest.mark.parametrize("r", [2, 3])
+def test_kernel_guided_pair(rt, window, r):
+    """enqueue_guided_pair (the M and S fits in one pass, GF_MASK 3) against two guided_filter calls."""
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa, noise=NOISE)
+    origin, off = (-1, 4), 3
+    guide = x[off:-off, off:-off].astype(np.float64) ** 0.5
+    ch = cfa.channel_map(*guide.shape, (origin[0] + off, origin[1] + off))
+    noise = {c: (NOISE.shot[c], NOISE.floor[c]) for c in (stage.ch_m, stage.ch_s)}
+    fits = enqueue_guided_pair(rt, guide.shape, (origin[0] + off, origin[1] + off), stage.shift,
+                               rt.upload(guide.astype(np.float32)), 0, rt.upload(x), off, r, 1e-4,
+                               noise[stage.ch_m], noise[stage.ch_s], False)
+    for fit, c in zip(fits, (stage.ch_m, stage.ch_s)):
+        ref = guided_filter(guide, x[off:-off, off:-off].astype(np.float64), ch == c, r, 1e-4, *noise[c], False)
+        assert_close(download(rt, fit), ref, f"guided pair, channel {cfa.channels[c]}")
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+@pytest.mark.parametrize("origin", [(0, 0), (3, -5)])
+def test_kernel_s_output(rt, window, noisy, origin):
+    """s_residual + s_output (enqueue_s_output) against s_output, L and M copied from lm."""
+    cfa, x = window
+    stage = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None)
+    o_g, lm_off = 5, 4
+    p = x.astype(np.float64)
+    g = p[o_g:-o_g, o_g:-o_g] * 0.95 + 0.02
+    rng = np.random.default_rng(2)
+    lm = rng.uniform(0.1, 0.9, (2, g.shape[0] - 2 * RI_RADIUS + 2 * lm_off, g.shape[1] - 2 * RI_RADIUS + 2 * lm_off))
+    ch = cfa.channel_map(*p.shape, origin)
+    ref = s_output(valid(p, o_g), valid(ch, o_g), g.astype(np.float32).astype(np.float64), stage.ch_s,
+                   NOISE if noisy else None)
+    lms = stage.enqueue_s_output(rt, rt.upload(x), origin, rt.upload(g.astype(np.float32)), o_g,
+                                 rt.upload(lm.astype(np.float32)), lm_off)
+    out = download(rt, lms)
+    assert_close(out[..., 2], ref, f"s_output noisy={noisy}")
+    assert_close(out[..., :2], lm.astype(np.float32).transpose(1, 2, 0)[lm_off:-lm_off, lm_off:-lm_off], "L, M")
 
 
 @pytest.mark.parametrize("pass2", [False, True])

@@ -27,9 +27,9 @@ from ..errors import ClispError
 from ..runtime import DeviceImage, Runtime
 from .lms_common import LATTICE, correlate_valid, launch_exact, valid
 
-MASK_ALL, MASK_M, MASK_S = 0, 1, 2
+MASK_ALL, MASK_M, MASK_S, MASK_PAIR = 0, 1, 2, 3
 """``mask`` of the host functions (the kernels' GF_MASK): statistics over every pixel, the M sites or
-the S sites."""
+the S sites; MASK_PAIR: the M and the S fit in one pass (``enqueue_guided_pair``)."""
 i32, f32 = np.int32, np.float32
 """Kernel argument types."""
 
@@ -187,19 +187,97 @@ def enqueue_apply(rt: Runtime, rows_ab: DeviceImage, guide: DeviceImage, g_off: 
     return dst
 
 
+GF_STRIP = 8
+"""Output rows per work-item of the fused strip kernels (gf_ab_strip, gf_apply_strip): each strip
+recomputes 2r rows of sums along x, so longer strips save work but cost registers."""
+
+
+def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
+    """The mask table of gf_ab_strip, 2 (4 + rows) x w float32: row t < 4 + rows, column x = 1 where
+    image pixel (iy, x + ox) with iy & 3 == t & 3 is in ``mask`` (LATTICE's closed form, ox with the
+    CFA shift folded in), else 0; row 4 + rows + t: the sum of row t over x - r .. x + r (a row window's
+    count). A strip starting at image row iy0 reads rows (iy0 & 3) + i, i < rows: a distinct row for
+    each of its rows (with 4 rows read over and over, PoCL did not vectorise). MASK_ALL: one unread
+    element."""
+    if mask == MASK_ALL:
+        return np.zeros(1, np.float32)
+    iy, ix = np.mgrid[0:4 + rows, ox - r:ox + w + r]
+    at_l = (ix + iy + LATTICE["L_PAR"]) % 2 == 0
+    at_s = ((iy + LATTICE["S_Y"]) % 2 == 0) & ((ix - iy + LATTICE["S_D"]) % 4 == 0)
+    chi = (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
+    count = sum(chi[:, r + k:chi.shape[1] - r + k] for k in range(-r, r + 1))
+    return np.concatenate([chi[:, r:chi.shape[1] - r], count]).astype(np.float32)
+
+
+APPLY_STRIP = 16
+"""GF_STRIP of gf_apply_strip (two sums per row: registers allow longer strips)."""
+
+
+def _strip(h: int, strip: int = GF_STRIP) -> int:
+    """Strip height for an output h rows high: ``strip``, or the largest power of two <= h below it."""
+    return min(strip, 1 << (max(h, 1).bit_length() - 1))
+
+
 def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
                           guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int,
                           eps0: float, noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0,
                           out: tuple[DeviceImage, int] | None = None) -> DeviceImage:
     """The guided filter of v against plane ``g_plane`` of guide over the own window, statistics over
     ``mask`` (MASK_ALL, MASK_M, MASK_S); eps = eps0 + noise[0] max(level, 0) + noise[1]. Output: the own
-    window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Intermediates (5,
-    2 and 2 planes) come from the pool and go back to it."""
-    rows = enqueue_row_moments(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, g_plane)
-    ab = enqueue_coefficients(rt, rows, guide, g_off, r, eps0, noise, level_from_guide, g_plane)
-    rt.release(rows)
-    ab_rows = enqueue_box_rows(rt, ab, r)
+    window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Two fused kernels
+    (gf_ab_strip: row moments and coefficients; gf_apply_strip: box sums of a, b and q), the same sums
+    as the four step kernels; the a, b planes come from the pool and go back to it."""
+    return _enqueue_fits(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, eps0, [noise], level_from_guide,
+                         g_plane, [out])[0]
+
+
+def enqueue_guided_pair(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                        guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, eps0: float,
+                        noise_m: tuple[float, float], noise_s: tuple[float, float],
+                        level_from_guide: bool) -> tuple[DeviceImage, DeviceImage]:
+    """The two guided filters of v against guide over the M sites and over the S sites (eps noise terms
+    noise_m, noise_s), as two enqueue_guided_filter calls with MASK_M and MASK_S, in one pass of each
+    kernel (GF_MASK 3): guide and target are read once. Returns (M fit, S fit), new images."""
+    fm, fs = _enqueue_fits(rt, own, origin, shift, guide, g_off, v, v_off, r, MASK_PAIR, eps0, [noise_m, noise_s],
+                           level_from_guide, 0, [None, None])
+    return fm, fs
+
+
+def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
+                  guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int, eps0: float,
+                  noises: list[tuple[float, float]], level_from_guide: bool, g_plane: int,
+                  outs: list[tuple[DeviceImage, int] | None]) -> list[DeviceImage]:
+    """gf_ab_strip then gf_apply_strip for one fit (mask MASK_ALL, MASK_M, MASK_S) or the M and S pair
+    (MASK_PAIR: noises and outs for M, then S)."""
+    h, w = own
+    ab_h, ab_w = h - 2 * r, w - 2 * r
+    fits = len(noises)
+    ab = rt.acquire(2 * fits, ab_h, ab_w)
+    strip = _strip(ab_h)
+    ox = origin[1] + shift[1]
+    masks = [MASK_M, MASK_S] if mask == MASK_PAIR else [mask]
+    chi = rt.constant(np.concatenate([chi_rows(w, ox, m, strip + 2 * r, r).ravel() for m in masks]))
+    defines = {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
+               "GF_STRIP": strip}
+    n2 = noises[-1]
+    launch_exact(rt, rt.kernel("guided_filter", "gf_ab_strip", defines), ab_w, -(-ab_h // strip), guide.buffer,
+                 v.buffer, ab.buffer, chi, i32(w), _plane_base(guide, g_plane), i32(guide.width), i32(g_off),
+                 i32(v.width), i32(v_off), i32(ab_w), i32(ab_h), i32(origin[0] + shift[0]), i32(ox), f32(eps0),
+                 f32(noises[0][0]), f32(noises[0][1]), f32(n2[0]), f32(n2[1]))
+    q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
+    dsts = []
+    for out in outs:
+        dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
+        if (dst.height, dst.width) != (q_h, q_w) or not 0 <= plane < dst.channels:
+            raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
+                             f"cannot take {q_h} x {q_w}")
+        dsts.append((dst, plane))
+    strip = _strip(q_h, APPLY_STRIP)
+    defines = {**LATTICE, "GF_R": int(r), "GF_MASK": MASK_PAIR if fits == 2 else 0, "GF_LEVEL_GUIDE": 0,
+               "GF_STRIP": strip}
+    (d1, p1), (d2, p2) = dsts[0], dsts[-1]
+    launch_exact(rt, rt.kernel("guided_filter", "gf_apply_strip", defines), q_w, -(-q_h // strip), ab.buffer,
+                 guide.buffer, d1.buffer, d2.buffer, i32(ab_w), i32(ab_h), _plane_base(guide, g_plane),
+                 i32(guide.width), i32(g_off), i32(q_w), i32(q_h), _plane_base(d1, p1), _plane_base(d2, p2))
     rt.release(ab)
-    q = enqueue_apply(rt, ab_rows, guide, g_off, r, g_plane, out)
-    rt.release(ab_rows)
-    return q
+    return [d for d, _ in dsts]
