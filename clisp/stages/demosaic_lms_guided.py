@@ -87,6 +87,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..cfa import CFA
@@ -551,6 +553,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         return i32(origin[0] + self.shift[0]), i32(origin[1] + self.shift[1])
 
     @staticmethod
+    @lru_cache(maxsize=1)
     def generated_source() -> str:
         """``D_TAPS`` and ``TENT_TAPS``: X(dy, dx, t) for each non-zero tap t (structure, not weights;
         D_TAPS without the centre)."""

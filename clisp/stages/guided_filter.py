@@ -21,6 +21,8 @@ Users: ``demosaic_lms`` (the hybrid, step C: S over the S sites against lum, lev
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..errors import ClispError
@@ -192,6 +194,7 @@ GF_STRIP = 8
 recomputes 2r rows of sums along x, so longer strips save work but cost registers."""
 
 
+@lru_cache(maxsize=64)
 def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
     """The mask table of gf_ab_strip, 2 (4 + rows) x w float32: row t < 4 + rows, column x = 1 where
     image pixel (iy, x + ox) with iy & 3 == t & 3 is in ``mask`` (LATTICE's closed form, ox with the
@@ -206,7 +209,9 @@ def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
     at_s = ((iy + LATTICE["S_Y"]) % 2 == 0) & ((ix - iy + LATTICE["S_D"]) % 4 == 0)
     chi = (at_s if mask == MASK_S else ~at_s & ~at_l).astype(np.float32)
     count = sum(chi[:, r + k:chi.shape[1] - r + k] for k in range(-r, r + 1))
-    return np.concatenate([chi[:, r:chi.shape[1] - r], count]).astype(np.float32)
+    table = np.concatenate([chi[:, r:chi.shape[1] - r], count]).astype(np.float32)
+    table.flags.writeable = False          # cached (every tile of a run asks for the same tables)
+    return table
 
 
 APPLY_STRIP = 16
