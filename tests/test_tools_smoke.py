@@ -89,3 +89,25 @@ def test_bench_peers_camera_bayer(tmp_path, capsys):
         pytest.skip("no camera raw in ../shared/data")
     _, text = _bench_peers_small(tmp_path, bench_peers.DEFAULT_DATA, capsys)
     assert "RAW_CANON_D30_SRGB.CRW's CFA mosaic tiled" in text
+
+
+def test_check_mem_small(tmp_path, capsys):
+    """tools/check_mem.py on 400 x 300, fast, --mem 1G, EXR, without ../shared data (demo chart scene)."""
+    import check_mem
+
+    out = tmp_path / "mem.csv"
+    code = check_mem.main(["--sizes", "400x300", "--presets", "fast", "--mems", "1G", "--formats", "exr",
+                           "--cfas", "lms", "--data", str(tmp_path / "no-data"), "--work", str(tmp_path / "work"),
+                           "--csv", str(out), "--results", str(tmp_path / "RESULTS.md"), "--quiet"])
+    assert code == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert [r["label"] for r in rows] == ["lms 0.12MP fast exr 1G"]
+    row = rows[0]
+    assert row["result"] == "pass" and row["exit"] == "0" and row["tiles"] != "0"
+    assert 0 < float(row["peak_rss_mib"]) <= 1024 and float(row["headroom_mib"]) >= 0
+    assert row["min_mem"]                       # the refusal at 150M named the minimum
+    text = capsys.readouterr().out
+    assert "demo_chart.png" in text and "1 of 1 exit 2" in text
+    section = (tmp_path / "RESULTS.md").read_text()
+    assert section.count(check_mem.MARK_START) == 1 and check_mem.SECTION_TITLE in section
