@@ -112,6 +112,12 @@ class Result:
 # Inputs
 # --------------------------------------------------------------------------------------------
 
+NEUTRAL_CWD = tempfile.gettempdir()
+"""Working directory of every child Python: ``python -m clisp`` puts its working directory first
+on sys.path, so a child started in a clisp checkout imports that checkout whatever PYTHONPATH
+says (a --baseline run from the repo root timed the repo's own code)."""
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """(W, H) from 'WxH'; both even and at least 64 (a whole number of CFA periods)."""
     try:
@@ -165,7 +171,7 @@ def simulated_raw(scene: Path, out: Path, cfa: str, width: int, height: int) -> 
     """Write ``out`` with ``clisp simulate SCENE --cfa CFA --gain 8 --size WxH``."""
     argv = clisp_cmd("simulate", str(scene), "-o", str(out), "--cfa", cfa, "--gain", "8",
                      "--size", f"{width}x{height}")
-    subprocess.run(argv, env=repo_env(REPO), check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(argv, env=repo_env(REPO), cwd=NEUTRAL_CWD, check=True, stdout=subprocess.DEVNULL)
 
 
 def build_inputs(kinds: set[str], data: Path, work: Path, size: tuple[int, int]) -> dict[str, tuple[Path, str]]:
@@ -273,7 +279,7 @@ def run_once(cmd: Command) -> tuple[float, float, str]:
     cmd.output.unlink(missing_ok=True)
     with tempfile.NamedTemporaryFile(suffix=".log") as log:
         try:
-            done = subprocess.run([sys.executable, "-S", "-c", LAUNCHER, log.name, *cmd.argv], env=cmd.env,
+            done = subprocess.run([sys.executable, "-S", "-c", LAUNCHER, log.name, *cmd.argv], env=cmd.env, cwd=NEUTRAL_CWD,
                                   capture_output=True, text=True, check=True)
             wall, rss_kib, code = done.stdout.split()
         except (subprocess.CalledProcessError, ValueError) as exc:
@@ -442,7 +448,7 @@ def cpu_model() -> str:
 def first_line(argv: list[str], pattern: str = "") -> str:
     """The first output line of ``argv`` matching ``pattern`` ('' if it cannot run)."""
     try:
-        out = subprocess.run(argv, capture_output=True, text=True, timeout=60, env=repo_env(REPO))
+        out = subprocess.run(argv, capture_output=True, text=True, timeout=60, env=repo_env(REPO), cwd=NEUTRAL_CWD)
     except (OSError, subprocess.TimeoutExpired):
         return ""
     lines = [line.strip() for line in (out.stdout + out.stderr).splitlines() if re.search(pattern, line)]
@@ -516,7 +522,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--csv", type=Path, default=None, help="write one row per command here")
     p.add_argument("--results", type=Path, default=None, help="update this Markdown file's bench_peers section")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.data = args.data.resolve()           # children run in NEUTRAL_CWD
+    return args
 
 
 def planned_commands(args: argparse.Namespace, work: Path) -> tuple[list[Command], dict[str, tuple[Path, str]]]:

@@ -74,6 +74,12 @@ ARGV's ru_maxrss floor is the launcher's RSS, not this tool's."""
 # Arguments
 # --------------------------------------------------------------------------------------------
 
+NEUTRAL_CWD = tempfile.gettempdir()
+"""Working directory of every child Python: ``python -m clisp`` puts its working directory first
+on sys.path, so a child started in a clisp checkout imports that checkout whatever PYTHONPATH
+says (a --baseline run from the repo root timed the repo's own code)."""
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """(W, H) from 'WxH'; both even and at least 64."""
     try:
@@ -133,6 +139,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for text in [*args.mems, args.refuse_mem]:
         parse_mem(text)                                  # fail early on a bad size
     args.clisp = args.clisp.resolve()
+    args.data = args.data.resolve()           # children run in NEUTRAL_CWD
     return args
 
 
@@ -166,7 +173,7 @@ def scene_file(data: Path, work: Path, root: Path) -> Path:
     if not path.is_file():
         code = ("import sys; from clisp.charts import demo_chart; from clisp.imageio import write_image; "
                 "write_image(sys.argv[1], demo_chart().image, encoded=False)")
-        subprocess.run([sys.executable, "-c", code, str(path)], env=clisp_env(root), check=True)
+        subprocess.run([sys.executable, "-c", code, str(path)], env=clisp_env(root), cwd=NEUTRAL_CWD, check=True)
     return path
 
 
@@ -177,7 +184,7 @@ def make_raw(scene: Path, cfa: str, size: tuple[int, int], work: Path, root: Pat
     if not path.is_file():
         part = path.with_suffix(".part.dng")
         argv = clisp_cmd("simulate", str(scene), "-o", str(part), "--cfa", cfa, "--gain", "8", "--size", f"{w}x{h}")
-        subprocess.run(argv, env=clisp_env(root), check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(argv, env=clisp_env(root), cwd=NEUTRAL_CWD, check=True, stdout=subprocess.DEVNULL)
         part.rename(path)
     return path
 
@@ -241,7 +248,7 @@ def measure(argv: list[str], env: dict[str, str] | None = None) -> Measured:
     with tempfile.TemporaryDirectory(prefix="check_mem-") as tmp:
         out, err, res = (Path(tmp) / n for n in ("out", "err", "res"))
         with open(out, "w") as fo, open(err, "w") as fe:
-            proc = subprocess.Popen([sys.executable, "-S", "-c", LAUNCHER, str(res), *argv], env=env,
+            proc = subprocess.Popen([sys.executable, "-S", "-c", LAUNCHER, str(res), *argv], env=env, cwd=NEUTRAL_CWD,
                                     stdin=subprocess.DEVNULL, stdout=fo, stderr=fe)
             code = proc.wait()
         text_out, text_err = out.read_text(errors="replace"), err.read_text(errors="replace")
@@ -484,7 +491,7 @@ def git_rev(root: Path) -> str:
 
 def device_line(root: Path) -> str:
     """The OpenCL device clisp uses (``clisp info --device``)."""
-    done = subprocess.run(clisp_cmd("info", "--device"), capture_output=True, text=True, env=clisp_env(root))
+    done = subprocess.run(clisp_cmd("info", "--device"), capture_output=True, text=True, env=clisp_env(root), cwd=NEUTRAL_CWD)
     found = [line for line in done.stdout.splitlines() if line.startswith("clisp uses")]
     return found[0].removeprefix("clisp uses: ") if found else "unknown"
 
