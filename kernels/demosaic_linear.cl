@@ -26,9 +26,9 @@ typedef float out_t;
  * One work-item computes one P x P block; both block loops unroll and k is a compile-time
  * constant in each, so phase_apply folds to straight-line code and every weight load is uniform
  * across work-items. w: [P*P][NOUT][TAPS], bias: [P*P][NOUT]. */
-__kernel void phase_filter(__global const RAW_T *src, __global out_t *dst,
+__kernel void phase_filter(__global const RAW_T *restrict src, __global out_t *restrict dst,
                            const int in_w, const int out_w, const int out_h,
-                           __constant const float *w, __constant const float *bias)
+                           __constant const float *restrict w, __constant const float *restrict bias)
 {
     const int bx = get_global_id(0) * CFA_PERIOD;
     const int by = get_global_id(1) * CFA_PERIOD;
