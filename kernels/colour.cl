@@ -3,8 +3,8 @@
 
 /* apply_matrix3: dst_i = sum_j m[3 i + j] * src_j. Halo 0. Colour conversion (camera -> linear
  * sRGB) and white balance pass 2 (a diagonal matrix) are both this kernel. */
-__kernel void apply_matrix3(__global const float *src, __global float *dst,
-                            const int width, const int height, __constant const float *m)
+__kernel void apply_matrix3(__global const float *restrict src, __global float *restrict dst,
+                            const int width, const int height, __constant const float *restrict m)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -27,7 +27,7 @@ typedef ushort out_t;
 typedef float out_t;
 #define STORE(v) (v)
 #endif
-__kernel void srgb_encode(__global const float *src, __global out_t *dst, const int width, const int height)
+__kernel void srgb_encode(__global const float *restrict src, __global out_t *restrict dst, const int width, const int height)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);

@@ -34,7 +34,7 @@ __constant float smooth_weights[2 * SMOOTH_RADIUS + 1] = SMOOTH_WEIGHTS;
 /* dlmmse_directional_differences: Hamilton-Adams interpolation along the row (F_H) and the column
  * (F_V), then G - X observed in each direction: d = cfa - F at G sites, F - cfa at R/B sites.
  * raw: 1 plane of out + 2 INTERP_RADIUS; diff: planes d_H, d_V. Halo INTERP_RADIUS (2). */
-__kernel void dlmmse_directional_differences(__global const RAW_T *raw, __global float *diff,
+__kernel void dlmmse_directional_differences(__global const RAW_T *restrict raw, __global float *restrict diff,
                                              const int raw_w, const int out_w, const int out_h)
 {
     const int x = get_global_id(0);
@@ -55,7 +55,7 @@ __kernel void dlmmse_directional_differences(__global const RAW_T *raw, __global
 /* dlmmse_smooth: s_H = d_H smoothed along the row, s_V = d_V along the column, with
  * SMOOTH_WEIGHTS. diff: planes d_H, d_V (in_w x in_h); smoothed: planes s_H, s_V.
  * Halo SMOOTH_RADIUS (4). */
-__kernel void dlmmse_smooth(__global const float *diff, __global float *smoothed,
+__kernel void dlmmse_smooth(__global const float *restrict diff, __global float *restrict smoothed,
                             const int in_w, const int in_h, const int out_w, const int out_h)
 {
     const int x = get_global_id(0);
@@ -107,8 +107,8 @@ __attribute__((always_inline)) inline float2 lmmse_direction(__global const floa
  * horizontal and vertical LMMSE estimates; 0 at G sites (unused; computed there too and discarded,
  * which keeps the kernel branch-free). smoothed: planes s_H, s_V (out + 2 WINDOW_RADIUS);
  * diff: planes d_H, d_V (out + 4 WINDOW_RADIUS); delta: 1 plane. Halo WINDOW_RADIUS (4). */
-__kernel void dlmmse_lmmse_fuse(__global const float *smoothed, __global const float *diff,
-                                __global float *delta, const int s_w, const int s_h,
+__kernel void dlmmse_lmmse_fuse(__global const float *restrict smoothed, __global const float *restrict diff,
+                                __global float *restrict delta, const int s_w, const int s_h,
                                 const int d_w, const int d_h, const int out_w, const int out_h)
 {
     const int x = get_global_id(0);
@@ -145,9 +145,9 @@ __attribute__((always_inline)) inline float diff_at(__global const float *p, con
  * diff_at_rb); R = G - (G - R), B = G - (G - B); measured samples are written as they are.
  * Then out = m (R, G, B) (m: 3 x 3, identity unless a colour matrix was fused in).
  * raw: the step-1 input (out + 24); delta: out + 2 FILL_RADIUS. Halo FILL_RADIUS (2). */
-__kernel void dlmmse_complete_rgb(__global const RAW_T *raw, __global const float *delta,
-                                  __global float *out, const int raw_w, const int delta_w,
-                                  const int out_w, const int out_h, __constant const float *m)
+__kernel void dlmmse_complete_rgb(__global const RAW_T *restrict raw, __global const float *restrict delta,
+                                  __global float *restrict out, const int raw_w, const int delta_w,
+                                  const int out_w, const int out_h, __constant const float *restrict m)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);

@@ -36,8 +36,8 @@ inline int cfa_phase(const int y, const int x)
  * weights 1/(eps + G)^2 (soft), taken at the smallest G (hard) or the diagonal mean (iso), plus
  * s_detail * (S - mean of the four S at (+-2, +-2)). eps = eps0 + eps_sigma * sigma, sigma^2 =
  * shot_m * level + floor_m at the diagonal-mean level. Halo 2. (oy, ox): image pixel of p(0, 0). */
-__kernel void m_at_s(__global const float *p, __global float *m, const int in_w, const int out_w,
-                     const int out_h, const int oy, const int ox, __constant const char *pattern,
+__kernel void m_at_s(__global const float *restrict p, __global float *restrict m, const int in_w, const int out_w,
+                     const int out_h, const int oy, const int ox, __constant const char *restrict pattern,
                      const float eps0, const float eps_sigma, const float s_detail,
                      const float shot_m, const float floor_m)
 {
@@ -87,8 +87,8 @@ __kernel void m_at_s(__global const float *p, __global float *m, const int in_w,
  * order); which taps are non-zero is structure (the diamond filter vanishes at even offsets, the
  * notch outside 5 x 5), so the host generates LUM_SUPPORT = X(dy, dx, t) for each such tap t and
  * structural zeros cost nothing (6 MP: 24 ms against 39 ms for all 81 taps). Halo LUM_R. */
-__kernel void luma_lowpass(__global const float *m, __global float *lum, const int in_w, const int out_w,
-                           const int out_h, __constant const float *weight)
+__kernel void luma_lowpass(__global const float *restrict m, __global float *restrict lum, const int in_w, const int out_w,
+                           const int out_h, __constant const float *restrict weight)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -104,11 +104,11 @@ __kernel void luma_lowpass(__global const float *m, __global float *lum, const i
  * d = m - lum, (Y, X) = (y + at_y, x + at_x) in lum; mod = +1 at L sites, -1 elsewhere, which
  * alternates along a row. m is lum's window grown by LUM_R; (oy, ox): image pixel of lum(0, 0).
  * Reads lum +-CHROMA_R along x. */
-__kernel void chroma_demodulate_rows(__global const float *m, __global const float *lum,
-                                     __global float *rows, const int m_w, const int lum_w,
+__kernel void chroma_demodulate_rows(__global const float *restrict m, __global const float *restrict lum,
+                                     __global float *restrict rows, const int m_w, const int lum_w,
                                      const int out_w, const int out_h, const int at_y, const int at_x,
-                                     const int oy, const int ox, __constant const char *pattern,
-                                     __constant const float *g)
+                                     const int oy, const int ox, __constant const char *restrict pattern,
+                                     __constant const float *restrict g)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -129,9 +129,9 @@ __kernel void chroma_demodulate_rows(__global const float *m, __global const flo
 /* lm_combine (step B, chroma second half + combination): chr = sum_k g[k] rows(y + CHROMA_R + k, x);
  * L = lum + chr into plane 0, M = lum - chr into plane 1 of dst; lum centre at (y + at_y, x + at_x).
  * Reads rows +-CHROMA_R along y. */
-__kernel void lm_combine(__global const float *lum, __global const float *rows, __global float *dst,
+__kernel void lm_combine(__global const float *restrict lum, __global const float *restrict rows, __global float *restrict dst,
                          const int lum_w, const int rows_w, const int out_w, const int out_h,
-                         const int at_y, const int at_x, __constant const float *g)
+                         const int at_y, const int at_x, __constant const float *restrict g)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -153,11 +153,11 @@ __kernel void lm_combine(__global const float *lum, __global const float *rows, 
  * 0/0), sigma_r = max(sr_min, sr_k * std of lum), var(lum) = lum_shot * I + lum_floor. Into plane 2
  * of dst. Centres: lum (y + at_y, x + at_x), p (y + p_y, x + p_x); (oy, ox): image pixel of output
  * (0, 0). Halo BL_R. */
-__kernel void s_joint_bilateral(__global const float *lum, __global const float *p, __global float *dst,
+__kernel void s_joint_bilateral(__global const float *restrict lum, __global const float *restrict p, __global float *restrict dst,
                                 const int lum_w, const int p_w, const int out_w, const int out_h,
                                 const int at_y, const int at_x, const int p_y, const int p_x,
-                                const int oy, const int ox, __constant const int2 *site,
-                                __constant const float *site_w, const float inv_2ss, const float sr_k,
+                                const int oy, const int ox, __constant const int2 *restrict site,
+                                __constant const float *restrict site_w, const float inv_2ss, const float sr_k,
                                 const float sr_min, const float ratio_floor, const float lum_shot,
                                 const float lum_floor)
 {

@@ -49,8 +49,8 @@ inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f;
 
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
  * on L sites only: the L quincunx interpolated); D's weights are D_SUM's literals (d is unread). R = 4. */
-__kernel void l_guide(__global const float *p, __global float *dst, const int in_w, const int out_w,
-                      const int oy, const int ox, __constant const float *d)
+__kernel void l_guide(__global const float *restrict p, __global float *restrict dst, const int in_w, const int out_w,
+                      const int oy, const int ox, __constant const float *restrict d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -63,7 +63,7 @@ __kernel void l_guide(__global const float *p, __global float *dst, const int in
 
 /* m_keep: dst = p on the kernel's window (p on a window larger by p_off): the L/M quincunx m outside
  * the S sites, which m_at_s_combine then fills in. R = 0. */
-__kernel void m_keep(__global const float *p, __global float *dst, const int p_w, const int p_off,
+__kernel void m_keep(__global const float *restrict p, __global float *restrict dst, const int p_w, const int p_off,
                      const int out_w)
 {
     const int x = get_global_id(0);
@@ -89,9 +89,9 @@ inline int l_rel(const int dy, const int dx) { return ((dy + dx) & 1) != 0; }
  * lum_shot max(ylp, 0) + lum_floor. mfit, sfit on the kernel's window (width in_w); p, y and c, ylp
  * on windows larger by p_off, y_off, l_off (widths p_w, y_w, l_w); dst (out_w x out_h) is the window
  * shrunk by R; (oy, ox): image coordinates of the kernel's window pixel (0, 0). R = 2. */
-__kernel void m_at_s_combine(__global const float *p, __global const float *mfit, __global const float *sfit,
-                             __global const float *yg, __global const float *cg, __global const float *ylpg,
-                             __global float *dst, const int in_w, const int p_w, const int p_off,
+__kernel void m_at_s_combine(__global const float *restrict p, __global const float *restrict mfit, __global const float *restrict sfit,
+                             __global const float *restrict yg, __global const float *restrict cg, __global const float *restrict ylpg,
+                             __global float *restrict dst, const int in_w, const int p_w, const int p_off,
                              const int y_w, const int y_off, const int l_w, const int l_off,
                              const int out_w, const int oy, const int ox,
                              const float shot_m, const float floor_m, const float shot_s, const float floor_s,
@@ -177,8 +177,8 @@ __kernel void m_at_s_combine(__global const float *p, __global const float *mfit
 }
 
 /* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre taps, D_SUM; d is unread). R = 4. */
-__kernel void lum_lowpass(__global const float *m, __global float *dst, const int in_w, const int out_w,
-                          const int oy, const int ox, __constant const float *d)
+__kernel void lum_lowpass(__global const float *restrict m, __global float *restrict dst, const int in_w, const int out_w,
+                          const int oy, const int ox, __constant const float *restrict d)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -196,9 +196,9 @@ __kernel void lum_lowpass(__global const float *m, __global float *dst, const in
  * weights, row order (unread: B5_SUM has them as literals). The carrier is +-1 with the
  * checkerboard's sign, so it is taken out of the sum (mod(centre) (-1)^(dy + dx) at each tap, exact):
  * no lattice test per tap. R = 2. */
-__kernel void chroma_input(__global const float *m, __global const float *ylp, __global float *dst,
+__kernel void chroma_input(__global const float *restrict m, __global const float *restrict ylp, __global float *restrict dst,
                            const int in_w, const int m_w, const int out_w, const int oy, const int ox,
-                           __constant const float *b5)
+                           __constant const float *restrict b5)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -212,7 +212,7 @@ __kernel void chroma_input(__global const float *m, __global const float *ylp, _
 
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
  * kernel's window, m on a window larger by m_off. R = 0. */
-__kernel void keep_luminance(__global const float *m, __global const float *c, __global float *dst,
+__kernel void keep_luminance(__global const float *restrict m, __global const float *restrict c, __global float *restrict dst,
                              const int m_w, const int m_off, const int out_w, const int oy, const int ox)
 {
     const int x = get_global_id(0);
@@ -226,10 +226,10 @@ __kernel void keep_luminance(__global const float *m, __global const float *c, _
  * diagonal band-pass of ylp (bp_w: its 1-D weights at offsets -4, -2, 0, 2, 4; response sin^4 wx
  * sin^4 wy); ac^2 with ac = ylp - its 5 x 5 mean. c on the kernel's window (width out_w), m and ylp on
  * windows larger by m_off and l_off (l_off >= 4). R = 0 here; reads ylp +-4. */
-__kernel void lm_energy(__global const float *m, __global const float *c, __global const float *ylp,
-                        __global float *dst, const int m_w, const int m_off, const int l_w, const int l_off,
+__kernel void lm_energy(__global const float *restrict m, __global const float *restrict c, __global const float *restrict ylp,
+                        __global float *restrict dst, const int m_w, const int m_off, const int l_w, const int l_off,
                         const int out_w, const int out_h, const int oy, const int ox,
-                        const float chroma_neutral, __constant const float *bp_w)
+                        const float chroma_neutral, __constant const float *restrict bp_w)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -264,8 +264,8 @@ __kernel void lm_energy(__global const float *m, __global const float *c, __glob
  * (E_h, E_ac: 5 x 5 means of bp^2, ac^2); L = Y + c', M = Y - c'. rows: the row sums over x .. x + 4 of lm_energy's four planes
  * (box_rows, r = 2; rows_w x rows_h each), summed here over y .. y + 4. c on the kernel's window
  * (width in_w), m and ylp on windows larger by m_off, l_off. R = 2. */
-__kernel void lm_output(__global const float *m, __global const float *c, __global const float *ylp,
-                        __global const float *rows, __global float *dst, const int in_w, const int m_w,
+__kernel void lm_output(__global const float *restrict m, __global const float *restrict c, __global const float *restrict ylp,
+                        __global const float *restrict rows, __global float *restrict dst, const int in_w, const int m_w,
                         const int m_off, const int l_w, const int l_off, const int rows_w, const int rows_h,
                         const int out_w, const int out_h, const int oy, const int ox, const float blend_k,
                         const float lum_shot, const float lum_floor, const float chroma_neutral,
@@ -312,7 +312,7 @@ __kernel void lm_output(__global const float *m, __global const float *c, __glob
 /* s_residual: rs = p - g at the S sites, 0 elsewhere (the residual s_output interpolates), on g's
  * window (width in_w; p on a window larger by p_off). One lattice test per pixel instead of one per
  * tap in s_output. R = 0. */
-__kernel void s_residual(__global const float *p, __global const float *g, __global float *dst, const int in_w,
+__kernel void s_residual(__global const float *restrict p, __global const float *restrict g, __global float *restrict dst, const int in_w,
                          const int p_w, const int p_off, const int oy, const int ox)
 {
     const int x = get_global_id(0);
@@ -328,10 +328,10 @@ __kernel void s_residual(__global const float *p, __global const float *g, __glo
  * in_w). tent: the TENT_TAPS weights. lat: the lattice-only sums, 2 x 4 rows of in_w (host-made,
  * s_output_lattice): row (image row & 3) the tent's weight over the S sites (the denominator), row
  * 4 + (image row & 3) the count of S sites in the 7 x 7. R = 3. */
-__kernel void s_output(__global const float *rs, __global const float *g, __global const float *lm,
-                       __global float *dst, __global const float *lat, const int in_w, const int lm_w,
+__kernel void s_output(__global const float *restrict rs, __global const float *restrict g, __global const float *restrict lm,
+                       __global float *restrict dst, __global const float *restrict lat, const int in_w, const int lm_w,
                        const int lm_h, const int lm_off, const int out_w, const int out_h, const int oy,
-                       __constant const float *tent, const float shot_s, const float floor_s)
+                       __constant const float *restrict tent, const float shot_s, const float floor_s)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -370,8 +370,8 @@ __kernel void s_output(__global const float *rs, __global const float *g, __glob
  * window of lms shrunk by 2: hx^2 + hy^2 with hx = hp * Y, hy = hp^T * Y (hp: the 3 x 3 AXIAL_HP weights,
  * row order; high-pass across x, low-pass along y), and ac^2 with ac = Y - its 5 x 5 mean; Y = (L + M) / 2
  * from planes 0, 1 of lms (in_w x in_h). Reads +-2. */
-__kernel void s_tone_energy(__global const float *lms, __global float *dst, const int in_w, const int in_h,
-                            const int out_w, const int out_h, __constant const float *hp)
+__kernel void s_tone_energy(__global const float *restrict lms, __global float *restrict dst, const int in_w, const int in_h,
+                            const int out_w, const int out_h, __constant const float *restrict hp)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -401,8 +401,8 @@ __kernel void s_tone_energy(__global const float *lms, __global float *dst, cons
  * neutral); E_ax and E_ac the 5 x 5 means of s_tone_energy's planes (rows: their row sums over x .. x + 4, rows_w x rows_h
  * each, summed here over y .. y + 4). lms: 3 planes on the kernel's window (in_w x in_h); E_sig: plane 2
  * of lm (lm_w x lm_h) on a window larger by lm_off. R = 4. */
-__kernel void s_alias(__global const float *lms, __global const float *lm, __global const float *rows,
-                      __global float *dst, const int in_w, const int in_h, const int lm_w, const int lm_h,
+__kernel void s_alias(__global const float *restrict lms, __global const float *restrict lm, __global const float *restrict rows,
+                      __global float *restrict dst, const int in_w, const int in_h, const int lm_w, const int lm_h,
                       const int lm_off, const int rows_w, const int rows_h, const int out_w, const int out_h,
                       const float s_from_m, const float alias_s, const float alias_st)
 {

@@ -60,9 +60,9 @@ inline floatv exp_neg(const floatv x)
 /* chroma_split: planes (Y, c_1..c_n) = m . camera, m row-major (NPLANES x 3), read from the window
  * at (y + skip_y, x + skip_x) (the first pixel aligned to the decimation grid). Halo 0. VEC
  * consecutive pixels per work item (width >= VEC; the last one of a row starts at width - VEC). */
-__kernel void chroma_split(__global const float *src, __global float *dst,
+__kernel void chroma_split(__global const float *restrict src, __global float *restrict dst,
                            const int src_w, const int src_h, const int skip_y, const int skip_x,
-                           const int width, const int height, __constant const float *m)
+                           const int width, const int height, __constant const float *restrict m)
 {
     const int gx = (int)get_global_id(0) * VEC;
     const int x = gx < width - VEC ? gx : width - VEC;
@@ -83,7 +83,7 @@ __kernel void chroma_split(__global const float *src, __global float *dst,
  * major). Output width x height, input 2 width x 2 height. Halo 0 (blocks on the aligned grid).
  * VEC consecutive outputs per work item (width >= VEC; the last one of a row starts at width - VEC):
  * two float8 loads per input row, split into even and odd columns. */
-__kernel void haar_analyze(__global const float *src, __global float *approx, __global float *detail,
+__kernel void haar_analyze(__global const float *restrict src, __global float *restrict approx, __global float *restrict detail,
                            const int width, const int height)
 {
     const int gx = (int)get_global_id(0) * VEC;
@@ -149,10 +149,10 @@ inline floatv window_energy(__global const float *d, const int ci, const int in_
  * SHRINK_RULE 1 (Wiener): d' = d var_x / (var_x + var_n). guide != 0: d'' = d' + g_Y (d - d'),
  * g_Y = var_xY / (var_xY + var_nY), the Wiener gain of the luminance detail. VEC consecutive
  * outputs per work item, as in joint_bilateral (width >= VEC). */
-__kernel void bayes_shrink(__global const float *detail, __global const float *level,
-                           __global float *dst, const int in_w, const int in_h,
+__kernel void bayes_shrink(__global const float *restrict detail, __global const float *restrict level,
+                           __global float *restrict dst, const int in_w, const int in_h,
                            const int width, const int height,
-                           __constant const float *coef, __constant const float *strength2,
+                           __constant const float *restrict coef, __constant const float *restrict strength2,
                            const int guide)
 {
     const int gx = (int)get_global_id(0) * VEC;
@@ -199,10 +199,10 @@ __kernel void bayes_shrink(__global const float *detail, __global const float *l
  * All planes in one pass: the guide tap and its spatial + luminance term are read and computed once
  * per tap for every plane. Each work item computes VEC consecutive pixels of a row (width >= VEC);
  * the last one of a row starts at width - VEC, recomputing a few pixels with identical results. */
-__kernel void joint_bilateral(__global const float *src, const int c_offset, __global const float *level,
-                              __global float *dst, const int c_w, const int c_h, const int y_w,
+__kernel void joint_bilateral(__global const float *restrict src, const int c_offset, __global const float *restrict level,
+                              __global float *restrict dst, const int c_w, const int c_h, const int y_w,
                               const int y_shift, const int width, const int height, const int guide,
-                              __constant const float *prm)
+                              __constant const float *restrict prm)
 {
     const int gx = (int)get_global_id(0) * VEC;
     const int x = gx < width - VEC ? gx : width - VEC;
@@ -253,8 +253,8 @@ __kernel void joint_bilateral(__global const float *src, const int c_offset, __g
  * chroma k at plane d_first + k; coefficient (u + d_shift, v + d_shift) for approx (u, v).
  * Output 2 a_w x 2 a_h. Halo 0. VEC consecutive outputs per work item (2 a_w >= VEC; the last one
  * of a row starts at 2 a_w - VEC, even): VEC / 2 coefficients, even and odd columns interleaved. */
-__kernel void haar_synthesize(__global const float *approx, __global const float *detail,
-                              __global float *dst, const int a_w, const int a_h,
+__kernel void haar_synthesize(__global const float *restrict approx, __global const float *restrict detail,
+                              __global float *restrict dst, const int a_w, const int a_h,
                               const int d_w, const int d_h, const int d_shift,
                               const int d_planes, const int d_first)
 {
@@ -297,10 +297,10 @@ __kernel void haar_synthesize(__global const float *approx, __global const float
 #ifndef INTERLEAVED
 #define INTERLEAVED 0
 #endif
-__kernel void chroma_merge(__global const float *level, __global const float *chroma, __global float *dst,
+__kernel void chroma_merge(__global const float *restrict level, __global const float *restrict chroma, __global float *restrict dst,
                            const int y_w, const int y_shift_y, const int y_shift_x,
                            const int c_w, const int c_h, const int c_shift_y, const int c_shift_x,
-                           const int width, const int height, __constant const float *m)
+                           const int width, const int height, __constant const float *restrict m)
 {
     const int gx = (int)get_global_id(0) * VEC;
     const int x = gx < width - VEC ? gx : width - VEC;

@@ -25,7 +25,7 @@ inline float max_f(const float a, const float b) { return a > b ? a : b; }
  * row centre value c = I(y, x+r): n, sum d, sum d^2, sum v, sum d v (planes 0..4), d = I - c, over the
  * pixels selected by GF_MASK.
  * Output (y, x) is centred on own-window pixel (y, x + r); h x (w - 2r). Halo: reads +-r along x. */
-__kernel void gf_row_moments(__global const float *guide, __global const float *v, __global float *mom,
+__kernel void gf_row_moments(__global const float *restrict guide, __global const float *restrict v, __global float *restrict mom,
                              const int g_base, const int g_w, const int g_off, const int v_w, const int v_off,
                              const int out_w, const int out_h, const int oy, const int ox)
 {
@@ -64,7 +64,7 @@ __kernel void gf_row_moments(__global const float *guide, __global const float *
  * a = cov / (var + eps), b = mu_v - a mu_I (planes a, b). Output (y, x) <-> rows (y + r, x), the own
  * window's pixel (y + r, x + r), the guide's (y + r + g_off, x + r + g_off) (the row centres);
  * (h - 2r) x (w - 2r). Halo: reads +-r along y. */
-__kernel void gf_coefficients(__global const float *rows, __global const float *guide, __global float *ab,
+__kernel void gf_coefficients(__global const float *restrict rows, __global const float *restrict guide, __global float *restrict ab,
                               const int rows_w, const int rows_h, const int g_base, const int g_w,
                               const int g_off, const int out_w, const int out_h, const float eps0,
                               const float shot, const float floor_)
@@ -101,7 +101,7 @@ __kernel void gf_coefficients(__global const float *rows, __global const float *
 
 /* box_rows: dst(y, x) = sum of src(y, x .. x + 2r), r = GF_R, every plane (planes stacked: out_h =
  * planes * height); width shrinks by 2r. Halo: reads +2r along x. */
-__kernel void box_rows(__global const float *src, __global float *dst, const int in_w, const int out_w)
+__kernel void box_rows(__global const float *restrict src, __global float *restrict dst, const int in_w, const int out_w)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -118,7 +118,7 @@ __kernel void box_rows(__global const float *src, __global float *dst, const int
  * (y + r, x), the own window's pixel (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off);
  * (h - 4r) x (w - 4r), written from element d_base of dst on (a plane of a larger image). Halo: reads
  * rows y .. y + 2r. */
-__kernel void gf_apply(__global const float *rows_ab, __global const float *guide, __global float *dst,
+__kernel void gf_apply(__global const float *restrict rows_ab, __global const float *restrict guide, __global float *restrict dst,
                        const int rows_w, const int rows_h, const int g_base, const int g_w, const int g_off,
                        const int out_w, const int d_base)
 {
@@ -159,8 +159,8 @@ __kernel void gf_apply(__global const float *rows_ab, __global const float *guid
  * (planes a, b; eps noise shot, floor_), fit 1 over the S sites (planes 2, 3; shot2, floor2); chi_rows
  * then holds the M table followed by the S table. */
 #define GF_FITS (GF_MASK == 3 ? 2 : 1)
-__kernel void gf_ab_strip(__global const float *guide, __global const float *v, __global float *ab,
-                          __global const float *chi_rows, const int chi_w, const int g_base, const int g_w,
+__kernel void gf_ab_strip(__global const float *restrict guide, __global const float *restrict v, __global float *restrict ab,
+                          __global const float *restrict chi_rows, const int chi_w, const int g_base, const int g_w,
                           const int g_off, const int v_w, const int v_off, const int out_w, const int out_h,
                           const int oy, const int ox, const float eps0, const float shot, const float floor_,
                           const float shot2, const float floor2)
@@ -240,8 +240,8 @@ __kernel void gf_ab_strip(__global const float *guide, __global const float *v, 
  * the own window's (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off). Halo: reads
  * +2r along x and y of ab. GF_MASK 3 (two fits): planes 2, 3 of ab give the second q, written from
  * element d_base2 of dst2. */
-__kernel void gf_apply_strip(__global const float *ab, __global const float *guide, __global float *dst,
-                             __global float *dst2, const int ab_w, const int ab_h, const int g_base,
+__kernel void gf_apply_strip(__global const float *restrict ab, __global const float *restrict guide, __global float *restrict dst,
+                             __global float *restrict dst2, const int ab_w, const int ab_h, const int g_base,
                              const int g_w, const int g_off, const int out_w, const int out_h, const int d_base,
                              const int d_base2)
 {

@@ -2,7 +2,7 @@
 
 /* interleave: planar NCH x H x W -> interleaved H x W x NCH, so the host receives its array layout
  * in one contiguous download. Halo 0. NCH (define): number of planes. */
-__kernel void interleave(__global const float *src, __global float *dst, const int width, const int height)
+__kernel void interleave(__global const float *restrict src, __global float *restrict dst, const int width, const int height)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);

@@ -9,10 +9,10 @@
  * Black/white normalisation (offset = black, scale = 1/(white - black)) and white balance
  * pass 1 (offset 0, scale = gain) are both this kernel. (oy, ox) = image coordinate of pixel 0.
  * Launched over exactly width x height (launch_exact): no bounds check, so PoCL vectorises it. */
-__kernel void cfa_affine(__global const RAW_T *src, __global float *dst,
+__kernel void cfa_affine(__global const RAW_T *restrict src, __global float *restrict dst,
                          const int width, const int height, const int oy, const int ox,
-                         __constant const char *pattern,
-                         __constant const float *offset, __constant const float *scale)
+                         __constant const char *restrict pattern,
+                         __constant const float *restrict offset, __constant const float *restrict scale)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
