@@ -23,6 +23,7 @@ class CfaAffine(Stage):
     offset: np.ndarray
     scale: np.ndarray
     raw_dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float32))
+    name = "raw_scale"          # normalise and WB pass 1 fused (the subclasses name themselves)
 
     in_channels = 1
     out_channels = 1
