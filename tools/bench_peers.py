@@ -29,7 +29,6 @@ The machine is shared: run it under ``flock /tmp/clisp-bench.lock``.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import datetime
 import math
@@ -47,10 +46,10 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data"
+from toolkit import (DEFAULT_DATA, KODAK_SCENE, NEUTRAL_CWD, REPO, clisp_cmd, cpu_model, describe_output, git_rev,
+                     last_line, markers, parse_size, repo_env, update_results, write_csv)
+
 CAMERA_RAW = "raw/RAW_CANON_D30_SRGB.CRW"
-KODAK_SCENE = "kodak/kodim01.png"
 STALE_METADATA = ("flip", "raw_size", "visible_origin", "default_crop")
 """Camera metadata that no longer describes the tiled mosaic (orientation, sensor geometry)."""
 
@@ -111,35 +110,6 @@ class Result:
 # --------------------------------------------------------------------------------------------
 # Inputs
 # --------------------------------------------------------------------------------------------
-
-NEUTRAL_CWD = tempfile.gettempdir()
-"""Working directory of every child Python: ``python -m clisp`` puts its working directory first
-on sys.path, so a child started in a clisp checkout imports that checkout whatever PYTHONPATH
-says (a --baseline run from the repo root timed the repo's own code)."""
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """(W, H) from 'WxH'; both even and at least 64 (a whole number of CFA periods)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not WxH, e.g. 6000x4000") from None
-    if w < 64 or h < 64 or w % 2 or h % 2:
-        raise argparse.ArgumentTypeError(f"{text!r}: W and H must be even and at least 64")
-    return w, h
-
-
-def clisp_cmd(*args: str) -> list[str]:
-    """argv running this checkout's clisp CLI with this interpreter."""
-    return [sys.executable, "-m", "clisp", *args]
-
-
-def repo_env(root: Path) -> dict[str, str]:
-    """The environment with ``root`` first on PYTHONPATH."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(root)] + [p for p in [env.get("PYTHONPATH", "")] if p])
-    return env
-
 
 def tiled_camera_raw(camera: Path, out: Path, width: int, height: int) -> None:
     """Write ``out``: the camera raw's mosaic (even crop) tiled to height x width, as our DNG."""
@@ -204,16 +174,6 @@ def build_inputs(kinds: set[str], data: Path, work: Path, size: tuple[int, int])
 # --------------------------------------------------------------------------------------------
 # Commands
 # --------------------------------------------------------------------------------------------
-
-def git_rev(root: Path) -> str:
-    """Short git revision of the checkout at ``root`` ('unknown' outside git)."""
-    try:
-        out = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"],
-                             capture_output=True, text=True, check=True)
-        return out.stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
 
 def clisp_commands(tool: str, root: Path, inputs: dict[str, tuple[Path, str]], out: Path,
                    shape: tuple[int, int]) -> list[Command]:
@@ -288,25 +248,6 @@ def run_once(cmd: Command) -> tuple[float, float, str]:
     if int(code) != 0:
         return float(wall), int(rss_kib) / 1024.0, f"exit {code}: {last_line(text)}"
     return float(wall), int(rss_kib) / 1024.0, check_output(cmd)
-
-
-def last_line(text: str) -> str:
-    """The last non-empty line of a tool's output (its error message, usually)."""
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1][:200] if lines else "(no message)"
-
-
-def describe_output(path: Path) -> tuple[int, int, int, str]:
-    """(H, W, channels, pixel type) of an image file, from its header (OpenImageIO)."""
-    import OpenImageIO as oiio
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"unreadable: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        return spec.height, spec.width, spec.nchannels, str(spec.format)
-    finally:
-        inp.close()
 
 
 def check_output(cmd: Command) -> str:
@@ -425,26 +366,6 @@ def table(rows: list[dict[str, object]]) -> list[str]:
     return lines
 
 
-def write_csv(rows: list[dict[str, object]], path: Path) -> None:
-    """One CSV row per command."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def cpu_model() -> str:
-    """CPU model name from /proc/cpuinfo."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
-
-
 def first_line(argv: list[str], pattern: str = "") -> str:
     """The first output line of ``argv`` matching ``pattern`` ('' if it cannot run)."""
     try:
@@ -475,7 +396,7 @@ def machine_lines(inputs: dict[str, tuple[Path, str]]) -> list[str]:
     return lines
 
 
-MARK_START, MARK_END = "<!-- bench_peers:start -->", "<!-- bench_peers:end -->"
+MARK_START, MARK_END = markers("bench_peers")
 SECTION_TITLE = "## Whole-process speed against peers (tools/bench_peers.py)"
 
 
@@ -493,17 +414,6 @@ def section(rows: list[dict[str, object]], header: list[str], argv: list[str]) -
             "(AMaZE; it crops a 4 px border).", "",
             *table(rows), MARK_END]
     return "\n".join(body) + "\n"
-
-
-def update_results(path: Path, text: str) -> None:
-    """Replace the marked section of ``path`` with ``text``, or append it the first time."""
-    old = path.read_text() if path.is_file() else ""
-    start, end = old.find(MARK_START), old.find(MARK_END)
-    if start >= 0 and end > start:
-        new = old[:start] + text + old[end + len(MARK_END):].lstrip("\n")
-    else:
-        new = old.rstrip("\n") + ("\n\n" if old else "") + text
-    path.write_text(new)
 
 
 # --------------------------------------------------------------------------------------------
@@ -567,7 +477,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.csv:
             write_csv(rows, args.csv)
         if args.results:
-            update_results(args.results, section(rows, header, ["python", "tools/bench_peers.py", *(argv or sys.argv[1:])]))
+            update_results(args.results, section(rows, header, ["python", "tools/bench_peers.py", *(argv or sys.argv[1:])]),
+                           "bench_peers")
     return 0 if all(r.ok or r.status.startswith("absent") for r in results) else 1
 
 

@@ -32,7 +32,6 @@ Peak RSS does not depend on load; wall times do (the machine may be shared).
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import math
 import os
@@ -46,15 +45,17 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data"
-KODAK_SCENE = "kodak/kodim01.png"
+import toolkit
+from toolkit import (DEFAULT_DATA, KODAK_SCENE, NEUTRAL_CWD, REPO, clisp_cmd, describe_output, markers, parse_size,
+                     write_csv)
+from toolkit import repo_env as clisp_env
+
 PRESETS = ("fast", "balanced", "quality")
 FORMATS = ("exr", "tif")
 CFAS = ("lms", "bayer")
 MIB = 2**20
 
-MARK_START, MARK_END = "<!-- check_mem:start -->", "<!-- check_mem:end -->"
+MARK_START, MARK_END = markers("check_mem")
 SECTION_TITLE = "## Peak memory against --mem (tools/check_mem.py)"
 
 LAUNCHER = """\
@@ -73,23 +74,6 @@ ARGV's ru_maxrss floor is the launcher's RSS, not this tool's."""
 # --------------------------------------------------------------------------------------------
 # Arguments
 # --------------------------------------------------------------------------------------------
-
-NEUTRAL_CWD = tempfile.gettempdir()
-"""Working directory of every child Python: ``python -m clisp`` puts its working directory first
-on sys.path, so a child started in a clisp checkout imports that checkout whatever PYTHONPATH
-says (a --baseline run from the repo root timed the repo's own code)."""
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """(W, H) from 'WxH'; both even and at least 64."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not WxH, e.g. 6000x4000") from None
-    if w < 64 or h < 64 or w % 2 or h % 2:
-        raise argparse.ArgumentTypeError(f"{text!r}: W and H must be even and at least 64")
-    return w, h
-
 
 def parse_mem(text: str) -> int:
     """Bytes from '512M', '1G', '1.5G' (binary units, as clisp's --mem)."""
@@ -146,18 +130,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 # --------------------------------------------------------------------------------------------
 # Inputs
 # --------------------------------------------------------------------------------------------
-
-def clisp_env(root: Path) -> dict[str, str]:
-    """The environment with the clisp checkout ``root`` first on PYTHONPATH."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(root)] + [p for p in [env.get("PYTHONPATH", "")] if p])
-    return env
-
-
-def clisp_cmd(*args: str) -> list[str]:
-    """argv running clisp's CLI with this interpreter."""
-    return [sys.executable, "-m", "clisp", *args]
-
 
 def size_label(size: tuple[int, int]) -> str:
     """'24MP', '400MP', '0.12MP': megapixels to 3 significant digits."""
@@ -286,19 +258,6 @@ def launcher_check() -> tuple[bool, str]:
 TILES_RE = re.compile(r"(\d+) tiles? of (\d+)x(\d+)")
 
 
-def describe_output(path: Path) -> tuple[int, int, int, str]:
-    """(H, W, channels, pixel type) of an image file, from its header (OpenImageIO)."""
-    import OpenImageIO as oiio
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"unreadable: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        return spec.height, spec.width, spec.nchannels, str(spec.format)
-    finally:
-        inp.close()
-
-
 def output_problem(path: Path, run: Run) -> str:
     """'' when ``path`` is a W x H x 3 image (16-bit for TIFF), else what is wrong."""
     if not path.is_file():
@@ -329,7 +288,7 @@ def run_one(run: Run, raw: Path, outdir: Path, root: Path) -> Result:
     if found:
         res.tiles, res.tile_w, res.tile_h = (int(v) for v in found.groups())
     if m.code != 0:
-        res.problems.append(f"exit {m.code}: {last_line(m.stderr)}")
+        res.problems.append(f"exit {m.code}: {toolkit.last_line(m.stderr, limit=300)}")
     else:
         problem = output_problem(out, run)
         if problem:
@@ -338,12 +297,6 @@ def run_one(run: Run, raw: Path, outdir: Path, root: Path) -> Result:
         res.problems.append(f"peak {m.peak_mib:.0f} MiB above --mem {run.mem}")
     out.unlink(missing_ok=True)
     return res
-
-
-def last_line(text: str) -> str:
-    """The last non-empty line of ``text`` (a tool's error message, usually)."""
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1][:300] if lines else "(no message)"
 
 
 # --------------------------------------------------------------------------------------------
@@ -449,44 +402,12 @@ def refusal_lines(refusals: list[Refusal]) -> list[str]:
     return lines
 
 
-def write_csv(rows: list[dict[str, object]], path: Path) -> None:
-    """One CSV row per run."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def cpu_model() -> str:
-    """CPU model name from /proc/cpuinfo."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
 def total_memory_gib() -> float:
     """Physical memory (GiB)."""
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     except (OSError, ValueError):
         return math.nan
-
-
-def git_rev(root: Path) -> str:
-    """Short git revision of ``root`` ('unknown' outside git), '+dirty' when modified."""
-    try:
-        rev = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return rev + ("+dirty" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def device_line(root: Path) -> str:
@@ -499,9 +420,10 @@ def device_line(root: Path) -> str:
 def header_lines(root: Path, inputs: dict[tuple[str, tuple[int, int]], Path], scene: Path,
                  launcher: str) -> list[str]:
     """Machine, clisp revision, inputs and the launcher check, as Markdown list items."""
-    lines = [f"- Machine: {cpu_model()}, {os.cpu_count()} cores, {total_memory_gib():.0f} GiB; "
+    cpu = toolkit.cpu_model(lambda: platform.processor() or "unknown CPU")
+    lines = [f"- Machine: {cpu}, {os.cpu_count()} cores, {total_memory_gib():.0f} GiB; "
              f"OpenCL: {device_line(root)}",
-             f"- clisp: {root} at {git_rev(root)}",
+             f"- clisp: {root} at {toolkit.git_rev(root, dirty=True)}",
              f"- Inputs: `clisp simulate {scene.name} --cfa lms|bayer --gain 8 --size WxH`: "
              + ", ".join(f"{cfa} {w}x{h}" for cfa, (w, h) in inputs),
              f"- Peak RSS: ru_maxrss of os.wait4 on the clisp process, started by a python -S launcher; {launcher}"]
@@ -519,17 +441,6 @@ def section(rows: list[dict[str, object]], header: list[str], refusals: list[str
             "machine.", "",
             *table(rows), MARK_END]
     return "\n".join(body) + "\n"
-
-
-def update_results(path: Path, text: str) -> None:
-    """Replace the marked section of ``path`` with ``text``, or append it the first time."""
-    old = path.read_text() if path.is_file() else ""
-    start, end = old.find(MARK_START), old.find(MARK_END)
-    if start >= 0 and end > start:
-        new = old[:start] + text + old[end + len(MARK_END):].lstrip("\n")
-    else:
-        new = old.rstrip("\n") + ("\n\n" if old else "") + text
-    path.write_text(new)
 
 
 # --------------------------------------------------------------------------------------------
@@ -592,7 +503,7 @@ def main(argv: list[str] | None = None) -> int:
             write_csv(rows, args.csv)
         if args.results:
             command = ["python", "tools/check_mem.py", *(sys.argv[1:] if argv is None else argv)]
-            update_results(args.results, section(rows, header, refused, command))
+            toolkit.update_results(args.results, section(rows, header, refused, command), "check_mem")
     ok = launcher_ok and all(r.ok for r in results) and not any(f.problems for f in refusals.values())
     return 0 if ok else 1
 
