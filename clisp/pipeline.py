@@ -215,9 +215,8 @@ class Pipeline:
         :attr:`stats`."""
         self._check(source.shape, backend)
         halo, (win_h, win_w) = plan.halo, plan.window_shape
-        if backend == "opencl":
-            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
         if backend == "opencl":                      # halo passed on: stages recompute it per call
+            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
             compute = partial(self._compute_opencl, self.schedule(fuse), halo)
         else:
             compute = partial(self._compute_reference, halo)
