@@ -12,7 +12,7 @@
 
 /* No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
  * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
- * lms_common.launch_exact. With no control flow in its body PoCL vectorises a kernel across
+ * runtime.launch_exact. With no control flow in its body PoCL vectorises a kernel across
  * work-items (an 81-tap luma_lowpass on 6 MP: 364 ms with a bounds check, 24 ms without). Hence also
  * branch-free bodies: selections, not ifs. */
 

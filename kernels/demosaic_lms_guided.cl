@@ -19,7 +19,7 @@
  *
  * No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
  * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
- * lms_common.launch_exact. Bodies are branch-free (selects) with compile-time loop bounds, which
+ * runtime.launch_exact. Bodies are branch-free (selects) with compile-time loop bounds, which
  * PoCL unrolls and vectorises across work-items. */
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }

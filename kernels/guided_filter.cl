@@ -17,7 +17,7 @@
  * where the guide is flat, where uncentred E[I^2] - E[I]^2 would lose ~1e-8 against an eps of 1e-4.
  *
  * No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
- * bottom edge by shifting the last launch inward (lms_common.launch_exact); bodies are branch-free. */
+ * bottom edge by shifting the last launch inward (runtime.launch_exact); bodies are branch-free. */
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 

@@ -43,11 +43,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime
+from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .colour import ColourMatrix
 from .demosaic_malvar import check_bayer
-from .lms_common import launch_exact
 
 R, G, B = 0, 1, 2
 

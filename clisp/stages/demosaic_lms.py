@@ -72,11 +72,11 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
-from ..runtime import DeviceImage, Runtime
+from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .guided_filter import MASK_S, enqueue_guided_filter, guided_filter
 from .lms_common import (NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband,
-                         lattice_shift, launch_exact, valid)
+                         lattice_shift, valid)
 
 A_RADIUS = 2
 """Radius of step A (M at S sites): E_v reads (y +- 2, x), the S-detail correction (y +- 2, x +- 2)."""
@@ -377,7 +377,7 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
 
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object) -> None:
         """Enqueue ``kernel_name`` of kernels/demosaic_lms.cl over exactly width x height outputs
-        (``lms_common.launch_exact``: no bounds checks in the kernels)."""
+        (``runtime.launch_exact``: no bounds checks in the kernels)."""
         kernel = rt.kernel("demosaic_lms", kernel_name, self.defines(), self.generated_source())
         launch_exact(rt, kernel, width, height, *args)
 

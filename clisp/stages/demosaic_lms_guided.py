@@ -94,12 +94,12 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from ..noise import NOISELESS, ChannelNoise
-from ..runtime import DeviceImage, Runtime
+from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .guided_filter import (MASK_ALL, MASK_S, enqueue_box_rows, enqueue_guided_filter, enqueue_guided_pair,
                             guided_filter)
 from .lms_common import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
-                         diamond_halfband, lattice_shift, launch_exact, valid)
+                         diamond_halfband, lattice_shift, valid)
 
 D_RADIUS = 4
 """Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
@@ -577,7 +577,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object,
                 directional: bool = False) -> None:
         """Enqueue ``kernel_name`` of kernels/demosaic_lms_guided.cl over exactly width x height outputs
-        (``lms_common.launch_exact``)."""
+        (``runtime.launch_exact``)."""
         kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(directional), self.generated_source())
         launch_exact(rt, kernel, width, height, *args)
 

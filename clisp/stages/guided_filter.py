@@ -26,8 +26,8 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime
-from .lms_common import LATTICE, correlate_valid, launch_exact, valid
+from ..runtime import DeviceImage, Runtime, launch_exact
+from .lms_common import LATTICE, correlate_valid, valid
 
 MASK_ALL, MASK_M, MASK_S, MASK_PAIR = 0, 1, 2, 3
 """``mask`` of the host functions (the kernels' GF_MASK): statistics over every pixel, the M sites or

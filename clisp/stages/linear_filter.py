@@ -14,10 +14,9 @@ import numpy as np
 
 from ..cfa import CFA
 from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode
-from ..runtime import DeviceImage, Runtime
+from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .colour import ColourMatrix, ToneCurve, srgb_source
-from .lms_common import launch_exact
 
 
 FUSE_TONE_CURVE = False

@@ -1,5 +1,5 @@
-"""Pieces shared by the LMS demosaics: filters, the CFA structure they rely on (and its closed form in
-the kernels, ``LATTICE``), and the exact-cover kernel launch."""
+"""Pieces shared by the LMS demosaics: filters and the CFA structure they rely on (and its closed form
+in the kernels, ``LATTICE``)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,13 +7,7 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from ..noise import ChannelNoise
-from ..runtime import Runtime
 
-WORK_GROUP = (64, 4)
-"""Work-group shape (x, y) of the LMS demosaic kernels. On PoCL (2 cores, shared machine, best of 5,
-interleaved), whole hybrid stage at 6 and 24 MP: (32, 4) 22 / 31 MP/s, (64, 2) 27 / 37, (128, 1) 27 / 36,
-(64, 4) 29 / 39. Wider along x gives each vectorised work-group longer rows; 4 rows share the
-vertical taps."""
 LATTICE = {"L_PAR": 0, "S_Y": 0, "S_D": 1}
 """The kernels' closed form of the base LMS tile (SPEC section 1, phase (0, 0)): L iff x + y + L_PAR is
 even; S iff y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (``at_l``, ``at_s`` in
@@ -93,24 +87,6 @@ def lattice_shift(cfa: CFA, ch_l: int, ch_s: int) -> tuple[int, int]:
             if np.array_equal(is_l, cfa.pattern == ch_l) and np.array_equal(is_s, cfa.pattern == ch_s):
                 return ty, tx
     raise ClispError(f"CFA {cfa.name}: not a translate of the paper's LMS tile")
-
-
-def launch_exact(rt: Runtime, kernel: object, width: int, height: int, *args: object) -> None:
-    """Enqueue ``kernel`` over exactly width x height outputs without bounds checks.
-
-    Schedule: whole WORK_GROUP work-groups over the largest multiple-of-group block, then the ragged
-    right/bottom strips as one group-wide launch shifted inward to end at the edge (it recomputes some
-    outputs with identical values). A side shorter than the group gets the largest power of two that
-    fits (few distinct shapes, so few work-group compilations on PoCL). Kernels thus carry no bounds
-    check and PoCL vectorises them (6-15x, measured; see kernels/demosaic_lms.cl).
-    """
-    lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (width, height)))
-    full_w, full_h = width // lx * lx, height // ly * ly
-    xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
-    ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])
-    for x0, gw in xs:
-        for y0, gh in ys:
-            kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0, y0))
 
 
 def valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:

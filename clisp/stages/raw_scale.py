@@ -10,9 +10,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..cfa import CFA
-from ..runtime import DeviceImage, Runtime
+from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
-from .lms_common import launch_exact
 
 
 @dataclass
