@@ -1,13 +1,14 @@
 /* The masked guided filter shared by both LMS demosaics (He et al.'s guided filter with box windows of
  * radius r, statistics over the pixels of one CFA channel); NumPy twins of the same names and the host
- * side in clisp/stages/guided_filter.py. Four kernels, run in this order:
- *   gf_row_moments -> gf_coefficients -> box_rows (of a, b) -> gf_apply.
+ * side in clisp/stages/guided_filter.py. Two kernels, run in this order:
+ *   gf_ab_strip (the NumPy gf_row_moments, then gf_coefficients) -> gf_apply_strip (box_rows of a, b,
+ *   then gf_apply). box_rows also serves the guided demosaic's other box sums.
  *
  * Defines from the host: GF_R (the radius r); GF_MASK (the pixels of the statistics: 0 every pixel,
  * 1 the M sites, 2 the S sites); GF_LEVEL_GUIDE (1: the noise term of eps at the level mu_I, 0: at
  * mu_v); L_PAR, S_Y, S_D (the LMS CFA in closed form, at_l and at_s in common.h; the CFA phase is folded
  * into the image coordinates (oy, ox) by lattice_shift). Mask and level are compile-time so that the
- * selections fold away (as kernel arguments they cost gf_row_moments 30% and gf_coefficients 10%).
+ * selections fold away (as kernel arguments they cost the row-moment step 30% and the coefficients 10%).
  *
  * Geometry: the filter runs on an "own" window of h x w pixels and returns its (h - 4r) x (w - 4r)
  * centre. Kernel outputs are planar out_w x out_h images; the guide (plane from element g_base) and
@@ -20,84 +21,6 @@
  * bottom edge by shifting the last launch inward (runtime.launch_exact); bodies are branch-free. */
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
-
-/* gf_row_moments: row sums over x-r .. x+r (r = GF_R) of the masked moments, the guide centred on the
- * row centre value c = I(y, x+r): n, sum d, sum d^2, sum v, sum d v (planes 0..4), d = I - c, over the
- * pixels selected by GF_MASK.
- * Output (y, x) is centred on own-window pixel (y, x + r); h x (w - 2r). Halo: reads +-r along x. */
-__kernel void gf_row_moments(__global const float *restrict guide, __global const float *restrict v, __global float *restrict mom,
-                             const int g_base, const int g_w, const int g_off, const int v_w, const int v_off,
-                             const int out_w, const int out_h, const int oy, const int ox)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *gc = guide + g_base + (y + g_off) * g_w + x + GF_R + g_off;
-    __global const float *vc = v + (y + v_off) * v_w + x + GF_R + v_off;
-    const float c = gc[0];
-    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
-    #pragma unroll
-    for (int k = -GF_R; k <= GF_R; ++k) {
-        const int iy = y + oy, ix = x + GF_R + k + ox;
-        const int s_site = at_s(iy, ix);
-        const int m_site = !s_site && !at_l(iy, ix);
-        const float chi = GF_MASK == 0 ? 1.0f : ((GF_MASK == 2 ? s_site : m_site) ? 1.0f : 0.0f);
-        const float dk = chi * (gc[k] - c);
-        const float vk = chi * vc[k];
-        n += chi;
-        s1 += dk;
-        s2 += dk * dk;
-        sv += vk;
-        sdv += dk * vk;
-    }
-    const int plane = out_w * out_h, i = y * out_w + x;
-    mom[i] = n;
-    mom[plane + i] = s1;
-    mom[2 * plane + i] = s2;
-    mom[3 * plane + i] = sv;
-    mom[4 * plane + i] = sdv;
-}
-
-/* gf_coefficients: column sums over y-r .. y+r of the row moments, each moved from its row centre c_j
- * to the output's c (delta = c_j - c: s1 += s1_j + n_j delta, s2 += s2_j + 2 delta s1_j + n_j delta^2,
- * sdv += sdv_j + delta sv_j); mu_I = c + s1/n, mu_v = sv/n, var = s2/n - (s1/n)^2, cov = sdv/n -
- * (s1/n) mu_v; eps = eps0 + shot max(level, 0) + floor, level = mu_I (GF_LEVEL_GUIDE) or mu_v;
- * a = cov / (var + eps), b = mu_v - a mu_I (planes a, b). Output (y, x) <-> rows (y + r, x), the own
- * window's pixel (y + r, x + r), the guide's (y + r + g_off, x + r + g_off) (the row centres);
- * (h - 2r) x (w - 2r). Halo: reads +-r along y. */
-__kernel void gf_coefficients(__global const float *restrict rows, __global const float *restrict guide, __global float *restrict ab,
-                              const int rows_w, const int rows_h, const int g_base, const int g_w,
-                              const int g_off, const int out_w, const int out_h, const float eps0,
-                              const float shot, const float floor_)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = rows_w * rows_h;
-    __global const float *rc = rows + (y + GF_R) * rows_w + x;
-    __global const float *gc = guide + g_base + (y + GF_R + g_off) * g_w + x + GF_R + g_off;
-    const float c = gc[0];
-    float n = 0.0f, s1 = 0.0f, s2 = 0.0f, sv = 0.0f, sdv = 0.0f;
-    #pragma unroll
-    for (int j = -GF_R; j <= GF_R; ++j) {
-        const int o = j * rows_w;
-        const float delta = gc[j * g_w] - c;
-        const float n_j = rc[o], s1_j = rc[plane + o], sv_j = rc[3 * plane + o];
-        n += n_j;
-        s1 += s1_j + n_j * delta;
-        s2 += rc[2 * plane + o] + delta * (2.0f * s1_j + n_j * delta);
-        sv += sv_j;
-        sdv += rc[4 * plane + o] + delta * sv_j;
-    }
-    const float inv_n = 1.0f / n;
-    const float mean_d = s1 * inv_n, mu_v = sv * inv_n;
-    const float var = s2 * inv_n - mean_d * mean_d;
-    const float cov = sdv * inv_n - mean_d * mu_v;
-    const float mu_i = c + mean_d;
-    const float level = GF_LEVEL_GUIDE ? mu_i : mu_v;
-    const float a = cov / (var + eps0 + shot * max_f(level, 0.0f) + floor_);
-    const int i = y * out_w + x;
-    ab[i] = a;
-    ab[out_w * out_h + i] = mu_v - a * mu_i;
-}
 
 /* box_rows: dst(y, x) = sum of src(y, x .. x + 2r), r = GF_R, every plane (planes stacked: out_h =
  * planes * height); width shrinks by 2r. Halo: reads +2r along x. */
@@ -113,33 +36,10 @@ __kernel void box_rows(__global const float *restrict src, __global float *restr
     dst[y * out_w + x] = acc;
 }
 
-/* gf_apply: q = mean(a) I + mean(b), the means over the (2r+1)^2 windows covering the pixel (column
- * sums of the row sums of a, b; planes of rows_ab, rows_h high), r = GF_R. Output (y, x) <-> rows
- * (y + r, x), the own window's pixel (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off);
- * (h - 4r) x (w - 4r), written from element d_base of dst on (a plane of a larger image). Halo: reads
- * rows y .. y + 2r. */
-__kernel void gf_apply(__global const float *restrict rows_ab, __global const float *restrict guide, __global float *restrict dst,
-                       const int rows_w, const int rows_h, const int g_base, const int g_w, const int g_off,
-                       const int out_w, const int d_base)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = rows_w * rows_h;
-    __global const float *rc = rows_ab + y * rows_w + x;
-    float sa = 0.0f, sb = 0.0f;
-    #pragma unroll
-    for (int j = 0; j <= 2 * GF_R; ++j) {
-        sa += rc[j * rows_w];
-        sb += rc[plane + j * rows_w];
-    }
-    const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));
-    const float g = guide[g_base + (y + 2 * GF_R + g_off) * g_w + x + 2 * GF_R + g_off];
-    dst[d_base + y * out_w + x] = (sa * g + sb) * inv;
-}
-
 /* ---- Fused strip kernels (what enqueue_guided_filter runs): the same sums in the same order as the
- * four step kernels above, without the 5-plane row-moment image and the 2-plane row sums of a, b
- * going through global memory (those planes' traffic was most of the filter's time on PoCL).
+ * NumPy steps gf_row_moments, gf_coefficients, box_rows, gf_apply, without a 5-plane row-moment image
+ * and 2-plane row sums of a, b going through global memory (with four step kernels, since removed,
+ * those planes' traffic was most of the filter's time on PoCL).
  * One work-item computes GF_STRIP consecutive output rows of one column: a fully unrolled loop over
  * the GF_STRIP + 2r rows the strip needs, each row's sums along x kept in private registers and summed
  * along y as soon as the 2r + 1 rows of an output are there. Strip rows start at
@@ -152,8 +52,8 @@ __kernel void gf_apply(__global const float *restrict rows_ab, __global const fl
 #define GF_T (2 * GF_R + 1)
 #define GF_NR (GF_STRIP + 2 * GF_R)
 
-/* gf_ab_strip: gf_row_moments then gf_coefficients (a, b; planes of out_w x out_h, out_w = w - 2r,
- * out_h = h - 2r), the own window h x w as for gf_row_moments. Output (y, x) <-> own-window pixel
+/* gf_ab_strip: the NumPy gf_row_moments then gf_coefficients (a, b; planes of out_w x out_h, out_w = w - 2r,
+ * out_h = h - 2r), over the own window h x w (see Geometry above). Output (y, x) <-> own-window pixel
  * (y + r, x + r). Halo: reads +-r along x and y.
  * GF_MASK 3: the two fits of M at S in one pass (they share guide and target): fit 0 over the M sites
  * (planes a, b; eps noise shot, floor_), fit 1 over the S sites (planes 2, 3; shot2, floor2); chi_rows

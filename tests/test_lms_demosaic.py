@@ -27,8 +27,7 @@ from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, Demo
                                        LMSHybridParams, chroma_demodulate_rows, diamond_halfband,
                                        frequency_response, lm_combine, luma_filter, luma_lowpass, m_at_s,
                                        s_joint_bilateral)
-from clisp.stages.guided_filter import (MASK_S, box_rows, enqueue_apply, enqueue_box_rows, enqueue_coefficients,
-                                        enqueue_row_moments, gf_apply, gf_coefficients, gf_row_moments,
+from clisp.stages.guided_filter import (box_rows, enqueue_box_rows, gf_apply, gf_coefficients, gf_row_moments,
                                         guided_filter_spec)
 from clisp.stages.raw_scale import normalize, white_balance1
 from tolerance import TOL, assert_close
@@ -165,37 +164,15 @@ def test_luma_and_chroma_kernels(rt, phase, origin) -> None:
         rt.release(image)
 
 
-@pytest.mark.parametrize("phase", PHASES)
-@pytest.mark.parametrize("origin", ORIGINS[::3])
-@pytest.mark.parametrize("noise", [None, NOISE])
-def test_guided_filter_kernels(rt, phase, origin, noise) -> None:
-    """Guide and samples as in an image (a smooth guide; S = 1.05 I - 0.02 + noise). With independent
-    uniform random I and S, the windows where cov/var lands far from any image's values (|a| ~ 3) leave
-    1.2e-5 of float32 rounding in a; on the smooth pair and on natural scenes it is ~1e-6."""
-    stage = DemosaicLMSHybrid(lms_cfa(phase), noise=noise)
-    r = stage.params.gf_radius
+def test_box_rows_kernel(rt) -> None:
+    """box_rows (the guided demosaic's box sums along x) against its NumPy twin, two planes. The
+    guided filter itself runs as fused strip kernels, tested in test_lms_guided.py."""
     lum, p = smooth_pair(4)
-    is_s = stage.cfa.channel_map(*p.shape, origin) == stage.ch_s
-    lum_d, p_d = upload(rt, lum), upload(rt, p)
-    noise_s = (stage.pixel_noise.shot[stage.ch_s], stage.pixel_noise.floor[stage.ch_s])
-    # row moments centred on lum (y, x + r), covering every row (the filter's window is lum's)
-    rows = enqueue_row_moments(rt, lum.shape, origin, stage.shift, lum_d, 0, p_d, 0, r, MASK_S)
-    rows_host = download(rt, rows)
-    assert_close(rows_host, gf_row_moments(f64(lum), f64(p), is_s, r), "gf_row_moments")
-    ab = enqueue_coefficients(rt, rows, lum_d, 0, r, stage.params.gf_eps, noise_s, False)
-    a, b = gf_coefficients(f64(rows_host), f64(lum)[:, r:-r], r, stage.params.gf_eps, *noise_s, False)
-    ab_host = download(rt, ab)
-    assert_close(ab_host, np.stack([a, b], axis=-1), "gf_coefficients")
-    ab_rows = enqueue_box_rows(rt, ab, r)
-    ab_rows_host = download(rt, ab_rows)
-    assert_close(ab_rows_host, box_rows(f64(ab_host), r), "box_rows")
-    # apply into plane 2 (S) of a 3-plane image: output (y, x) at lum (y + 2r, x + 2r) and ab_rows (y + r, x)
-    dst = rt.acquire(3, ab_rows.height - 2 * r, ab_rows.width)
-    enqueue_apply(rt, ab_rows, lum_d, 0, r, out=(dst, 2))
-    ref_s = gf_apply(f64(lum)[2 * r:-2 * r, 2 * r:-2 * r], f64(ab_rows_host[..., 0]),
-                     f64(ab_rows_host[..., 1]), r)
-    assert_close(download(rt, dst)[..., 2], ref_s, "gf_apply")
-    for image in (lum_d, p_d, rows, ab, ab_rows, dst):
+    r = DemosaicLMSHybrid(lms_cfa(PHASES[0])).params.gf_radius
+    src = rt.upload(np.stack([lum, p]).astype(np.float32))                      # two planes
+    rows = enqueue_box_rows(rt, src, r)
+    assert_close(download(rt, rows), box_rows(f64(np.stack([lum, p], axis=-1)), r), "box_rows")
+    for image in (src, rows):
         rt.release(image)
 
 

@@ -175,8 +175,9 @@ def test_kernel_l_guide(rt, window, origin):
 
 @pytest.mark.parametrize("channel_name", ["M", "S", None])
 def test_kernel_guided_filter(rt, window, channel_name):
-    """gf_row_moments + gf_coefficients + box_rows + gf_apply against guided_filter, masked and not,
-    with a guide offset into a larger image and the noise term in eps."""
+    """The fused strip kernels (the NumPy steps gf_row_moments, gf_coefficients, box_rows, gf_apply)
+    against guided_filter, masked and not, with a guide offset into a larger image and the noise term
+    in eps."""
     cfa, x = window
     stage = DemosaicLMSGuided(cfa, noise=NOISE)
     origin, off, r = (-3, 2), 3, 3

@@ -137,55 +137,12 @@ def _plane_base(image: DeviceImage, plane: int) -> np.int32:
     return i32(plane * image.height * image.width)
 
 
-def enqueue_row_moments(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], shift: tuple[int, int],
-                        guide: DeviceImage, g_off: int, v: DeviceImage, v_off: int, r: int, mask: int,
-                        g_plane: int = 0) -> DeviceImage:
-    """gf_row_moments: 5 planes, h x (w - 2r); output (y, x) is centred on own-window pixel (y, x + r).
-    ``mask``: MASK_ALL, MASK_M or MASK_S."""
-    h, w = own
-    dst = rt.acquire(5, h, w - 2 * r)
-    kernel = _kernel(rt, "gf_row_moments", r, mask=mask)
-    launch_exact(rt, kernel, dst.width, h, guide.buffer, v.buffer, dst.buffer, _plane_base(guide, g_plane),
-                 i32(guide.width), i32(g_off), i32(v.width), i32(v_off), i32(dst.width), i32(h),
-                 i32(origin[0] + shift[0]), i32(origin[1] + shift[1]))
-    return dst
-
-
-def enqueue_coefficients(rt: Runtime, rows: DeviceImage, guide: DeviceImage, g_off: int, r: int, eps0: float,
-                         noise: tuple[float, float], level_from_guide: bool, g_plane: int = 0) -> DeviceImage:
-    """gf_coefficients: planes a, b, (rows.height - 2r) x rows.width; output (y, x) <-> rows (y + r, x),
-    own-window pixel (y + r, x + r). ``noise``: (shot, floor) of the level's variance."""
-    h = rows.height - 2 * r
-    dst = rt.acquire(2, h, rows.width)
-    kernel = _kernel(rt, "gf_coefficients", r, level_from_guide=level_from_guide)
-    launch_exact(rt, kernel, rows.width, h, rows.buffer, guide.buffer, dst.buffer, i32(rows.width), i32(rows.height),
-                 _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(rows.width), i32(h), f32(eps0),
-                 f32(noise[0]), f32(noise[1]))
-    return dst
-
-
 def enqueue_box_rows(rt: Runtime, src: DeviceImage, r: int) -> DeviceImage:
     """box_rows: sums over 2r+1 neighbours along x of every plane; width shrinks by 2r."""
     w = src.width - 2 * r
     dst = rt.acquire(src.channels, src.height, w)
     launch_exact(rt, _kernel(rt, "box_rows", r), w, src.channels * src.height, src.buffer, dst.buffer,
                  i32(src.width), i32(w))
-    return dst
-
-
-def enqueue_apply(rt: Runtime, rows_ab: DeviceImage, guide: DeviceImage, g_off: int, r: int,
-                  g_plane: int = 0, out: tuple[DeviceImage, int] | None = None) -> DeviceImage:
-    """gf_apply: q, (rows_ab.height - 2r) x rows_ab.width; output (y, x) <-> rows_ab (y + r, x), own-window
-    pixel (y + 2r, x + 2r). ``out`` = (image, plane): write q into that plane of an existing image of
-    q's size instead of a new one-plane image. Returns the image written."""
-    h, w = rows_ab.height - 2 * r, rows_ab.width
-    dst, plane = (rt.acquire(1, h, w), 0) if out is None else out
-    if (dst.height, dst.width) != (h, w) or not 0 <= plane < dst.channels:
-        raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
-                         f"cannot take {h} x {w}")
-    launch_exact(rt, _kernel(rt, "gf_apply", r), w, h, rows_ab.buffer, guide.buffer, dst.buffer, i32(w),
-                 i32(rows_ab.height), _plane_base(guide, g_plane), i32(guide.width), i32(g_off), i32(w),
-                 _plane_base(dst, plane))
     return dst
 
 
@@ -231,7 +188,7 @@ def enqueue_guided_filter(rt: Runtime, own: tuple[int, int], origin: tuple[int, 
     ``mask`` (MASK_ALL, MASK_M, MASK_S); eps = eps0 + noise[0] max(level, 0) + noise[1]. Output: the own
     window shrunk by 2r, (h - 4r) x (w - 4r), a new image or plane out[1] of out[0]. Two fused kernels
     (gf_ab_strip: row moments and coefficients; gf_apply_strip: box sums of a, b and q), the same sums
-    as the four step kernels; the a, b planes come from the pool and go back to it."""
+    as the NumPy steps; the a, b planes come from the pool and go back to it."""
     return _enqueue_fits(rt, own, origin, shift, guide, g_off, v, v_off, r, mask, eps0, [noise], level_from_guide,
                          g_plane, [out])[0]
 
