@@ -143,11 +143,9 @@ class Pipeline:
 
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
-        limits = DeviceLimits()
+        limits = device_limits(backend)
         needs = self.needs(raw_dtype)
         if backend == "opencl":
-            device = get_runtime().device
-            limits = DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
             needs = replace(needs, cost=self.tile_cost(raw_dtype, shape[1], limits, sink_bands))
         return make_plan(shape[0], shape[1], needs, tile, budget, limits)
 
@@ -295,6 +293,14 @@ class Pipeline:
         return event
 
 
+def device_limits(backend: str) -> DeviceLimits:
+    """The OpenCL device's memory limits (none for the NumPy reference)."""
+    if backend != "opencl":
+        return DeviceLimits()
+    device = get_runtime().device
+    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
+
+
 def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, Any]:
     """The options for CFA ``kind`` ('lms' or 'bayer'): the preset's, overridden by explicit ones.
 
@@ -332,9 +338,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
-    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``denoise``: None = the preset's depth, False = off, True = on (the
-    preset's depth, at least 1 level), or explicit ChromaDenoiseParams; its noise comes from the
-    raw's sensor model, else it is estimated from the raw. ``wb2``: white balance pass 2 from
+    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``denoise``: None =
+    the preset's depth, False = off, True = on (the preset's depth, at least 1 level), or explicit
+    ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
+    raw. ``wb2``: white balance pass 2 from
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
     """
     if output not in OUTPUTS:
@@ -449,8 +456,7 @@ def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, til
     shape, dtype = raw.shape, raw.data.dtype
     if backend != "opencl":
         return pipeline.plan(shape, dtype, tile, budget, backend)
-    rt = get_runtime()
-    limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
+    limits = device_limits(backend)
     cost = pipeline.tile_cost(dtype, shape[1], limits, sink_bands=not in_memory)
     smallest = cost(min(shape[0], MIN_TILE), min(shape[1], MIN_TILE))   # also builds the programs
     held = resident_bytes() + RSS_MARGIN
