@@ -263,12 +263,18 @@ class Pipeline:
         return schedule
 
     @staticmethod
-    def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int]) -> Any:
+    def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int],
+                      into: tuple[np.ndarray, int] | None = None) -> Any:
         """Enqueue every stage of ``schedule`` on the uploaded window ``src`` (released on the
-        way); returns the interleaved result."""
-        for stage in schedule:
+        way); returns the interleaved result. ``into``: (host band array, first row): where the
+        last stage may write its whole output itself (Runtime.host_image), which spares the
+        download; the result then has ``host`` set."""
+        for i, stage in enumerate(schedule):
             stage_label(stage.name)
-            dst = stage.enqueue(rt, src, origin)
+            out = None
+            if into is not None and i == len(schedule) - 1:
+                out = Pipeline._host_output(rt, stage, src, *into)
+            dst = stage.enqueue(rt, src, origin) if out is None else stage.enqueue(rt, src, origin, out=out)
             rt.release(src)
             src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
         if not src.interleaved:
@@ -276,19 +282,37 @@ class Pipeline:
             rt.release(planar)
         return src
 
+    @staticmethod
+    def _host_output(rt: Any, stage: Stage, src: Any, host: np.ndarray, y: int) -> Any:
+        """A host image over ``host[y:y + h]`` for ``stage``'s whole h x w output, when the stage
+        can write into one, its output is interleaved and as wide as the band, and the rows fit
+        (a last ragged tile's extra rows land in the band's spare rows, never past it)."""
+        if not (stage.writes_into and getattr(stage, "interleaved", False)):
+            return None
+        h, w = stage.output_shape(src.height, src.width)
+        if host.ndim != 3 or host.shape[1] != w or host.shape[2] != stage.out_channels \
+                or host.dtype != stage.out_dtype or y + h > host.shape[0]:
+            return None
+        return rt.host_image(host[y:y + h])
+
     def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray,
                         target: tuple[np.ndarray, int, int]) -> Any:
         """Enqueue one window's upload, every stage and the download of the kept pixels into
-        ``target``; returns the download's event (nothing waits here: no host round trip)."""
+        ``target`` (or, where the last stage wrote into the target itself, what makes those
+        pixels readable); returns that event (nothing waits here: no host round trip)."""
         rt = get_runtime()
         if window.dtype not in (np.uint16, np.float32):
             window = window.astype(np.float32)
         stage_label("upload")
-        src = self._enqueue_tile(rt, schedule, rt.upload(window), (t.y0 - halo, t.x0 - halo))
-        stage_label("download")
         host, y, x = target
-        event = rt.download_region(src, host, y, x, t.h, t.w)
-        rt.release(src)                               # the in-order queue copies before reuse
+        into = (host, y) if x == 0 and t.w == host.shape[1] else None
+        src = self._enqueue_tile(rt, schedule, rt.upload(window), (t.y0 - halo, t.x0 - halo), into)
+        stage_label("download")
+        if src.host is not None:
+            event = rt.settle_host_image(src)
+        else:
+            event = rt.download_region(src, host, y, x, t.h, t.w)
+            rt.release(src)                           # the in-order queue copies before reuse
         rt.queue.flush()
         return event
 

@@ -117,6 +117,7 @@ class DeviceImage:
     dtype: np.dtype
     interleaved: bool = False
     capacity: int = 0           # bytes of ``buffer`` (at least nbytes: pooled buffers are reused larger)
+    host: np.ndarray | None = None   # the host array that is the buffer's storage (Runtime.host_image)
 
     @property
     def nbytes(self) -> int:
@@ -139,6 +140,7 @@ class Runtime:
         self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
+        self.host_unified = bool(self.device.host_unified_memory)
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -212,7 +214,9 @@ class Runtime:
         return DeviceImage(buf, channels, height, width, np.dtype(dtype), capacity=capacity)
 
     def release(self, image: DeviceImage) -> None:
-        """Return a device image's buffer to the pool."""
+        """Return a device image's buffer to the pool (a host image's is not pooled: dropped)."""
+        if image.host is not None:
+            return
         pool = self._meter if self._meter is not None else self.pool
         pool.release(image.buffer, image.capacity)
 
@@ -284,6 +288,28 @@ class Runtime:
             raise ValueError(f"download target {host.shape} does not match device image {shape}")
         self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True)
         return host
+
+    def host_image(self, array: np.ndarray) -> DeviceImage | None:
+        """An interleaved device image whose storage is ``array`` itself (H x W x C, C-contiguous),
+        for a last stage to write its output straight into the host's band buffer. Only on a device
+        that shares host memory (PoCL's CPU device), where it saves the download copy; None
+        elsewhere (a discrete GPU keeps its download) and while metering."""
+        if not self.host_unified or self._meter is not None or array.ndim != 3 \
+                or not array.flags.c_contiguous or array.size == 0:
+            return None
+        buffer = self.cl.Buffer(self.context, self.cl.mem_flags.WRITE_ONLY | self.cl.mem_flags.USE_HOST_PTR,
+                                hostbuf=array)
+        height, width, channels = array.shape
+        return DeviceImage(buffer, channels, height, width, array.dtype, interleaved=True,
+                           capacity=array.nbytes, host=array)
+
+    def settle_host_image(self, image: DeviceImage) -> Any:
+        """Enqueue, without waiting, what makes a host image's pixels readable in its array: a map
+        for reading (no copy where the device uses the array itself) and its unmap. Returns the
+        event after which the host may read the array."""
+        mapped, _ = self.cl.enqueue_map_buffer(self.queue, image.buffer, self.cl.map_flags.READ, 0,
+                                               (image.nbytes,), np.uint8, is_blocking=False)
+        return _record("download", mapped.base.release(self.queue))
 
     def download_region(self, image: DeviceImage, into: np.ndarray, y0: int, x0: int,
                         rows: int, cols: int) -> Any:

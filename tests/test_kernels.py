@@ -287,6 +287,50 @@ def test_linear_phase_filter_whole_blocks(rt, name, radius, shape, encode, quant
         assert_close(got, ref, f"phase_filter exact {name}")
 
 
+BAYER_NAMES = ["bayer-rggb", "bayer-grbg", "bayer-gbrg", "bayer-bggr"]
+
+
+@pytest.mark.parametrize("name", BAYER_NAMES)
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_linear_phase_filter_factored(rt, name, dtype):
+    """Normalise + WB + bilinear + matrix fuse into a filter that keeps its factors
+    (weights == mix @ basis); the per-column kernel computing the factored form equals the chain
+    of references, for every column and row phase (two origins, even output height)."""
+    cfa = cfa_from_name(name)
+    matrix = np.array([[1.7, -0.5, -0.2], [-0.3, 1.6, -0.3], [0.05, -0.6, 1.55]])
+    chain = [normalize(cfa, BLACK, WHITE), white_balance1(cfa, np.array([2.0, 1.0, 1.6])),
+             DemosaicBilinear(cfa), ColourMatrix(matrix)]
+    fused = fuse_stages(chain)
+    assert len(fused) == 1
+    f = fused[0].with_interleaved_output()
+    assert isinstance(f, LinearPhaseFilter) and f.factored
+    np.testing.assert_allclose(np.einsum("cd,kdt->kct", f.mix, f.basis), f.weights, rtol=1e-12, atol=1e-15)
+    rng = np.random.default_rng(41 + BAYER_NAMES.index(name))
+    shape = (38, 70)
+    x = (rng.integers(0, 1024, size=shape) if dtype == np.uint16 else rng.uniform(-30, 1100, size=shape))
+    x = x.astype(dtype)
+    for origin in [(0, 0), (1, 3)]:
+        ref, o = x, origin
+        for stage in chain:
+            ref = stage.reference(ref, o)
+            o = (o[0] + stage.halo, o[1] + stage.halo)
+        assert f.output_shape(*shape)[0] % cfa.period == 0            # the per-column kernel runs
+        assert_close(run_stage(rt, f, x, origin), ref, f"factored phase_filter {name} {origin}")
+
+
+def test_linear_phase_filter_drops_factors_when_not_channel_pure():
+    """A basis that mixes CFA channels cannot take per-channel scales into ``mix``: after an
+    affine the filter is dense again (and still equals its definition)."""
+    cfa = cfa_from_name("bayer-rggb")
+    basis = DemosaicBilinear(cfa).as_phase_filter().weights.copy()
+    basis[:, 0, 4] += 0.1                                   # channel 0 reads every centre sample
+    f = LinearPhaseFilter(cfa, 1, basis, np.zeros((4, 3)), basis=basis, mix=np.eye(3))
+    g = f.after_affine(np.array([1.0, 2.0, 3.0]), np.array([0.5, 1.0, 2.0]))
+    assert not g.factored
+    kept = DemosaicBilinear(cfa).as_phase_filter().after_affine(np.ones(3), np.array([0.5, 1.0, 2.0]))
+    assert kept.factored
+
+
 def test_linear_phase_filter_reference_definition():
     """reference(): out_c = bias[k, c] + sum_t w[k, c, t] * raw(tap t), k the CFA phase of the
     output pixel, checked pixel by pixel on a small window."""

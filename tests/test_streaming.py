@@ -29,6 +29,7 @@ from clisp.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.rawimage import RawImage
 from clisp.simulate import mirror_repeat_index, simulate, simulate_large
 from clisp.stages.base import Stage
+import clisp.streaming
 from clisp.streaming import ArrayWindows, FileWindows, window_source
 from clisp.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
 from tolerance import TOL, assert_close
@@ -85,6 +86,42 @@ def test_every_preset_tiled_equals_whole() -> None:
         auto = pipeline.run(data, budget=16 * 2**20)          # tiles chosen from a small budget
         assert pipeline.stats.tiles > 1                       # bands or squares, by the stages' needs
         assert_close(auto, whole, f"{name}/{kind} automatic tiles")
+
+
+@pytest.mark.parametrize("kind", ["lms", "bayer"])
+@pytest.mark.parametrize("output", ["linear", "srgb16"])
+def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind: str, output: str) -> None:
+    """Full-width bands of the fast pipeline: on a device that shares host memory the last kernel
+    writes straight into the output (Runtime.host_image); the last, ragged band, whose window's
+    output would run past the image, is downloaded. The result equals the download path's and
+    the reference."""
+    raw = make_raw(kind, shape=(301, 517))
+    pipeline = build_pipeline(raw, preset="fast", output=output)
+    rt = get_runtime()
+    made = []
+    host_image = rt.host_image
+
+    def counting(array: np.ndarray):
+        image = host_image(array)
+        made.append(image is not None)
+        return image
+
+    monkeypatch.setattr(rt, "host_image", counting)
+    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
+    assert len(plan.tiles) > 2 and plan.tile_w == raw.shape[1] and raw.shape[0] % plan.tile_h != 0
+    out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+    pipeline.stream(ArrayWindows(raw.data), clisp.streaming.ArraySink(out), plan)
+    assert len(made) == len(plan.tiles) - 1 and all(made) == rt.host_unified
+    monkeypatch.setattr(rt, "host_unified", False)                # the download path
+    downloaded = pipeline.run(raw.data, tile=0)
+    ref = pipeline.run(raw.data, backend="reference")
+    if output == "srgb16":      # one code off where float rounding meets a half code
+        for other in (downloaded, ref):
+            diff = np.abs(out.astype(np.int32) - other)
+            assert diff.max() <= 1 and np.mean(diff > 0) < 0.01
+    else:
+        assert_close(out, downloaded, "host bands")
+        assert_close(out, ref, "host bands vs reference")
 
 
 @pytest.mark.parametrize("kind", ["lms", "bayer"])

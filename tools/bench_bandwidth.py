@@ -6,10 +6,13 @@ matrix, tone curve): its speed limit is moving bytes. This tool measures, in one
 * the streaming bandwidth through the OpenCL device: a copy kernel over 256 MiB (bytes read +
   bytes written per second), and NumPy's single-threaded copy for reference;
 * the ``fast`` pipeline on a 24 MP mosaic in memory, processing only (no file read or write):
-  the tile loop of ``clisp process`` (reader thread, upload, kernel, download into the band
+  the tile loop of ``clisp process`` (reader thread, upload, kernels, download into the band
   buffers, a writer that does nothing), for linear float output (EXR) and 16-bit codes (TIFF).
-  Bytes counted: raw in, its upload, the download and RGB out (every host-device copy counted,
-  as the issue asks), per second of wall time; best of ``--repeat`` runs after a warm-up.
+  Bytes counted as the copy kernel's are, every byte read plus every byte written: each upload
+  and download (a copy reads and writes its bytes: twice its size) and each kernel's input and
+  output window, tallied during the warm-up run; per second of wall time, best of ``--repeat``
+  runs after that warm-up. Where the last kernel writes straight into the host's band buffers
+  (a device sharing host memory: Runtime.host_image) there is no download to count.
 
 Usage::
 
@@ -72,22 +75,59 @@ def test_raw(size: tuple[int, int], path: str | None):
     return replace(raw, data=data, metadata={})
 
 
-def pipeline_bandwidth(raw, output: str, repeat: int) -> tuple[float, float, str]:
-    """(seconds, bytes per second, plan) of the fast pipeline's tile loop, best of ``repeat``."""
+def counted_traffic(pipeline, rt) -> tuple[dict[str, int], object]:
+    """A tally of bytes read + written (upload, kernels, download) and a function undoing the
+    counting wrappers: rt.upload and rt.download_region count their copies, every stage of the
+    pipeline's schedule its input and output windows."""
+    tally = {"upload": 0, "kernels": 0, "download": 0}
+    upload, download, schedule = rt.upload, rt.download_region, pipeline.schedule
+
+    def counted_upload(array):
+        tally["upload"] += 2 * array.nbytes
+        return upload(array)
+
+    def counted_download(image, into, y0, x0, rows, cols):
+        tally["download"] += 2 * rows * cols * image.channels * np.dtype(image.dtype).itemsize
+        return download(image, into, y0, x0, rows, cols)
+
+    def counted_schedule(fuse=True):
+        stages = schedule(fuse)
+        for stage in stages:
+            def enqueue(rt_, src, origin, *args, _enqueue=stage.enqueue, **kwargs):
+                dst = _enqueue(rt_, src, origin, *args, **kwargs)
+                tally["kernels"] += src.nbytes + dst.nbytes
+                return dst
+            stage.enqueue = enqueue
+        return stages
+
+    rt.upload, rt.download_region, pipeline.schedule = counted_upload, counted_download, counted_schedule
+
+    def undo() -> None:
+        rt.upload, rt.download_region = upload, download
+        del pipeline.schedule
+    return tally, undo
+
+
+def pipeline_bandwidth(raw, output: str, repeat: int) -> tuple[float, dict[str, int], str]:
+    """(seconds, bytes moved by kind, plan) of the fast pipeline's tile loop, best of ``repeat``."""
     from clisp.pipeline import build_pipeline
+    from clisp.runtime import get_runtime
     from clisp.streaming import ArrayWindows, BandSink
     pipeline = build_pipeline(raw, preset="fast", output=output)
-    height, width = raw.shape
+    width = raw.shape[1]
     plan = pipeline.plan(raw.shape, raw.data.dtype, sink_bands=True)
-    out_bytes = height * width * pipeline.out_channels * pipeline.out_dtype.itemsize
-    moved = 2 * (raw.data.nbytes + out_bytes)                # raw in + upload, download + RGB out
     with BandSink(lambda y, rows: None, plan, width, pipeline.out_channels, pipeline.out_dtype) as sink:
+        tally, undo = counted_traffic(pipeline, get_runtime())
+        try:
+            pipeline.stream(ArrayWindows(raw.data), sink, plan)     # warm-up, counted
+        finally:
+            undo()
         best = np.inf
-        for _ in range(repeat + 1):                          # the first is a warm-up
+        for _ in range(repeat):
             start = time.perf_counter()
             pipeline.stream(ArrayWindows(raw.data), sink, plan)
             best = min(best, time.perf_counter() - start)
-    return best, moved / best, f"{len(plan.tiles)} tiles of {plan.tile_w}x{plan.tile_h}"
+    return best, tally, f"{len(plan.tiles)} tiles of {plan.tile_w}x{plan.tile_h}"
 
 
 def main() -> None:
@@ -106,9 +146,13 @@ def main() -> None:
     raw = test_raw(size, args.raw)
     mp = raw.data.size / 1e6
     for output, label in (("linear", "float RGB (EXR)"), ("srgb16", "16-bit codes (TIFF)")):
-        seconds, rate, plan = pipeline_bandwidth(raw, output, args.repeat)
-        print(f"fast -> {label}: {seconds * 1e3:.0f} ms for {mp:.1f} MP ({mp / seconds:.0f} MP/s), "
-              f"{rate / 1e9:.1f} GB/s = {rate / device_bw:.2f} x the device's streaming bandwidth ({plan})")
+        seconds, tally, plan = pipeline_bandwidth(raw, output, args.repeat)
+        moved = sum(tally.values())
+        rate = moved / seconds
+        parts = ", ".join(f"{kind} {n / 1e6:.0f}" for kind, n in tally.items())
+        print(f"fast -> {label}: {seconds * 1e3:.0f} ms for {mp:.1f} MP ({mp / seconds:.0f} MP/s); moved "
+              f"{moved / 1e6:.0f} MB ({parts}), {rate / 1e9:.1f} GB/s = {rate / device_bw:.2f} x the "
+              f"device's streaming bandwidth ({plan})")
 
 
 if __name__ == "__main__":

@@ -59,6 +59,10 @@ class Stage(ABC):
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         """NumPy reference on an input window; returns the window shrunk by ``halo`` on every side."""
 
+    writes_into = False
+    """Whether :meth:`enqueue` takes ``out=``, an interleaved image of exactly its output shape to
+    write (Runtime.host_image: the host's own band buffer), instead of acquiring one."""
+
     @abstractmethod
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """Enqueue the kernel on ``src``; returns a new pooled device image (``src`` is not released)."""

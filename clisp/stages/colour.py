@@ -66,6 +66,7 @@ class ToneCurve(Stage):
     quantize: bool = False
     interleaved: bool = False
     name = "tone_curve"
+    writes_into = True
 
     @property
     def out_dtype(self) -> np.dtype:
@@ -78,10 +79,11 @@ class ToneCurve(Stage):
     def with_interleaved_output(self) -> "ToneCurve":
         return replace(self, interleaved=True)
 
-    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
+                out: DeviceImage | None = None) -> DeviceImage:
         defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
         kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
-        dst = rt.acquire(3, src.height, src.width, self.out_dtype)
+        dst = out if out is not None else rt.acquire(3, src.height, src.width, self.out_dtype)
         launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
                   np.int32(src.width), np.int32(src.height))
         dst.interleaved = self.interleaved

@@ -75,7 +75,7 @@ class DemosaicBilinear(Stage):
                 else:
                     wk = tent_taps * (ch[k] == c)
                     weights[k, c] = wk / wk.sum()
-        return LinearPhaseFilter(self.cfa, r, weights, np.zeros((k_count, n)))
+        return LinearPhaseFilter(self.cfa, r, weights, np.zeros((k_count, n)), basis=weights, mix=np.eye(n))
 
     def fuse(self, following: Stage) -> Stage | None:
         return self.as_phase_filter().fuse(following)
