@@ -111,3 +111,22 @@ def test_check_mem_small(tmp_path, capsys):
     assert "demo_chart.png" in text and "1 of 1 exit 2" in text
     section = (tmp_path / "RESULTS.md").read_text()
     assert section.count(check_mem.MARK_START) == 1 and check_mem.SECTION_TITLE in section
+
+
+def test_bench_demosaic_quality_small(tmp_path, capsys):
+    """The LibRaw harness is checked against our own bilinear: LibRaw LINEAR on the same raw, with
+    the same after-stages, must score the same (a shifted, scaled or mis-balanced LibRaw image
+    would not); the denoised setting runs, and the CSV holds every method and summary row."""
+    import bench_demosaic_quality as bdq
+
+    out = tmp_path / "q.csv"
+    assert bdq.main(["--sets", "deadleaves", "--dead-leaves", "1", "--dead-size", "96",
+                     "--settings", "noiseless,16", "--bayer", "bilinear", "--libraw", "LINEAR",
+                     "--csv", str(out)]) == 0
+    with open(out) as f:
+        rows = {(r["setting"], r["method"]): float(r["psnr_db"]) for r in csv.DictReader(f)}
+    for setting in ("noiseless", "16"):
+        assert abs(rows[(setting, "Bayer LibRaw LINEAR")] - rows[(setting, "Bayer clisp bilinear")]) < 0.05
+        assert rows[(setting, "Bayer best (per image)")] >= rows[(setting, "Bayer clisp dlmmse")]
+        assert 10 < rows[(setting, "LMS clisp default")] < 60
+    assert "lead: Bayer default - LibRaw best" in capsys.readouterr().out
