@@ -13,6 +13,8 @@ Each Bayer demosaic turns the same raw into white-balanced camera RGB, and the s
 (OpenCL, whole image, mirror-padded) finish it:
 
   clisp <name>      our demosaic stage (clisp.pipeline.DEMOSAICS) on the normalised mosaic
+  numpy <func>      a NumPy candidate ``func(mosaic, pattern) -> H x W x 3`` (--numpy MODULE:FUNC)
+                    on the normalised, white-balanced mosaic (float64), pattern e.g. 'RGGB'
   LibRaw <ALGO>     rawpy postprocess (AHD, DHT, AAHD, VNG, DCB, ...) of the raw written as a
                     DNG by clisp.rawfile.write_raw (noiseless raws: DN x 64 rounded to 16 bits),
                     output_color raw, linear, user_wb = our pass-1 gains; its level is calibrated
@@ -27,7 +29,7 @@ Bayer best.
 
     python tools/bench_demosaic_quality.py [--data ../shared/data] [--sets kodak,mcmaster,deadleaves]
         [--subset N] [--settings noiseless,noiseless-sharp,4,16,64] [--bayer dlmmse]
-        [--libraw AHD,DHT,AAHD,VNG,DCB] [--csv FILE] [--per-image]
+        [--libraw AHD,DHT,AAHD,VNG,DCB] [--numpy MODULE:FUNC,...] [--csv FILE] [--per-image]
 
 Dead leaves: clisp.charts.dead_leaves (512 x 512, seeds 0..--dead-leaves - 1), generated here.
 Tools-only dependency: rawpy.
@@ -36,11 +38,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib
 import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -161,6 +165,20 @@ def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
     return (rgb * np.asarray(level)).astype(np.float32)
 
 
+def bayer_pattern(raw: RawImage) -> str:
+    """The raw's 2 x 2 Bayer phase as letters, e.g. 'RGGB'."""
+    return "".join("RGB"[int(c)] for c in raw.cfa.channel_map(2, 2).ravel())
+
+
+def numpy_function(spec: str) -> Callable[[np.ndarray, str], np.ndarray]:
+    """The function named by 'module:function'."""
+    module, _, name = spec.partition(":")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise SystemExit(f"--numpy {spec}: {exc}") from None
+
+
 @dataclass
 class Scores:
     """PSNR per (set, setting, method): a list over the set's images, in order."""
@@ -179,7 +197,7 @@ class Scores:
 
 
 def score_scene(scores: Scores, set_name: str, setting: str, scene: np.ndarray, bayer: list[str],
-                libraw: list[str], folder: Path, per_image: str | None) -> None:
+                libraw: list[str], numpy_fns: list[str], folder: Path, per_image: str | None) -> None:
     gain, optics = SETTINGS[setting]
     cells = []
 
@@ -195,6 +213,9 @@ def score_scene(scores: Scores, set_name: str, setting: str, scene: np.ndarray, 
         stage = default_demosaic if name == default_demosaic.name.removeprefix("demosaic_") \
             else make_demosaic(name, sim.raw)
         record(f"Bayer clisp {name}", run_on_rgb(after, clisp_camera_rgb(sim.raw, before, stage)), sim.truth)
+    for spec in numpy_fns:
+        rgb = numpy_function(spec)(normalised_mosaic(sim.raw), bayer_pattern(sim.raw))
+        record(f"Bayer numpy {spec.partition(':')[2]}", run_on_rgb(after, rgb), sim.truth)
     for algo in libraw:
         record(f"Bayer LibRaw {algo}", run_on_rgb(after, libraw_camera_rgb(sim.raw, algo, folder)), sim.truth)
     lms = simulate(scene, "lms", gain=gain, optics=optics, seed=0)
@@ -240,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bayer", default=None,
                         help="our Bayer demosaics (default: the default pipeline's, then any others given)")
     parser.add_argument("--libraw", default=",".join(LIBRAW_ALGOS), help="LibRaw demosaics ('' for none)")
+    parser.add_argument("--numpy", default="", help="NumPy candidates MODULE:FUNC, comma-separated")
     parser.add_argument("--csv", type=Path, default=None, help="write one row per set, setting and method")
     parser.add_argument("--per-image", action="store_true", help="print every image's scores")
     args = parser.parse_args(argv)
@@ -265,6 +287,9 @@ def main(argv: list[str] | None = None) -> int:
     for name in bayer:
         if name not in DEMOSAICS:
             raise SystemExit(f"unknown demosaic {name!r}; registered: {', '.join(DEMOSAICS)}")
+    numpy_fns = [f for f in args.numpy.split(",") if f]
+    for spec in numpy_fns:
+        numpy_function(spec)
     scenes = load_scenes(args.data, sets, args.subset, args.dead_leaves, args.dead_size)
     print(f"device: {get_runtime().describe()}; Bayer default demosaic: {bayer_default}; "
           f"LibRaw: {', '.join(libraw) or 'none'}")
@@ -274,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             for image_name, scene in items:
                 for setting in settings:
-                    score_scene(scores, set_name, setting, scene, bayer, libraw, Path(tmp),
+                    score_scene(scores, set_name, setting, scene, bayer, libraw, numpy_fns, Path(tmp),
                                 image_name if args.per_image else None)
             print(f"[{set_name}: {len(items)} scenes x {len(settings)} settings in "
                   f"{time.perf_counter() - start:.0f} s]", flush=True)
