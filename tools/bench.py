@@ -150,7 +150,8 @@ def rawpy_method(algo: str) -> Method:
         # mean of our normalised mosaic to the mean of LibRaw's output at that channel's sites.
         options = dict(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algo), user_wb=wb,
                        output_color=rawpy.ColorSpace.raw, gamma=(1, 1), no_auto_bright=True,
-                       output_bps=16, user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore)
+                       output_bps=16, user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore,
+                       adjust_maximum_thr=0.0)   # else LibRaw rescales a raw whose maximum is below white
         matrix = raw.colour_matrix
         with rawpy.imread(str(path)) as handle:
             probe = handle.postprocess(**options).astype(np.float64)

@@ -154,7 +154,8 @@ def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
     options = dict(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algo),
                    user_wb=[float(gains[0]), float(gains[1]), float(gains[2]), float(gains[1])],
                    output_color=rawpy.ColorSpace.raw, gamma=(1, 1), no_auto_bright=True, output_bps=16,
-                   user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore)
+                   user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore,
+                   adjust_maximum_thr=0.0)   # LibRaw would rescale a raw whose maximum is below white
     with rawpy.imread(str(path)) as handle:
         rgb = handle.postprocess(**options).astype(np.float64)
     if rgb.shape[:2] != raw.shape:
