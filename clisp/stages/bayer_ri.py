@@ -78,17 +78,24 @@ The image is mirror-extended by ``PAD`` (16) pixels on every side (reflection ab
 which keeps the CFA phase; the phase is moved to RGGB by one more mirrored row / column where
 needed) and every filter also mirrors at the array's edge. Halo, measured as the context beyond
 which a tile's output equals the whole image's (tools/ri_study.py --halo, kodim19): RI, MLRI and
-weighted MLRI 28 px (exact to rounding; 26 px still differs by up to 3e-7). ARI and the hybrid
-chain eleven G iterations with growing windows, a formal support of about 280 px; in practice the
-difference falls to 4e-4 at 64 px, 1e-6 at 96 px and 5e-11 at 128 px of context.
+weighted MLRI 28 px (exact to rounding; 24 px still differs by up to 2e-6). ARI and the hybrid
+chain eleven G iterations with growing windows (formal support roughly 280 px, the sum of the
+chained window radii, estimated by hand); in practice the
+difference falls to 4e-4 (ARI) / 1e-5 (hybrid) at 64 px, 8e-7 / 6e-8 at 96 px and 5e-11 / 2e-11 at
+128 px of context.
 
 Numerics and speed
 ------------------
 Box sums are running sums (scipy.ndimage.uniform_filter1d), so their rounding depends on the
 position along a row; ARI's 1 / RMSE weights and per-pixel selections amplify that: a
 phase-shifted crop reproduces the whole image's interior to about 1e-8 (RI, MLRI) and 1e-5 (ARI).
-One 768 x 512 image, one core of this study's machine (shared, so +-20 %): RI 0.4 s, MLRI 0.6 s,
-weighted MLRI 0.9 s, ARI 9 s, hybrid 9.5 s.
+One 768 x 512 image (Kodak mean), one core of this study's shared machine: RI 0.4 s, MLRI 0.8 s,
+weighted MLRI 0.9 s, ARI 9.2 s, hybrid 9.2 s (its extra MLRI chroma is cheap; ARI's eleven G
+iterations, 16 guided filters each, are nearly all of it).
+
+Results (tools/ri_study.py, classic protocol, CPSNR Kodak / McMaster): RI 38.72 / 36.50, MLRI
+39.65 / 36.63, weighted MLRI 39.84 / 36.77, ARI 40.00 / 37.50, hybrid 40.74 / 37.25 (our DLMMSE
+40.21 / 34.47).
 """
 from __future__ import annotations
 
