@@ -47,6 +47,7 @@ METHODS: dict[str, Callable[[], Method]] = {
     "MLRI weighted": lambda: lambda m: bayer_ri.demosaic_mlri(m, weighted=True),
     "ARI": lambda: bayer_ri.demosaic_ari,
     "ARI hybrid": lambda: bayer_ri.demosaic_ari_hybrid,
+    "ARI gbtf, mean chroma": lambda: lambda m: bayer_ri.demosaic_ari(m, green_merge="gbtf", chroma="mean"),
     "clisp DLMMSE": dlmmse,
 }
 """Name -> factory of the demosaic (mosaic H x W in [0, 1], RGGB -> H x W x 3)."""

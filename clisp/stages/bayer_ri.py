@@ -80,9 +80,8 @@ needed) and every filter also mirrors at the array's edge. Halo, measured as the
 which a tile's output equals the whole image's (tools/ri_study.py --halo, kodim19): RI, MLRI and
 weighted MLRI 28 px (exact to rounding; 24 px still differs by up to 2e-6). ARI and the hybrid
 chain eleven G iterations with growing windows (formal support roughly 280 px, the sum of the
-chained window radii, estimated by hand); in practice the
-difference falls to 4e-4 (ARI) / 1e-5 (hybrid) at 64 px, 8e-7 / 6e-8 at 96 px and 5e-11 / 2e-11 at
-128 px of context.
+chained window radii, estimated by hand); in practice the difference falls to 4e-4 (ARI) / 1e-5
+(hybrid) at 64 px, 8e-7 / 6e-8 at 96 px and 5e-11 / 2e-11 at 128 px of context.
 
 Numerics and speed
 ------------------
