@@ -94,7 +94,7 @@ def test_constant_stays_constant(name):
 
 HALO = {"ri": 28, "mlri": 28, "mlri weighted": 28, "ari": 44, "ari hybrid": 44}
 """Context (px) an output pixel depends on (measured: beyond it a tile's output equals the whole
-image's to rounding). Full ARI reaches much further (about 96 px to 1e-6, tools/ri_study.py --halo),
+image's to rounding). Full ARI reaches much further (about 96 px to 1e-6, tools/demosaic_study.py --halo),
 so the phase test runs ARI and the hybrid with 2 G iterations and 1 chroma iteration (reach 44 px)."""
 PHASE_METHODS = {
     **METHODS,

@@ -9,6 +9,8 @@ Methods:
 
     RCD, GBTF, RCD-GBTF, ...     clisp.stages.bayer_rcd / bayer_gbtf / bayer_rcd_gbtf and their
                                  variants, NumPy float64, on the mosaic
+    RI, MLRI, ARI, ...           clisp.stages.bayer_ri (residual interpolation) and its variants;
+                                 ARI takes about 9 s per Kodak image: select with --methods
     clisp bilinear / DLMMSE      our OpenCL stages, Pipeline(CFA, [stage]).run(mosaic as float32),
                                  exactly as bayer_demosaic_protocol.py runs them
     LibRaw LINEAR/AHD/DHT/...    rawpy (LibRaw) on the same mosaic written as a Bayer DNG by
@@ -29,7 +31,10 @@ single-threaded NumPy, OpenCL on the device the runtime picks, LibRaw including 
 postprocess, not the write). The machine may be shared: times are indicative.
 
     python tools/demosaic_study.py [--data /work/shared/data] [--sets Kodak,McMaster]
-        [--methods REGEX] [--per-image] [--limit N] [--csv out.csv]
+        [--methods REGEX] [--per-image] [--limit N] [--csv out.csv] [--halo]
+
+``--halo`` measures instead, per NumPy candidate, how much context a tile needs: the largest
+|tile - whole image| over a 64 x 64 block of kodim19 for tiles grown by 8..128 px.
 """
 from __future__ import annotations
 
@@ -49,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bayer_demosaic_protocol import CFA, SETS, cpsnr, load_8bit, mosaic  # noqa: E402
 
 from clisp.pipeline import Pipeline  # noqa: E402
+from clisp.stages import bayer_ri  # noqa: E402
 from clisp.stages.bayer_gbtf import SLOW_TAPS, demosaic_gbtf  # noqa: E402
 from clisp.stages.bayer_rcd import demosaic_rcd  # noqa: E402
 from clisp.stages.bayer_rcd_gbtf import demosaic_rcd_gbtf  # noqa: E402
@@ -69,6 +75,12 @@ def candidates() -> dict[str, Method]:
         "GBTF (mean R/B at G)": lambda m: demosaic_gbtf(m, "RGGB", rb_at_green="mean"),
         "GBTF (slow taps)": lambda m: demosaic_gbtf(m, "RGGB", taps=SLOW_TAPS),
         "RCD-GBTF": lambda m: demosaic_rcd_gbtf(m, "RGGB"),
+        "RI": bayer_ri.demosaic_ri,
+        "MLRI": bayer_ri.demosaic_mlri,
+        "MLRI weighted": lambda m: bayer_ri.demosaic_mlri(m, weighted=True),
+        "ARI": bayer_ri.demosaic_ari,
+        "ARI hybrid": bayer_ri.demosaic_ari_hybrid,
+        "ARI gbtf, mean chroma": lambda m: bayer_ri.demosaic_ari(m, green_merge="gbtf", chroma="mean"),
     }
 
 
@@ -183,6 +195,27 @@ def write_csv(path: Path, scores: dict[str, dict[str, list[float]]], times: dict
                 writer.writerow([name, set_name, len(values), f"{np.mean(values):.4f}", f"{np.mean(times[name]):.4f}"])
 
 
+def halo(data: Path, methods: dict[str, Method], core: int = 64,
+         margins: tuple[int, ...] = (8, 12, 16, 20, 24, 32, 48, 64, 96, 128)) -> None:
+    """Per method: max |tile - whole| over a core x core block in the middle of kodim19, the tile
+    being that block grown by each margin (even: the tile keeps the RGGB phase)."""
+    m = mosaic(load_8bit(data / "kodak" / "kodim19.png"))
+    y0, x0 = (m.shape[0] - core) // 2 // 2 * 2, (m.shape[1] - core) // 2 // 2 * 2
+    print(f"max |tile - whole image| on a {core} x {core} block of kodim19 ({m.shape[1]} x {m.shape[0]}), "
+          f"per margin (px of context around the block)")
+    print(f"{'method':24s}" + "".join(f"{k:>10d}" for k in margins))
+    for name, fn in methods.items():
+        whole = fn(m)[y0:y0 + core, x0:x0 + core]
+        cells = []
+        for k in margins:
+            if y0 - k < 0 or x0 - k < 0:
+                cells.append(f"{'-':>10s}")
+                continue
+            tile = fn(m[y0 - k:y0 + core + k, x0 - k:x0 + core + k])[k:k + core, k:k + core]
+            cells.append(f"{np.abs(tile - whole).max():10.1e}")
+        print(f"{name:24s}" + "".join(cells), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="/work/shared/data", help="folder holding kodak/ and mcmaster/")
@@ -191,7 +224,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--per-image", action="store_true", help="also print every image's CPSNR")
     parser.add_argument("--limit", type=int, default=None, help="first N images of every set (quick tuning)")
     parser.add_argument("--csv", default=None, help="write the per-set means to this CSV file")
+    parser.add_argument("--halo", action="store_true", help="measure the NumPy candidates' effective halo instead")
     args = parser.parse_args(argv)
+    if args.halo:
+        halo(Path(args.data), {k: v for k, v in candidates().items() if re.search(args.methods, k)})
+        return 0
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     unknown = [s for s in sets if s not in SETS]
     if unknown:

@@ -64,7 +64,7 @@ merge (MLRI's step 2 parameters) of ARI's directional colour differences, each d
 chroma lines being ARI's two kinds weighted by 1 / (criterion + 1e-10); R and B = the mean of
 ARI's steps 2-3 and weighted MLRI's step 3, both on that G. The GBTF merge (directional weights and
 one-sided smoothing of the colour difference) is what Kodak needs, ARI's merge and chroma what
-McMaster needs; their means keep most of both (tools/ri_study.py).
+McMaster needs; their means keep most of both (tools/demosaic_study.py).
 
 Units and constants
 -------------------
@@ -77,7 +77,7 @@ Borders and halo
 The image is mirror-extended by ``PAD`` (16) pixels on every side (reflection about the edge pixel,
 which keeps the CFA phase; the phase is moved to RGGB by one more mirrored row / column where
 needed) and every filter also mirrors at the array's edge. Halo, measured as the context beyond
-which a tile's output equals the whole image's (tools/ri_study.py --halo, kodim19): RI, MLRI and
+which a tile's output equals the whole image's (tools/demosaic_study.py --halo, kodim19): RI, MLRI and
 weighted MLRI 28 px (exact to rounding; 24 px still differs by up to 2e-6). ARI and the hybrid
 chain eleven G iterations with growing windows (formal support roughly 280 px, the sum of the
 chained window radii, estimated by hand); in practice the difference falls to 4e-4 (ARI) / 1e-5
@@ -92,7 +92,7 @@ One 768 x 512 image (Kodak mean), one core of this study's shared machine: RI 0.
 weighted MLRI 0.9 s, ARI 9.2 s, hybrid 9.2 s (its extra MLRI chroma is cheap; ARI's eleven G
 iterations, 16 guided filters each, are nearly all of it).
 
-Results (tools/ri_study.py, classic protocol, CPSNR Kodak / McMaster): RI 38.72 / 36.50, MLRI
+Results (tools/demosaic_study.py, classic protocol, CPSNR Kodak / McMaster): RI 38.72 / 36.50, MLRI
 39.65 / 36.63, weighted MLRI 39.84 / 36.77, ARI 40.00 / 37.50, hybrid 40.74 / 37.25 (our DLMMSE
 40.21 / 34.47).
 """
