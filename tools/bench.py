@@ -136,6 +136,28 @@ _TMP = tempfile.TemporaryDirectory(prefix="clisp-bench-")
 _COUNTER = itertools.count()
 
 
+def libraw_options(raw: RawImage, algo: str) -> dict:
+    """rawpy postprocess options for LibRaw's ``algo`` on ``raw``: camera RGB, linear, 16 bits,
+    user_wb = our pass-1 gains (relative: LibRaw normalises them)."""
+    import rawpy
+    gains = raw.pass1_gains()
+    wb = [float(gains[0]), float(gains[1]), float(gains[2]), float(gains[1])]   # R, G, B, G2
+    return dict(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algo), user_wb=wb,
+                output_color=rawpy.ColorSpace.raw, gamma=(1, 1), no_auto_bright=True,
+                output_bps=16, user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore,
+                adjust_maximum_thr=0.0)   # else LibRaw rescales a raw whose maximum is below white
+
+
+def libraw_level(raw: RawImage, rgb: np.ndarray) -> np.ndarray:
+    """Per-channel factors taking LibRaw's output (H x W x 3) to our normalisation: LibRaw
+    normalises the multipliers and scales to its own maximum, so the level is the ratio of the
+    mean of our normalised mosaic to the mean of LibRaw's output at that channel's sites."""
+    channel = raw.cfa.channel_map(*raw.shape)
+    ours = normalised_mosaic(raw)
+    return np.array([ours[channel == c].mean() / max(float(rgb[..., c][channel == c].mean()), 1e-12)
+                     for c in range(3)], np.float32)
+
+
 def rawpy_method(algo: str) -> Method:
     def make(raw: RawImage) -> Callable[[], np.ndarray]:
         import rawpy
@@ -143,22 +165,10 @@ def rawpy_method(algo: str) -> Method:
         from clisp.rawfile import write_raw
         path = Path(_TMP.name) / f"bench_{next(_COUNTER)}.dng"     # a fresh file for every raw
         write_raw(path, raw)
-        gains = raw.pass1_gains()
-        wb = [float(gains[0]), float(gains[1]), float(gains[2]), float(gains[1])]   # R, G, B, G2
-        # LibRaw normalises the multipliers and scales to its own maximum: the level of its output
-        # is calibrated once per raw (outside the timing), per camera channel, as the ratio of the
-        # mean of our normalised mosaic to the mean of LibRaw's output at that channel's sites.
-        options = dict(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algo), user_wb=wb,
-                       output_color=rawpy.ColorSpace.raw, gamma=(1, 1), no_auto_bright=True,
-                       output_bps=16, user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore,
-                       adjust_maximum_thr=0.0)   # else LibRaw rescales a raw whose maximum is below white
+        options = libraw_options(raw, algo)
         matrix = raw.colour_matrix
-        with rawpy.imread(str(path)) as handle:
-            probe = handle.postprocess(**options).astype(np.float64)
-        channel = raw.cfa.channel_map(*raw.shape)
-        ours = normalised_mosaic(raw)
-        rescale = np.array([ours[channel == c].mean() / probe[..., c][channel == c].mean() for c in range(3)],
-                           np.float32)
+        with rawpy.imread(str(path)) as handle:                     # level calibrated outside the timing
+            rescale = libraw_level(raw, handle.postprocess(**options).astype(np.float64))
 
         def run() -> np.ndarray:
             with rawpy.imread(str(path)) as handle:

@@ -57,6 +57,9 @@ from clisp.runtime import get_runtime
 from clisp.simulate import simulate
 from clisp.stages.base import Stage
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench import bayer_pattern, crop4, libraw_level, libraw_options, normalised_mosaic  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
 BORDER = 10
@@ -70,10 +73,6 @@ bits: quantisation 1/64 DN, far below any demosaic's error)."""
 
 
 # ------------------------------------------------------------------------------------- scenes
-
-def crop4(scene: np.ndarray) -> np.ndarray:
-    return scene[:scene.shape[0] // 4 * 4, :scene.shape[1] // 4 * 4]
-
 
 def load_scenes(data: Path, sets: list[str], subset: int | None, n_dead: int,
                 dead_size: int) -> dict[str, list[tuple[str, np.ndarray]]]:
@@ -131,13 +130,6 @@ def clisp_camera_rgb(raw: RawImage, before: list[Stage], demosaic: Stage) -> np.
     return Pipeline(raw.cfa, before + [demosaic]).run(raw.data)
 
 
-def normalised_mosaic(raw: RawImage) -> np.ndarray:
-    """Black-subtracted, white-normalised mosaic times our pass-1 gains (H x W float64)."""
-    channel = raw.cfa.channel_map(*raw.shape)
-    scale = raw.pass1_gains() / (raw.white_level - raw.black_level)
-    return (raw.data - raw.black_level[channel]) * scale[channel]
-
-
 def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
     """White-balanced camera RGB (H x W x 3) of LibRaw's ``algo``, at our normalisation."""
     import rawpy
@@ -150,25 +142,11 @@ def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
                       white_level=min(65535.0, raw.white_level * NOISELESS_SCALE))
     path = folder / "libraw.dng"
     write_raw(path, raw)
-    gains = raw.pass1_gains()
-    options = dict(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algo),
-                   user_wb=[float(gains[0]), float(gains[1]), float(gains[2]), float(gains[1])],
-                   output_color=rawpy.ColorSpace.raw, gamma=(1, 1), no_auto_bright=True, output_bps=16,
-                   user_flip=0, highlight_mode=rawpy.HighlightMode.Ignore,
-                   adjust_maximum_thr=0.0)   # LibRaw would rescale a raw whose maximum is below white
     with rawpy.imread(str(path)) as handle:
-        rgb = handle.postprocess(**options).astype(np.float64)
+        rgb = handle.postprocess(**libraw_options(raw, algo)).astype(np.float64)
     if rgb.shape[:2] != raw.shape:
         raise SystemExit(f"LibRaw {algo}: output {rgb.shape[:2]} is not the raw's {raw.shape}")
-    channel = raw.cfa.channel_map(*raw.shape)
-    ours = normalised_mosaic(raw)
-    level = [ours[channel == c].mean() / max(rgb[..., c][channel == c].mean(), 1e-12) for c in range(3)]
-    return (rgb * np.asarray(level)).astype(np.float32)
-
-
-def bayer_pattern(raw: RawImage) -> str:
-    """The raw's 2 x 2 Bayer phase as letters, e.g. 'RGGB'."""
-    return "".join("RGB"[int(c)] for c in raw.cfa.channel_map(2, 2).ravel())
+    return (rgb * libraw_level(raw, rgb)).astype(np.float32)
 
 
 def numpy_function(spec: str) -> Callable[[np.ndarray, str], np.ndarray]:
