@@ -159,7 +159,7 @@ class Pipeline:
         inf past DEVICE_SHARE of the device's memory or its largest allocation."""
         rt = get_runtime()
         schedule = self.schedule()
-        shared = bool(rt.device.host_unified_memory) or bool(rt.device.type & rt.cl.device_type.CPU)
+        shared = rt.host_unified or bool(rt.device.type & rt.cl.device_type.CPU)
         raw_item = np.dtype(raw_dtype).itemsize
         out_px = self.out_channels * self.out_dtype.itemsize
         halo = self.halo
