@@ -303,6 +303,21 @@ class Runtime:
         return DeviceImage(buffer, channels, height, width, array.dtype, interleaved=True,
                            capacity=array.nbytes, host=array)
 
+    def host_input(self, array: np.ndarray) -> DeviceImage | None:
+        """A one-plane device image whose storage is the H x W host array ``array`` itself, for
+        the first stage to read in place: on a device that shares host memory (PoCL's CPU device)
+        this spares the upload copy. None elsewhere, while metering, or where ``array`` is not
+        C-contiguous or not aligned to the device's base address alignment (the caller uploads).
+        ``array`` must not change until the tile's last event has completed."""
+        align = max(1, int(self.device.mem_base_addr_align) // 8)
+        if not self.host_unified or self._meter is not None or array.ndim != 2 \
+                or not array.flags.c_contiguous or array.size == 0 or array.ctypes.data % align:
+            return None
+        buffer = self.cl.Buffer(self.context, self.cl.mem_flags.READ_ONLY | self.cl.mem_flags.USE_HOST_PTR,
+                                hostbuf=array)
+        height, width = array.shape
+        return DeviceImage(buffer, 1, height, width, array.dtype, capacity=array.nbytes, host=array)
+
     def settle_host_image(self, image: DeviceImage) -> Any:
         """Enqueue, without waiting, what makes a host image's pixels readable in its array: a map
         for reading (no copy where the device uses the array itself) and its unmap. Returns the
@@ -405,16 +420,17 @@ interleaved), whole hybrid stage at 6 and 24 MP: (32, 4) 22 / 31 MP/s, (64, 2) 2
 (64, 4) 29 / 39. Wider along x gives each vectorised work-group longer rows; 4 rows share the
 vertical taps."""
 
-def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object) -> None:
+def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
+                 group: tuple[int, int] = WORK_GROUP) -> None:
     """Enqueue ``kernel`` over exactly width x height outputs without bounds checks.
 
-    Schedule: whole WORK_GROUP work-groups over the largest multiple-of-group block, then the ragged
+    Schedule: whole ``group`` work-groups (default WORK_GROUP) over the largest multiple-of-group block, then the ragged
     right/bottom strips as one group-wide launch shifted inward to end at the edge (it recomputes some
     outputs with identical values). A side shorter than the group gets the largest power of two that
     fits (few distinct shapes, so few work-group compilations on PoCL). Kernels thus carry no bounds
     check and PoCL vectorises them (6-15x, measured; see kernels/demosaic_lms.cl).
     """
-    lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (width, height)))
+    lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(group, (width, height)))
     full_w, full_h = width // lx * lx, height // ly * ly
     xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
     ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])

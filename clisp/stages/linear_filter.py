@@ -53,6 +53,13 @@ instead of the block kernel. Measured on PoCL, bilinear Bayer to interleaved flo
 period 4 would compute four column phases per pixel; it keeps the block kernel."""
 
 
+PER_COLUMN_GROUP = (128, 1)
+"""Work-group of kernel ``phase_filter_px``: one row of 128 columns. Measured on PoCL, 24 MP Bayer
+to float RGB in 13 bands of 6000 x 308: the kernel alone 12.5-12.8 ms with (128, 1) or (128, 4),
+15.8-17.0 ms with (64, 1) or WORK_GROUP (64, 4); the tile loop 25-27 ms against 34 ms. A group one
+row high also never leaves a ragged strip of rows, so a band is two launches instead of four."""
+
+
 def channel_pure(basis: np.ndarray, channels: np.ndarray) -> bool:
     """Whether basis (K, Cd, T) row d reads only taps of CFA channel d (``channels``: (K, T))."""
     d = np.arange(basis.shape[1])
@@ -226,7 +233,7 @@ class LinearPhaseFilter(Stage):
         args = (src.buffer, dst.buffer, np.int32(src.width), np.int32(out_w), np.int32(out_h),
                 rt.constant(as_f32(w)), rt.constant(as_f32(self.bias)))
         if per_column:
-            launch_exact(rt, kernel, out_w, out_h // p, *args)
+            launch_exact(rt, kernel, out_w, out_h // p, *args, group=PER_COLUMN_GROUP)
         elif exact:
             launch_exact(rt, kernel, out_w // p, out_h // p, *args)
         else:
