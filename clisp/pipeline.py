@@ -19,7 +19,7 @@ from .cfa import CFA
 from .errors import ClispError
 from .rawimage import RawImage
 from .profile import host_timer, stage_label
-from .runtime import get_runtime
+from .runtime import DeviceImage, get_runtime
 from .stages.base import Stage, fuse_stages
 from .stages.chroma_denoise import ChromaDenoiseParams, chroma_denoise_for
 from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
@@ -29,8 +29,8 @@ from .stages.demosaic_lms import DemosaicLMSHybrid
 from .stages.demosaic_lms_guided import DemosaicLMSGuided
 from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
-from .streaming import (ArraySink, BandSink, TileSink, WindowSource, progress_bar, run_tiles,
-                        window_source)
+from .streaming import (READ_AHEAD, ArraySink, BandSink, TileSink, WindowPool, WindowSource,
+                        progress_bar, run_tiles, window_source)
 from .noise_estimate import NoiseEstimateError
 from .white_balance2 import estimate_wb2
 from .tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
@@ -66,9 +66,10 @@ TILES_IN_FLIGHT = 3
 """Host copies of a tile's window and result alive at once: one being read or written, one
 being computed, one queued (see streaming.run_tiles). For the per-pixel estimate (reference)."""
 
-READ_WINDOWS = 4
-"""Raw windows alive on the host at once (Pipeline.tile_cost): one uploading, one read ahead, and
-the reader's block and gathered copy while it reads."""
+READ_WINDOWS = READ_AHEAD + 3
+"""Raw windows alive on the host at once (Pipeline.tile_cost): two tiles in flight (a device that
+shares host memory reads them in place), READ_AHEAD read ahead (streaming.WindowPool), and the
+block a file source reads rows into before gathering them."""
 
 SINK_BANDS = 2
 """Output band buffers of a streamed file (streaming.BandSink's rotation)."""
@@ -184,7 +185,11 @@ class Pipeline:
         (rows, columns) creates, from a metering run of :meth:`_enqueue_tile` (nothing runs)."""
         rt = get_runtime()
         with rt.metering() as meter:
-            src = rt.acquire(1, window[0], window[1], raw_dtype)
+            if rt.host_unified and np.dtype(raw_dtype) in (np.uint16, np.float32):
+                src = DeviceImage(None, 1, window[0], window[1], np.dtype(raw_dtype),
+                                  host=np.empty(0, raw_dtype))   # read in place (Runtime.host_input)
+            else:
+                src = rt.acquire(1, window[0], window[1], raw_dtype)
             rt.release(self._enqueue_tile(rt, schedule, src, (0, 0)))
         return meter.created, meter.largest
 
@@ -219,13 +224,16 @@ class Pipeline:
         else:
             compute = partial(self._compute_reference, halo)
 
+        windows = WindowPool()
+
         def read(t: Tile) -> np.ndarray:
             with host_timer("read tile windows"):
-                return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period)
+                return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period,
+                                   windows.take((win_h, win_w), source.window_dtype))
 
         start = time.perf_counter()
         try:
-            run_tiles(plan, read, compute, sink, progress)
+            run_tiles(plan, read, compute, sink, progress, release=windows.give)
         finally:
             if backend == "opencl":
                 get_runtime().queue.finish()          # no copy may still target the sink's arrays
@@ -297,16 +305,18 @@ class Pipeline:
 
     def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray,
                         target: tuple[np.ndarray, int, int]) -> Any:
-        """Enqueue one window's upload, every stage and the download of the kept pixels into
-        ``target`` (or, where the last stage wrote into the target itself, what makes those
-        pixels readable); returns that event (nothing waits here: no host round trip)."""
+        """Enqueue one window's upload (none where the device reads the window in place), every
+        stage and the download of the kept pixels into ``target`` (or, where the last stage wrote
+        into the target itself, what makes those pixels readable); returns that event, after
+        which nothing reads the window (nothing waits here: no host round trip)."""
         rt = get_runtime()
         if window.dtype not in (np.uint16, np.float32):
             window = window.astype(np.float32)
         stage_label("upload")
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None
-        src = self._enqueue_tile(rt, schedule, rt.upload(window), (t.y0 - halo, t.x0 - halo), into)
+        src = rt.host_input(window) or rt.upload(window)           # in place where the device can
+        src = self._enqueue_tile(rt, schedule, src, (t.y0 - halo, t.x0 - halo), into)
         stage_label("download")
         if src.host is not None:
             event = rt.settle_host_image(src)

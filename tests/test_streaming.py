@@ -30,7 +30,7 @@ from clisp.rawimage import RawImage
 from clisp.simulate import mirror_repeat_index, simulate, simulate_large
 from clisp.stages.base import Stage
 import clisp.streaming
-from clisp.streaming import ArrayWindows, FileWindows, window_source
+from clisp.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
 from clisp.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
 from tolerance import TOL, assert_close
 
@@ -265,6 +265,102 @@ def test_file_windows_equal_array_windows(tmp_path: Path, dtype: type) -> None:
         source.close()
     assert isinstance(window_source(lazy.data[1:]), ArrayWindows)      # a slice is not the file
     assert isinstance(window_source(raw.data), ArrayWindows)
+
+
+def test_windows_read_into_given_arrays(tmp_path: Path) -> None:
+    """Both sources fill an ``out`` array (the WindowPool's) with the window they would return,
+    reading the same values twice in a row through the file source's reused block; a wrong shape
+    or dtype is refused."""
+    raw = make_raw("lms", shape=(37, 53), dtype=np.uint16)
+    write_raw(tmp_path / "r.dng", raw)
+    source = window_source(read_raw(tmp_path / "r.dng", lazy=True).data)
+    pool = WindowPool()
+    try:
+        for src in (source, ArrayWindows(raw.data)):
+            for window in WINDOWS:
+                out = pool.take(window[2:], src.window_dtype)
+                got = src.read(*window, 4, out=out)
+                assert got is out
+                np.testing.assert_array_equal(got, gather_window(raw.data, *window, 4), err_msg=str(window))
+                pool.give(out)
+            with pytest.raises(ValueError, match="does not fit"):
+                src.read(0, 0, 8, 8, 4, out=np.zeros((8, 9), np.uint16))
+    finally:
+        source.close()
+
+
+def test_window_pool_reuses_only_given_back_buffers() -> None:
+    """A taken window is never handed out again before it is given back; given back, its buffer
+    serves the next window that fits. Buffers are page-aligned (read in place by the device)."""
+    pool = WindowPool()
+    a = pool.take((10, 20), np.uint16)
+    b = pool.take((10, 20), np.uint16)
+    assert not np.shares_memory(a, b)
+    assert a.ctypes.data % 4096 == 0 and b.ctypes.data % 4096 == 0
+    a[:] = 7
+    pool.give(a)
+    c = pool.take((5, 20), np.float32)                 # 400 bytes fit a's 400
+    assert np.shares_memory(c, a) and c.shape == (5, 20) and c.dtype == np.float32
+    d = pool.take((10, 20), np.uint16)                 # a is taken again (as c): a new buffer
+    assert not np.shares_memory(d, a) and not np.shares_memory(d, b)
+    pool.give(np.zeros(3))                             # not from the pool: ignored
+    pool.give(b)
+    assert np.shares_memory(pool.take((10, 20), np.uint16), b)
+
+
+def test_run_tiles_releases_a_window_after_its_tile_finished() -> None:
+    """run_tiles hands a window back only after the wait on its tile's event, reads at most
+    READ_AHEAD windows ahead, and so never holds more than READ_AHEAD + 2 windows."""
+    plan = make_plan(64, 40, TileNeeds(halo=0, align=2, device_bytes=1, host_bytes=1, largest_bytes=1), tile=8)
+    log: list[tuple[str, int]] = []
+    held: set[int] = set()
+    most = 0
+
+    class Event:
+        def __init__(self, i: int) -> None:
+            self.i = i
+
+        def wait(self) -> None:
+            log.append(("wait", self.i))
+
+    def read(t):
+        nonlocal most
+        i = plan.tiles.index(t)
+        held.add(i)
+        most = max(most, len(held))
+        return np.full((1, 1), i)
+
+    def compute(t, window, target):
+        return Event(int(window[0, 0]))
+
+    def release(window):
+        i = int(window[0, 0])
+        assert ("wait", i) in log, f"window {i} released before its tile's event was waited on"
+        held.discard(i)
+        log.append(("release", i))
+
+    run_tiles(plan, read, compute, clisp.streaming.ArraySink(np.zeros((64, 40, 3))), release=release)
+    assert [i for kind, i in log if kind == "release"] == list(range(len(plan.tiles)))
+    assert 2 < len(plan.tiles) and most <= clisp.streaming.READ_AHEAD + 2
+
+
+def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a device sharing host memory the first stage reads the pooled window in place (no
+    upload); the result equals the upload path's."""
+    raw = make_raw("bayer", shape=(301, 517))
+    pipeline = build_pipeline(raw, preset="fast")
+    rt = get_runtime()
+    uploads, in_place = [], []
+    upload, host_input = rt.upload, rt.host_input
+    monkeypatch.setattr(rt, "upload", lambda a: uploads.append(a.shape) or upload(a))
+    monkeypatch.setattr(rt, "host_input", lambda a: (lambda i: in_place.append(i is not None) or i)(host_input(a)))
+    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
+    out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+    pipeline.stream(ArrayWindows(raw.data), clisp.streaming.ArraySink(out), plan)
+    assert len(in_place) == len(plan.tiles) > 2 and all(in_place) == rt.host_unified
+    assert len(uploads) == (0 if rt.host_unified else len(plan.tiles))
+    monkeypatch.setattr(rt, "host_unified", False)
+    assert_close(out, pipeline.run(raw.data, tile=0), "in place vs upload")
 
 
 def test_file_windows_big_endian(tmp_path: Path) -> None:

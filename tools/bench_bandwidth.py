@@ -77,14 +77,21 @@ def test_raw(size: tuple[int, int], path: str | None):
 
 def counted_traffic(pipeline, rt) -> tuple[dict[str, int], object]:
     """A tally of bytes read + written (upload, kernels, download) and a function undoing the
-    counting wrappers: rt.upload and rt.download_region count their copies, every stage of the
+    counting wrappers: rt.upload and rt.download_region count their copies (and rt.host_input,
+    where the device reads the window in place, the reader's copy into it), every stage of the
     pipeline's schedule its input and output windows."""
     tally = {"upload": 0, "kernels": 0, "download": 0}
-    upload, download, schedule = rt.upload, rt.download_region, pipeline.schedule
+    upload, host_input, download, schedule = rt.upload, rt.host_input, rt.download_region, pipeline.schedule
 
     def counted_upload(array):
         tally["upload"] += 2 * array.nbytes
         return upload(array)
+
+    def counted_host_input(array):                  # read in place: the reader's gather into the
+        image = host_input(array)                   # window was the copy to the device's memory
+        if image is not None:
+            tally["upload"] += 2 * array.nbytes
+        return image
 
     def counted_download(image, into, y0, x0, rows, cols):
         tally["download"] += 2 * rows * cols * image.channels * np.dtype(image.dtype).itemsize
@@ -100,10 +107,11 @@ def counted_traffic(pipeline, rt) -> tuple[dict[str, int], object]:
             stage.enqueue = enqueue
         return stages
 
-    rt.upload, rt.download_region, pipeline.schedule = counted_upload, counted_download, counted_schedule
+    rt.upload, rt.host_input, rt.download_region = counted_upload, counted_host_input, counted_download
+    pipeline.schedule = counted_schedule
 
     def undo() -> None:
-        rt.upload, rt.download_region = upload, download
+        rt.upload, rt.host_input, rt.download_region = upload, host_input, download
         del pipeline.schedule
     return tally, undo
 
