@@ -5,15 +5,18 @@ The device filter reads one padded H x W window and returns its (H - 4ry) x (W -
 reference, computed on a larger array (mirrored borders far away), is cropped to the same pixels.
 Data in ARI's units (8-bit values, 0..255), masks the Bayer site masks (bayer_ri.Sites).
 
-Tolerance (float32 kernels, float64 reference, same float32 inputs), relative to 255:
+Tolerance (float32 kernels, float64 reference on the same float32-rounded inputs), relative to 255:
 
     |opencl - reference| <= TOL_PLAIN * 255 (plain), TOL_WEIGHTED * 255 (ARI's 1 / RMSE weights)
 
-Measured worst cases (PoCL CPU, this file's data): MEASURED below. The weighted form is looser:
-weights 1 / max(RMSE, 1e-3) amplify the float32 rounding of mse = a^2 var_x - 2 a cov + var_y where a
-window's fit is good. Windows whose masked guide variance is below the float32 cancellation level of
-the uncentred sums (~1e-7 E[x^2], ~4e-3 at 255: e.g. two-sample windows of nearly equal guide values)
-are ill-conditioned (kernels/guided.cl); the masks and windows below keep at least 5 samples per window.
+MEASURED holds the worst cases over CASES (PoCL CPU). The weighted form is looser: its weights
+1 / max(RMSE, 1e-3) amplify the rounding of mse = a^2 var_x - 2 a cov + var_y where fits are good.
+The default device path centres the statistics on each window's centre pixel; the uncentred path
+(six product planes, centred=False) loses ~1e-7 E[x^2] of every variance to cancellation (~4e-3 at
+255) and gets its own, looser bounds (UNCENTRED_*), measured on the same data.
+Ill-posed windows are left out: a 5 x 3 window holds as few as 2 R sites, where a two-point fit is
+exact (mse = 0: the weight is set by rounding, 1 / 1e-3 in the reference, ~30 in float32) or nearly
+singular (two nearly equal guide values; eps = 1e-10 does not regularise): errors up to 45 x 255.
 """
 from __future__ import annotations
 
@@ -24,12 +27,16 @@ from clisp.stages import bayer_ri as br
 from clisp.stages.guided_ri import device_guided_filter
 
 SCALE = 255.0
-TOL_PLAIN = 2e-4
-TOL_WEIGHTED = 6e-3
-MEASURED = {("random", "plain"): 3.3e-6, ("random", "weighted"): 1.7e-5,
-            ("structured", "plain"): 6.0e-5, ("structured", "weighted"): 2.2e-3}
-"""Worst |opencl - reference| / 255 over CASES, PoCL CPU (uncentred float32 sums; the structured
-data's guide noise (sigma 2 on values ~100-250) is where cancellation shows: 0.56 8-bit levels)."""
+TOL_PLAIN = 2e-6
+TOL_WEIGHTED = 5e-5
+UNCENTRED_PLAIN = 1e-3
+UNCENTRED_WEIGHTED = 6e-3
+MEASURED = {("random", "plain"): 5.6e-7, ("random", "weighted"): 1.0e-6,
+            ("structured", "plain"): 2.9e-7, ("structured", "weighted"): 1.7e-5,
+            ("uncentred", "random", "plain"): 1.6e-5, ("uncentred", "random", "weighted"): 4.4e-5,
+            ("uncentred", "structured", "plain"): 2.8e-4, ("uncentred", "structured", "weighted"): 2.2e-3}
+"""Worst |opencl - reference| / 255 over CASES, PoCL CPU (the structured guide's noise, sigma 2 on
+values ~100-250, is where uncentred sums cancel: 2.2e-3 x 255 = 0.56 8-bit levels)."""
 SHAPE = (48, 80)            # reference array; the device window is a crop of it
 CROP = (3, 5, 44, 73)       # device window rows 3..44, columns 5..73 (odd offsets: another CFA phase)
 WINDOWS = [("box", 0, 5), ("box", 3, 3), ("box", 2, 1)]
@@ -53,16 +60,17 @@ def structured_pair(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 def masks() -> dict[str, np.ndarray | None]:
     sites = br.Sites(SHAPE)
-    return {"all": None, "g": sites.g, "r": sites.r, "c": sites.c}
+    return {"all": None, "g": sites.g, "r": sites.r, "c": sites.c,
+            "rline": sites.lines("h")[0][0], "bcol": sites.lines("v")[1][0]}   # ARI's G-step line masks
 
 
-def run_device(rt, guide, target, mask, window, weighted, crop=CROP):
+def run_device(rt, guide, target, mask, window, weighted, crop=CROP, centred=True):
     y0, x0, y1, x1 = crop
 
     def up(a):
         return rt.upload(np.ascontiguousarray(a[y0:y1, x0:x1], dtype=np.float32))
     q = device_guided_filter(rt, up(guide), up(target), None if mask is None else up(mask), window,
-                             eps=1e-10, weighted=weighted)
+                             eps=1e-10, weighted=weighted, centred=centred)
     return rt.download(q)
 
 
@@ -81,23 +89,25 @@ def scaled_error(out, ref) -> float:
     return float(np.abs(out.astype(np.float64) - ref).max() / SCALE)
 
 
-CASES = [(w, m) for w in WINDOWS for m in ("all", "g", "r", "c")
+CASES = [(w, m) for w in WINDOWS for m in ("all", "g", "r", "c", "rline", "bcol")
          if not (w == ("box", 2, 1) and m == "r")]      # 5 x 3 windows hold only 2 R sites: ill-conditioned
 
 
+@pytest.mark.parametrize("centred", [True, False], ids=["centred", "uncentred"])
 @pytest.mark.parametrize("weighted", [False, True], ids=["plain", "weighted"])
 @pytest.mark.parametrize("data", ["random", "structured"])
-def test_matches_reference(rt, data, weighted):
+def test_matches_reference(rt, data, weighted, centred):
     guide, target = random_pair() if data == "random" else structured_pair()
-    tol = TOL_WEIGHTED if weighted else TOL_PLAIN
+    tol = ((TOL_WEIGHTED if weighted else TOL_PLAIN) if centred
+           else (UNCENTRED_WEIGHTED if weighted else UNCENTRED_PLAIN))
     worst = 0.0
     for window, m in CASES:
         mask = masks()[m]
-        err = scaled_error(run_device(rt, guide, target, mask, window, weighted),
+        err = scaled_error(run_device(rt, guide, target, mask, window, weighted, centred=centred),
                            reference(guide, target, mask, window, weighted))
         worst = max(worst, err)
         assert err <= tol, f"{data} {window} mask {m}: error {err:.3g} x 255 > {tol:g}"
-    print(f"{data} {'weighted' if weighted else 'plain'}: worst {worst:.3g} x 255")
+    print(f"{data} {'weighted' if weighted else 'plain'} {'centred' if centred else 'uncentred'}: worst {worst:.3g} x 255")
 
 
 def test_wrong_window_or_mask_fails(rt):
@@ -107,14 +117,14 @@ def test_wrong_window_or_mask_fails(rt):
     out = run_device(rt, guide, target, sites.g, ("box", 2, 1), weighted=True)
     assert scaled_error(out, reference(guide, target, sites.g, ("box", 2, 1), True)) <= TOL_WEIGHTED
     ref_t = reference(guide, target, sites.g, ("box", 1, 2), True)
-    assert ref_t.shape != out.shape or scaled_error(out, ref_t) > 10 * TOL_WEIGHTED
+    assert ref_t.shape != out.shape or scaled_error(out, ref_t) > 100 * TOL_WEIGHTED
     for other in (sites.c, None):
-        assert scaled_error(out, reference(guide, target, other, ("box", 2, 1), True)) > 10 * TOL_WEIGHTED
+        assert scaled_error(out, reference(guide, target, other, ("box", 2, 1), True)) > 100 * TOL_WEIGHTED
     sparse = np.where(sites.r, target, 0.0)     # RI: target known at the R sites only
     out = run_device(rt, guide, sparse, sites.r, ("box", 3, 3), weighted=False)
     assert scaled_error(out, reference(guide, sparse, sites.r, ("box", 3, 3), False)) <= TOL_PLAIN
-    assert scaled_error(out, reference(guide, sparse, sites.b, ("box", 3, 3), False)) > 10 * TOL_PLAIN
-    assert scaled_error(out, reference(guide, sparse, sites.r, ("box", 3, 2), False)[:, 2:-2]) > 10 * TOL_PLAIN
+    assert scaled_error(out, reference(guide, sparse, sites.b, ("box", 3, 3), False)) > 100 * TOL_PLAIN
+    assert scaled_error(out, reference(guide, sparse, sites.r, ("box", 3, 2), False)[:, 2:-2]) > 100 * TOL_PLAIN
 
 
 def test_output_geometry(rt):

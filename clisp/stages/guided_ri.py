@@ -19,8 +19,11 @@ within float32 rounding (tests/test_guided_filter_cl.py states the measured boun
     weighted: q = (sum(a w) x + sum(b w)) / (sum w + 1e-4),   w = 1 / max(sqrt(a^2 var_x - 2a cov + var_y), 1e-3)
 
 The weighted form is ARI's (1 / RMSE of each window's fit); its floors are in 8-bit units, like eps.
-Kernels: gf_products -> box_x, box_y -> gf_coefficients -> box_x, box_y -> gf_apply (six launches
-for r > 0 on both axes; a zero radius skips its box pass). Temporaries come from the pool and go back.
+Kernels: gf_row_moments -> gf_col_coefficients -> box_x, box_y -> gf_apply (statistics centred on each
+window's centre pixel, so float32 variances cancel only at the scale of the local spread; a zero radius
+skips its box pass). ``centred=False``: gf_products -> box_x, box_y -> gf_coefficients instead (plain
+sums of the six masked products, ~1e-7 E[x^2] of cancellation: 100x larger errors on noisy ramps).
+Temporaries come from the pool and go back. Not yet here: MLRI's Laplacian slope, "diag" windows.
 """
 from __future__ import annotations
 
@@ -117,24 +120,56 @@ def enqueue_apply(rt: Runtime, coef_sums: DeviceImage, guide: DeviceImage, offse
     return out
 
 
+def enqueue_centred_coefficients(rt: Runtime, guide: DeviceImage, target: DeviceImage, mask: DeviceImage | None,
+                                 ry: int, rx: int, eps: float, weighted: bool,
+                                 planes: tuple[int, int, int] = (0, 0, 0)) -> DeviceImage:
+    """gf_row_moments then gf_col_coefficients: the coefficients of enqueue_coefficients (a, b or a w,
+    b w, w) from statistics centred on each window's centre pixel (float32-safe variances), over the
+    (H - 2ry) x (W - 2rx) window centres of H x W guide / target / mask planes. Halo ry, rx."""
+    h, w = guide.height, guide.width
+    for name, image in (("target", target), ("mask", mask)):
+        if image is not None and (image.height, image.width) != (h, w):
+            raise ClispError(f"device guided filter: {name} is {image.height} x {image.width}, guide {h} x {w}")
+    m = mask if mask is not None else guide
+    xb, yb = _plane_base(guide, planes[0]), _plane_base(target, planes[1])
+    rw = w - 2 * rx
+    rows = rt.acquire(6, h, rw)
+    launch_exact(rt, _kernel(rt, "gf_row_moments", masked=mask is not None), rw, h, guide.buffer, target.buffer,
+                 m.buffer, rows.buffer, i32(rx), i32(w), i32(rw), i32(h), xb, yb,
+                 _plane_base(m, planes[2] if mask is not None else 0))
+    out = rt.acquire(3 if weighted else 2, h - 2 * ry, rw)
+    launch_exact(rt, _kernel(rt, "gf_col_coefficients", weighted=weighted), rw, h - 2 * ry, rows.buffer,
+                 guide.buffer, target.buffer, out.buffer, i32(ry), i32(rw), i32(h), i32(h - 2 * ry), i32(xb + rx),
+                 i32(yb + rx), i32(w), f32(eps))
+    rt.release(rows)
+    return out
+
+
 def device_guided_filter(rt: Runtime, guide: DeviceImage, target: DeviceImage, mask: DeviceImage | None,
                          window: Window, eps: float = 1e-10, weighted: bool = False,
-                         planes: tuple[int, int, int] = (0, 0, 0)) -> DeviceImage:
+                         planes: tuple[int, int, int] = (0, 0, 0), centred: bool = True) -> DeviceImage:
     """bayer_ri.guided_filter(guide, target, mask, window, eps, weighted=weighted) on one padded window.
 
     guide, target, mask (None: every pixel; else 1.0 at the pixels of the statistics, 0.0 elsewhere):
     H x W float32 (plane ``planes[k]`` of each image); window ("box", ry, rx); eps in squared guide
     units (ARI: 8-bit, 1e-10). Returns a new 1 x (H - 4ry) x (W - 4rx) image, pixel (i, j) being the
     filter at input pixel (i + 2ry, j + 2rx): the halo is 2ry along y and 2rx along x. Enqueued only
-    (in order on rt.queue); the temporaries go back to the pool."""
+    (in order on rt.queue); the temporaries go back to the pool.
+
+    ``centred`` (default): window statistics centred on each window's centre pixel
+    (enqueue_centred_coefficients, two kernels); False: the uncentred six-product sums (gf_products,
+    box_x, box_y, gf_coefficients), whose float32 variances lose ~1e-7 E[x^2] to cancellation."""
     ry, rx = _radii(window)
     h, w = guide.height, guide.width
     if h - 4 * ry < 1 or w - 4 * rx < 1:
         raise ClispError(f"device guided filter: window {window!r} needs more than {h} x {w} pixels")
-    products = enqueue_products(rt, guide, target, mask, planes)
-    sums = enqueue_box(rt, products, ry, rx, release_src=True)
-    coef = enqueue_coefficients(rt, sums, eps, weighted)
-    rt.release(sums)
+    if centred:
+        coef = enqueue_centred_coefficients(rt, guide, target, mask, ry, rx, eps, weighted, planes)
+    else:
+        products = enqueue_products(rt, guide, target, mask, planes)
+        sums = enqueue_box(rt, products, ry, rx, release_src=True)
+        coef = enqueue_coefficients(rt, sums, eps, weighted)
+        rt.release(sums)
     coef_sums = enqueue_box(rt, coef, ry, rx, release_src=True)
     count = float((2 * ry + 1) * (2 * rx + 1))
     q = enqueue_apply(rt, coef_sums, guide, (2 * ry, 2 * rx), count, weighted, planes[0])
