@@ -68,7 +68,7 @@ def upload(rt, x: np.ndarray) -> DeviceImage:
     if x.ndim == 2:
         return rt.upload(np.ascontiguousarray(x, dtype=np.float32))
     planar = np.ascontiguousarray(np.moveaxis(x, -1, 0), dtype=np.float32)
-    return rt.upload(planar, channels=x.shape[-1])
+    return rt.upload(planar)
 
 
 def download(rt, image: DeviceImage) -> np.ndarray:

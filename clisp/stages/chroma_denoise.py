@@ -469,7 +469,6 @@ class ChromaDenoise(Stage):
         (sy, sx), (ny, nx) = plan.skip, plan.size
         cam = np.moveaxis(x.astype(np.float64), -1, 0)[:, sy:sy + ny, sx:sx + nx]
         a = chroma_split(cam, sp.split_matrix)                      # (1 + n, ny, nx)
-        n = sp.n_chroma
         ys, details = [a[0]], [None]
         for _ in range(prm.levels):
             a, d = haar_analyze(a)
