@@ -84,6 +84,28 @@ __kernel void gf_products(__global const float *restrict xs, __global const floa
     out[5 * plane + i] = mx * y;
 }
 
+/* store_coefficients: the guided filter's a = cov / (var_x + eps), b = mean_y - a mean_x of one
+ * window, written at index i of the planes of out (plane stride ``plane``): a, b (plain), or a w,
+ * b w, w with w = 1 / max(RMSE of the fit, GF_RMSE_FLOOR) (weighted: ARI). */
+inline void store_coefficients(__global float *restrict out, const int i, const int plane,
+                               const float mean_x, const float mean_y, const float var_x,
+                               const float var_y, const float cov, const float eps)
+{
+    const float a = cov / (var_x + eps);
+    const float b = mean_y - a * mean_x;
+#if GF_WEIGHTED
+    const float mse = a * a * var_x - 2.0f * a * cov + var_y;
+    const float rmse = sqrt(mse > 0.0f ? mse : 0.0f);
+    const float wt = 1.0f / (rmse > GF_RMSE_FLOOR ? rmse : GF_RMSE_FLOOR);
+    out[i] = a * wt;
+    out[plane + i] = b * wt;
+    out[2 * plane + i] = wt;
+#else
+    out[i] = a;
+    out[plane + i] = b;
+#endif
+}
+
 /* gf_coefficients: from the six window sums of gf_products (planes of sums, w x h; same order) the fit
  * y ~ a x + b of each window: n = max(sum m, 1), means, var_x, var_y, cov (over n);
  * a = cov / (var_x + eps), b = mean_y - a mean_x. Plain: out planes a, b. GF_WEIGHTED (ARI):
@@ -100,20 +122,8 @@ __kernel void gf_coefficients(__global const float *restrict sums, __global floa
     const float mean_x = sums[plane + i] * inv, mean_y = sums[2 * plane + i] * inv;
     const float var_x = sums[3 * plane + i] * inv - mean_x * mean_x;
     const float cov = sums[5 * plane + i] * inv - mean_x * mean_y;
-    const float a = cov / (var_x + eps);
-    const float b = mean_y - a * mean_x;
-#if GF_WEIGHTED
-    const float var_y = sums[4 * plane + i] * inv - mean_y * mean_y;
-    const float mse = a * a * var_x - 2.0f * a * cov + var_y;
-    const float rmse = sqrt(mse > 0.0f ? mse : 0.0f);
-    const float wt = 1.0f / (rmse > GF_RMSE_FLOOR ? rmse : GF_RMSE_FLOOR);
-    out[i] = a * wt;
-    out[plane + i] = b * wt;
-    out[2 * plane + i] = wt;
-#else
-    out[i] = a;
-    out[plane + i] = b;
-#endif
+    const float var_y = sums[4 * plane + i] * inv - mean_y * mean_y;   /* unused unless weighted */
+    store_coefficients(out, i, plane, mean_x, mean_y, var_x, var_y, cov, eps);
 }
 
 /* gf_apply: q = (A x + B) / D at every output pixel, A, B (and W) the window sums of gf_coefficients'
@@ -217,19 +227,6 @@ __kernel void gf_col_coefficients(__global const float *restrict rows, __global 
     const float mean_x = cx * (n * inv) + md, mean_y = cy * (n * inv) + me;
     const float var_x = s2x * inv - md * md;
     const float cov = sxy * inv - md * me;
-    const float a = cov / (var_x + eps);
-    const float b = mean_y - a * mean_x;
-    const int i = y * w + x, plane = w * out_h;
-#if GF_WEIGHTED
-    const float var_y = s2y * inv - me * me;
-    const float mse = a * a * var_x - 2.0f * a * cov + var_y;
-    const float rmse = sqrt(mse > 0.0f ? mse : 0.0f);
-    const float wt = 1.0f / (rmse > GF_RMSE_FLOOR ? rmse : GF_RMSE_FLOOR);
-    out[i] = a * wt;
-    out[plane + i] = b * wt;
-    out[2 * plane + i] = wt;
-#else
-    out[i] = a;
-    out[plane + i] = b;
-#endif
+    const float var_y = s2y * inv - me * me;                          /* unused unless weighted */
+    store_coefficients(out, y * w + x, w * out_h, mean_x, mean_y, var_x, var_y, cov, eps);
 }
