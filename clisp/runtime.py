@@ -294,14 +294,10 @@ class Runtime:
         for a last stage to write its output straight into the host's band buffer. Only on a device
         that shares host memory (PoCL's CPU device), where it saves the download copy; None
         elsewhere (a discrete GPU keeps its download) and while metering."""
-        if not self.host_unified or self._meter is not None or array.ndim != 3 \
-                or not array.flags.c_contiguous or array.size == 0:
+        if array.ndim != 3:
             return None
-        buffer = self.cl.Buffer(self.context, self.cl.mem_flags.WRITE_ONLY | self.cl.mem_flags.USE_HOST_PTR,
-                                hostbuf=array)
         height, width, channels = array.shape
-        return DeviceImage(buffer, channels, height, width, array.dtype, interleaved=True,
-                           capacity=array.nbytes, host=array)
+        return self._wrap_host(array, self.cl.mem_flags.WRITE_ONLY, channels, height, width, interleaved=True)
 
     def host_input(self, array: np.ndarray) -> DeviceImage | None:
         """A one-plane device image whose storage is the H x W host array ``array`` itself, for
@@ -310,13 +306,20 @@ class Runtime:
         C-contiguous or not aligned to the device's base address alignment (the caller uploads).
         ``array`` must not change until the tile's last event has completed."""
         align = max(1, int(self.device.mem_base_addr_align) // 8)
-        if not self.host_unified or self._meter is not None or array.ndim != 2 \
-                or not array.flags.c_contiguous or array.size == 0 or array.ctypes.data % align:
+        if array.ndim != 2 or array.ctypes.data % align:
             return None
-        buffer = self.cl.Buffer(self.context, self.cl.mem_flags.READ_ONLY | self.cl.mem_flags.USE_HOST_PTR,
-                                hostbuf=array)
         height, width = array.shape
-        return DeviceImage(buffer, 1, height, width, array.dtype, capacity=array.nbytes, host=array)
+        return self._wrap_host(array, self.cl.mem_flags.READ_ONLY, 1, height, width, interleaved=False)
+
+    def _wrap_host(self, array: np.ndarray, access: Any, channels: int, height: int, width: int,
+                   interleaved: bool) -> DeviceImage | None:
+        """A USE_HOST_PTR device image over ``array`` (host_image, host_input); None where the
+        device does not share host memory, while metering, or for an empty or strided array."""
+        if not self.host_unified or self._meter is not None or not array.flags.c_contiguous or array.size == 0:
+            return None
+        buffer = self.cl.Buffer(self.context, access | self.cl.mem_flags.USE_HOST_PTR, hostbuf=array)
+        return DeviceImage(buffer, channels, height, width, array.dtype, interleaved=interleaved,
+                           capacity=array.nbytes, host=array)
 
     def settle_host_image(self, image: DeviceImage) -> Any:
         """Enqueue, without waiting, what makes a host image's pixels readable in its array: a map
