@@ -20,6 +20,7 @@ from .cfa import CFA, cfa_from_pattern
 from .colorimetry import XYZ_TO_SRGB
 from .errors import ClispError
 from .rawimage import RawImage
+from .streaming import aligned_copy
 from .white_balance import gray_world_gains
 
 CFA_LETTERS = "RGB"
@@ -59,7 +60,7 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
     visible = raw.raw_image_visible
     if visible is None or visible.ndim != 2:
         raise ClispError(f"cannot read raw file '{p}': not a flat CFA raw ({raw.raw_type})")
-    data = np.array(visible, dtype=np.uint16, copy=True)
+    data = aligned_copy(visible, np.uint16)         # rawpy's buffer goes with the file; aligned: read in place
     black = channel_values(raw.black_level_per_channel, pattern, colours, cfa)
     wb, wb_source = pick_wb(raw.camera_whitebalance, pattern, colours, cfa)
     if wb is None:

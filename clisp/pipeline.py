@@ -29,7 +29,7 @@ from .stages.demosaic_lms import DemosaicLMSHybrid
 from .stages.demosaic_lms_guided import DemosaicLMSGuided
 from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.raw_scale import normalize, white_balance1
-from .streaming import (READ_AHEAD, ArraySink, BandSink, TileSink, WindowPool, WindowSource,
+from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
                         progress_bar, run_tiles, window_source)
 from .noise_estimate import NoiseEstimateError
 from .white_balance2 import estimate_wb2
@@ -182,7 +182,10 @@ class Pipeline:
 
     def metered_tile(self, schedule: list[Stage], window: tuple[int, int], raw_dtype: Any) -> tuple[int, int]:
         """(bytes of all device buffers, bytes of the largest) that one tile of input ``window``
-        (rows, columns) creates, from a metering run of :meth:`_enqueue_tile` (nothing runs)."""
+        (rows, columns) creates, from a metering run of :meth:`_enqueue_tile` (nothing runs).
+        Where the device gathers windows from an in-memory mosaic (Runtime.gather_window) each
+        tile has one pooled input window, not counted here, but the host then takes none of the
+        READ_WINDOWS windows the memory plan counts: the plan errs on the safe side."""
         rt = get_runtime()
         with rt.metering() as meter:
             if rt.host_unified and np.dtype(raw_dtype) in (np.uint16, np.float32):
@@ -218,22 +221,26 @@ class Pipeline:
         :attr:`stats`."""
         self._check(source.shape, backend)
         halo, (win_h, win_w) = plan.halo, plan.window_shape
+        whole = self._device_source(source) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
             get_runtime().trim_pool()                # the pool holds what this plan's tiles need
-            compute = partial(self._compute_opencl, self.schedule(fuse), halo)
+            compute = partial(self._compute_opencl, self.schedule(fuse), halo, whole=whole,
+                              window_shape=(win_h, win_w))
         else:
             compute = partial(self._compute_reference, halo)
 
         windows = WindowPool()
 
-        def read(t: Tile) -> np.ndarray:
+        def read(t: Tile) -> np.ndarray | None:
+            if whole is not None:                    # the device gathers the window itself
+                return None
             with host_timer("read tile windows"):
                 return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period,
                                    windows.take((win_h, win_w), source.window_dtype))
 
         start = time.perf_counter()
         try:
-            run_tiles(plan, read, compute, sink, progress, release=windows.give)
+            run_tiles(plan, read, compute, sink, progress, release=None if whole is not None else windows.give)
         finally:
             if backend == "opencl":
                 get_runtime().queue.finish()          # no copy may still target the sink's arrays
@@ -303,20 +310,37 @@ class Pipeline:
             return None
         return rt.host_image(host[y:y + h])
 
-    def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray,
-                        target: tuple[np.ndarray, int, int]) -> Any:
-        """Enqueue one window's upload (none where the device reads the window in place), every
-        stage and the download of the kept pixels into ``target`` (or, where the last stage wrote
-        into the target itself, what makes those pixels readable); returns that event, after
-        which nothing reads the window (nothing waits here: no host round trip)."""
+    @staticmethod
+    def _device_source(source: WindowSource) -> Any:
+        """A device image over the whole mosaic of an in-memory source that the device reads in
+        place (Runtime.host_source: a device sharing host memory, an aligned uint16 or float32
+        array), so that each tile's window is gathered by the device (Runtime.gather_window), not
+        copied by the host; None otherwise (files, discrete GPUs, other dtypes)."""
+        if not isinstance(source, ArrayWindows) or source.data.dtype not in (np.uint16, np.float32):
+            return None
+        return get_runtime().host_source(source.data)
+
+    def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray | None,
+                        target: tuple[np.ndarray, int, int], whole: Any = None,
+                        window_shape: tuple[int, int] = (0, 0)) -> Any:
+        """Enqueue one window's upload (none where the device reads the window in place; where
+        ``window`` is None, the device gathers the ``window_shape`` window from ``whole``, its view
+        of the whole mosaic), every stage and the download of the kept pixels into ``target`` (or,
+        where the last stage wrote into the target itself, what makes those pixels readable);
+        returns that event, after which nothing reads the window (nothing waits here: no host
+        round trip)."""
         rt = get_runtime()
-        if window.dtype not in (np.uint16, np.float32):
-            window = window.astype(np.float32)
         stage_label("upload")
+        origin = (t.y0 - halo, t.x0 - halo)
+        if window is None:
+            src = rt.gather_window(whole, *origin, *window_shape, self.cfa.period)
+        else:
+            if window.dtype not in (np.uint16, np.float32):
+                window = window.astype(np.float32)
+            src = rt.host_input(window) or rt.upload(window)       # in place where the device can
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None
-        src = rt.host_input(window) or rt.upload(window)           # in place where the device can
-        src = self._enqueue_tile(rt, schedule, src, (t.y0 - halo, t.x0 - halo), into)
+        src = self._enqueue_tile(rt, schedule, src, origin, into)
         stage_label("download")
         if src.host is not None:
             event = rt.settle_host_image(src)

@@ -305,11 +305,41 @@ class Runtime:
         this spares the upload copy. None elsewhere, while metering, or where ``array`` is not
         C-contiguous or not aligned to the device's base address alignment (the caller uploads).
         ``array`` must not change until the tile's last event has completed."""
+        return self._host_plane(array)
+
+    def host_source(self, array: np.ndarray) -> DeviceImage | None:
+        """A device image over a whole H x W host mosaic, read in place, for :meth:`gather_window`
+        (same conditions as :meth:`host_input`)."""
+        return self._host_plane(array)
+
+    def _host_plane(self, array: np.ndarray) -> DeviceImage | None:
         align = max(1, int(self.device.mem_base_addr_align) // 8)
         if array.ndim != 2 or array.ctypes.data % align:
             return None
         height, width = array.shape
         return self._wrap_host(array, self.cl.mem_flags.READ_ONLY, 1, height, width, interleaved=False)
+
+    def gather_window(self, whole: DeviceImage, y0: int, x0: int, h: int, w: int, period: int) -> DeviceImage:
+        """The h x w window at (y0, x0) of the one-plane image ``whole``, CFA-mirror padded outside it,
+        as a pooled device image: tiling.gather_window done by the device (kernels/raw.cl), so a
+        mosaic already in memory that the device reads in place (host_source) needs no host copy per
+        tile. The columns inside the mosaic are one vectorised launch, those outside it (at most the
+        halo on each side) their own small launches."""
+        src_h, src_w = whole.height, whole.width
+        if min(src_h, src_w) < max(period, 2):
+            raise ClispError(f"mosaic of {src_w}x{src_h} is smaller than one CFA tile")
+        dst = self.acquire(1, h, w, whole.dtype)
+        raw_t = "ushort" if whole.dtype == np.uint16 else "float"
+        args = (whole.buffer, dst.buffer, np.int32(src_h), np.int32(src_w), np.int32(y0), np.int32(x0), np.int32(w))
+        inside = (min(max(-x0, 0), w), min(max(src_w - x0, 0), w))      # window columns inside the mosaic
+        if inside[1] > inside[0]:
+            kernel = self.kernel("raw", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 0})
+            launch_exact(self, kernel, inside[1] - inside[0], h, *args, x0=inside[0])
+        edge = self.kernel("raw", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 1})
+        for start, stop in ((0, inside[0]), (max(inside[1], inside[0]), w)):
+            if stop > start:
+                edge(self.queue, (stop - start, h), None, *args, global_offset=(start, 0))
+        return dst
 
     def _wrap_host(self, array: np.ndarray, access: Any, channels: int, height: int, width: int,
                    interleaved: bool) -> DeviceImage | None:
@@ -424,8 +454,9 @@ interleaved), whole hybrid stage at 6 and 24 MP: (32, 4) 22 / 31 MP/s, (64, 2) 2
 vertical taps."""
 
 def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
-                 group: tuple[int, int] = WORK_GROUP) -> None:
-    """Enqueue ``kernel`` over exactly width x height outputs without bounds checks.
+                 group: tuple[int, int] = WORK_GROUP, x0: int = 0) -> None:
+    """Enqueue ``kernel`` over exactly width x height outputs without bounds checks (global ids
+    along x offset by ``x0``).
 
     Schedule: whole ``group`` work-groups (default WORK_GROUP) over the largest multiple-of-group block, then the ragged
     right/bottom strips as one group-wide launch shifted inward to end at the edge (it recomputes some
@@ -437,9 +468,9 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     full_w, full_h = width // lx * lx, height // ly * ly
     xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
     ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])
-    for x0, gw in xs:
-        for y0, gh in ys:
-            kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0, y0))
+    for gx, gw in xs:
+        for gy, gh in ys:
+            kernel(rt.queue, (gw, gh), (lx, ly), *args, global_offset=(x0 + gx, gy))
 
 
 _RUNTIME: Runtime | None = None

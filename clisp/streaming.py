@@ -212,6 +212,16 @@ def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
     return raw[start:start + nbytes]
 
 
+def aligned_copy(data: np.ndarray, dtype: Any = None) -> np.ndarray:
+    """A C-contiguous copy of ``data`` (as ``dtype``, default its own) starting on a page boundary,
+    so that a device sharing host memory reads it in place (Runtime.host_source); NumPy's own large
+    arrays start 16 bytes past one."""
+    dtype = np.dtype(data.dtype if dtype is None else dtype)
+    out = aligned_empty(data.size * dtype.itemsize).view(dtype).reshape(data.shape)
+    np.copyto(out, data, casting="unsafe")
+    return out
+
+
 READ_AHEAD = 2
 """Tiles whose windows the reader thread reads ahead of the one being enqueued. Two rather than
 one: on 2 cores PoCL's worker threads starve the reader while a kernel runs, so one window ahead

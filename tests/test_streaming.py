@@ -348,6 +348,7 @@ def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyP
     """On a device sharing host memory the first stage reads the pooled window in place (no
     upload); the result equals the upload path's."""
     raw = make_raw("bayer", shape=(301, 517))
+    raw.data = unaligned(raw.data)                  # else the device gathers from the whole mosaic
     pipeline = build_pipeline(raw, preset="fast")
     rt = get_runtime()
     uploads, in_place = [], []
@@ -361,6 +362,51 @@ def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyP
     assert len(uploads) == (0 if rt.host_unified else len(plan.tiles))
     monkeypatch.setattr(rt, "host_unified", False)
     assert_close(out, pipeline.run(raw.data, tile=0), "in place vs upload")
+
+
+def unaligned(data: np.ndarray) -> np.ndarray:
+    """A copy of ``data`` starting 2 bytes past a page boundary: never read in place by the device."""
+    out = clisp.streaming.aligned_empty(data.nbytes + 2)[2:].view(data.dtype).reshape(data.shape)
+    out[...] = data
+    return out
+
+
+@pytest.mark.parametrize("kind", ["bayer", "lms"])
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_device_gather_equals_host_gather(kind: str, dtype: type) -> None:
+    """Runtime.gather_window (kernels/raw.cl) equals tiling.gather_window, the CFA mirror included:
+    windows inside, across every edge, wider and taller than the image."""
+    rt = get_runtime()
+    data = make_raw(kind, shape=(37, 45), dtype=dtype).data
+    whole = rt.upload(data)
+    period = cfa_from_name(kind).period
+    try:
+        for y0, x0, h, w in [(4, 8, 12, 16), (-6, -9, 20, 30), (25, 30, 20, 24), (-8, -12, 53, 69),
+                             (0, -5, 37, 5), (-3, 44, 9, 7)]:
+            got = rt.download(rt.gather_window(whole, y0, x0, h, w, period))
+            np.testing.assert_array_equal(got.reshape(h, w), gather_window(data, y0, x0, h, w, period),
+                                          err_msg=f"window {(y0, x0, h, w)}")
+    finally:
+        rt.release(whole)
+
+
+@pytest.mark.parametrize("preset, budget", [("fast", 2**20), ("quality", 2**23)])
+def test_pipeline_gathers_windows_on_the_device(preset: str, budget: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An aligned in-memory mosaic on a device sharing host memory: no host window per tile, the
+    device gathers each one from the whole mosaic; the output equals the host-gather path's."""
+    raw = make_raw("bayer", shape=(301, 517))
+    pipeline = build_pipeline(raw, preset=preset)
+    rt = get_runtime()
+    gathered = []
+    gather = rt.gather_window
+    monkeypatch.setattr(rt, "gather_window", lambda *a: gathered.append(a[1:]) or gather(*a))
+    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=budget)
+    out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+    pipeline.stream(ArrayWindows(clisp.streaming.aligned_copy(raw.data)), clisp.streaming.ArraySink(out), plan)
+    assert len(gathered) == (len(plan.tiles) if rt.host_unified else 0) and len(plan.tiles) > 2
+    host = np.zeros_like(out)
+    pipeline.stream(ArrayWindows(unaligned(raw.data)), clisp.streaming.ArraySink(host), plan)
+    np.testing.assert_array_equal(out, host)
 
 
 def test_file_windows_big_endian(tmp_path: Path) -> None:

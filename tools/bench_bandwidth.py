@@ -71,17 +71,25 @@ def test_raw(size: tuple[int, int], path: str | None):
         raw = clisp.simulate(demo_chart().image, cfa="bayer", gain=1, seed=0).raw
     h, w = (s - s % 2 for s in raw.shape)
     reps = (-(-size[1] // h), -(-size[0] // w))
-    data = np.ascontiguousarray(np.tile(raw.data[:h, :w], reps)[:size[1], :size[0]])
+    from clisp.streaming import aligned_copy           # as clisp's camera reader allocates it
+    data = aligned_copy(np.tile(raw.data[:h, :w], reps)[:size[1], :size[0]])
     return replace(raw, data=data, metadata={})
 
 
 def counted_traffic(pipeline, rt) -> tuple[dict[str, int], object]:
     """A tally of bytes read + written (upload, kernels, download) and a function undoing the
-    counting wrappers: rt.upload and rt.download_region count their copies (and rt.host_input,
-    where the device reads the window in place, the reader's copy into it), every stage of the
+    counting wrappers: rt.upload and rt.download_region count their copies (rt.host_input, where
+    the device reads the window in place, the reader's copy into it; rt.gather_window, where the
+    device gathers the window from the whole mosaic in host memory, that copy), every stage of the
     pipeline's schedule its input and output windows."""
     tally = {"upload": 0, "kernels": 0, "download": 0}
     upload, host_input, download, schedule = rt.upload, rt.host_input, rt.download_region, pipeline.schedule
+    gather = rt.gather_window
+
+    def counted_gather(whole, y0, x0, h, w, period):   # the device copies the window out of the
+        image = gather(whole, y0, x0, h, w, period)     # mosaic it reads in place: the upload
+        tally["upload"] += 2 * image.nbytes
+        return image
 
     def counted_upload(array):
         tally["upload"] += 2 * array.nbytes
@@ -108,10 +116,11 @@ def counted_traffic(pipeline, rt) -> tuple[dict[str, int], object]:
         return stages
 
     rt.upload, rt.host_input, rt.download_region = counted_upload, counted_host_input, counted_download
+    rt.gather_window = counted_gather
     pipeline.schedule = counted_schedule
 
     def undo() -> None:
-        rt.upload, rt.host_input, rt.download_region = upload, host_input, download
+        rt.upload, rt.host_input, rt.download_region, rt.gather_window = upload, host_input, download, gather
         del pipeline.schedule
     return tally, undo
 
