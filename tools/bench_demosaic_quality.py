@@ -170,15 +170,9 @@ def numpy_function(spec: str) -> Callable[..., np.ndarray]:
 
 def lms_default_reference(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
     """The default LMS demosaic's NumPy reference (noiseless, neutral of P_LMS) as an --lms-numpy
-    candidate: it must score as "LMS clisp default" (the check of the --lms-numpy hook). The mosaic
-    is mirror-padded by the stage's halo rounded up to the CFA period (4), keeping the phase inside."""
-    from clisp.colorimetry import P_LMS
-    from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, neutral_of
-    stage = DemosaicLMSGuided(cfa, neutral=neutral_of(P_LMS))
-    pad = -(-stage.halo // 4) * 4
-    out = stage.reference(np.pad(mosaic, pad, mode="reflect"), (-pad, -pad))
-    off = pad - stage.halo
-    return out[off:off + mosaic.shape[0], off:off + mosaic.shape[1]]
+    candidate: it must score as "LMS clisp default" (the check of the --lms-numpy hook)."""
+    from clisp.stages.lms_ri import guided_reference
+    return guided_reference(mosaic, cfa)
 
 
 @dataclass
