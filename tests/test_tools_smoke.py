@@ -130,3 +130,17 @@ def test_bench_demosaic_quality_small(tmp_path, capsys):
         assert rows[(setting, "Bayer best (per image)")] >= rows[(setting, "Bayer clisp dlmmse")]
         assert 10 < rows[(setting, "LMS clisp default")] < 60
     assert "lead: Bayer default - LibRaw best" in capsys.readouterr().out
+
+
+def test_bench_demosaic_quality_lms_numpy_hook(capsys):
+    """An --lms-numpy candidate replaces only the LMS demosaic: the default's own NumPy reference
+    scores as the default pipeline (a wrong mosaic normalisation, phase or after-stage would not)."""
+    import bench_demosaic_quality as bdq
+
+    assert bdq.main(["--sets", "deadleaves", "--dead-leaves", "1", "--dead-size", "128",
+                     "--settings", "noiseless", "--libraw", "",
+                     "--lms-numpy", "bench_demosaic_quality:lms_default_reference"]) == 0
+    text = capsys.readouterr().out
+    scores = {line.rsplit(None, 1)[0].strip(): float(line.rsplit(None, 1)[1])
+              for line in text.splitlines() if line.startswith("  LMS ")}
+    assert abs(scores["LMS numpy lms_default_reference"] - scores["LMS clisp default"]) < 0.05

@@ -20,7 +20,11 @@ Each Bayer demosaic turns the same raw into white-balanced camera RGB, and the s
                     output_color raw, linear, user_wb = our pass-1 gains; its level is calibrated
                     per channel to our normalised mosaic (means at the channel's own sites)
 
-The LMS method is ``clisp process``'s default pipeline for the LMS raw, unchanged. Scores: PSNR
+The LMS method is ``clisp process``'s default pipeline for the LMS raw, unchanged. LMS NumPy
+candidates (--lms-numpy MODULE:FUNC, ``func(mosaic, cfa) -> H x W x 3``, cfa a clisp.cfa.CFA) get the
+normalised, white-balanced LMS mosaic (float64) and replace the demosaic stage of that same pipeline:
+its after-stages (colour matrix, or the chroma denoiser with the default LMS demosaic's noise table)
+finish their white-balanced L, M, S on the device as for the Bayer candidates. Scores: PSNR
 (dB) tone-mapped (clip, sRGB encode), 10 px border, against the simulation's truth (the scene
 through the same optics). Printed per set and setting: the mean of every method, ``LibRaw best``
 (the best LibRaw demosaic per image, then the mean) and ``Bayer best`` (the best of all Bayer
@@ -29,9 +33,11 @@ Bayer best.
 
     python tools/bench_demosaic_quality.py [--data ../shared/data] [--sets kodak,mcmaster,deadleaves]
         [--subset N] [--settings noiseless,noiseless-sharp,4,16,64] [--bayer dlmmse]
-        [--libraw AHD,DHT,AAHD,VNG,DCB] [--numpy MODULE:FUNC,...] [--csv FILE] [--per-image]
+        [--libraw AHD,DHT,AAHD,VNG,DCB] [--numpy MODULE:FUNC,...] [--lms-numpy MODULE:FUNC,...]
+        [--csv FILE] [--per-image]
 
 Dead leaves: clisp.charts.dead_leaves (512 x 512, seeds 0..--dead-leaves - 1), generated here.
+Set ``zoneplate``: clisp.charts.zone_plate(256) (the neutral sRGB-cosine plate), one image.
 Tools-only dependency: rawpy.
 """
 from __future__ import annotations
@@ -48,7 +54,8 @@ from typing import Callable
 
 import numpy as np
 
-from clisp.charts import dead_leaves
+from clisp.cfa import CFA
+from clisp.charts import dead_leaves, zone_plate
 from clisp.imageio import read_scene
 from clisp.metrics import psnr
 from clisp.pipeline import DEMOSAICS, Pipeline, build_pipeline, make_demosaic
@@ -82,8 +89,11 @@ def load_scenes(data: Path, sets: list[str], subset: int | None, n_dead: int,
         if name == "deadleaves":
             scenes[name] = [(f"dead_leaves_{s}", dead_leaves(dead_size, seed=s)) for s in range(n_dead)]
             continue
+        if name == "zoneplate":
+            scenes[name] = [("zone_plate_256", zone_plate(256))]
+            continue
         if name not in SETS:
-            raise SystemExit(f"unknown set {name!r}; choose from {', '.join(list(SETS) + ['deadleaves'])}")
+            raise SystemExit(f"unknown set {name!r}; choose from {', '.join(list(SETS) + ['deadleaves', 'zoneplate'])}")
         folder, patterns = SETS[name]
         files = sorted({p for pat in patterns for p in (data / folder).glob(pat)})
         if not files:
@@ -149,13 +159,20 @@ def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
     return (rgb * libraw_level(raw, rgb)).astype(np.float32)
 
 
-def numpy_function(spec: str) -> Callable[[np.ndarray, str], np.ndarray]:
+def numpy_function(spec: str) -> Callable[..., np.ndarray]:
     """The function named by 'module:function'."""
     module, _, name = spec.partition(":")
     try:
         return getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError) as exc:
-        raise SystemExit(f"--numpy {spec}: {exc}") from None
+        raise SystemExit(f"{spec}: {exc}") from None
+
+
+def lms_default_reference(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
+    """The default LMS demosaic's NumPy reference (noiseless, neutral of P_LMS) as an --lms-numpy
+    candidate: it must score as "LMS clisp default" (the check of the --lms-numpy hook)."""
+    from clisp.stages.lms_ri import guided_reference
+    return guided_reference(mosaic, cfa)
 
 
 @dataclass
@@ -176,7 +193,8 @@ class Scores:
 
 
 def score_scene(scores: Scores, set_name: str, setting: str, scene: np.ndarray, bayer: list[str],
-                libraw: list[str], numpy_fns: list[str], folder: Path, per_image: str | None) -> None:
+                libraw: list[str], numpy_fns: list[str], folder: Path, per_image: str | None,
+                lms_fns: list[str] = ()) -> None:
     gain, optics = SETTINGS[setting]
     cells = []
 
@@ -198,7 +216,14 @@ def score_scene(scores: Scores, set_name: str, setting: str, scene: np.ndarray, 
     for algo in libraw:
         record(f"Bayer LibRaw {algo}", run_on_rgb(after, libraw_camera_rgb(sim.raw, algo, folder)), sim.truth)
     lms = simulate(scene, "lms", gain=gain, optics=optics, seed=0)
-    record("LMS clisp default", build_pipeline(lms.raw, output="linear").run(lms.raw.data), lms.truth)
+    lms_pipeline = build_pipeline(lms.raw, output="linear")
+    record("LMS clisp default", lms_pipeline.run(lms.raw.data), lms.truth)
+    if lms_fns:
+        lms_after = split_at_demosaic(lms_pipeline)[2]
+        lms_mosaic = normalised_mosaic(lms.raw)
+        for spec in lms_fns:
+            rgb = numpy_function(spec)(lms_mosaic, lms.raw.cfa)
+            record(f"LMS numpy {spec.partition(':')[2]}", run_on_rgb(lms_after, rgb), lms.truth)
     if per_image:
         print(f"  {set_name:9s} {setting:15s} {per_image:18s} " + "  ".join(cells), flush=True)
 
@@ -225,7 +250,9 @@ def report(scores: Scores, sets: list[str], settings: list[str], bayer_default: 
             default = means[f"Bayer clisp {bayer_default}"]
             if "LibRaw best (per image)" in extra:
                 print(f"  lead: Bayer default - LibRaw best {default - extra['LibRaw best (per image)']:+.2f} dB")
-            print(f"  lead: LMS default - Bayer best {means['LMS clisp default'] - extra['Bayer best (per image)']:+.2f} dB")
+            for method in (m for m in methods if m.startswith("LMS")):
+                label = "LMS default" if method == "LMS clisp default" else method
+                print(f"  lead: {label} - Bayer best {means[method] - extra['Bayer best (per image)']:+.2f} dB")
     return rows
 
 
@@ -241,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="our Bayer demosaics (default: the default pipeline's, then any others given)")
     parser.add_argument("--libraw", default=",".join(LIBRAW_ALGOS), help="LibRaw demosaics ('' for none)")
     parser.add_argument("--numpy", default="", help="NumPy candidates MODULE:FUNC, comma-separated")
+    parser.add_argument("--lms-numpy", default="",
+                        help="NumPy LMS demosaics MODULE:FUNC (func(mosaic, cfa) -> H x W x 3), comma-separated")
     parser.add_argument("--csv", type=Path, default=None, help="write one row per set, setting and method")
     parser.add_argument("--per-image", action="store_true", help="print every image's scores")
     args = parser.parse_args(argv)
@@ -267,7 +296,8 @@ def main(argv: list[str] | None = None) -> int:
         if name not in DEMOSAICS:
             raise SystemExit(f"unknown demosaic {name!r}; registered: {', '.join(DEMOSAICS)}")
     numpy_fns = [f for f in args.numpy.split(",") if f]
-    for spec in numpy_fns:
+    lms_fns = [f for f in args.lms_numpy.split(",") if f]
+    for spec in numpy_fns + lms_fns:
         numpy_function(spec)
     scenes = load_scenes(args.data, sets, args.subset, args.dead_leaves, args.dead_size)
     print(f"device: {get_runtime().describe()}; Bayer default demosaic: {bayer_default}; "
@@ -279,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
             for image_name, scene in items:
                 for setting in settings:
                     score_scene(scores, set_name, setting, scene, bayer, libraw, numpy_fns, Path(tmp),
-                                image_name if args.per_image else None)
+                                image_name if args.per_image else None, lms_fns)
             print(f"[{set_name}: {len(items)} scenes x {len(settings)} settings in "
                   f"{time.perf_counter() - start:.0f} s]", flush=True)
     rows = report(scores, list(scenes), settings, bayer_default)
