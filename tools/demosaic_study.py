@@ -81,6 +81,9 @@ def candidates() -> dict[str, Method]:
         "ARI": bayer_ri.demosaic_ari,
         "ARI hybrid": bayer_ri.demosaic_ari_hybrid,
         "ARI gbtf, mean chroma": lambda m: bayer_ri.demosaic_ari(m, green_merge="gbtf", chroma="mean"),
+        "ARI5": lambda m: bayer_ri.demosaic_ari(m, green_iterations=5),
+        "ARI5 mean merge": lambda m: bayer_ri.demosaic_ari(m, green_iterations=5, green_merge="mean"),
+        "ARI5 hybrid": lambda m: bayer_ri.demosaic_ari(m, green_iterations=5, green_merge="mean", chroma="mean"),
     }
 
 
