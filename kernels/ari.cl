@@ -47,7 +47,7 @@
 #define SITE_G 3
 
 /* 1.0f where pixel (y, x) of a grid with parities (py, px) is a site of kind ``code``, else 0.0f. */
-inline float ari_site(const int code, const int y, const int x, const int py, const int px)
+__attribute__((always_inline)) inline float ari_site(const int code, const int y, const int x, const int py, const int px)
 {
     const int ry = ((y + py) & 1) == 0, rx = ((x + px) & 1) == 0;
     const int r = code == SITE_R ? (ry & rx) : code == SITE_B ? (!ry & !rx)
@@ -55,24 +55,23 @@ inline float ari_site(const int code, const int y, const int x, const int py, co
     return r ? 1.0f : 0.0f;
 }
 
-inline int ari_is_green(const int y, const int x, const int py, const int px)
+__attribute__((always_inline)) inline int ari_is_green(const int y, const int x, const int py, const int px)
 {
     return ((y + py + x + px) & 1) != 0;
 }
 
 /* Weighted fit y ~ a x + b from centred window statistics (ARI's guided filter, weighted form):
- * mse = a^2 var_x - 2 a cov + var_y, w = 1 / max(sqrt(max(mse, 0)), floor); writes a w, b w, w. */
-inline void ari_store_fit(__global float *restrict out, const int i, const int plane, const float a,
-                          const float mean_x, const float mean_y, const float var_x, const float var_y,
-                          const float cov)
+ * mse = a^2 var_x - 2 a cov + var_y, w = 1 / max(sqrt(max(mse, 0)), floor); r[0..2] = a w, b w, w. */
+__attribute__((always_inline)) inline void ari_fit_values(const float a, const float mean_x, const float mean_y, const float var_x,
+                           const float var_y, const float cov, float *r)
 {
     const float b = mean_y - a * mean_x;
     const float mse = a * a * var_x - 2.0f * a * cov + var_y;
     const float rmse = sqrt(mse > 0.0f ? mse : 0.0f);
     const float wt = 1.0f / (rmse > ARI_RMSE_FLOOR ? rmse : ARI_RMSE_FLOOR);
-    out[i] = a * wt;
-    out[plane + i] = b * wt;
-    out[2 * plane + i] = wt;
+    r[0] = a * wt;
+    r[1] = b * wt;
+    r[2] = wt;
 }
 
 /* ari_scale: dst = src * scale (the mosaic in 8-bit units). Halo 0. */
@@ -179,7 +178,7 @@ typedef struct { float n, s1x, s1y, s2x, s2y, sxy; } ari_moments;
 
 /* Add the along-pass moments of one line (planes at index i, stride rp), centred on (cxj, cyj), to m,
  * moved to the centre (cx, cy): with dx = cxj - cx, dy = cyj - cy (exact algebra of gf_col_coefficients). */
-inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
+__attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
                          const float dx, const float dy)
 {
     const float nj = rows[i], sd = rows[rp + i], se = rows[2 * rp + i];
@@ -192,7 +191,7 @@ inline void ari_add_line(ari_moments *m, __global const float *restrict rows, co
 }
 
 /* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
-inline void ari_stats(const ari_moments m, const float cx, const float cy, float *mean_x, float *mean_y,
+__attribute__((always_inline)) inline void ari_stats(const ari_moments m, const float cx, const float cy, float *mean_x, float *mean_y,
                       float *var_x, float *var_y, float *cov)
 {
     const float nn = m.n > 1.0f ? m.n : 1.0f;
@@ -207,20 +206,39 @@ inline void ari_stats(const ari_moments m, const float cx, const float cy, float
 
 /* MLRI slope: (s_xy / n) / (s_xx / n + eps), n = max(count, 1) (the floor of the mean squared
  * Laplacian is 0 in ARI). */
-inline float ari_lap_slope(const float s_xy, const float s_xx, const float count)
+__attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, const float s_xx, const float count)
 {
     const float inv = 1.0f / (count > 1.0f ? count : 1.0f);
     return (s_xy * inv) / (s_xx * inv + ARI_EPS);
 }
 
+/* Weighted fits of one line set from its accumulated moments (centred on (cx, cy)) and Laplacian sums
+ * l[0..5] (ARI_PAIR: G-site sums L(x) L(y), L(x)^2, count, chroma-site L(x) L(y), L(y)^2, count):
+ * r[0..2] = a_g w, b_g w, w_g (y from x), r[3..5] = a_c w, b_c w, w_c (x from y). */
+__attribute__((always_inline)) inline void ari_pair_fits(const ari_moments m, const float *l, const float cx, const float cy, float *r)
+{
+    float mean_x, mean_y, var_x, var_y, cov;
+    ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+#if ARI_MLRI
+    const float a_g = ari_lap_slope(l[0], l[1], l[2]);
+    const float a_c = ari_lap_slope(l[3], l[4], l[5]);
+#else
+    const float a_g = cov / (var_x + ARI_EPS);
+    const float a_c = cov / (var_y + ARI_EPS);
+#endif
+    ari_fit_values(a_g, mean_x, mean_y, var_x, var_y, cov, r);
+    ari_fit_values(a_c, mean_y, mean_x, var_y, var_x, cov, r + 3);
+}
+
 /* ari_across_coefficients: second pass of the window statistics, across the lines, radius r, then
- * the weighted fits (ari_store_fit). rows: the planes of ari_along_moments (row pitch w, plane stride
- * rp; rows[(y + r + j) w + x] is the line at output row y + j for ARI_DIR 0, column x + j for 1), each
- * centred on the guide / target values of its own output pixel, read from the views x, y (aligned to
- * the output). ARI_PAIR (step 1): the lines of each line set (R lines, B lines: rows / columns of
- * either parity) are summed separately; per set the fit of y (G line) from x (chroma line) and of x
- * from y, 12 planes: set R: a_g w, b_g w, w_g, a_c w, b_c w, w_c, then set B. Else (step 3): every
- * line, the fit of y from x, 3 planes. Halo r across the lines. */
+ * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
+ * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
+ * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
+ * the views x, y (aligned to the output). ARI_PAIR (step 1): the lines of each line set (R lines, B
+ * lines: rows / columns of either parity) are summed separately (lines at even j belong to the output
+ * pixel's own set, odd j to the other: two loops, no per-pixel indexing); per set the fit of y (G
+ * line) from x (chroma line) and of x from y, 12 planes: set R: a_g w, b_g w, w_g, a_c w, b_c w, w_c,
+ * then set B. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across the lines. */
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
                                       __global const float *restrict xs, const int xb, const int xp,
                                       __global const float *restrict ys, const int yb, const int yp,
@@ -229,84 +247,117 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const float cx = xs[xb + y * xp + x], cy = ys[yb + y * yp + x];
-#if ARI_PAIR
-    ari_moments m[2] = {{0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
-#if ARI_MLRI
-    float l[2][6] = {{0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
-#endif
-#else
-    ari_moments m[1] = {{0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
-#if ARI_MLRI
-    float l[1][3] = {{0.0f, 0.0f, 0.0f}};
-#endif
-#endif
-    for (int j = -r; j <= r; ++j) {
 #if ARI_DIR == 0
-        const int i = (y + r + j) * rw + x;
-        const int xo = (y + j) * xp + x, yo = (y + j) * yp + x;
-        const int set = ARI_PAIR ? ((y + j + py) & 1) : 0;
+    const int line_step = rw, xstep = xp, ystep = yp;
+    const int at0 = (y + r) * rw + x;
 #else
-        const int i = y * rw + x + r + j;
-        const int xo = y * xp + x + j, yo = y * yp + x + j;
-        const int set = ARI_PAIR ? ((x + j + px) & 1) : 0;
+    const int line_step = 1, xstep = 1, ystep = 1;
+    const int at0 = y * rw + x + r;
 #endif
-        const float dx = xs[xb + xo] - cx, dy = ys[yb + yo] - cy;
-        ari_add_line(&m[set], rows, i, rp, dx, dy);
-#if ARI_MLRI && ARI_PAIR
-        for (int t = 0; t < 6; ++t)
-            l[set][t] += rows[(6 + t) * rp + i];
-#elif ARI_MLRI
-        for (int t = 0; t < 3; ++t)
-            l[0][t] += rows[(6 + t) * rp + i];
-#endif
-    }
-    const int i = y * w + x, plane = w * h;
+    const int xa = xb + y * xp + x, ya = yb + y * yp + x;
 #if ARI_PAIR
-    for (int set = 0; set < 2; ++set) {
-        float mean_x, mean_y, var_x, var_y, cov;
-        ari_stats(m[set], cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    ari_moments ms = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mo = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float ls[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, lo[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int j = (r & 1) - r; j <= r; j += 2) {                    /* even j: the pixel's own line set */
+        const int i = at0 + j * line_step;
+        ari_add_line(&ms, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
 #if ARI_MLRI
-        const float a_g = ari_lap_slope(l[set][0], l[set][1], l[set][2]);
-        const float a_c = ari_lap_slope(l[set][3], l[set][4], l[set][5]);
-#else
-        const float a_g = cov / (var_x + ARI_EPS);
-        const float a_c = cov / (var_y + ARI_EPS);
+        for (int t = 0; t < 6; ++t)
+            ls[t] += rows[(6 + t) * rp + i];
 #endif
-        ari_store_fit(out, i + 6 * set * plane, plane, a_g, mean_x, mean_y, var_x, var_y, cov);
-        ari_store_fit(out, i + (6 * set + 3) * plane, plane, a_c, mean_y, mean_x, var_y, var_x, cov);
+    }
+    for (int j = 1 - (r & 1) - r; j <= r; j += 2) {                /* odd j: the other line set */
+        const int i = at0 + j * line_step;
+        ari_add_line(&mo, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
+#if ARI_MLRI
+        for (int t = 0; t < 6; ++t)
+            lo[t] += rows[(6 + t) * rp + i];
+#endif
+    }
+    float fs[6], fo[6];
+    ari_pair_fits(ms, ls, cx, cy, fs);
+    ari_pair_fits(mo, lo, cx, cy, fo);
+#if ARI_DIR == 0
+    const int own = (y + py) & 1;
+#else
+    const int own = (x + px) & 1;
+#endif
+    const int i = y * w + x, plane = w * h;
+    for (int t = 0; t < 6; ++t) {
+        out[t * plane + i] = own ? fo[t] : fs[t];                  /* set R (0) */
+        out[(6 + t) * plane + i] = own ? fs[t] : fo[t];            /* set B (1) */
     }
 #else
-    float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(m[0], cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float l[3] = {0.0f, 0.0f, 0.0f};
+    for (int j = -r; j <= r; ++j) {
+        const int i = at0 + j * line_step;
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
 #if ARI_MLRI
-    const float a = ari_lap_slope(l[0][0], l[0][1], l[0][2]);
+        for (int t = 0; t < 3; ++t)
+            l[t] += rows[(6 + t) * rp + i];
+#endif
+    }
+    float mean_x, mean_y, var_x, var_y, cov;
+    ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+#if ARI_MLRI
+    const float a = ari_lap_slope(l[0], l[1], l[2]);
 #else
     const float a = cov / (var_x + ARI_EPS);
 #endif
-    ari_store_fit(out, i, plane, a, mean_x, mean_y, var_x, var_y, cov);
+    float f[3];
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+    const int i = y * w + x, plane = w * h;
+    out[i] = f[0];
+    out[plane + i] = f[1];
+    out[2 * plane + i] = f[2];
 #endif
 }
 
-/* ari_apply_pair: the tentative estimates of step 1 from the window sums of the 12 coefficient planes
- * (coef, exactly w x h): at a pixel of line set s (ARI_DIR 0: row parity, 1: column parity),
- * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg) with the guides c, g (views).
- * Out planes t_g, t_c. Halo 0. */
-__kernel void ari_apply_pair(__global const float *restrict coef, __global const float *restrict cs,
-                             const int cb, const int cp, __global const float *restrict gs, const int gb,
-                             const int gp, __global float *restrict out, const int w, const int h,
-                             const int py, const int px)
+/* ari_box_apply: the coefficient sums across the lines (radius r; the sums along them are done: box_x
+ * for ARI_DIR 0, box_y for 1) and the tentative estimates. coef: view (cb, pitch cp, plane stride cs)
+ * of the along-summed coefficient planes. ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
+ * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
+ * (ys view); out planes t_g, t_c. Else (3 planes): t = (A x + B) / (W + reg), out 1 plane.
+ * Halo r across the lines. */
+__kernel void ari_box_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
+                            __global const float *restrict xs, const int xb, const int xp,
+                            __global const float *restrict ys, const int yb, const int yp,
+                            __global float *restrict out, const int w, const int h, const int r,
+                            const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int i = y * w + x, plane = w * h;
+#if ARI_DIR == 0
+    const int step = cp;
+#else
+    const int step = 1;
+#endif
+    __global const float *k = coef + cb + y * cp + x;
+    const float xv = xs[xb + y * xp + x];
+#if ARI_PAIR
+    float acc[12] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int j = -r; j <= r; ++j)
+        for (int t = 0; t < 12; ++t)
+            acc[t] += k[t * cs + j * step];
 #if ARI_DIR == 0
     const int set = (y + py) & 1;
 #else
     const int set = (x + px) & 1;
 #endif
-    __global const float *k = coef + 6 * set * plane + i;
-    const float c = cs[cb + y * cp + x], g = gs[gb + y * gp + x];
-    out[i] = (k[0] * c + k[plane]) / (k[2 * plane] + ARI_WEIGHT_REG);
-    out[plane + i] = (k[3 * plane] * g + k[4 * plane]) / (k[5 * plane] + ARI_WEIGHT_REG);
+    const float yv = ys[yb + y * yp + x];
+    const float ag = set ? acc[6] : acc[0], bg = set ? acc[7] : acc[1], wg = set ? acc[8] : acc[2];
+    const float ac = set ? acc[9] : acc[3], bc = set ? acc[10] : acc[4], wc = set ? acc[11] : acc[5];
+    out[y * w + x] = (ag * xv + bg) / (wg + ARI_WEIGHT_REG);
+    out[w * h + y * w + x] = (ac * yv + bc) / (wc + ARI_WEIGHT_REG);
+#else
+    float a = 0.0f, b = 0.0f, wt = 0.0f;
+    for (int j = -r; j <= r; ++j) {
+        a += k[j * step];
+        b += k[cs + j * step];
+        wt += k[2 * cs + j * step];
+    }
+    out[y * w + x] = (a * xv + b) / (wt + ARI_WEIGHT_REG);
+#endif
 }
 
 /* ari_green_residual: the new lines of one step-1 iteration along d = (sy, sx): residuals
@@ -528,7 +579,11 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
 #else
     const float a = cov / (var_x + ARI_EPS);
 #endif
-    ari_store_fit(out, y * w + x, w * h, a, mean_x, mean_y, var_x, var_y, cov);
+    float f[3];
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+    out[y * w + x] = f[0];
+    out[w * h + y * w + x] = f[1];
+    out[2 * w * h + y * w + x] = f[2];
 }
 
 /* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (view cb,

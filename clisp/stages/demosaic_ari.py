@@ -54,6 +54,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
+from ..profile import stage_label
 from ..runtime import DeviceImage, Runtime, launch_exact
 from . import bayer_ri
 from .base import Stage
@@ -249,6 +250,7 @@ class DemosaicARI(Stage):
                  f32(bayer_ri.SCALE))
         raw = _View(raw_img, 0, 0)
 
+        stage_label(f"{self.name} 1 green")
         ests = {}
         for d in ("h", "v"):
             sy, sx = STEPS[d]
@@ -264,15 +266,18 @@ class DemosaicARI(Stage):
             c.release(est.image)
 
         # step 2: R at B, B at R along the diagonals, statistics over the chroma sites
+        stage_label(f"{self.name} 2 diagonals")
         ests = [self._chroma_chain(c, green, [(raw, SITE_R, SITE_B), (raw, SITE_B, SITE_R)], d, kind, True)
                 for d in ("d1", "d2") for kind in bayer_ri.KINDS]
         rb = self._merge(c, "ari_rb_merge", ests, [raw], 2)
         # step 3: R and B at the G sites along rows and columns, statistics over every pixel
+        stage_label(f"{self.name} 3 G sites")
         rb_r, rb_b = _View(rb.image, rb.my, rb.mx, 0), _View(rb.image, rb.my, rb.mx, 1)
         ests = [self._chroma_chain(c, green, [(rb_r, SITE_C, SITE_G), (rb_b, SITE_C, SITE_G)], d, kind, False)
                 for d in ("h", "v") for kind in bayer_ri.KINDS]
         out = self._merge(c, "ari_final", ests, [rb, green], 3)
         c.release(raw_img, rb.image, green.image)
+        stage_label(self.name)
         if (out.my, out.mx) != (self.halo, self.halo):
             raise AssertionError(f"ARI: the chain ends at margin ({out.my}, {out.mx}), halo {self.halo}")
         return out.image
@@ -307,12 +312,7 @@ class DemosaicARI(Stage):
                      *g.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(coef.width), i32(coef.height), i32(across),
                      *c.parity(my + cy, mx + cx))
             c.release(mom)
-            sums = enqueue_box(rt, coef, ry, rx, release_src=True)
-            ty, tx = my + cy + ry, mx + cx + rx
-            t = c.new(2, ty, tx)
-            c.launch(c.kernel("ari_apply_pair", ARI_DIR=dirn), t, sums.buffer, *cl.at(ty, tx), *g.at(ty, tx),
-                     t.buffer, i32(t.width), i32(t.height), *c.parity(ty, tx))
-            c.release(sums)
+            t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
             # the new lines, and the criterion of this iteration
             ny, nx = ty + abs(sy), tx + abs(sx)
@@ -451,14 +451,25 @@ class DemosaicARI(Stage):
                  *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(coef.width), i32(coef.height), i32(rc),
                  *c.parity(my + cy, mx + cx))
         c.release(mom)
-        sums = enqueue_box(rt, coef, ry, rx, release_src=True)
-        ty, tx = my + cy + ry, mx + cx + rx
-        t = c.new(1, ty, tx)
-        buf, base, pitch = guide.at(ty, tx)
-        launch_exact(rt, rt.kernel("guided", "gf_apply", {"GF_MASKED": 1, "GF_WEIGHTED": 1}), t.width, t.height,
-                     sums.buffer, buf, t.buffer, i32(t.width), i32(t.height), base, pitch, f32(1.0))
-        c.release(sums)
+        t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, ra, rc, guide, x, False)
         return _View(t, ty, tx)
+
+    def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
+                   across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
+        """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
+        fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
+        dirn = 0 if d == "h" else 1
+        sums = enqueue_box(c.rt, coef, 0, along, release_src=True) if d == "h" else \
+            enqueue_box(c.rt, coef, along, 0, release_src=True)
+        sy, sx = (margin[0], margin[1] + along) if d == "h" else (margin[0] + along, margin[1])
+        ty, tx = (sy + across, sx) if d == "h" else (sy, sx + across)
+        t = c.new(2 if pair else 1, ty, tx)
+        sv = _View(sums, sy, sx)
+        hy, hx = (across, 0) if d == "h" else (0, across)
+        c.launch(c.kernel("ari_box_apply", ARI_DIR=dirn, ARI_PAIR=int(pair)), t, *sv.at(ty, tx, hy, hx), sv.stride(),
+                 *x.at(ty, tx), *y.at(ty, tx), t.buffer, i32(t.width), i32(t.height), i32(across), *c.parity(ty, tx))
+        c.release(sums)
+        return t, ty, tx
 
     def _merge(self, c: _Chain, name: str, ests: list[_View], extra: list[_View], channels: int) -> _View:
         """ari_rb_merge (extra: the mosaic) or ari_final (extra: step 2's R, B and the G plane);
