@@ -8,6 +8,18 @@ the default memory budget (Pipeline.run: planner tiles, host padding, upload, ke
 warm (one small run first builds the programs), best of --repeat: MP/s of output. --profile adds one
 run with OpenCL event profiling and prints the device time per step and kernel (clisp.profile; the
 ARI stage labels its steps "demosaic_ari 1 green", "... 2 diagonals", "... 3 G sites").
+
+Measured (commit 7027c40; PoCL 3.0 on 2 shared AMD EPYC cores, two other sessions busy; 24 MP,
+default budget: ARI bands of 442 x 6242 windows (200 output rows + 2 x 121 halo, 20 bands),
+DLMMSE 332 x 6024):
+    DemosaicDLMMSE  0.42 s   57 MP/s
+    DemosaicARI   334.9 s    0.07 MP/s   (profiled run: 291.6 s of device time)
+Device time of ARI by step: step 1 (G, 4 chains x 5 iterations) 206 s (71%), step 2 (diagonals)
+54 s (19%), step 3 (G sites) 31 s (11%). Top kernels: ari_across_coefficients 68 + 11 s (23% + 4%:
+four weighted fits with sqrt and divisions per pixel, 12 moment planes read over the across
+window), ari_box_apply 37 s, ari_diag_coefficients 28 s, ari_along_moments 25 + 5 s, box_x / box_y
+20 + 17 s, criterion kernels (err_terms, gauss_x/y, select) ~36 s. The halo (121 px) costs 2.2x in
+window pixels at this band height.
 """
 from __future__ import annotations
 
