@@ -23,6 +23,7 @@ from .runtime import DeviceImage, get_runtime
 from .stages.base import Stage, fuse_stages
 from .stages.chroma_denoise import ChromaDenoiseParams, chroma_denoise_for
 from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
+from .stages.demosaic_ari import DemosaicARI
 from .stages.demosaic_bilinear import DemosaicBilinear
 from .stages.demosaic_dlmmse import DemosaicDLMMSE
 from .stages.demosaic_lms import DemosaicLMSHybrid
@@ -41,6 +42,7 @@ DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "dlmmse": DemosaicDLMMSE,
     "hybrid": DemosaicLMSHybrid,
     "guided": DemosaicLMSGuided,
+    "ari": DemosaicARI,
 }
 """Demosaic stages by CLI name. Each is built from the CFA description, or by its ``for_raw(raw)``
 when it has one (stages that adapt to the raw's noise); ``cfa_kinds`` lists the CFAs it supports."""

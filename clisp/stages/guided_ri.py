@@ -23,7 +23,9 @@ Kernels: gf_row_moments -> gf_col_coefficients -> box_x, box_y -> gf_apply (stat
 window's centre pixel, so float32 variances cancel only at the scale of the local spread; a zero radius
 skips its box pass). ``centred=False``: gf_products -> box_x, box_y -> gf_coefficients instead (plain
 sums of the six masked products, ~1e-7 E[x^2] of cancellation: 100x larger errors on noisy ramps).
-Temporaries come from the pool and go back. Not yet here: MLRI's Laplacian slope, "diag" windows.
+Temporaries come from the pool and go back. MLRI's Laplacian slope, the line-pair fits sharing one set
+of window sums and the diagonal windows are in kernels/ari.cl (clisp.stages.demosaic_ari), which uses
+box_x / box_y from here.
 """
 from __future__ import annotations
 

@@ -1,0 +1,175 @@
+"""The ARI demosaic on the device (clisp.stages.demosaic_ari, kernels/ari.cl) against its float64 NumPy
+reference bayer_ri.demosaic_ari (clip=None), and the tiling contract.
+
+The device stage is valid-only: an H x W window gives its (H - 2 halo)^2 interior, and the halo is the
+formal support of the chain, so the reference run on the same window (mirrored borders) and cropped by
+the halo is compared on every output pixel (a halo too small would show as differences at the border
+of the output; the enqueue also checks that its chain ends exactly at the declared halo).
+
+Tolerance (float32 device, float64 reference on the float32 input; output in the mosaic's units, ~[0, 1]):
+    max |opencl - reference| <= TOL_MAX, mean <= TOL_MEAN, PSNR(opencl vs reference) >= PSNR_FLOOR dB.
+MEASURED (PoCL CPU, the 16 scene x phase cases of test_matches_reference, OUT = 24): smooth ramps and
+white noise 5e-7..4e-6 max (float32 rounding); sharp colour edges and random discs up to 2.1e-4 max
+(0.05 8-bit levels; 99.9th percentile <= 6.4e-5, mean <= 1.9e-6, PSNR >= 104 dB): ARI's weights
+1 / max(RMSE, 1e-3) of nearly exact fits (flat patches beside an edge) and its per-pixel argmin of the
+criterion amplify float32 rounding where two iterations' criteria nearly tie. The bounds leave ~5x
+room over the worst case; a broken kernel fails them by orders of magnitude (tried: ari_green_residual's
+residual weight 0.5 -> 0.49 gives PSNR 47-74 dB, one MLRI Laplacian tap 2 -> 2.01 gives 54-61 dB).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from clisp.cfa import BAYER_PHASES, bayer_cfa
+from clisp.colorimetry import B_BAYER, WB_BAYER
+from clisp.errors import ClispError
+from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline
+from clisp.stages.colour import ColourMatrix
+from clisp.stages.demosaic_ari import DemosaicARI, ari_halo
+from clisp.stages.raw_scale import normalize, white_balance1
+
+TOL_MAX = 1e-3
+TOL_MEAN = 1e-5
+PSNR_FLOOR = 95.0
+MEASURED = {"ramps": (4.3e-6, 9.0e-8, 135.6), "edges": (2.1e-4, 1.9e-6, 104.0), "discs": (7.3e-5, 7.2e-7, 110.0),
+            "noise": (4.7e-6, 8.4e-8, 132.9)}
+"""Worst max |error|, mean |error| and lowest PSNR (dB, peak 1) per scene over the four phases."""
+OUT = 24
+"""Output side of the comparisons (the window is OUT + 2 halo)."""
+
+
+def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
+    """size x size x 3 linear RGB test scenes, nominally [0, 1] with some values outside."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64) / size
+    if kind == "ramps":                       # smooth colour ramps, a highlight above 1
+        rgb = np.stack([0.1 + 0.8 * xx, 0.2 + 0.6 * yy, 0.9 - 0.7 * (xx + yy) / 2], axis=-1)
+        rgb += 0.6 * np.exp(-((xx - 0.5) ** 2 + (yy - 0.5) ** 2) / 0.002)[..., None]
+    elif kind == "edges":                     # sharp colour edges at several angles, values below 0
+        rgb = np.full((size, size, 3), 0.3)
+        rgb[xx + 0.3 * yy > 0.5] = (0.9, 0.5, 0.1)
+        rgb[(yy - 0.6 * xx > 0.4)] = (0.05, 0.2, 0.8)
+        rgb[np.abs(xx - yy) < 0.02] = (1.1, 1.0, -0.02)
+    elif kind == "discs":                     # a small dead-leaves pattern
+        rgb = np.full((size, size, 3), 0.5)
+        for _ in range(60):
+            cy, cx, r = rng.random(), rng.random(), 0.02 + 0.15 * rng.random() ** 2
+            rgb[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.random(3)
+    elif kind == "noise":                     # white noise mosaic, [-0.1, 1.2]
+        rgb = rng.uniform(-0.1, 1.2, (size, size, 3))
+    else:
+        raise ValueError(kind)
+    if kind != "noise":
+        rgb += rng.normal(0, 0.005, rgb.shape)
+    return rgb
+
+
+def mosaic(rgb: np.ndarray, phase: str, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    cfa = bayer_cfa(phase)
+    ch = cfa.channel_map(rgb.shape[0], rgb.shape[1], origin)
+    return np.take_along_axis(rgb, ch[..., None].astype(np.intp), axis=-1)[..., 0].astype(np.float32)
+
+
+def run_device(rt, stage: DemosaicARI, mos: np.ndarray, origin=(0, 0)) -> np.ndarray:
+    out = stage.enqueue(rt, rt.upload(np.ascontiguousarray(mos, dtype=np.float32)), origin)
+    result = np.moveaxis(rt.download(out), 0, -1)
+    rt.release(out)
+    return result
+
+
+def compare(rt, stage, mos, origin=(0, 0)) -> tuple[float, float]:
+    """(max, mean) |device - reference|; asserts shapes, finiteness and the PSNR floor."""
+    ref = stage.reference(mos.astype(np.float64), origin)
+    out = run_device(rt, stage, mos, origin)
+    assert out.shape == ref.shape
+    assert np.all(np.isfinite(out))
+    err = np.abs(out.astype(np.float64) - ref)
+    psnr = 10 * np.log10(1.0 / max(np.mean(err ** 2), 1e-30))
+    assert psnr >= PSNR_FLOOR, f"PSNR vs reference {psnr:.1f} dB"
+    return float(err.max()), float(err.mean())
+
+
+# ------------------------------------------------------------------------------------ halo
+
+def test_halo_formula():
+    """The halo is the chain's formal support; closed forms of the module doc."""
+    for n in (1, 2, 5, 11):
+        for m in (1, 2, 3):
+            assert ari_halo(n, m) == (3 + n * (n + 10)) + (2 * m * m + 7 * m + 2) + (m * m + 6 * m + 3)
+    assert DemosaicARI(bayer_cfa("RGGB")).halo == 121
+    assert DemosaicARI(bayer_cfa("RGGB")).output_shape(300, 301) == (58, 59)
+
+
+def test_options_and_registration():
+    assert DEMOSAICS["ari"] is DemosaicARI
+    assert all("ari" not in str(p["demosaic"]) for p in PRESETS.values())     # no preset default changed
+    with pytest.raises(ClispError):
+        DemosaicARI(bayer_cfa("RGGB"), green_iterations=0)
+
+
+# ------------------------------------------------------------------------------------ vs reference
+
+@pytest.mark.parametrize("phase", BAYER_PHASES)
+@pytest.mark.parametrize("kind", ["ramps", "edges", "discs", "noise"])
+def test_matches_reference(rt, phase, kind):
+    stage = DemosaicARI(bayer_cfa(phase))
+    size = OUT + 2 * stage.halo
+    seed = BAYER_PHASES.index(phase)
+    emax, emean = compare(rt, stage, mosaic(scene(kind, size, seed), phase))
+    assert emax <= TOL_MAX and emean <= TOL_MEAN, f"{kind} {phase}: max {emax:.3g}, mean {emean:.3g}"
+
+
+@pytest.mark.parametrize("iterations", [(1, 1), (3, 2)])
+def test_other_iteration_counts(rt, iterations):
+    """Other (green, chroma) iteration counts, with a window origin off the CFA period (the stage
+    reads the phase from the origin)."""
+    stage = DemosaicARI(bayer_cfa("GRBG"), *iterations)
+    size = OUT + 2 * stage.halo
+    origin = (-3, 5)
+    emax, emean = compare(rt, stage, mosaic(scene("discs", size, 7), "GRBG", origin), origin)
+    assert emax <= TOL_MAX and emean <= TOL_MEAN, f"{iterations}: max {emax:.3g}, mean {emean:.3g}"
+
+
+def test_keeps_samples_and_flat(rt):
+    """Measured samples pass through (scaled by 255 and back: float32 rounding), a flat mosaic stays flat."""
+    stage = DemosaicARI(bayer_cfa("BGGR"), 1, 1)
+    size = 8 + 2 * stage.halo
+    flat = np.full((size, size), 0.37, dtype=np.float32)
+    assert np.allclose(run_device(rt, stage, flat), 0.37, atol=1e-6)
+    mos = mosaic(scene("discs", size, 3), "BGGR")
+    out = run_device(rt, stage, mos)
+    h = stage.halo
+    ch = bayer_cfa("BGGR").channel_map(size, size)[h:-h, h:-h]
+    inner = mos[h:-h, h:-h]
+    for c in range(3):
+        np.testing.assert_allclose(out[..., c][ch == c], inner[ch == c], atol=1e-6)
+
+
+def test_device_memory_within_declared(rt):
+    """bytes_per_pixel covers what one enqueue creates from an empty pool (Runtime.metering)."""
+    stage = DemosaicARI(bayer_cfa("RGGB"))
+    for h, w in ((300, 300), (442, 1800), (1000, 1000)):
+        src = rt.upload(np.zeros((h, w), dtype=np.float32))
+        with rt.metering() as pool:
+            stage.enqueue(rt, src, (0, 0))
+        rt.release(src)
+        assert pool.created <= stage.bytes_per_pixel * h * w, (h, w, pool.created / (h * w))
+
+
+# ------------------------------------------------------------------------------------ tiling
+
+def test_tiled_equals_whole():
+    cfa = bayer_cfa("GBRG")
+    stage = DemosaicARI(cfa, 2, 1)
+    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER), stage,
+                              ColourMatrix(B_BAYER)])
+    rng = np.random.default_rng(5)
+    sc = ndimage.gaussian_filter(rng.random((150, 170)), 2.0) * 600 + 100
+    raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)
+    whole = pipeline.run(raw, tile=0)
+    assert whole.shape == (150, 170, 3)
+    for tile in (48, 96):
+        tiled = pipeline.run(raw, tile=tile)
+        np.testing.assert_array_equal(tiled, whole, err_msg=f"tile {tile}")

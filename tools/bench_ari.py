@@ -1,0 +1,93 @@
+"""Speed of the ARI Bayer demosaic on the device beside DLMMSE, in the same run (issue 12).
+
+    python tools/bench_ari.py [--shape 4000x6000] [--repeat 2] [--profile] [--green 5] [--chroma 2]
+
+A synthetic white-balanced Bayer mosaic (RGGB, float32, smooth colour fields with random discs and
+noise) of --shape is processed by a one-stage Pipeline (the demosaic alone) through clisp's tiler at
+the default memory budget (Pipeline.run: planner tiles, host padding, upload, kernels, download),
+warm (one small run first builds the programs), best of --repeat: MP/s of output. --profile adds one
+run with OpenCL event profiling and prints the device time per step and kernel (clisp.profile; the
+ARI stage labels its steps "demosaic_ari 1 green", "... 2 diagonals", "... 3 G sites").
+
+Measured (commit 7027c40; PoCL 3.0 on 2 shared AMD EPYC cores, two other sessions busy; 24 MP,
+default budget: ARI bands of 442 x 6242 windows (200 output rows + 2 x 121 halo, 20 bands),
+DLMMSE 332 x 6024):
+    DemosaicDLMMSE  0.42 s   57 MP/s
+    DemosaicARI   334.9 s    0.07 MP/s   (profiled run: 291.6 s of device time)
+Device time of ARI by step: step 1 (G, 4 chains x 5 iterations) 206 s (71%), step 2 (diagonals)
+54 s (19%), step 3 (G sites) 31 s (11%). Top kernels: ari_across_coefficients 68 + 11 s (23% + 4%:
+four weighted fits with sqrt and divisions per pixel, 12 moment planes read over the across
+window), ari_box_apply 37 s, ari_diag_coefficients 28 s, ari_along_moments 25 + 5 s, box_x / box_y
+20 + 17 s, criterion kernels (err_terms, gauss_x/y, select) ~36 s. The halo (121 px) costs 2.2x in
+window pixels at this band height.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+from clisp import profile
+from clisp.cfa import bayer_cfa
+from clisp.pipeline import Pipeline
+from clisp.runtime import get_runtime
+from clisp.stages.demosaic_ari import DemosaicARI
+from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE
+
+
+def synthetic_mosaic(height: int, width: int, seed: int = 0) -> np.ndarray:
+    """RGGB mosaic in [0, 1]: low-frequency colour fields, discs, noise sigma 0.01."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    rgb = [0.4 + 0.3 * np.sin(xx / (50 + 30 * c) + c) * np.cos(yy / (70 + 20 * c)) for c in range(3)]
+    small = rng.random((height // 64 + 1, width // 64 + 1, 3)).astype(np.float32)
+    tiles = np.kron(small, np.ones((64, 64, 1), dtype=np.float32))[:height, :width]
+    mos = np.empty((height, width), dtype=np.float32)
+    for c, (oy, ox) in ((0, (0, 0)), (1, (0, 1)), (1, (1, 0)), (2, (1, 1))):
+        mos[oy::2, ox::2] = (0.6 * rgb[c] + 0.4 * tiles[..., c])[oy::2, ox::2]
+    mos += rng.normal(0, 0.01, mos.shape).astype(np.float32)
+    return mos
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shape", default="4000x6000", help="H x W of the mosaic (default 24 MP)")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--green", type=int, default=5, help="ARI green_iterations")
+    ap.add_argument("--chroma", type=int, default=2, help="ARI chroma_iterations")
+    ap.add_argument("--profile", action="store_true", help="one more run with event profiling, per kernel")
+    ap.add_argument("--skip-dlmmse", action="store_true")
+    args = ap.parse_args()
+    h, w = (int(v) for v in args.shape.lower().split("x"))
+    cfa = bayer_cfa("RGGB")
+    rt = get_runtime(profiling=args.profile)
+    print(f"device: {rt.describe()}; host: {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} CPUs visible")
+    mos = synthetic_mosaic(h, w)
+    stages = ([] if args.skip_dlmmse else [DemosaicDLMMSE(cfa)]) + [DemosaicARI(cfa, args.green, args.chroma)]
+    for stage in stages:
+        pipeline = Pipeline(cfa, [stage])
+        plan = pipeline.plan(mos.shape, mos.dtype, None, 2**30, "opencl")
+        pipeline.run(mos[:2 * stage.halo + 64, :2 * stage.halo + 64])          # build the programs
+        best = float("inf")
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            pipeline.run(mos)
+            best = min(best, time.perf_counter() - t0)
+        mp = h * w / 1e6
+        print(f"{type(stage).__name__:16s} halo {stage.halo:3d}  window {plan.window_shape}  "
+              f"{best:7.2f} s  {mp / best:6.2f} MP/s", flush=True)
+        if args.profile:
+            prof = profile.start()
+            t0 = time.perf_counter()
+            pipeline.run(mos)
+            wall = time.perf_counter() - t0
+            print(prof.report(mp, wall), flush=True)
+            profile._ACTIVE = None
+
+
+if __name__ == "__main__":
+    main()
