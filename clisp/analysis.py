@@ -70,6 +70,7 @@ class SceneAnalysis:
     saturation   per block colour saturation: |chroma| / Y of the block means.
     clipped      per block fraction of clipped samples.
     uniform      per block: every CFA phase exactly constant (constant fill possible).
+    means        (n_channels, rows, cols) per block mean of each WB'd normalised channel.
     seconds      wall time of the analysis.
     """
 
@@ -88,6 +89,7 @@ class SceneAnalysis:
     saturation: np.ndarray
     clipped: np.ndarray
     uniform: np.ndarray
+    means: np.ndarray
     seconds: float = 0.0
     channel_names: tuple[str, ...] = field(default_factory=tuple)
 
@@ -278,7 +280,7 @@ def analyse(raw: RawImage, block: int = BLOCK, strip_every: int = 1) -> SceneAna
     return SceneAnalysis(
         shape=(h, w), cfa=cfa.name, block=block, noise=noise, model=model, sigma=sigma,
         sigma_model=sigma_model, levels=levels, clipped_fraction=clipped_fraction, luma=luma,
-        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=uniform,
+        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=uniform, means=means,
         seconds=time.perf_counter() - start, channel_names=tuple(getattr(cfa, "channels", ()) or ()))
 
 

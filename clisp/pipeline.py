@@ -100,6 +100,10 @@ class Pipeline:
     cfa: CFA
     stages: list[Stage]
     stats: RunStats = field(default_factory=RunStats)
+    skipper: Any = None
+    """A clisp.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
+    skip_plan: Any = None
+    """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
 
     @property
     def halo(self) -> int:
@@ -229,6 +233,9 @@ class Pipeline:
         else:
             compute = partial(self._compute_reference, halo)
 
+        if self.skipper is not None:                 # per-tile paths (clisp.skip)
+            compute = self._path_compute(plan, backend, fuse, whole, compute)
+
         windows = WindowPool()
 
         def read(t: Tile) -> np.ndarray | None:
@@ -248,6 +255,33 @@ class Pipeline:
         self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
                               (plan.tile_h, plan.tile_w))
         return self.stats
+
+    def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,
+                      full: Callable[..., Any]) -> Callable[..., Any]:
+        """The compute step of :meth:`stream` choosing each tile's path from the skipper's plan
+        (sets :attr:`skip_plan`). A path with a smaller halo runs on the centre of the tile's
+        window (its origin moves in by the difference), so every path sees the image's pixels
+        at the same coordinates and tiled equals whole per path."""
+        skipper = self.skipper
+        self.skip_plan = skip_plan = skipper.plan(plan)
+        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        computes: dict[str, Callable[..., Any]] = {"full": full}
+        for name in set(skip_plan.counts) - {"full"}:
+            sub = Pipeline(self.cfa, skipper.paths[name])
+            d, h = halo - sub.halo, sub.halo
+            if backend == "opencl":
+                run = partial(sub._compute_opencl, sub.schedule(fuse), h, whole=whole,
+                              window_shape=(win_h - 2 * d, win_w - 2 * d))
+            else:
+                run = partial(sub._compute_reference, h)
+
+            def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
+                     d: int = d) -> Any:
+                if window is not None:
+                    window = np.ascontiguousarray(window[d:window.shape[0] - d, d:window.shape[1] - d])
+                return run(t, window, target)
+            computes[name] = crop
+        return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
 
     def _check(self, shape: tuple[int, ...], backend: str) -> None:
         if backend not in ("opencl", "reference"):
@@ -391,7 +425,7 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
-                   wb2: str = "metadata") -> Pipeline:
+                   wb2: str = "metadata", skip: bool | None = None) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, colour (+ chroma denoise), WB pass 2,
     tone curve.
 
@@ -401,6 +435,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
     raw. ``wb2``: white balance pass 2 from
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
+    ``skip``: None = every stage on every tile, no scene analysis; True = analyse the raw and let
+    each tile skip what it does not need (clisp.skip; the run's plan is ``Pipeline.skip_plan``);
+    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``).
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -421,7 +458,11 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         stages.append(WhiteBalance2(gains2))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
-    return Pipeline(cfa, stages)
+    pipeline = Pipeline(cfa, stages)
+    if skip is not None:
+        from .skip import Skipper
+        pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
+    return pipeline
 
 
 def denoise_params(denoise: ChromaDenoiseParams | bool | None, levels: int) -> ChromaDenoiseParams | None:
