@@ -511,7 +511,7 @@ def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = 
 
 def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budget: int = DEFAULT_BUDGET,
                  backend: str = "opencl", progress: bool = False, compression: str | None = None,
-                 **options: Any) -> tuple[tuple[int, int], RunStats]:
+                 explain: dict | None = None, **options: Any) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
@@ -521,13 +521,16 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     minimum. Raws with a camera rotation are oriented in memory (the whole output counts).
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
     compression (default imageio.DEFAULT_COMPRESSION). ``options``: :func:`build_pipeline`'s
-    (the output kind follows the extension). Atomic: on failure no file.
+    (the output kind follows the extension). ``explain``: a dict that receives the pipeline
+    (key 'pipeline'), whose skipper and skip_plan describe the run. Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
     from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
+    if explain is not None:                       # the caller reads the plan after the run
+        explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)
     plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=bool(flip))
     if flip:                    # rotated output rows are input columns: orient the whole result

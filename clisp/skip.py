@@ -238,3 +238,34 @@ class Skipper:
             choices.append(TileChoice(t, path, reason, v, bool(highlight), flat, uniform))
         note = f"visible chroma noise per block {np.min(vis):.1e}-{np.max(vis):.1e}" if vis is not None else ""
         return SkipPlan(choices, self.enabled, thresholds if vis is not None else {}, note)
+
+
+def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
+    """``clisp process --explain``: the analysis, the plan and, after the run, the time per stage
+    (OpenCL event profiling, when ``profile`` is a clisp.profile.Profile) and the time the skips
+    saved, estimated from RELATIVE_COST and the measured denoiser time."""
+    lines = []
+    skipper = getattr(pipeline, "skipper", None)
+    plan = getattr(pipeline, "skip_plan", None)
+    if skipper is None:
+        return "explain: no scene analysis (--no-skip without --explain)"
+    lines.append(skipper.analysis.summary())
+    lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
+    lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP (analysis "
+                 f"{skipper.analysis.seconds:.3f} s before it)")
+    if profile is not None:
+        per_stage: dict[str, float] = {}
+        for (stage, _kernel), (seconds, _n) in profile.device_seconds().items():
+            per_stage[stage] = per_stage.get(stage, 0.0) + seconds
+        lines.append("  device time per stage:")
+        for stage, seconds in sorted(per_stage.items(), key=lambda kv: -kv[1]):
+            lines.append(f"    {stage:<28}{seconds:8.3f} s")
+        denoise = per_stage.get("chroma_denoise", 0.0)
+        if plan is not None and denoise > 0:
+            px = {p: plan.pixels(p) for p in PATHS}
+            units = sum(RELATIVE_COST[p] * px[p] for p in PATHS)
+            if units > 0:
+                full_equiv = denoise / units * sum(px.values())
+                lines.append(f"  time saved (estimate): {full_equiv - denoise:.3f} s of chroma denoise "
+                             f"({full_equiv:.3f} s on the full path everywhere, RELATIVE_COST {RELATIVE_COST})")
+    return "\n".join(lines)
