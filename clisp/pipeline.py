@@ -102,6 +102,10 @@ class Pipeline:
     cfa: CFA
     stages: list[Stage]
     stats: RunStats = field(default_factory=RunStats)
+    skipper: Any = None
+    """A clisp.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
+    skip_plan: Any = None
+    """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
 
     @property
     def halo(self) -> int:
@@ -231,6 +235,9 @@ class Pipeline:
         else:
             compute = partial(self._compute_reference, halo)
 
+        if self.skipper is not None:                 # per-tile paths (clisp.skip)
+            compute = self._path_compute(plan, backend, fuse, whole, compute)
+
         windows = WindowPool()
 
         def read(t: Tile) -> np.ndarray | None:
@@ -250,6 +257,33 @@ class Pipeline:
         self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
                               (plan.tile_h, plan.tile_w))
         return self.stats
+
+    def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,
+                      full: Callable[..., Any]) -> Callable[..., Any]:
+        """The compute step of :meth:`stream` choosing each tile's path from the skipper's plan
+        (sets :attr:`skip_plan`). A path with a smaller halo runs on the centre of the tile's
+        window (its origin moves in by the difference), so every path sees the image's pixels
+        at the same coordinates and tiled equals whole per path."""
+        skipper = self.skipper
+        self.skip_plan = skip_plan = skipper.plan(plan)
+        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        computes: dict[str, Callable[..., Any]] = {"full": full}
+        for name in set(skip_plan.counts) - {"full"}:
+            sub = Pipeline(self.cfa, skipper.paths[name])
+            d, h = halo - sub.halo, sub.halo
+            if backend == "opencl":
+                run = partial(sub._compute_opencl, sub.schedule(fuse), h, whole=whole,
+                              window_shape=(win_h - 2 * d, win_w - 2 * d))
+            else:
+                run = partial(sub._compute_reference, h)
+
+            def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
+                     d: int = d) -> Any:
+                if window is not None:
+                    window = np.ascontiguousarray(window[d:window.shape[0] - d, d:window.shape[1] - d])
+                return run(t, window, target)
+            computes[name] = crop
+        return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
 
     def _check(self, shape: tuple[int, ...], backend: str) -> None:
         if backend not in ("opencl", "reference"):
@@ -393,7 +427,7 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
-                   wb2: str = "metadata") -> Pipeline:
+                   wb2: str = "metadata", skip: bool | None = None) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, colour (+ chroma denoise), WB pass 2,
     tone curve.
 
@@ -403,6 +437,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
     raw. ``wb2``: white balance pass 2 from
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
+    ``skip``: None = every stage on every tile, no scene analysis; True = analyse the raw and let
+    each tile skip what it does not need (clisp.skip; the run's plan is ``Pipeline.skip_plan``);
+    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``).
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -423,7 +460,11 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         stages.append(WhiteBalance2(gains2))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
-    return Pipeline(cfa, stages)
+    pipeline = Pipeline(cfa, stages)
+    if skip is not None:
+        from .skip import Skipper
+        pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
+    return pipeline
 
 
 def denoise_params(denoise: ChromaDenoiseParams | bool | None, levels: int) -> ChromaDenoiseParams | None:
@@ -472,7 +513,7 @@ def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = 
 
 def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budget: int = DEFAULT_BUDGET,
                  backend: str = "opencl", progress: bool = False, compression: str | None = None,
-                 **options: Any) -> tuple[tuple[int, int], RunStats]:
+                 explain: dict | None = None, **options: Any) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
@@ -482,13 +523,16 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     minimum. Raws with a camera rotation are oriented in memory (the whole output counts).
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
     compression (default imageio.DEFAULT_COMPRESSION). ``options``: :func:`build_pipeline`'s
-    (the output kind follows the extension). Atomic: on failure no file.
+    (the output kind follows the extension). ``explain``: a dict that receives the pipeline
+    (key 'pipeline'), whose skipper and skip_plan describe the run. Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
     from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
+    if explain is not None:                       # the caller reads the plan after the run
+        explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)
     plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=bool(flip))
     if flip:                    # rotated output rows are input columns: orient the whole result

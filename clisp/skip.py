@@ -1,0 +1,274 @@
+"""Per-tile skip plans: which path each tile of a run takes, and why (issue 13).
+
+A :class:`Skipper` is attached to a Pipeline by ``build_pipeline(..., skip=True)``. It holds the
+scene analysis (clisp.analysis) and the alternative stage lists ("paths"); when the pipeline runs
+a TilePlan, :meth:`Skipper.plan` turns the analysis into a :class:`SkipPlan`, plain data: one
+:class:`TileChoice` per tile (path, reason, the figures behind it), printable for
+``clisp process --explain`` and testable.
+
+Paths (the chroma denoiser is the only stage skipped so far):
+
+* ``full``  every stage as built (the chroma denoiser with the preset's J levels);
+* ``light`` the chroma denoiser with LIGHT_LEVELS (1) Haar level: the same final full-resolution
+  bilateral and level-1 shrink, no coarse levels; halo 10 px instead of 52 (J = 3);
+* ``none``  the plain colour matrix instead of the denoiser.
+
+Rule, per tile: the predicted visible chroma noise of every analysis block the tile's output
+depends on (the tile grown by the full denoiser's halo) is
+
+    v_b = sqrt( mean_i  T'(rgb_i,b)^2  sum_k F_ik^2 var_k(Y_b) ) * excess
+
+with var_k the denoiser's own level-0 chroma noise (its NoiseTable, from the sensor model or the
+raw's estimate, through the actual demosaic) at the block's mean Y, F the space's chroma -> RGB
+map, T' the slope of the sRGB encoding at the block's mean linear RGB (clamped to the linear
+toe) and ``excess`` SceneAnalysis.noise_excess. v_b^2 is the chroma noise's contribution to the
+tone-mapped MSE that PSNR measures, so thresholds on v are thresholds on the error budget. The
+tile's v is the largest v_b: ``none`` below VISIBLE_NONE, ``light`` below VISIBLE_LIGHT, else
+``full``. A tile is therefore never left undenoised unless every block it depends on is below
+VISIBLE_NONE.
+
+Seams: each tile's output equals the whole image processed on that tile's path (every path is a
+stage list obeying the tiling contract), so tiles on different paths meet where the two paths'
+outputs differ; both differ from ``full`` by at most the skip's effect, which the rule bounds by
+the thresholds on both sides of the seam (the margin makes a tile's decision include its
+neighbours' blocks within the halo). tests/test_skip.py measures it.
+
+Highlights: the plan flags every tile with clipped samples (``highlight``); the pipeline has no
+highlight stage yet, so the flag is reported, and a future highlight stage must run on every
+flagged tile.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .analysis import SceneAnalysis, analyse
+from .tiling import Tile, TilePlan
+
+PATH_FULL, PATH_LIGHT, PATH_NONE = "full", "light", "none"
+PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE)
+
+LIGHT_LEVELS = 1
+"""Haar levels of the chroma denoiser on the ``light`` path."""
+
+VISIBLE_LIGHT = 8.0e-3
+"""Largest predicted visible chroma noise (tone-mapped std, white = 1) of a tile on the
+``light`` path. Initial, conservative value: on flat grey fields (tools/calibrate_skip.py
+--levels) v is 3.9-6.2e-3 at gain 1 (grey 0.9 down to 0.01, LMS and Bayer), 5.6-8.8e-3 at gain 2,
+7.9-12.8e-3 at gain 4, 3-10e-2 at gain 64: at 8e-3 gain 1 takes ``light`` everywhere but in strongly saturated colours,
+gain 2 only in bright areas, gain 4 and above never. Measured (tools/calibrate_skip.py): on
+natural images at gain 1 the light path loses 0-0.04 dB, but on the flat sky 0.10 (Bayer) to
+0.26 dB (LMS): flat areas need the coarse levels most, so this rule alone is not yet within the
+error budget there (a flatness condition is the next step). Measured effect of the light path over whole images
+(tools/calibrate_skip.py): see its docstring."""
+
+VISIBLE_NONE = 1.0e-3
+"""Largest predicted visible chroma noise of a tile left without chroma denoising: well under
+1/4 of an 8-bit code, 1/4 of the lowest gain-1 figure: in practice never on the simulated sensor
+(no denoising was measured to cost 0.1-0.7 dB at gain 1); left for cleaner sensors."""
+
+RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0}
+"""Declared device time of each path's chroma stage per pixel, relative to ``full`` (J = 3),
+for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
+
+
+@dataclass(frozen=True)
+class TileChoice:
+    """One tile's path and why."""
+
+    tile: Tile
+    path: str
+    reason: str
+    visible_noise: float = 0.0
+    highlight: bool = False
+    flat: bool = False
+    uniform: bool = False
+
+
+@dataclass
+class SkipPlan:
+    """The per-tile plan of one run: data, printable (``str``) and testable."""
+
+    choices: list[TileChoice]
+    enabled: bool = True
+    thresholds: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        self._by_tile = {c.tile: c for c in self.choices}
+
+    def path_of(self, tile: Tile) -> str:
+        return self._by_tile[tile].path
+
+    def choice(self, tile: Tile) -> TileChoice:
+        return self._by_tile[tile]
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return dict(Counter(c.path for c in self.choices))
+
+    def pixels(self, path: str) -> int:
+        return sum(c.tile.h * c.tile.w for c in self.choices if c.path == path)
+
+    @property
+    def highlight(self) -> bool:
+        """Whether any tile has clipped samples (highlight handling needed)."""
+        return any(c.highlight for c in self.choices)
+
+    def explain(self) -> str:
+        n = len(self.choices)
+        total = max(1, sum(c.tile.h * c.tile.w for c in self.choices))
+        head = "skip plan" if self.enabled else "skip plan (--no-skip: every stage everywhere)"
+        lines = [f"{head}: {n} tiles" + (f"; {self.note}" if self.note else "")]
+        if self.thresholds:
+            lines.append("  thresholds: " + ", ".join(f"{k} {v:.2g}" for k, v in self.thresholds.items()))
+        reasons = Counter((c.path, c.reason) for c in self.choices)
+        for path in PATHS:
+            k = self.counts.get(path, 0)
+            if k:
+                lines.append(f"  {path:<6} {k:4d} tiles, {100 * self.pixels(path) / total:5.1f} % of pixels")
+                for (p, reason), m in sorted(reasons.items()):
+                    if p == path:
+                        lines.append(f"         {m:4d} x {reason}")
+        hl = sum(c.highlight for c in self.choices)
+        lines.append(f"  highlight handling needed on {hl} tiles (clipped samples)"
+                     if hl else "  highlight handling: not needed (nothing clipped)")
+        flat = sum(c.flat for c in self.choices)
+        uni = sum(c.uniform for c in self.choices)
+        lines.append(f"  flat tiles {flat}, uniform tiles {uni} (no flat/uniform path yet)")
+        return "\n".join(lines)
+
+    __str__ = explain
+
+
+def srgb_slope(v: np.ndarray) -> np.ndarray:
+    """d/dv of the sRGB encoding at linear v, clamped to [toe, 1] (12.92 on the linear toe)."""
+    v = np.clip(np.asarray(v, dtype=np.float64), 0.0031308, 1.0)
+    return 1.055 / 2.4 * v ** (1.0 / 2.4 - 1.0)
+
+
+def visible_chroma_noise(denoiser: Any, analysis: SceneAnalysis) -> np.ndarray:
+    """v_b per analysis block (see the module docstring) for a ChromaDenoise stage."""
+    space, table = denoiser.space, denoiser.noise
+    f2 = denoiser.params.noise_scale ** 2
+    y = np.maximum(analysis.luma, 0.0)
+    var_k = np.stack([(table.approx[0, 1 + k, 0] * y + table.approx[0, 1 + k, 1]) * f2
+                      for k in range(space.n_chroma)])                          # (n, rows, cols)
+    var_rgb = np.tensordot(np.asarray(space.from_chroma) ** 2, var_k, axes=1)   # (3, rows, cols)
+    rgb = np.tensordot(np.asarray(space.to_rgb), analysis.means, axes=1)        # block mean RGB
+    mse = np.mean(srgb_slope(rgb) ** 2 * var_rgb, axis=0)
+    return np.sqrt(mse) * analysis.noise_excess
+
+
+def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
+    """``stage`` (a ChromaDenoise) with ``levels`` Haar levels: its noise table's first levels
+    (the calibration measures every level on the same fields, so the prefix is exact)."""
+    from .stages.chroma_denoise import ChromaDenoise, NoiseTable
+    levels = min(levels, stage.params.levels)
+    table = NoiseTable(stage.noise.approx[:levels + 1], stage.noise.detail[:levels + 1])
+    return ChromaDenoise(stage.space, table, replace(stage.params, levels=levels), stage.interleaved)
+
+
+def plain_colour(stage: Any) -> Any:
+    """The colour matrix the denoiser includes (its output with the chroma untouched)."""
+    from .stages.colour import ColourMatrix
+    return ColourMatrix(np.asarray(stage.space.to_rgb))
+
+
+@dataclass
+class Skipper:
+    """Analysis + alternative stage lists of one pipeline; :meth:`plan` makes a run's SkipPlan.
+
+    stages    the full stage list (the pipeline's).
+    paths     path name -> stage list (``full`` is ``stages``).
+    denoiser  the ChromaDenoise stage of ``stages`` (None: nothing to skip).
+    enabled   False (--no-skip): every tile takes ``full``; the analysis is still reported.
+    """
+
+    analysis: SceneAnalysis
+    stages: list[Any]
+    paths: dict[str, list[Any]]
+    denoiser: Any = None
+    enabled: bool = True
+    visible_light: float = VISIBLE_LIGHT
+    visible_none: float = VISIBLE_NONE
+
+    @classmethod
+    def for_pipeline(cls, raw: Any, stages: list[Any], enabled: bool = True,
+                     analysis: SceneAnalysis | None = None) -> "Skipper":
+        from .stages.chroma_denoise import ChromaDenoise
+        analysis = analysis if analysis is not None else analyse(raw)
+        paths = {PATH_FULL: list(stages)}
+        denoiser = next((s for s in stages if isinstance(s, ChromaDenoise)), None)
+        if denoiser is not None:
+            i = stages.index(denoiser)
+            if denoiser.params.levels > LIGHT_LEVELS:
+                paths[PATH_LIGHT] = stages[:i] + [light_denoiser(denoiser)] + stages[i + 1:]
+            paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
+        return cls(analysis, list(stages), paths, denoiser, enabled)
+
+    def halo(self, path: str) -> int:
+        return sum(stage.halo for stage in self.paths[path])
+
+    def plan(self, tiles: TilePlan | list[Tile]) -> SkipPlan:
+        tile_list = tiles.tiles if isinstance(tiles, TilePlan) else list(tiles)
+        a = self.analysis
+        thresholds = {"visible_light": self.visible_light, "visible_none": self.visible_none}
+        margin = self.denoiser.halo if self.denoiser is not None else 0
+        vis = visible_chroma_noise(self.denoiser, a) if self.denoiser is not None else None
+        choices = []
+        for t in tile_list:
+            rows, cols = a.blocks_for(t.y0, t.x0, t.h, t.w)
+            own = (a.clipped[rows, cols] > 0).any(), bool((a.detail[rows, cols] < 2.0).all()), \
+                bool(a.uniform[rows, cols].all())
+            highlight, flat, uniform = own
+            if vis is None:
+                path, reason, v = PATH_FULL, "no chroma denoiser in this pipeline", 0.0
+            else:
+                grown = a.blocks_for(t.y0, t.x0, t.h, t.w, margin)
+                v = float(vis[grown].max())
+                if not self.enabled:
+                    path, reason = PATH_FULL, "--no-skip"
+                elif v < self.visible_none and PATH_NONE in self.paths:
+                    path, reason = PATH_NONE, f"chroma noise below {self.visible_none:.1e} (invisible)"
+                elif v < self.visible_light and PATH_LIGHT in self.paths:
+                    path, reason = PATH_LIGHT, f"chroma noise below {self.visible_light:.1e} (coarse levels not needed)"
+                else:
+                    path, reason = PATH_FULL, "chroma noise visible"
+            choices.append(TileChoice(t, path, reason, v, bool(highlight), flat, uniform))
+        note = f"visible chroma noise per block {np.min(vis):.1e}-{np.max(vis):.1e}" if vis is not None else ""
+        return SkipPlan(choices, self.enabled, thresholds if vis is not None else {}, note)
+
+
+def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
+    """``clisp process --explain``: the analysis, the plan and, after the run, the time per stage
+    (OpenCL event profiling, when ``profile`` is a clisp.profile.Profile) and the time the skips
+    saved, estimated from RELATIVE_COST and the measured denoiser time."""
+    lines = []
+    skipper = getattr(pipeline, "skipper", None)
+    plan = getattr(pipeline, "skip_plan", None)
+    if skipper is None:
+        return "explain: no scene analysis (--no-skip without --explain)"
+    lines.append(skipper.analysis.summary())
+    lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
+    lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP (analysis "
+                 f"{skipper.analysis.seconds:.3f} s before it)")
+    if profile is not None:
+        per_stage: dict[str, float] = {}
+        for (stage, _kernel), (seconds, _n) in profile.device_seconds().items():
+            per_stage[stage] = per_stage.get(stage, 0.0) + seconds
+        lines.append("  device time per stage:")
+        for stage, seconds in sorted(per_stage.items(), key=lambda kv: -kv[1]):
+            lines.append(f"    {stage:<28}{seconds:8.3f} s")
+        denoise = per_stage.get("chroma_denoise", 0.0)
+        if plan is not None and denoise > 0:
+            px = {p: plan.pixels(p) for p in PATHS}
+            units = sum(RELATIVE_COST[p] * px[p] for p in PATHS)
+            if units > 0:
+                full_equiv = denoise / units * sum(px.values())
+                lines.append(f"  time saved (estimate): {full_equiv - denoise:.3f} s of chroma denoise "
+                             f"({full_equiv:.3f} s on the full path everywhere, RELATIVE_COST {RELATIVE_COST})")
+    return "\n".join(lines)
