@@ -34,6 +34,9 @@
 #ifndef ARI_R
 #define ARI_R 1
 #endif
+#ifndef ARI_SET
+#define ARI_SET 0
+#endif
 #ifndef ARI_P
 #define ARI_P 1
 #endif
@@ -198,15 +201,15 @@ typedef struct { float n, s1x, s1y, s2x, s2y, sxy; } ari_moments;
 /* Add the along-pass moments of one line (planes at index i, stride rp), centred on (cxj, cyj), to m,
  * moved to the centre (cx, cy): with dx = cxj - cx, dy = cyj - cy (exact algebra of gf_col_coefficients). */
 __attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
-                         const float dx, const float dy)
+                         const float dx, const float dy, const float wt)
 {
-    const float nj = rows[i], sd = rows[rp + i], se = rows[2 * rp + i];
+    const float nj = wt * rows[i], sd = wt * rows[rp + i], se = wt * rows[2 * rp + i];
     m->n += nj;
     m->s1x += sd + nj * dx;
     m->s1y += se + nj * dy;
-    m->s2x += rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
-    m->s2y += rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
-    m->sxy += rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
+    m->s2x += wt * rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
+    m->s2y += wt * rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
+    m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
 }
 
 /* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
@@ -253,15 +256,16 @@ __attribute__((always_inline)) inline void ari_pair_fits(const ari_moments *m, c
  * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
  * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
  * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
- * the views x, y (aligned to the output). ARI_PAIR (step 1): the lines of each line set (R lines, B
- * lines: rows / columns of either parity) are summed separately (lines at even j belong to the output
- * pixel's own set, odd j to the other: two loops, no per-pixel indexing); per set the fit of y (G
- * line) from x (chroma line) and of x from y, 12 planes: set R: a_g w, b_g w, w_g, a_c w, b_c w, w_c,
- * then set B. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across the lines. */
+ * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
+ * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity), every line
+ * weighted by its 0 / 1 membership (straight-line code: PoCL vectorises it; the host launches one
+ * program per set), the fit of y (G line) from x (chroma line) and of x from y, 6 planes: a_g w, b_g w,
+ * w_g, a_c w, b_c w, w_c. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across
+ * the lines. */
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
                                       __global const float *restrict xs, const int xb, const int xp,
                                       __global const float *restrict ys, const int yb, const int yp,
-                                      __global float *restrict out, const int w, const int h,
+                                      __global float *restrict out, const int ob, const int w, const int h,
                                       const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
@@ -275,48 +279,37 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 #endif
     const int xa = xb + y * xp + x, ya = yb + y * yp + x;
 #if ARI_PAIR
-    ari_moments ms = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mo = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float ls[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, lo[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-#pragma unroll
-    for (int j = (ARI_R & 1) - ARI_R; j <= ARI_R; j += 2) {                    /* even j: the pixel's own line set */
-        const int i = at0 + j * line_step;
-        ari_add_line(&ms, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
-#if ARI_MLRI
-        for (int t = 0; t < 6; ++t)
-            ls[t] += rows[(6 + t) * rp + i];
-#endif
-    }
-#pragma unroll
-    for (int j = 1 - (ARI_R & 1) - ARI_R; j <= ARI_R; j += 2) {                /* odd j: the other line set */
-        const int i = at0 + j * line_step;
-        ari_add_line(&mo, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
-#if ARI_MLRI
-        for (int t = 0; t < 6; ++t)
-            lo[t] += rows[(6 + t) * rp + i];
-#endif
-    }
-    float fs[6], fo[6];
-    ari_pair_fits(&ms, ls, cx, cy, fs);
-    ari_pair_fits(&mo, lo, cx, cy, fo);
 #if ARI_DIR == 0
-    const int own = (y + py) & 1;
+    const int line0 = y + py;
 #else
-    const int own = (x + px) & 1;
+    const int line0 = x + px;
 #endif
-    const int i = y * w + x, plane = w * h;
-    const float m_own = own ? 1.0f : 0.0f, m_self = 1.0f - m_own;     /* arithmetic, not a select of */
-#pragma unroll                                                      /* private arrays (kept scalar) */
-    for (int t = 0; t < 6; ++t) {
-        out[t * plane + i] = m_own * fo[t] + m_self * fs[t];        /* set R (0) */
-        out[(6 + t) * plane + i] = m_self * fo[t] + m_own * fs[t];  /* set B (1) */
+    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float l[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {                /* every line, weighted 1 in set ARI_SET, else 0 */
+        const int i = at0 + j * line_step;
+        const float in_set = ((line0 + j) & 1) == ARI_SET ? 1.0f : 0.0f;
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, in_set);
+#if ARI_MLRI
+#pragma unroll
+        for (int t = 0; t < 6; ++t)
+            l[t] += in_set * rows[(6 + t) * rp + i];
+#endif
     }
+    float f[6];
+    ari_pair_fits(&m, l, cx, cy, f);
+    const int i = y * w + x, plane = w * h;
+#pragma unroll
+    for (int t = 0; t < 6; ++t)
+        out[ob + t * plane + i] = f[t];
 #else
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     float l[3] = {0.0f, 0.0f, 0.0f};
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
 #if ARI_MLRI
         for (int t = 0; t < 3; ++t)
             l[t] += rows[(6 + t) * rp + i];
@@ -332,9 +325,9 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     float f[3];
     ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
     const int i = y * w + x, plane = w * h;
-    out[i] = f[0];
-    out[plane + i] = f[1];
-    out[2 * plane + i] = f[2];
+    out[ob + i] = f[0];
+    out[ob + plane + i] = f[1];
+    out[ob + 2 * plane + i] = f[2];
 #endif
 }
 
