@@ -461,8 +461,8 @@ class DemosaicARI(Stage):
         """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
         fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
         dirn = 0 if d == "h" else 1
-        sums = enqueue_box(c.rt, coef, 0, along, release_src=True) if d == "h" else \
-            enqueue_box(c.rt, coef, along, 0, release_src=True)
+        sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
+            enqueue_box(c.rt, coef, along, 0, release_src=True, per_radius=True)
         sy, sx = (margin[0], margin[1] + along) if d == "h" else (margin[0] + along, margin[1])
         ty, tx = (sy + across, sx) if d == "h" else (sy, sx + across)
         t = c.new(2 if pair else 1, ty, tx)
