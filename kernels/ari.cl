@@ -17,7 +17,10 @@
  * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
  * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
  * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: both fits of a line pair, statistics
- * per line set). */
+ * per line set), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
+ * diagonal kernels' lattice radii, direction and Laplacian sites). The radii are compile-time so that
+ * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
+ * straight-line code (a loop of runtime trip count inside it keeps it scalar). */
 
 #ifndef ARI_DIR
 #define ARI_DIR 0
@@ -27,6 +30,24 @@
 #endif
 #ifndef ARI_PAIR
 #define ARI_PAIR 0
+#endif
+#ifndef ARI_R
+#define ARI_R 1
+#endif
+#ifndef ARI_SET
+#define ARI_SET 0
+#endif
+#ifndef ARI_P
+#define ARI_P 1
+#endif
+#ifndef ARI_Q
+#define ARI_Q 1
+#endif
+#ifndef ARI_LS
+#define ARI_LS 1
+#endif
+#ifndef ARI_KNOWN
+#define ARI_KNOWN SITE_R
 #endif
 #ifndef ARI_EPS
 #define ARI_EPS 1e-10f
@@ -67,7 +88,7 @@ __attribute__((always_inline)) inline void ari_fit_values(const float a, const f
 {
     const float b = mean_y - a * mean_x;
     const float mse = a * a * var_x - 2.0f * a * cov + var_y;
-    const float rmse = sqrt(mse > 0.0f ? mse : 0.0f);
+    const float rmse = __builtin_sqrtf(mse > 0.0f ? mse : 0.0f);
     const float wt = 1.0f / (rmse > ARI_RMSE_FLOOR ? rmse : ARI_RMSE_FLOOR);
     r[0] = a * wt;
     r[1] = b * wt;
@@ -97,7 +118,7 @@ __kernel void ari_green_start(__global const float *restrict raw, const int rb, 
 }
 
 /* ari_along_moments: first (separable) pass of the window statistics of guide x and target y, along
- * the lines (ARI_DIR 0: x axis, 1: y axis), radius r: for output (y, x) the sums over k = -r..r of
+ * the lines (ARI_DIR 0: x axis, 1: y axis), radius r = ARI_R: for output (y, x) the sums over k = -r..r of
  * 1, d, e, d^2, e^2, d e with d = x(k) - x(0), e = y(k) - y(0) (centred on the output pixel; the
  * across pass moves them to the window's centre). ARI_MLRI adds the Laplacian moments over a site set
  * (L = [-1, 0, 2, 0, -1] along the line): ARI_PAIR (step 1; x = chroma line c, y = G line g): over G
@@ -106,7 +127,7 @@ __kernel void ari_green_start(__global const float *restrict raw, const int rb, 
  * planes. Halo r along the line (r + 2 with ARI_MLRI). */
 __kernel void ari_along_moments(__global const float *restrict xs, const int xb, const int xp,
                                 __global const float *restrict ys, const int yb, const int yp,
-                                __global float *restrict out, const int w, const int h, const int r,
+                                __global float *restrict out, const int w, const int h,
                                 const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
@@ -122,7 +143,8 @@ __kernel void ari_along_moments(__global const float *restrict xs, const int xb,
 #if ARI_MLRI
     float g_xy = 0.0f, g_xx = 0.0f, g_n = 0.0f, c_xy = 0.0f, c_yy = 0.0f, c_xx = 0.0f, c_n = 0.0f;
 #endif
-    for (int k = -r; k <= r; ++k) {
+#pragma unroll
+    for (int k = -ARI_R; k <= ARI_R; ++k) {
         const float xv = xc[k * xs_step], yv = yc[k * ys_step];
         const float d = xv - cx, e = yv - cy;
         n += 1.0f;
@@ -179,29 +201,29 @@ typedef struct { float n, s1x, s1y, s2x, s2y, sxy; } ari_moments;
 /* Add the along-pass moments of one line (planes at index i, stride rp), centred on (cxj, cyj), to m,
  * moved to the centre (cx, cy): with dx = cxj - cx, dy = cyj - cy (exact algebra of gf_col_coefficients). */
 __attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
-                         const float dx, const float dy)
+                         const float dx, const float dy, const float wt)
 {
-    const float nj = rows[i], sd = rows[rp + i], se = rows[2 * rp + i];
+    const float nj = wt * rows[i], sd = wt * rows[rp + i], se = wt * rows[2 * rp + i];
     m->n += nj;
     m->s1x += sd + nj * dx;
     m->s1y += se + nj * dy;
-    m->s2x += rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
-    m->s2y += rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
-    m->sxy += rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
+    m->s2x += wt * rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
+    m->s2y += wt * rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
+    m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
 }
 
 /* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
-__attribute__((always_inline)) inline void ari_stats(const ari_moments m, const float cx, const float cy, float *mean_x, float *mean_y,
+__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
                       float *var_x, float *var_y, float *cov)
 {
-    const float nn = m.n > 1.0f ? m.n : 1.0f;
+    const float nn = m->n > 1.0f ? m->n : 1.0f;
     const float inv = 1.0f / nn;
-    const float md = m.s1x * inv, me = m.s1y * inv;
-    *mean_x = cx * (m.n * inv) + md;
-    *mean_y = cy * (m.n * inv) + me;
-    *var_x = m.s2x * inv - md * md;
-    *var_y = m.s2y * inv - me * me;
-    *cov = m.sxy * inv - md * me;
+    const float md = m->s1x * inv, me = m->s1y * inv;
+    *mean_x = cx * (m->n * inv) + md;
+    *mean_y = cy * (m->n * inv) + me;
+    *var_x = m->s2x * inv - md * md;
+    *var_y = m->s2y * inv - me * me;
+    *cov = m->sxy * inv - md * me;
 }
 
 /* MLRI slope: (s_xy / n) / (s_xx / n + eps), n = max(count, 1) (the floor of the mean squared
@@ -215,7 +237,7 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
 /* Weighted fits of one line set from its accumulated moments (centred on (cx, cy)) and Laplacian sums
  * l[0..5] (ARI_PAIR: G-site sums L(x) L(y), L(x)^2, count, chroma-site L(x) L(y), L(y)^2, count):
  * r[0..2] = a_g w, b_g w, w_g (y from x), r[3..5] = a_c w, b_c w, w_c (x from y). */
-__attribute__((always_inline)) inline void ari_pair_fits(const ari_moments m, const float *l, const float cx, const float cy, float *r)
+__attribute__((always_inline)) inline void ari_pair_fits(const ari_moments *m, const float *l, const float cx, const float cy, float *r)
 {
     float mean_x, mean_y, var_x, var_y, cov;
     ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
@@ -230,76 +252,71 @@ __attribute__((always_inline)) inline void ari_pair_fits(const ari_moments m, co
     ari_fit_values(a_c, mean_y, mean_x, var_y, var_x, cov, r + 3);
 }
 
-/* ari_across_coefficients: second pass of the window statistics, across the lines, radius r, then
+/* ari_across_coefficients: second pass of the window statistics, across the lines, radius r = ARI_R, then
  * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
  * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
  * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
- * the views x, y (aligned to the output). ARI_PAIR (step 1): the lines of each line set (R lines, B
- * lines: rows / columns of either parity) are summed separately (lines at even j belong to the output
- * pixel's own set, odd j to the other: two loops, no per-pixel indexing); per set the fit of y (G
- * line) from x (chroma line) and of x from y, 12 planes: set R: a_g w, b_g w, w_g, a_c w, b_c w, w_c,
- * then set B. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across the lines. */
+ * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
+ * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity), every line
+ * weighted by its 0 / 1 membership (straight-line code: PoCL vectorises it; the host launches one
+ * program per set), the fit of y (G line) from x (chroma line) and of x from y, 6 planes: a_g w, b_g w,
+ * w_g, a_c w, b_c w, w_c. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across
+ * the lines. */
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
                                       __global const float *restrict xs, const int xb, const int xp,
                                       __global const float *restrict ys, const int yb, const int yp,
-                                      __global float *restrict out, const int w, const int h, const int r,
+                                      __global float *restrict out, const int ob, const int w, const int h,
                                       const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const float cx = xs[xb + y * xp + x], cy = ys[yb + y * yp + x];
 #if ARI_DIR == 0
     const int line_step = rw, xstep = xp, ystep = yp;
-    const int at0 = (y + r) * rw + x;
+    const int at0 = (y + ARI_R) * rw + x;
 #else
     const int line_step = 1, xstep = 1, ystep = 1;
-    const int at0 = y * rw + x + r;
+    const int at0 = y * rw + x + ARI_R;
 #endif
     const int xa = xb + y * xp + x, ya = yb + y * yp + x;
 #if ARI_PAIR
-    ari_moments ms = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mo = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float ls[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, lo[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    for (int j = (r & 1) - r; j <= r; j += 2) {                    /* even j: the pixel's own line set */
-        const int i = at0 + j * line_step;
-        ari_add_line(&ms, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
-#if ARI_MLRI
-        for (int t = 0; t < 6; ++t)
-            ls[t] += rows[(6 + t) * rp + i];
-#endif
-    }
-    for (int j = 1 - (r & 1) - r; j <= r; j += 2) {                /* odd j: the other line set */
-        const int i = at0 + j * line_step;
-        ari_add_line(&mo, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
-#if ARI_MLRI
-        for (int t = 0; t < 6; ++t)
-            lo[t] += rows[(6 + t) * rp + i];
-#endif
-    }
-    float fs[6], fo[6];
-    ari_pair_fits(ms, ls, cx, cy, fs);
-    ari_pair_fits(mo, lo, cx, cy, fo);
 #if ARI_DIR == 0
-    const int own = (y + py) & 1;
+    const int line0 = y + py;
 #else
-    const int own = (x + px) & 1;
+    const int line0 = x + px;
 #endif
-    const int i = y * w + x, plane = w * h;
-    for (int t = 0; t < 6; ++t) {
-        out[t * plane + i] = own ? fo[t] : fs[t];                  /* set R (0) */
-        out[(6 + t) * plane + i] = own ? fs[t] : fo[t];            /* set B (1) */
+    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float l[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {                /* every line, weighted 1 in set ARI_SET, else 0 */
+        const int i = at0 + j * line_step;
+        const float in_set = ((line0 + j) & 1) == ARI_SET ? 1.0f : 0.0f;
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, in_set);
+#if ARI_MLRI
+#pragma unroll
+        for (int t = 0; t < 6; ++t)
+            l[t] += in_set * rows[(6 + t) * rp + i];
+#endif
     }
+    float f[6];
+    ari_pair_fits(&m, l, cx, cy, f);
+    const int i = y * w + x, plane = w * h;
+#pragma unroll
+    for (int t = 0; t < 6; ++t)
+        out[ob + t * plane + i] = f[t];
 #else
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     float l[3] = {0.0f, 0.0f, 0.0f};
-    for (int j = -r; j <= r; ++j) {
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
 #if ARI_MLRI
         for (int t = 0; t < 3; ++t)
             l[t] += rows[(6 + t) * rp + i];
 #endif
     }
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
     const float a = ari_lap_slope(l[0], l[1], l[2]);
 #else
@@ -308,13 +325,13 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     float f[3];
     ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
     const int i = y * w + x, plane = w * h;
-    out[i] = f[0];
-    out[plane + i] = f[1];
-    out[2 * plane + i] = f[2];
+    out[ob + i] = f[0];
+    out[ob + plane + i] = f[1];
+    out[ob + 2 * plane + i] = f[2];
 #endif
 }
 
-/* ari_box_apply: the coefficient sums across the lines (radius r; the sums along them are done: box_x
+/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the sums along them are done: box_x
  * for ARI_DIR 0, box_y for 1) and the tentative estimates. coef: view (cb, pitch cp, plane stride cs)
  * of the along-summed coefficient planes. ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
  * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
@@ -323,7 +340,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 __kernel void ari_box_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
                             __global const float *restrict xs, const int xb, const int xp,
                             __global const float *restrict ys, const int yb, const int yp,
-                            __global float *restrict out, const int w, const int h, const int r,
+                            __global float *restrict out, const int w, const int h,
                             const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
@@ -336,7 +353,9 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int cb, c
     const float xv = xs[xb + y * xp + x];
 #if ARI_PAIR
     float acc[12] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    for (int j = -r; j <= r; ++j)
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j)
+#pragma unroll
         for (int t = 0; t < 12; ++t)
             acc[t] += k[t * cs + j * step];
 #if ARI_DIR == 0
@@ -351,7 +370,8 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int cb, c
     out[w * h + y * w + x] = (ac * yv + bc) / (wc + ARI_WEIGHT_REG);
 #else
     float a = 0.0f, b = 0.0f, wt = 0.0f;
-    for (int j = -r; j <= r; ++j) {
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
         a += k[j * step];
         b += k[cs + j * step];
         wt += k[2 * cs + j * step];
@@ -533,14 +553,14 @@ __kernel void ari_chroma_residual(__global const float *restrict src, const int 
 }
 
 /* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
- * sites of the diagonal window {(i + j, i - j): |i| <= p, |j| <= q} (step 2): centred moments summed
+ * sites of the diagonal window {(i + j, i - j): |i| <= p = ARI_P, |j| <= q = ARI_Q} (step 2): centred moments summed
  * directly (the window's sites are all chroma sites or all G sites, the latter giving the empty fit
- * a = b = 0, w = 1 / floor), ARI_MLRI: slope from the Laplacians along d = (1, ls) ([-1, 0, 2, 0, -1])
- * over the ``known`` sites. Out planes a w, b w, w. Halo p + q (+ 2 with ARI_MLRI). */
+ * a = b = 0, w = 1 / floor), ARI_MLRI: slope from the Laplacians along d = (1, ARI_LS) ([-1, 0, 2, 0, -1])
+ * over the ARI_KNOWN sites. Out planes a w, b w, w. Halo p + q (+ 2 with ARI_MLRI). */
 __kernel void ari_diag_coefficients(__global const float *restrict xs, const int xb, const int xp,
                                     __global const float *restrict ys, const int yb, const int yp,
-                                    __global float *restrict out, const int w, const int h, const int p,
-                                    const int q, const int ls, const int py, const int px, const int known)
+                                    __global float *restrict out, const int w, const int h,
+                                    const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     __global const float *xc = xs + xb + y * xp + x, *yc = ys + yb + y * yp + x;
@@ -549,10 +569,12 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
     float n = 0.0f, sd = 0.0f, se = 0.0f, sdd = 0.0f, see = 0.0f, sde = 0.0f;
 #if ARI_MLRI
     float l_xy = 0.0f, l_xx = 0.0f, l_n = 0.0f;
-    const int lxs = 2 * (xp + ls), lys = 2 * (yp + ls);
+    const int lxs = 2 * (xp + ARI_LS), lys = 2 * (yp + ARI_LS);
 #endif
-    for (int i = -p; i <= p; ++i)
-        for (int j = -q; j <= q; ++j) {
+#pragma unroll
+    for (int i = -ARI_P; i <= ARI_P; ++i)
+#pragma unroll
+        for (int j = -ARI_Q; j <= ARI_Q; ++j) {
             const int dy = i + j, dx = i - j;
             const float xv = xc[dy * xp + dx], yv = yc[dy * yp + dx];
             const float d = m * (xv - cx), e = m * (yv - cy);
@@ -563,7 +585,7 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             see += e * e;
             sde += d * e;
 #if ARI_MLRI
-            const float lm = ari_site(known, y + dy, x + dx, py, px);
+            const float lm = ari_site(ARI_KNOWN, y + dy, x + dx, py, px);
             const float lx = 2.0f * xv - xc[dy * xp + dx - lxs] - xc[dy * xp + dx + lxs];
             const float ly = 2.0f * yv - yc[dy * yp + dx - lys] - yc[dy * yp + dx + lys];
             l_xy += lm * lx * ly;
@@ -573,7 +595,7 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
         }
     ari_moments mo = {n, sd, se, sdd, see, sde};
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
     const float a = ari_lap_slope(l_xy, l_xx, l_n);
 #else
@@ -587,16 +609,18 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
 }
 
 /* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (view cb,
- * pitch cp, plane stride cs) over the diagonal window (p, q); x the guide (view). Halo p + q. */
+ * pitch cp, plane stride cs) over the diagonal window (ARI_P, ARI_Q); x the guide (view). Halo p + q. */
 __kernel void ari_diag_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
                              __global const float *restrict xs, const int xb, const int xp,
-                             __global float *restrict out, const int w, const int p, const int q)
+                             __global float *restrict out, const int w)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     __global const float *k = coef + cb + y * cp + x;
     float a = 0.0f, b = 0.0f, wt = 0.0f;
-    for (int i = -p; i <= p; ++i)
-        for (int j = -q; j <= q; ++j) {
+#pragma unroll
+    for (int i = -ARI_P; i <= ARI_P; ++i)
+#pragma unroll
+        for (int j = -ARI_Q; j <= ARI_Q; ++j) {
             const int o = (i + j) * cp + (i - j);
             a += k[o];
             b += k[cs + o];

@@ -31,6 +31,14 @@
 #define GF_RMSE_FLOOR 1e-3f    /* weight = 1 / max(RMSE, 1e-3) (ARI, 8-bit units) */
 #define GF_WEIGHT_REG 1e-4f    /* total weight + 1e-4 */
 
+/* BOX_RADIUS(r): the box kernels' radius, the define GF_BOX_R when the host builds a program per
+ * radius (the loop unrolls and PoCL vectorises the kernel), else the runtime argument r. */
+#ifdef GF_BOX_R
+#define BOX_RADIUS(r) GF_BOX_R
+#else
+#define BOX_RADIUS(r) (r)
+#endif
+
 /* box_x: dst(p, y, x) = sum_{k=0..2r} src(p, y, x + k), every plane (planes stacked along y: launch
  * out_w x planes * h). Output x is input column x + r: width shrinks by 2r. Halo r along x. */
 __kernel void box_x(__global const float *restrict src, __global float *restrict dst, const int r,
@@ -40,7 +48,8 @@ __kernel void box_x(__global const float *restrict src, __global float *restrict
     const int y = get_global_id(1);
     __global const float *s = src + y * in_w + x;
     float acc = 0.0f;
-    for (int k = 0; k <= 2 * r; ++k)
+#pragma unroll
+    for (int k = 0; k <= 2 * BOX_RADIUS(r); ++k)
         acc += s[k];
     dst[y * out_w + x] = acc;
 }
@@ -55,7 +64,8 @@ __kernel void box_y(__global const float *restrict src, __global float *restrict
     const int p = g / out_h, y = g - p * out_h;
     __global const float *s = src + (p * in_h + y) * w + x;
     float acc = 0.0f;
-    for (int k = 0; k <= 2 * r; ++k)
+#pragma unroll
+    for (int k = 0; k <= 2 * BOX_RADIUS(r); ++k)
         acc += s[k * w];
     dst[g * w + x] = acc;
 }

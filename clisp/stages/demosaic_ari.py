@@ -306,15 +306,17 @@ class DemosaicARI(Stage):
             ay, ax = (0, along + lap) if d == "h" else (along + lap, 0)
             my, mx = _margin([g, cl], ay, ax)
             mom = c.new(12 if mlri else 6, my, mx)
-            c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1), mom,
-                     *cl.at(my, mx, ay, ax), *g.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
-                     i32(along), *c.parity(my, mx))
+            c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=along),
+                     mom, *cl.at(my, mx, ay, ax), *g.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
+                     *c.parity(my, mx))
             cy, cx = (across, 0) if d == "h" else (0, across)
             coef = c.new(12, my + cy, mx + cx)
-            c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1), coef,
-                     mom.buffer, i32(mom.width), i32(mom.width * mom.height), *cl.at(my + cy, mx + cx, cy, cx),
-                     *g.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(coef.width), i32(coef.height), i32(across),
-                     *c.parity(my + cy, mx + cx))
+            for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
+                c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
+                                  ARI_R=across, ARI_SET=line_set), coef,
+                         mom.buffer, i32(mom.width), i32(mom.width * mom.height), *cl.at(my + cy, mx + cx, cy, cx),
+                         *g.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(6 * line_set * coef.width * coef.height),
+                         i32(coef.width), i32(coef.height), *c.parity(my + cy, mx + cx))
             c.release(mom)
             t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
@@ -419,14 +421,14 @@ class DemosaicARI(Stage):
         h = p + q + (LAPLACIAN_RADIUS if mlri else 0)
         my, mx = _margin([guide, x], h, h)
         coef = c.new(3, my, mx)
-        c.launch(c.kernel("ari_diag_coefficients", ARI_MLRI=int(mlri)), coef, *guide.at(my, mx, h, h),
-                 *x.at(my, mx, h, h), coef.buffer, i32(coef.width), i32(coef.height), i32(p), i32(q),
-                 i32(STEPS[d][1]), *c.parity(my, mx), i32(known))
+        c.launch(c.kernel("ari_diag_coefficients", ARI_MLRI=int(mlri), ARI_P=p, ARI_Q=q, ARI_LS=STEPS[d][1],
+                                    ARI_KNOWN=known), coef, *guide.at(my, mx, h, h),
+                 *x.at(my, mx, h, h), coef.buffer, i32(coef.width), i32(coef.height), *c.parity(my, mx))
         r = p + q
         t = c.new(1, my + r, mx + r)
         cv = _View(coef, my, mx)
-        c.launch(c.kernel("ari_diag_apply"), t, *cv.at(my + r, mx + r, r, r), cv.stride(),
-                 *guide.at(my + r, mx + r), t.buffer, i32(t.width), i32(p), i32(q))
+        c.launch(c.kernel("ari_diag_apply", ARI_P=p, ARI_Q=q), t, *cv.at(my + r, mx + r, r, r), cv.stride(),
+                 *guide.at(my + r, mx + r), t.buffer, i32(t.width))
         c.release(coef)
         return _View(t, my + r, mx + r)
 
@@ -441,14 +443,14 @@ class DemosaicARI(Stage):
         ay, ax = (0, ra + lap) if d == "h" else (ra + lap, 0)
         my, mx = _margin([guide, x], ay, ax)
         mom = c.new(9 if mlri else 6, my, mx)
-        c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0), mom,
+        c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=ra), mom,
                  *guide.at(my, mx, ay, ax), *x.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
-                 i32(ra), *c.parity(my, mx))
+                 *c.parity(my, mx))
         cy, cx = (rc, 0) if d == "h" else (0, rc)
         coef = c.new(3, my + cy, mx + cx)
-        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0), coef,
-                 mom.buffer, i32(mom.width), i32(mom.width * mom.height), *guide.at(my + cy, mx + cx, cy, cx),
-                 *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(coef.width), i32(coef.height), i32(rc),
+        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc),
+                 coef, mom.buffer, i32(mom.width), i32(mom.width * mom.height), *guide.at(my + cy, mx + cx, cy, cx),
+                 *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(0), i32(coef.width), i32(coef.height),
                  *c.parity(my + cy, mx + cx))
         c.release(mom)
         t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, ra, rc, guide, x, False)
@@ -459,15 +461,15 @@ class DemosaicARI(Stage):
         """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
         fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
         dirn = 0 if d == "h" else 1
-        sums = enqueue_box(c.rt, coef, 0, along, release_src=True) if d == "h" else \
-            enqueue_box(c.rt, coef, along, 0, release_src=True)
+        sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
+            enqueue_box(c.rt, coef, along, 0, release_src=True, per_radius=True)
         sy, sx = (margin[0], margin[1] + along) if d == "h" else (margin[0] + along, margin[1])
         ty, tx = (sy + across, sx) if d == "h" else (sy, sx + across)
         t = c.new(2 if pair else 1, ty, tx)
         sv = _View(sums, sy, sx)
         hy, hx = (across, 0) if d == "h" else (0, across)
-        c.launch(c.kernel("ari_box_apply", ARI_DIR=dirn, ARI_PAIR=int(pair)), t, *sv.at(ty, tx, hy, hx), sv.stride(),
-                 *x.at(ty, tx), *y.at(ty, tx), t.buffer, i32(t.width), i32(t.height), i32(across), *c.parity(ty, tx))
+        c.launch(c.kernel("ari_box_apply", ARI_DIR=dirn, ARI_PAIR=int(pair), ARI_R=across), t, *sv.at(ty, tx, hy, hx),
+                 sv.stride(), *x.at(ty, tx), *y.at(ty, tx), t.buffer, i32(t.width), i32(t.height), *c.parity(ty, tx))
         c.release(sums)
         return t, ty, tx
 

@@ -56,23 +56,25 @@ def _plane_base(image: DeviceImage, plane: int) -> np.int32:
     return i32(plane * image.height * image.width)
 
 
-def enqueue_box(rt: Runtime, src: DeviceImage, ry: int, rx: int, release_src: bool = False) -> DeviceImage:
+def enqueue_box(rt: Runtime, src: DeviceImage, ry: int, rx: int, release_src: bool = False,
+                per_radius: bool = False) -> DeviceImage:
     """Window sums over (2ry+1) x (2rx+1) of every plane of src (box_x then box_y): C x H x W ->
     C x (H - 2ry) x (W - 2rx), output (i, j) <-> input (i + ry, j + rx). Halo ry, rx. A zero radius
     skips its pass; with both zero the source itself is returned. ``release_src``: give src back to
-    the pool once read (never the returned image)."""
+    the pool once read (never the returned image). ``per_radius``: one program per radius (GF_BOX_R:
+    the sum unrolls and PoCL vectorises it; for callers with few distinct radii, e.g. ARI)."""
     c, h, w = src.channels, src.height, src.width
     if h - 2 * ry < 1 or w - 2 * rx < 1:
         raise ClispError(f"box sums of radius ({ry}, {rx}) need more than {h} x {w} pixels")
     cur = src
     if rx:
         dst = rt.acquire(c, h, w - 2 * rx)
-        launch_exact(rt, rt.kernel("guided", "box_x"), w - 2 * rx, c * h, cur.buffer, dst.buffer, i32(rx), i32(w),
+        launch_exact(rt, rt.kernel("guided", "box_x", {"GF_BOX_R": rx} if per_radius else None), w - 2 * rx, c * h, cur.buffer, dst.buffer, i32(rx), i32(w),
                      i32(w - 2 * rx))
         cur, w = dst, w - 2 * rx
     if ry:
         dst = rt.acquire(c, h - 2 * ry, w)
-        launch_exact(rt, rt.kernel("guided", "box_y"), w, c * (h - 2 * ry), cur.buffer, dst.buffer, i32(ry), i32(w),
+        launch_exact(rt, rt.kernel("guided", "box_y", {"GF_BOX_R": ry} if per_radius else None), w, c * (h - 2 * ry), cur.buffer, dst.buffer, i32(ry), i32(w),
                      i32(h), i32(h - 2 * ry))
         if cur is not src:
             rt.release(cur)
