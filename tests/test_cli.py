@@ -189,3 +189,14 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
         assert expected in out, f"{expected!r} missing from the profile:\n{out}"
     total = float(next(line for line in out.splitlines() if "device total" in line).split()[-1])
     assert total > 0
+
+
+def test_cli_import_leaves_heavy_libraries_out() -> None:
+    """Start-up is part of every command's time (issue 11): importing the CLI must not pull in the
+    libraries only some commands or the study code need (scipy.ndimage alone cost 0.16 s)."""
+    import subprocess
+    import sys
+    heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy")
+    code = f"import sys, clisp.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert loaded == "", f"importing clisp.cli loads {loaded}"
