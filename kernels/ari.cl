@@ -37,6 +37,9 @@
 #ifndef ARI_SET
 #define ARI_SET 0
 #endif
+#ifndef ARI_FIT
+#define ARI_FIT 0
+#endif
 #ifndef ARI_P
 #define ARI_P 1
 #endif
@@ -234,24 +237,6 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
     return (s_xy * inv) / (s_xx * inv + ARI_EPS);
 }
 
-/* Weighted fits of one line set from its accumulated moments (centred on (cx, cy)) and Laplacian sums
- * l[0..5] (ARI_PAIR: G-site sums L(x) L(y), L(x)^2, count, chroma-site L(x) L(y), L(y)^2, count):
- * r[0..2] = a_g w, b_g w, w_g (y from x), r[3..5] = a_c w, b_c w, w_c (x from y). */
-__attribute__((always_inline)) inline void ari_pair_fits(const ari_moments *m, const float *l, const float cx, const float cy, float *r)
-{
-    float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
-#if ARI_MLRI
-    const float a_g = ari_lap_slope(l[0], l[1], l[2]);
-    const float a_c = ari_lap_slope(l[3], l[4], l[5]);
-#else
-    const float a_g = cov / (var_x + ARI_EPS);
-    const float a_c = cov / (var_y + ARI_EPS);
-#endif
-    ari_fit_values(a_g, mean_x, mean_y, var_x, var_y, cov, r);
-    ari_fit_values(a_c, mean_y, mean_x, var_y, var_x, cov, r + 3);
-}
-
 /* ari_across_coefficients: second pass of the window statistics, across the lines, radius r = ARI_R, then
  * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
  * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
@@ -285,7 +270,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     const int line0 = x + px;
 #endif
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float l[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float l[3] = {0.0f, 0.0f, 0.0f};
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j) {                /* every line, weighted 1 in set ARI_SET, else 0 */
         const int i = at0 + j * line_step;
@@ -293,15 +278,28 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
         ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, in_set);
 #if ARI_MLRI
 #pragma unroll
-        for (int t = 0; t < 6; ++t)
-            l[t] += in_set * rows[(6 + t) * rp + i];
+        for (int t = 0; t < 3; ++t)
+            l[t] += in_set * rows[(6 + 3 * ARI_FIT + t) * rp + i];
 #endif
     }
-    float f[6];
-    ari_pair_fits(&m, l, cx, cy, f);
+    float mean_x, mean_y, var_x, var_y, cov;
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    float f[3];
+#if ARI_MLRI
+    const float a = ari_lap_slope(l[0], l[1], l[2]);
+#elif ARI_FIT == 0
+    const float a = cov / (var_x + ARI_EPS);
+#else
+    const float a = cov / (var_y + ARI_EPS);
+#endif
+#if ARI_FIT == 0
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+#else
+    ari_fit_values(a, mean_y, mean_x, var_y, var_x, cov, f);
+#endif
     const int i = y * w + x, plane = w * h;
 #pragma unroll
-    for (int t = 0; t < 6; ++t)
+    for (int t = 0; t < 3; ++t)
         out[ob + t * plane + i] = f[t];
 #else
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};

@@ -312,11 +312,13 @@ class DemosaicARI(Stage):
             cy, cx = (across, 0) if d == "h" else (0, across)
             coef = c.new(12, my + cy, mx + cx)
             for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
-                c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
-                                  ARI_R=across, ARI_SET=line_set), coef,
-                         mom.buffer, i32(mom.width), i32(mom.width * mom.height), *cl.at(my + cy, mx + cx, cy, cx),
-                         *g.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(6 * line_set * coef.width * coef.height),
-                         i32(coef.width), i32(coef.height), *c.parity(my + cy, mx + cx))
+                for fit in (0, 1):                                  # G from chroma, chroma from G
+                    c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
+                                      ARI_R=across, ARI_SET=line_set, ARI_FIT=fit), coef,
+                             mom.buffer, i32(mom.width), i32(mom.width * mom.height),
+                             *cl.at(my + cy, mx + cx, cy, cx), *g.at(my + cy, mx + cx, cy, cx), coef.buffer,
+                             i32((6 * line_set + 3 * fit) * coef.width * coef.height), i32(coef.width),
+                             i32(coef.height), *c.parity(my + cy, mx + cx))
             c.release(mom)
             t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
