@@ -40,6 +40,18 @@
 #ifndef ARI_FIT
 #define ARI_FIT 0
 #endif
+#ifndef ARI_SY
+#define ARI_SY 0
+#endif
+#ifndef ARI_SX
+#define ARI_SX 1
+#endif
+#ifndef ARI_REGION
+#define ARI_REGION 0
+#endif
+#ifndef ARI_TARGET
+#define ARI_TARGET SITE_B
+#endif
 #ifndef ARI_P
 #define ARI_P 1
 #endif
@@ -402,73 +414,70 @@ __kernel void ari_green_residual(__global const float *restrict raw, const int r
 }
 
 /* ari_err_terms: the unsmoothed criterion terms of two fits, errors e_k = u_k - t_k (times the chroma
- * site mask when ``masked``: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
- * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (sy, sx)). Halo 1 along d. */
+ * site mask with ARI_REGION: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
+ * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (ARI_SY, ARI_SX)). Halo 1 along d. */
 __kernel void ari_err_terms(__global const float *restrict u1, const int u1b, const int u1p,
                             __global const float *restrict t1, const int t1b, const int t1p,
                             __global const float *restrict u2, const int u2b, const int u2p,
                             __global const float *restrict t2, const int t2b, const int t2p,
-                            __global float *restrict out, const int w, const int h, const int sy,
-                            const int sx, const int py, const int px, const int masked)
+                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     float e1[3], e2[3];
+#pragma unroll
     for (int k = -1; k <= 1; ++k) {
-        const int yy = y + k * sy, xx = x + k * sx;
-        const float m = masked ? ari_site(SITE_C, yy, xx, py, px) : 1.0f;
+        const int yy = y + k * ARI_SY, xx = x + k * ARI_SX;
+#if ARI_REGION
+        const float m = ari_site(SITE_C, yy, xx, py, px);
+#else
+        const float m = 1.0f;
+#endif
         e1[k + 1] = (u1[u1b + yy * u1p + xx] - t1[t1b + yy * t1p + xx]) * m;
         e2[k + 1] = (u2[u2b + yy * u2p + xx] - t2[t2b + yy * t2p + xx]) * m;
     }
-    out[y * w + x] = fabs(e1[1]) + fabs(e2[1]);
-    out[w * h + y * w + x] = fabs(e1[2] - e1[0]) + fabs(e2[2] - e2[0]);
+    out[y * w + x] = __builtin_fabsf(e1[1]) + __builtin_fabsf(e2[1]);
+    out[w * h + y * w + x] = __builtin_fabsf(e1[2] - e1[0]) + __builtin_fabsf(e2[2] - e2[0]);
 }
 
 /* ari_gauss_x: the criterion's 5-tap Gaussian (weights k0 centre, k1, k2) along x of the 2 planes of
- * src (view sb, pitch sp, plane stride ss). ``region`` (step 2): a third plane, the same smoothing of
+ * src (view sb, pitch sp, plane stride ss). ARI_REGION (step 2): a third plane, the same smoothing of
  * the chroma site mask. Halo 2 along x. */
 __kernel void ari_gauss_x(__global const float *restrict src, const int sb, const int sp, const int ss,
                           __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px, const int region)
+                          const float k1, const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const float k[5] = {k2, k1, k0, k1, k2};
-    for (int p = 0; p < 2; ++p) {
-        __global const float *s = src + sb + p * ss + y * sp + x;
-        float acc = 0.0f;
-        for (int t = -2; t <= 2; ++t)
-            acc += k[t + 2] * s[t];
-        out[p * w * h + y * w + x] = acc;
-    }
-    if (region) {
-        float acc = 0.0f;
-        for (int t = -2; t <= 2; ++t)
-            acc += k[t + 2] * ari_site(SITE_C, y, x + t, py, px);
-        out[2 * w * h + y * w + x] = acc;
-    }
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    out[y * w + x] = k2 * (s0[-2] + s0[2]) + k1 * (s0[-1] + s0[1]) + k0 * s0[0];
+    out[w * h + y * w + x] = k2 * (s1[-2] + s1[2]) + k1 * (s1[-1] + s1[1]) + k0 * s1[0];
+#if ARI_REGION
+    /* the chroma sites alternate along every row: taps at even offsets share the centre's kind, odd
+     * ones that of x + 1 */
+    const float mc = ari_site(SITE_C, y, x, py, px), mo = ari_site(SITE_C, y, x + 1, py, px);
+    out[2 * w * h + y * w + x] = 2.0f * k2 * mc + 2.0f * k1 * mo + k0 * mc;
+#endif
 }
 
-/* ari_gauss_y: the same along y, then (``region``) each plane divided by the smoothed mask and
+/* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
  * multiplied by the mask (bayer_ri._criterion's normalisation). Out planes: smoothed c, smoothed g.
  * Halo 2 along y. */
 __kernel void ari_gauss_y(__global const float *restrict src, const int sb, const int sp, const int ss,
                           __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px, const int region)
+                          const float k1, const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const float k[5] = {k2, k1, k0, k1, k2};
-    float acc[3] = {0.0f, 0.0f, 0.0f};
-    for (int p = 0; p < 2 + (region ? 1 : 0); ++p) {
-        __global const float *s = src + sb + p * ss + y * sp + x;
-        for (int t = -2; t <= 2; ++t)
-            acc[p] += k[t + 2] * s[t * sp];
-    }
-    if (region) {
-        const float m = ari_site(SITE_C, y, x, py, px);
-        acc[0] = acc[0] / acc[2] * m;
-        acc[1] = acc[1] / acc[2] * m;
-    }
-    out[y * w + x] = acc[0];
-    out[w * h + y * w + x] = acc[1];
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    float a0 = k2 * (s0[-2 * sp] + s0[2 * sp]) + k1 * (s0[-sp] + s0[sp]) + k0 * s0[0];
+    float a1 = k2 * (s1[-2 * sp] + s1[2 * sp]) + k1 * (s1[-sp] + s1[sp]) + k0 * s1[0];
+#if ARI_REGION
+    __global const float *s2 = s1 + ss;
+    const float a2 = k2 * (s2[-2 * sp] + s2[2 * sp]) + k1 * (s2[-sp] + s2[sp]) + k0 * s2[0];
+    const float m = ari_site(SITE_C, y, x, py, px);
+    a0 = a0 / a2 * m;
+    a1 = a1 / a2 * m;
+#endif
+    out[y * w + x] = a0;
+    out[w * h + y * w + x] = a1;
 }
 
 /* ari_select: one iteration's selection: crit = c^2 g from the smoothed terms (view cb, plane stride
@@ -520,34 +529,34 @@ __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2),
     out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : num / den;
 }
 
-/* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = known sites
- * ? src : 0; out = target sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
+/* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
+ * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
 __kernel void ari_chroma_start(__global const float *restrict src, const int sb, const int sp,
                                __global float *restrict out, const int w, const int sy, const int sx,
-                               const int py, const int px, const int known, const int target)
+                               const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const int at = sb + y * sp + x, s = sy * sp + sx;
-    const float vm = ari_site(known, y - sy, x - sx, py, px) * src[at - s];
-    const float vp = ari_site(known, y + sy, x + sx, py, px) * src[at + s];
-    const float v = ari_site(known, y, x, py, px) * src[at];
-    out[y * w + x] = ari_site(target, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
+    const float vm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * src[at - s];
+    const float vp = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * src[at + s];
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
 }
 
-/* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the known
- * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = target ? t + residual : v.
+/* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the ARI_KNOWN
+ * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = ARI_TARGET ? t + residual : v.
  * Halo 1 along d. */
 __kernel void ari_chroma_residual(__global const float *restrict src, const int sb, const int sp,
                                   __global const float *restrict ts, const int tb, const int tp,
                                   __global float *restrict out, const int w, const int sy, const int sx,
-                                  const int py, const int px, const int known, const int target)
+                                  const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const int at = sb + y * sp + x, s = sy * sp + sx, ta = tb + y * tp + x, st = sy * tp + sx;
-    const float rm = ari_site(known, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
-    const float rpl = ari_site(known, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
-    const float v = ari_site(known, y, x, py, px) * src[at];
-    out[y * w + x] = ari_site(target, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
+    const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
+    const float rpl = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
 }
 
 /* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
