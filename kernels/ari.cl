@@ -227,18 +227,23 @@ __attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global
     m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
 }
 
-/* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
-__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
-                      float *var_x, float *var_y, float *cov)
+/* Means, variances and covariance of accumulated moments centred on (cx, cy), given inv = 1 / max(N, 1). */
+__attribute__((always_inline)) inline void ari_stats_inv(const ari_moments *m, const float inv, const float cx, const float cy,
+                          float *mean_x, float *mean_y, float *var_x, float *var_y, float *cov)
 {
-    const float nn = m->n > 1.0f ? m->n : 1.0f;
-    const float inv = 1.0f / nn;
     const float md = m->s1x * inv, me = m->s1y * inv;
     *mean_x = cx * (m->n * inv) + md;
     *mean_y = cy * (m->n * inv) + me;
     *var_x = m->s2x * inv - md * md;
     *var_y = m->s2y * inv - me * me;
     *cov = m->sxy * inv - md * me;
+}
+
+/* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
+__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
+                      float *var_x, float *var_y, float *cov)
+{
+    ari_stats_inv(m, 1.0f / (m->n > 1.0f ? m->n : 1.0f), cx, cy, mean_x, mean_y, var_x, var_y, cov);
 }
 
 /* MLRI slope: (s_xy / n) / (s_xx / n + eps), n = max(count, 1) (the floor of the mean squared
@@ -585,7 +590,6 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             const int dy = i + j, dx = i - j;
             const float xv = xc[dy * xp + dx], yv = yc[dy * yp + dx];
             const float d = m * (xv - cx), e = m * (yv - cy);
-            n += m;
             sd += d;
             se += e;
             sdd += d * d;
@@ -600,12 +604,19 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             l_n += lm;
 #endif
         }
+    n = m * (float)((2 * ARI_P + 1) * (2 * ARI_Q + 1));        /* not summed in the loop: see below */
     ari_moments mo = {n, sd, se, sdd, see, sde};
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
-    const float a = ari_lap_slope(l_xy, l_xx, l_n);
+    /* one division for 1 / max(n, 1) and the slope (l_xy / ln) / (l_xx / ln + eps) = l_xy / (l_xx + eps ln),
+     * ln = max(l_n, 1): two would be SLP-packed into a <2 x float> division, which keeps PoCL from
+     * vectorising the kernel across work-items */
+    const float nn = n > 1.0f ? n : 1.0f, ln = l_n > 1.0f ? l_n : 1.0f;
+    const float den = l_xx + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&mo, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l_xy * nn * r;
 #else
+    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
     const float a = cov / (var_x + ARI_EPS);
 #endif
     float f[3];
