@@ -16,11 +16,18 @@
  *
  * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
  * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
- * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: both fits of a line pair, statistics
- * per line set), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
- * diagonal kernels' lattice radii, direction and Laplacian sites). The radii are compile-time so that
+ * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
+ * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
+ * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
+ * window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the diagonal kernels' lattice
+ * radii, direction and Laplacian sites). The radii are compile-time so that
  * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
- * straight-line code (a loop of runtime trip count inside it keeps it scalar). */
+ * straight-line code (a loop of runtime trip count inside it keeps it scalar), and so are the modes.
+ * Check with POCL_KERNEL_CACHE=0 POCL_VECTORIZER_REMARKS=1 ("vectorized loop (vectorization width: 8"
+ * after the kernel's "_workgroup" inlining remark); "instruction return type cannot be vectorized"
+ * means LLVM's SLP vectoriser packed two alike computations of one work-item into a <2 x float> first
+ * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
+ * make them unalike or split them into separate programs. */
 
 #ifndef ARI_DIR
 #define ARI_DIR 0
@@ -259,11 +266,13 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
  * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
  * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
  * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
- * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity), every line
- * weighted by its 0 / 1 membership (straight-line code: PoCL vectorises it; the host launches one
- * program per set), the fit of y (G line) from x (chroma line) and of x from y, 6 planes: a_g w, b_g w,
- * w_g, a_c w, b_c w, w_c. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across
- * the lines. */
+ * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity): the lines
+ * at even and at odd offsets j are summed apart (no branch: j is compile-time), then each pixel takes
+ * the sums of its set's parity; ARI_FIT 0: the fit of y (G line) from x (chroma line), planes a_g w,
+ * b_g w, w_g; 1: of x from y, a_c w, b_c w, w_c (one fit per program: two alike fits in one body are
+ * SLP-packed into <2 x float> operations, which keeps PoCL from vectorising across work-items; the
+ * host launches the 4 (set, fit) programs into planes 0-2, 3-5, 6-8, 9-11). Else (step 3): every
+ * line, the fit of y from x, 3 planes. Halo r across the lines. */
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
                                       __global const float *restrict xs, const int xb, const int xp,
                                       __global const float *restrict ys, const int yb, const int yp,
@@ -286,19 +295,40 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 #else
     const int line0 = x + px;
 #endif
-    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float l[3] = {0.0f, 0.0f, 0.0f};
+    /* the lines j = -r, -r + 2, ... (a) and j = -r + 1, ... (b), then those of set ARI_SET */
+    ari_moments ma = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mb = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float la[3] = {0.0f, 0.0f, 0.0f}, lb[3] = {0.0f, 0.0f, 0.0f};
 #pragma unroll
-    for (int j = -ARI_R; j <= ARI_R; ++j) {                /* every line, weighted 1 in set ARI_SET, else 0 */
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        const float in_set = ((line0 + j) & 1) == ARI_SET ? 1.0f : 0.0f;
-        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, in_set);
+        const int in_a = ((j + ARI_R) & 1) == 0;
+        const float dx = xs[xa + j * xstep] - cx, dy = ys[ya + j * ystep] - cy;
+        if (in_a)
+            ari_add_line(&ma, rows, i, rp, dx, dy, 1.0f);
+        else
+            ari_add_line(&mb, rows, i, rp, dx, dy, 1.0f);
 #if ARI_MLRI
 #pragma unroll
-        for (int t = 0; t < 3; ++t)
-            l[t] += in_set * rows[(6 + 3 * ARI_FIT + t) * rp + i];
+        for (int t = 0; t < 3; ++t) {
+            if (in_a)
+                la[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+            else
+                lb[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+        }
 #endif
     }
+    const int use_a = ((line0 + ARI_R) & 1) == ARI_SET;
+    ari_moments m;
+    m.n = use_a ? ma.n : mb.n;
+    m.s1x = use_a ? ma.s1x : mb.s1x;
+    m.s1y = use_a ? ma.s1y : mb.s1y;
+    m.s2x = use_a ? ma.s2x : mb.s2x;
+    m.s2y = use_a ? ma.s2y : mb.s2y;
+    m.sxy = use_a ? ma.sxy : mb.sxy;
+    float l[3];
+#pragma unroll
+    for (int t = 0; t < 3; ++t)
+        l[t] = use_a ? la[t] : lb[t];
     float mean_x, mean_y, var_x, var_y, cov;
     ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
     float f[3];

@@ -20,7 +20,8 @@ offset inside the input window; the host checks every read stays inside its inpu
   step 1, per direction d in (h, v) and kind k in (RI, MLRI), ``green_iterations`` iterations, window
   (along, across) radii growing by 1 from (2, 1) (RI) / (4, 0) (MLRI):
     ari_along_moments       centred moments along the line (+ MLRI's Laplacian moments)  r_along (+2)
-    ari_across_coefficients per line set (R lines, B lines) the two weighted fits        r_across
+    ari_across_coefficients per line set (R lines, B lines) and fit (G from chroma,      r_across
+                            chroma from G) the weighted fit: 4 launches
     box_x (h) / box_y (v)   sums of the 12 coefficient planes along the lines            r_along
     ari_box_apply           their sums across the lines, the tentative G line t_g and    r_across
                             chroma line t_c (each pixel's own line set)
