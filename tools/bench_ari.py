@@ -20,6 +20,19 @@ four weighted fits with sqrt and divisions per pixel, 12 moment planes read over
 window), ari_box_apply 37 s, ari_diag_coefficients 28 s, ari_along_moments 25 + 5 s, box_x / box_y
 20 + 17 s, criterion kernels (err_terms, gauss_x/y, select) ~36 s. The halo (121 px) costs 2.2x in
 window pixels at this band height.
+
+Measured (commit 8677181 against c03fc4e, back to back, twice; same PoCL on the same 2 EPYC cores,
+shared: load average ~5 from other sessions during the runs, so absolute figures are ~1.8x those of
+an idle machine; compare only back-to-back pairs), --shape 1000x1500 --repeat 2 --skip-dlmmse --profile
+(one 742 x 1742 window):
+    c03fc4e   11.10 s / 11.72 s   0.14 / 0.13 MP/s   device 11.08 / 10.79 s
+    8677181    5.71 s /  6.57 s   0.26 / 0.23 MP/s   device  5.00 /  5.88 s   (1.8-1.9x)
+(idle machine, c03fc4e alone: 6.42 s, 0.23 MP/s, device 5.30 s.) Device time by step (8677181, first
+pair): step 1 3.70 s (74%; c03fc4e 7.82 s), step 2 0.56 s (1.88), step 3 0.74 s (1.37). Top kernels:
+ari_across_coefficients 1.59 + 0.35 s (four single-fit launches per step-1 iteration, now vectorised),
+ari_box_apply 0.47 s, ari_along_moments 0.38 + 0.13 s, ari_select 0.30 s, box_x / box_y 0.28 + 0.28 s,
+ari_diag_coefficients 0.21 s; the criterion kernels (err_terms, gauss_x/y) ~0.3 s in all. Every ARI
+kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS, see kernels/ari.cl's header).
 """
 from __future__ import annotations
 
