@@ -356,15 +356,20 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
         const int i = at0 + j * line_step;
         ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
 #if ARI_MLRI
+#pragma unroll
         for (int t = 0; t < 3; ++t)
             l[t] += rows[(6 + t) * rp + i];
 #endif
     }
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
-    const float a = ari_lap_slope(l[0], l[1], l[2]);
+    /* one division for 1 / max(n, 1) and the slope, as in ari_diag_coefficients (two are SLP-packed) */
+    const float nn = m.n > 1.0f ? m.n : 1.0f, ln = l[2] > 1.0f ? l[2] : 1.0f;
+    const float den = l[1] + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&m, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l[0] * nn * r;
 #else
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
     const float a = cov / (var_x + ARI_EPS);
 #endif
     float f[3];
