@@ -21,18 +21,18 @@ window), ari_box_apply 37 s, ari_diag_coefficients 28 s, ari_along_moments 25 + 
 20 + 17 s, criterion kernels (err_terms, gauss_x/y, select) ~36 s. The halo (121 px) costs 2.2x in
 window pixels at this band height.
 
-Measured (commit 8677181 against c03fc4e, back to back, twice; same PoCL on the same 2 EPYC cores,
-shared: load average ~5 from other sessions during the runs, so absolute figures are ~1.8x those of
-an idle machine; compare only back-to-back pairs), --shape 1000x1500 --repeat 2 --skip-dlmmse --profile
-(one 742 x 1742 window):
-    c03fc4e   11.10 s / 11.72 s   0.14 / 0.13 MP/s   device 11.08 / 10.79 s
-    8677181    5.71 s /  6.57 s   0.26 / 0.23 MP/s   device  5.00 /  5.88 s   (1.8-1.9x)
-(idle machine, c03fc4e alone: 6.42 s, 0.23 MP/s, device 5.30 s.) Device time by step (8677181, first
-pair): step 1 3.70 s (74%; c03fc4e 7.82 s), step 2 0.56 s (1.88), step 3 0.74 s (1.37). Top kernels:
-ari_across_coefficients 1.59 + 0.35 s (four single-fit launches per step-1 iteration, now vectorised),
-ari_box_apply 0.47 s, ari_along_moments 0.38 + 0.13 s, ari_select 0.30 s, box_x / box_y 0.28 + 0.28 s,
-ari_diag_coefficients 0.21 s; the criterion kernels (err_terms, gauss_x/y) ~0.3 s in all. Every ARI
-kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS, see kernels/ari.cl's header).
+Measured (commit a2ec1fd against c03fc4e, back to back, twice; same PoCL on the same 2 EPYC cores,
+shared with other sessions: load average 1.4-1.8 during the runs; under load ~5 an earlier pair ran
+~1.7x slower, so compare only back-to-back pairs), --shape 1000x1500 --repeat 2 --skip-dlmmse
+--profile (one 742 x 1742 window):
+    c03fc4e   6.85 s / 6.25 s   0.22 / 0.24 MP/s   device 6.19 / 5.99 s
+    a2ec1fd   3.72 s / 4.01 s   0.40 / 0.37 MP/s   device 2.98 / 3.31 s   (wall 1.6-1.8x, device 1.8-2.1x)
+Device time by step (a2ec1fd, first pair): step 1 2.26 s (76%; c03fc4e 4.27 s), step 2 0.35 s
+(1.11), step 3 0.37 s (0.81). Top kernels: ari_across_coefficients 0.94 s (step 1: four single-fit
+launches per iteration), ari_box_apply 0.27 s, ari_along_moments 0.23 s, ari_select 0.21 s, box_x /
+box_y 0.17 + 0.16 s, ari_diag_coefficients 0.12 s; the criterion's err_terms + gauss_x/y 0.28 s in
+all three steps. Every ARI kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS: kernels/ari.cl's
+header says how to check).
 """
 from __future__ import annotations
 
