@@ -16,11 +16,18 @@
  *
  * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
  * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
- * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: both fits of a line pair, statistics
- * per line set), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
- * diagonal kernels' lattice radii, direction and Laplacian sites). The radii are compile-time so that
+ * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
+ * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
+ * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
+ * window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the diagonal kernels' lattice
+ * radii, direction and Laplacian sites). The radii are compile-time so that
  * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
- * straight-line code (a loop of runtime trip count inside it keeps it scalar). */
+ * straight-line code (a loop of runtime trip count inside it keeps it scalar), and so are the modes.
+ * Check with POCL_KERNEL_CACHE=0 POCL_VECTORIZER_REMARKS=1 ("vectorized loop (vectorization width: 8"
+ * after the kernel's "_workgroup" inlining remark); "instruction return type cannot be vectorized"
+ * means LLVM's SLP vectoriser packed two alike computations of one work-item into a <2 x float> first
+ * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
+ * make them unalike or split them into separate programs. */
 
 #ifndef ARI_DIR
 #define ARI_DIR 0
@@ -36,6 +43,21 @@
 #endif
 #ifndef ARI_SET
 #define ARI_SET 0
+#endif
+#ifndef ARI_FIT
+#define ARI_FIT 0
+#endif
+#ifndef ARI_SY
+#define ARI_SY 0
+#endif
+#ifndef ARI_SX
+#define ARI_SX 1
+#endif
+#ifndef ARI_REGION
+#define ARI_REGION 0
+#endif
+#ifndef ARI_TARGET
+#define ARI_TARGET SITE_B
 #endif
 #ifndef ARI_P
 #define ARI_P 1
@@ -212,18 +234,23 @@ __attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global
     m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
 }
 
-/* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
-__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
-                      float *var_x, float *var_y, float *cov)
+/* Means, variances and covariance of accumulated moments centred on (cx, cy), given inv = 1 / max(N, 1). */
+__attribute__((always_inline)) inline void ari_stats_inv(const ari_moments *m, const float inv, const float cx, const float cy,
+                          float *mean_x, float *mean_y, float *var_x, float *var_y, float *cov)
 {
-    const float nn = m->n > 1.0f ? m->n : 1.0f;
-    const float inv = 1.0f / nn;
     const float md = m->s1x * inv, me = m->s1y * inv;
     *mean_x = cx * (m->n * inv) + md;
     *mean_y = cy * (m->n * inv) + me;
     *var_x = m->s2x * inv - md * md;
     *var_y = m->s2y * inv - me * me;
     *cov = m->sxy * inv - md * me;
+}
+
+/* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
+__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
+                      float *var_x, float *var_y, float *cov)
+{
+    ari_stats_inv(m, 1.0f / (m->n > 1.0f ? m->n : 1.0f), cx, cy, mean_x, mean_y, var_x, var_y, cov);
 }
 
 /* MLRI slope: (s_xy / n) / (s_xx / n + eps), n = max(count, 1) (the floor of the mean squared
@@ -234,34 +261,18 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
     return (s_xy * inv) / (s_xx * inv + ARI_EPS);
 }
 
-/* Weighted fits of one line set from its accumulated moments (centred on (cx, cy)) and Laplacian sums
- * l[0..5] (ARI_PAIR: G-site sums L(x) L(y), L(x)^2, count, chroma-site L(x) L(y), L(y)^2, count):
- * r[0..2] = a_g w, b_g w, w_g (y from x), r[3..5] = a_c w, b_c w, w_c (x from y). */
-__attribute__((always_inline)) inline void ari_pair_fits(const ari_moments *m, const float *l, const float cx, const float cy, float *r)
-{
-    float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
-#if ARI_MLRI
-    const float a_g = ari_lap_slope(l[0], l[1], l[2]);
-    const float a_c = ari_lap_slope(l[3], l[4], l[5]);
-#else
-    const float a_g = cov / (var_x + ARI_EPS);
-    const float a_c = cov / (var_y + ARI_EPS);
-#endif
-    ari_fit_values(a_g, mean_x, mean_y, var_x, var_y, cov, r);
-    ari_fit_values(a_c, mean_y, mean_x, var_y, var_x, cov, r + 3);
-}
-
 /* ari_across_coefficients: second pass of the window statistics, across the lines, radius r = ARI_R, then
  * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
  * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
  * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
  * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
- * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity), every line
- * weighted by its 0 / 1 membership (straight-line code: PoCL vectorises it; the host launches one
- * program per set), the fit of y (G line) from x (chroma line) and of x from y, 6 planes: a_g w, b_g w,
- * w_g, a_c w, b_c w, w_c. Else (step 3): every line, the fit of y from x, 3 planes. Halo r across
- * the lines. */
+ * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity): the lines
+ * at even and at odd offsets j are summed apart (no branch: j is compile-time), then each pixel takes
+ * the sums of its set's parity; ARI_FIT 0: the fit of y (G line) from x (chroma line), planes a_g w,
+ * b_g w, w_g; 1: of x from y, a_c w, b_c w, w_c (one fit per program: two alike fits in one body are
+ * SLP-packed into <2 x float> operations, which keeps PoCL from vectorising across work-items; the
+ * host launches the 4 (set, fit) programs into planes 0-2, 3-5, 6-8, 9-11). Else (step 3): every
+ * line, the fit of y from x, 3 planes. Halo r across the lines. */
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
                                       __global const float *restrict xs, const int xb, const int xp,
                                       __global const float *restrict ys, const int yb, const int yp,
@@ -284,24 +295,58 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 #else
     const int line0 = x + px;
 #endif
-    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float l[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    /* the lines j = -r, -r + 2, ... (a) and j = -r + 1, ... (b), then those of set ARI_SET */
+    ari_moments ma = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mb = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float la[3] = {0.0f, 0.0f, 0.0f}, lb[3] = {0.0f, 0.0f, 0.0f};
 #pragma unroll
-    for (int j = -ARI_R; j <= ARI_R; ++j) {                /* every line, weighted 1 in set ARI_SET, else 0 */
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        const float in_set = ((line0 + j) & 1) == ARI_SET ? 1.0f : 0.0f;
-        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, in_set);
+        const int in_a = ((j + ARI_R) & 1) == 0;
+        const float dx = xs[xa + j * xstep] - cx, dy = ys[ya + j * ystep] - cy;
+        if (in_a)
+            ari_add_line(&ma, rows, i, rp, dx, dy, 1.0f);
+        else
+            ari_add_line(&mb, rows, i, rp, dx, dy, 1.0f);
 #if ARI_MLRI
 #pragma unroll
-        for (int t = 0; t < 6; ++t)
-            l[t] += in_set * rows[(6 + t) * rp + i];
+        for (int t = 0; t < 3; ++t) {
+            if (in_a)
+                la[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+            else
+                lb[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+        }
 #endif
     }
-    float f[6];
-    ari_pair_fits(&m, l, cx, cy, f);
+    const int use_a = ((line0 + ARI_R) & 1) == ARI_SET;
+    ari_moments m;
+    m.n = use_a ? ma.n : mb.n;
+    m.s1x = use_a ? ma.s1x : mb.s1x;
+    m.s1y = use_a ? ma.s1y : mb.s1y;
+    m.s2x = use_a ? ma.s2x : mb.s2x;
+    m.s2y = use_a ? ma.s2y : mb.s2y;
+    m.sxy = use_a ? ma.sxy : mb.sxy;
+    float l[3];
+#pragma unroll
+    for (int t = 0; t < 3; ++t)
+        l[t] = use_a ? la[t] : lb[t];
+    float mean_x, mean_y, var_x, var_y, cov;
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    float f[3];
+#if ARI_MLRI
+    const float a = ari_lap_slope(l[0], l[1], l[2]);
+#elif ARI_FIT == 0
+    const float a = cov / (var_x + ARI_EPS);
+#else
+    const float a = cov / (var_y + ARI_EPS);
+#endif
+#if ARI_FIT == 0
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+#else
+    ari_fit_values(a, mean_y, mean_x, var_y, var_x, cov, f);
+#endif
     const int i = y * w + x, plane = w * h;
 #pragma unroll
-    for (int t = 0; t < 6; ++t)
+    for (int t = 0; t < 3; ++t)
         out[ob + t * plane + i] = f[t];
 #else
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
@@ -311,15 +356,20 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
         const int i = at0 + j * line_step;
         ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
 #if ARI_MLRI
+#pragma unroll
         for (int t = 0; t < 3; ++t)
             l[t] += rows[(6 + t) * rp + i];
 #endif
     }
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
-    const float a = ari_lap_slope(l[0], l[1], l[2]);
+    /* one division for 1 / max(n, 1) and the slope, as in ari_diag_coefficients (two are SLP-packed) */
+    const float nn = m.n > 1.0f ? m.n : 1.0f, ln = l[2] > 1.0f ? l[2] : 1.0f;
+    const float den = l[1] + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&m, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l[0] * nn * r;
 #else
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
     const float a = cov / (var_x + ARI_EPS);
 #endif
     float f[3];
@@ -404,73 +454,70 @@ __kernel void ari_green_residual(__global const float *restrict raw, const int r
 }
 
 /* ari_err_terms: the unsmoothed criterion terms of two fits, errors e_k = u_k - t_k (times the chroma
- * site mask when ``masked``: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
- * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (sy, sx)). Halo 1 along d. */
+ * site mask with ARI_REGION: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
+ * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (ARI_SY, ARI_SX)). Halo 1 along d. */
 __kernel void ari_err_terms(__global const float *restrict u1, const int u1b, const int u1p,
                             __global const float *restrict t1, const int t1b, const int t1p,
                             __global const float *restrict u2, const int u2b, const int u2p,
                             __global const float *restrict t2, const int t2b, const int t2p,
-                            __global float *restrict out, const int w, const int h, const int sy,
-                            const int sx, const int py, const int px, const int masked)
+                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     float e1[3], e2[3];
+#pragma unroll
     for (int k = -1; k <= 1; ++k) {
-        const int yy = y + k * sy, xx = x + k * sx;
-        const float m = masked ? ari_site(SITE_C, yy, xx, py, px) : 1.0f;
+        const int yy = y + k * ARI_SY, xx = x + k * ARI_SX;
+#if ARI_REGION
+        const float m = ari_site(SITE_C, yy, xx, py, px);
+#else
+        const float m = 1.0f;
+#endif
         e1[k + 1] = (u1[u1b + yy * u1p + xx] - t1[t1b + yy * t1p + xx]) * m;
         e2[k + 1] = (u2[u2b + yy * u2p + xx] - t2[t2b + yy * t2p + xx]) * m;
     }
-    out[y * w + x] = fabs(e1[1]) + fabs(e2[1]);
-    out[w * h + y * w + x] = fabs(e1[2] - e1[0]) + fabs(e2[2] - e2[0]);
+    out[y * w + x] = __builtin_fabsf(e1[1]) + __builtin_fabsf(e2[1]);
+    out[w * h + y * w + x] = __builtin_fabsf(e1[2] - e1[0]) + __builtin_fabsf(e2[2] - e2[0]);
 }
 
 /* ari_gauss_x: the criterion's 5-tap Gaussian (weights k0 centre, k1, k2) along x of the 2 planes of
- * src (view sb, pitch sp, plane stride ss). ``region`` (step 2): a third plane, the same smoothing of
+ * src (view sb, pitch sp, plane stride ss). ARI_REGION (step 2): a third plane, the same smoothing of
  * the chroma site mask. Halo 2 along x. */
 __kernel void ari_gauss_x(__global const float *restrict src, const int sb, const int sp, const int ss,
                           __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px, const int region)
+                          const float k1, const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const float k[5] = {k2, k1, k0, k1, k2};
-    for (int p = 0; p < 2; ++p) {
-        __global const float *s = src + sb + p * ss + y * sp + x;
-        float acc = 0.0f;
-        for (int t = -2; t <= 2; ++t)
-            acc += k[t + 2] * s[t];
-        out[p * w * h + y * w + x] = acc;
-    }
-    if (region) {
-        float acc = 0.0f;
-        for (int t = -2; t <= 2; ++t)
-            acc += k[t + 2] * ari_site(SITE_C, y, x + t, py, px);
-        out[2 * w * h + y * w + x] = acc;
-    }
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    out[y * w + x] = k2 * (s0[-2] + s0[2]) + k1 * (s0[-1] + s0[1]) + k0 * s0[0];
+    out[w * h + y * w + x] = k2 * (s1[-2] + s1[2]) + k1 * (s1[-1] + s1[1]) + k0 * s1[0];
+#if ARI_REGION
+    /* the chroma sites alternate along every row: taps at even offsets share the centre's kind, odd
+     * ones that of x + 1 */
+    const float mc = ari_site(SITE_C, y, x, py, px), mo = ari_site(SITE_C, y, x + 1, py, px);
+    out[2 * w * h + y * w + x] = 2.0f * k2 * mc + 2.0f * k1 * mo + k0 * mc;
+#endif
 }
 
-/* ari_gauss_y: the same along y, then (``region``) each plane divided by the smoothed mask and
+/* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
  * multiplied by the mask (bayer_ri._criterion's normalisation). Out planes: smoothed c, smoothed g.
  * Halo 2 along y. */
 __kernel void ari_gauss_y(__global const float *restrict src, const int sb, const int sp, const int ss,
                           __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px, const int region)
+                          const float k1, const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const float k[5] = {k2, k1, k0, k1, k2};
-    float acc[3] = {0.0f, 0.0f, 0.0f};
-    for (int p = 0; p < 2 + (region ? 1 : 0); ++p) {
-        __global const float *s = src + sb + p * ss + y * sp + x;
-        for (int t = -2; t <= 2; ++t)
-            acc[p] += k[t + 2] * s[t * sp];
-    }
-    if (region) {
-        const float m = ari_site(SITE_C, y, x, py, px);
-        acc[0] = acc[0] / acc[2] * m;
-        acc[1] = acc[1] / acc[2] * m;
-    }
-    out[y * w + x] = acc[0];
-    out[w * h + y * w + x] = acc[1];
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    float a0 = k2 * (s0[-2 * sp] + s0[2 * sp]) + k1 * (s0[-sp] + s0[sp]) + k0 * s0[0];
+    float a1 = k2 * (s1[-2 * sp] + s1[2 * sp]) + k1 * (s1[-sp] + s1[sp]) + k0 * s1[0];
+#if ARI_REGION
+    __global const float *s2 = s1 + ss;
+    const float a2 = k2 * (s2[-2 * sp] + s2[2 * sp]) + k1 * (s2[-sp] + s2[sp]) + k0 * s2[0];
+    const float m = ari_site(SITE_C, y, x, py, px);
+    a0 = a0 / a2 * m;
+    a1 = a1 / a2 * m;
+#endif
+    out[y * w + x] = a0;
+    out[w * h + y * w + x] = a1;
 }
 
 /* ari_select: one iteration's selection: crit = c^2 g from the smoothed terms (view cb, plane stride
@@ -522,34 +569,34 @@ __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2),
     out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : num / den;
 }
 
-/* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = known sites
- * ? src : 0; out = target sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
+/* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
+ * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
 __kernel void ari_chroma_start(__global const float *restrict src, const int sb, const int sp,
                                __global float *restrict out, const int w, const int sy, const int sx,
-                               const int py, const int px, const int known, const int target)
+                               const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const int at = sb + y * sp + x, s = sy * sp + sx;
-    const float vm = ari_site(known, y - sy, x - sx, py, px) * src[at - s];
-    const float vp = ari_site(known, y + sy, x + sx, py, px) * src[at + s];
-    const float v = ari_site(known, y, x, py, px) * src[at];
-    out[y * w + x] = ari_site(target, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
+    const float vm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * src[at - s];
+    const float vp = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * src[at + s];
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
 }
 
-/* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the known
- * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = target ? t + residual : v.
+/* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the ARI_KNOWN
+ * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = ARI_TARGET ? t + residual : v.
  * Halo 1 along d. */
 __kernel void ari_chroma_residual(__global const float *restrict src, const int sb, const int sp,
                                   __global const float *restrict ts, const int tb, const int tp,
                                   __global float *restrict out, const int w, const int sy, const int sx,
-                                  const int py, const int px, const int known, const int target)
+                                  const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const int at = sb + y * sp + x, s = sy * sp + sx, ta = tb + y * tp + x, st = sy * tp + sx;
-    const float rm = ari_site(known, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
-    const float rpl = ari_site(known, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
-    const float v = ari_site(known, y, x, py, px) * src[at];
-    out[y * w + x] = ari_site(target, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
+    const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
+    const float rpl = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
 }
 
 /* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
@@ -578,7 +625,6 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             const int dy = i + j, dx = i - j;
             const float xv = xc[dy * xp + dx], yv = yc[dy * yp + dx];
             const float d = m * (xv - cx), e = m * (yv - cy);
-            n += m;
             sd += d;
             se += e;
             sdd += d * d;
@@ -593,12 +639,19 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             l_n += lm;
 #endif
         }
+    n = m * (float)((2 * ARI_P + 1) * (2 * ARI_Q + 1));        /* not summed in the loop: see below */
     ari_moments mo = {n, sd, se, sdd, see, sde};
     float mean_x, mean_y, var_x, var_y, cov;
-    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
 #if ARI_MLRI
-    const float a = ari_lap_slope(l_xy, l_xx, l_n);
+    /* one division for 1 / max(n, 1) and the slope (l_xy / ln) / (l_xx / ln + eps) = l_xy / (l_xx + eps ln),
+     * ln = max(l_n, 1): two would be SLP-packed into a <2 x float> division, which keeps PoCL from
+     * vectorising the kernel across work-items */
+    const float nn = n > 1.0f ? n : 1.0f, ln = l_n > 1.0f ? l_n : 1.0f;
+    const float den = l_xx + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&mo, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l_xy * nn * r;
 #else
+    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
     const float a = cov / (var_x + ARI_EPS);
 #endif
     float f[3];

@@ -20,6 +20,19 @@ four weighted fits with sqrt and divisions per pixel, 12 moment planes read over
 window), ari_box_apply 37 s, ari_diag_coefficients 28 s, ari_along_moments 25 + 5 s, box_x / box_y
 20 + 17 s, criterion kernels (err_terms, gauss_x/y, select) ~36 s. The halo (121 px) costs 2.2x in
 window pixels at this band height.
+
+Measured (commit a2ec1fd against c03fc4e, back to back, twice; same PoCL on the same 2 EPYC cores,
+shared with other sessions: load average 1.4-1.8 during the runs; under load ~5 an earlier pair ran
+~1.7x slower, so compare only back-to-back pairs), --shape 1000x1500 --repeat 2 --skip-dlmmse
+--profile (one 742 x 1742 window):
+    c03fc4e   6.85 s / 6.25 s   0.22 / 0.24 MP/s   device 6.19 / 5.99 s
+    a2ec1fd   3.72 s / 4.01 s   0.40 / 0.37 MP/s   device 2.98 / 3.31 s   (wall 1.6-1.8x, device 1.8-2.1x)
+Device time by step (a2ec1fd, first pair): step 1 2.26 s (76%; c03fc4e 4.27 s), step 2 0.35 s
+(1.11), step 3 0.37 s (0.81). Top kernels: ari_across_coefficients 0.94 s (step 1: four single-fit
+launches per iteration), ari_box_apply 0.27 s, ari_along_moments 0.23 s, ari_select 0.21 s, box_x /
+box_y 0.17 + 0.16 s, ari_diag_coefficients 0.12 s; the criterion's err_terms + gauss_x/y 0.28 s in
+all three steps. Every ARI kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS: kernels/ari.cl's
+header says how to check).
 """
 from __future__ import annotations
 

@@ -20,7 +20,8 @@ offset inside the input window; the host checks every read stays inside its inpu
   step 1, per direction d in (h, v) and kind k in (RI, MLRI), ``green_iterations`` iterations, window
   (along, across) radii growing by 1 from (2, 1) (RI) / (4, 0) (MLRI):
     ari_along_moments       centred moments along the line (+ MLRI's Laplacian moments)  r_along (+2)
-    ari_across_coefficients per line set (R lines, B lines) the two weighted fits        r_across
+    ari_across_coefficients per line set (R lines, B lines) and fit (G from chroma,      r_across
+                            chroma from G) the weighted fit: 4 launches
     box_x (h) / box_y (v)   sums of the 12 coefficient planes along the lines            r_along
     ari_box_apply           their sums across the lines, the tentative G line t_g and    r_across
                             chroma line t_c (each pixel's own line set)
@@ -312,11 +313,13 @@ class DemosaicARI(Stage):
             cy, cx = (across, 0) if d == "h" else (0, across)
             coef = c.new(12, my + cy, mx + cx)
             for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
-                c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
-                                  ARI_R=across, ARI_SET=line_set), coef,
-                         mom.buffer, i32(mom.width), i32(mom.width * mom.height), *cl.at(my + cy, mx + cx, cy, cx),
-                         *g.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(6 * line_set * coef.width * coef.height),
-                         i32(coef.width), i32(coef.height), *c.parity(my + cy, mx + cx))
+                for fit in (0, 1):                                  # G from chroma, chroma from G
+                    c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
+                                      ARI_R=across, ARI_SET=line_set, ARI_FIT=fit), coef,
+                             mom.buffer, i32(mom.width), i32(mom.width * mom.height),
+                             *cl.at(my + cy, mx + cx, cy, cx), *g.at(my + cy, mx + cx, cy, cx), coef.buffer,
+                             i32((6 * line_set + 3 * fit) * coef.width * coef.height), i32(coef.width),
+                             i32(coef.height), *c.parity(my + cy, mx + cx))
             c.release(mom)
             t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
@@ -344,19 +347,19 @@ class DemosaicARI(Stage):
         ey, ex = _margin(views, abs(sy), abs(sx))
         terms = c.new(2, ey, ex)
         (u1, t1), (u2, t2) = errs
-        c.launch(c.kernel("ari_err_terms"), terms, *u1.at(ey, ex, abs(sy), abs(sx)), *t1.at(ey, ex, abs(sy), abs(sx)),
+        c.launch(c.kernel("ari_err_terms", ARI_SY=sy, ARI_SX=sx, ARI_REGION=int(region)), terms, *u1.at(ey, ex, abs(sy), abs(sx)), *t1.at(ey, ex, abs(sy), abs(sx)),
                  *u2.at(ey, ex, abs(sy), abs(sx)), *t2.at(ey, ex, abs(sy), abs(sx)), terms.buffer,
-                 i32(terms.width), i32(terms.height), i32(sy), i32(sx), *c.parity(ey, ex), i32(region))
+                 i32(terms.width), i32(terms.height), *c.parity(ey, ex))
         r = CRITERION_RADIUS
         gx = c.new(3 if region else 2, ey, ex + r)
         tv = _View(terms, ey, ex)
-        c.launch(c.kernel("ari_gauss_x"), gx, *tv.at(ey, ex + r, 0, r), tv.stride(), gx.buffer, i32(gx.width),
-                 i32(gx.height), *map(f32, gauss), *c.parity(ey, ex + r), i32(region))
+        c.launch(c.kernel("ari_gauss_x", ARI_REGION=int(region)), gx, *tv.at(ey, ex + r, 0, r), tv.stride(), gx.buffer, i32(gx.width),
+                 i32(gx.height), *map(f32, gauss), *c.parity(ey, ex + r))
         c.release(terms)
         gy = c.new(2, ey + r, ex + r)
         xv = _View(gx, ey, ex + r)
-        c.launch(c.kernel("ari_gauss_y"), gy, *xv.at(ey + r, ex + r, r, 0), xv.stride(), gy.buffer, i32(gy.width),
-                 i32(gy.height), *map(f32, gauss), *c.parity(ey + r, ex + r), i32(region))
+        c.launch(c.kernel("ari_gauss_y", ARI_REGION=int(region)), gy, *xv.at(ey + r, ex + r, r, 0), xv.stride(), gy.buffer, i32(gy.width),
+                 i32(gy.height), *map(f32, gauss), *c.parity(ey + r, ex + r))
         c.release(gx)
         return _View(gy, ey + r, ex + r)
 
@@ -390,8 +393,8 @@ class DemosaicARI(Stage):
         for src, known, target in planes:
             my, mx = _margin([src], abs(sy), abs(sx))
             img = c.new(1, my, mx)
-            c.launch(c.kernel("ari_chroma_start"), img, *src.at(my, mx, abs(sy), abs(sx)), img.buffer,
-                     i32(img.width), i32(sy), i32(sx), *c.parity(my, mx), i32(known), i32(target))
+            c.launch(c.kernel("ari_chroma_start", ARI_KNOWN=known, ARI_TARGET=target), img, *src.at(my, mx, abs(sy), abs(sx)), img.buffer,
+                     i32(img.width), i32(sy), i32(sx), *c.parity(my, mx))
             cur.append(_View(img, my, mx))
         est: _View | None = None
         for _ in range(self.chroma_iterations):
@@ -401,9 +404,9 @@ class DemosaicARI(Stage):
                 ts.append(t)
                 ny, nx = _margin([t, src], abs(sy), abs(sx))
                 new = c.new(1, ny, nx)
-                c.launch(c.kernel("ari_chroma_residual"), new, *src.at(ny, nx, abs(sy), abs(sx)),
+                c.launch(c.kernel("ari_chroma_residual", ARI_KNOWN=known, ARI_TARGET=target), new, *src.at(ny, nx, abs(sy), abs(sx)),
                          *t.at(ny, nx, abs(sy), abs(sx)), new.buffer, i32(new.width), i32(sy), i32(sx),
-                         *c.parity(ny, nx), i32(known), i32(target))
+                         *c.parity(ny, nx))
                 news.append(_View(new, ny, nx))
             crit = self._criterion(c, [(cur[0], ts[0]), (cur[1], ts[1])], d, diagonal, k)
             c.release(*(t.image for t in ts), *(x.image for x in cur))
