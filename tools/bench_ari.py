@@ -1,11 +1,15 @@
 """Speed of the ARI Bayer demosaic on the device beside DLMMSE, in the same run (issue 12).
 
     python tools/bench_ari.py [--shape 4000x6000] [--repeat 2] [--profile] [--green 5] [--chroma 2]
+                              [--skip-dlmmse] [--no-dht]
 
 A synthetic white-balanced Bayer mosaic (RGGB, float32, smooth colour fields with random discs and
 noise) of --shape is processed by a one-stage Pipeline (the demosaic alone) through clisp's tiler at
 the default memory budget (Pipeline.run: planner tiles, host padding, upload, kernels, download),
-warm (one small run first builds the programs), best of --repeat: MP/s of output. --profile adds one
+warm (one small run first builds the programs), best of --repeat: MP/s of output. Beside them, when
+rawpy is installed (--no-dht: not), LibRaw's DHT on the same mosaic written as a 16-bit Bayer DNG by
+clisp.rawfile.write_raw: only rawpy's postprocess is timed (DHT plus LibRaw's scaling, colour
+conversion and 16-bit output; no file read or write), best of --repeat. --profile adds one
 run with OpenCL event profiling and prints the device time per step and kernel (clisp.profile; the
 ARI stage labels its steps "demosaic_ari 1 green", "... 2 diagonals", "... 3 G sites").
 
@@ -33,13 +37,21 @@ launches per iteration), ari_box_apply 0.27 s, ari_along_moments 0.23 s, ari_sel
 box_y 0.17 + 0.16 s, ari_diag_coefficients 0.12 s; the criterion's err_terms + gauss_x/y 0.28 s in
 all three steps. Every ARI kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS: kernels/ari.cl's
 header says how to check).
+
+Measured (commit f6d34d7 + this tool's DHT column; the machine otherwise idle; 24 MP, --repeat 1):
+    DemosaicDLMMSE  0.27 s   89.3 MP/s
+    DemosaicARI    53.6 s    0.45 MP/s   (--green 2: 23.7 s, 1.01 MP/s, halo 70)
+    rawpy DHT       2.12 s   11.3 MP/s   (postprocess)
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import platform
+import tempfile
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -65,6 +77,28 @@ def synthetic_mosaic(height: int, width: int, seed: int = 0) -> np.ndarray:
     return mos
 
 
+def rawpy_dht(mos: np.ndarray, folder: str) -> Callable[[], object]:
+    """rawpy (LibRaw) DHT postprocess of ``mos`` (RGGB, [0, 1]) written as a 16-bit DNG; returns the
+    timed call (postprocess only)."""
+    import rawpy
+
+    from clisp.colorimetry import B_BAYER
+    from clisp.rawfile import write_raw
+    from clisp.rawimage import RawImage
+    data = np.round(np.clip(mos, 0.0, 1.0) * 65535.0).astype(np.uint16)
+    raw = RawImage(data=data, cfa=bayer_cfa("RGGB"), black_level=np.zeros(3), white_level=65535.0,
+                   wb=np.ones(3), colour_matrix=B_BAYER)
+    path = os.path.join(folder, "ari-bench.dng")
+    write_raw(path, raw)
+    handle = rawpy.imread(path)
+    options = dict(demosaic_algorithm=rawpy.DemosaicAlgorithm.DHT, output_bps=16, no_auto_bright=True,
+                   user_wb=[1.0, 1.0, 1.0, 1.0])
+    rgb = handle.postprocess(**options)
+    if rgb.shape[:2] != mos.shape:
+        raise SystemExit(f"rawpy decoded {rgb.shape[:2]}, expected {mos.shape}")
+    return lambda: handle.postprocess(**options)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shape", default="4000x6000", help="H x W of the mosaic (default 24 MP)")
@@ -73,6 +107,7 @@ def main() -> None:
     ap.add_argument("--chroma", type=int, default=2, help="ARI chroma_iterations")
     ap.add_argument("--profile", action="store_true", help="one more run with event profiling, per kernel")
     ap.add_argument("--skip-dlmmse", action="store_true")
+    ap.add_argument("--no-dht", action="store_true", help="leave out rawpy's DHT")
     args = ap.parse_args()
     h, w = (int(v) for v in args.shape.lower().split("x"))
     cfa = bayer_cfa("RGGB")
@@ -100,6 +135,18 @@ def main() -> None:
             wall = time.perf_counter() - t0
             print(prof.report(mp, wall), flush=True)
             profile._ACTIVE = None
+    if not args.no_dht:
+        if importlib.util.find_spec("rawpy") is None:
+            print("rawpy DHT: absent (pip install rawpy)")
+            return
+        with tempfile.TemporaryDirectory() as folder:
+            run = rawpy_dht(mos, folder)
+            best = float("inf")
+            for _ in range(args.repeat):
+                t0 = time.perf_counter()
+                run()
+                best = min(best, time.perf_counter() - t0)
+        print(f"{'rawpy DHT':16s} {'':18s}{'':24s}{best:7.2f} s  {h * w / 1e6 / best:6.2f} MP/s (postprocess)")
 
 
 if __name__ == "__main__":
