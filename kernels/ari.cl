@@ -556,6 +556,9 @@ __kernel void ari_select(__global const float *restrict crit, const int cb, cons
 #define ARI_ADAPT(k, pl) { const int at = e##k##b + y * e##k##p + x; \
                           const float wt = 1.0f / (e##k[2 * e##k##s + at] + ARI_CRIT_REG); \
                           num += wt * e##k[(pl) * e##k##s + at]; den += wt; }
+/* ARI_MEAN4(var, pl): float var = the criterion-weighted mean of plane pl of the four estimates e0..e3. */
+#define ARI_MEAN4(var, pl) float var; { float num = 0.0f, den = 0.0f; \
+                           ARI_ADAPT(0, pl) ARI_ADAPT(1, pl) ARI_ADAPT(2, pl) ARI_ADAPT(3, pl) var = num / den; }
 
 /* ari_green_merge: G = raw at G sites, else the criterion-weighted mean of the four (direction, kind)
  * G estimates (plane 0 of e0..e3). Halo 0. */
@@ -564,9 +567,8 @@ __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2),
                               __global float *restrict out, const int w, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    float num = 0.0f, den = 0.0f;
-    ARI_ADAPT(0, 0) ARI_ADAPT(1, 0) ARI_ADAPT(2, 0) ARI_ADAPT(3, 0)
-    out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : num / den;
+    ARI_MEAN4(g, 0)
+    out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : g;
 }
 
 /* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
@@ -690,13 +692,8 @@ __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), AR
                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    float num = 0.0f, den = 0.0f;
-    ARI_ADAPT(0, 0) ARI_ADAPT(1, 0) ARI_ADAPT(2, 0) ARI_ADAPT(3, 0)
-    const float r_at_b = num / den;
-    num = 0.0f;
-    den = 0.0f;
-    ARI_ADAPT(0, 1) ARI_ADAPT(1, 1) ARI_ADAPT(2, 1) ARI_ADAPT(3, 1)
-    const float b_at_r = num / den;
+    ARI_MEAN4(r_at_b, 0)
+    ARI_MEAN4(b_at_r, 1)
     const float v = raw[rb + y * rp + x];
     const float is_r = ari_site(SITE_R, y, x, py, px), is_b = ari_site(SITE_B, y, x, py, px);
     out[y * w + x] = is_r != 0.0f ? v : is_b != 0.0f ? r_at_b : 0.0f;
@@ -713,13 +710,8 @@ __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_E
                         const float scale)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    float num = 0.0f, den = 0.0f;
-    ARI_ADAPT(0, 0) ARI_ADAPT(1, 0) ARI_ADAPT(2, 0) ARI_ADAPT(3, 0)
-    const float r_at_g = num / den;
-    num = 0.0f;
-    den = 0.0f;
-    ARI_ADAPT(0, 1) ARI_ADAPT(1, 1) ARI_ADAPT(2, 1) ARI_ADAPT(3, 1)
-    const float b_at_g = num / den;
+    ARI_MEAN4(r_at_g, 0)
+    ARI_MEAN4(b_at_g, 1)
     const int green = ari_is_green(y, x, py, px);
     const int at = rbb + y * rbpp + x;
     out[y * w + x] = (green ? r_at_g : rbp[at]) * scale;
