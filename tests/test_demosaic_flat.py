@@ -1,0 +1,81 @@
+"""The flat-tile demosaic (clisp.stages.demosaic_flat): kernel against reference, what it must
+reproduce exactly, and tiled-equals-whole.
+
+Tolerance: tolerance.TOL (|opencl - reference| <= 1e-5 max(1, |reference|)), inputs white ~ 1.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clisp.cfa import cfa_from_name
+from clisp.pipeline import Pipeline
+from clisp.stages.demosaic_flat import CELL_PX, DemosaicFlat, detail_channels
+from test_kernels import run_stage
+from tolerance import assert_close
+
+ORIGINS = [(0, 0), (3, -2), (-7, 5)]
+
+
+def mosaic(shape: tuple[int, int], seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (0.3 + 0.05 * rng.standard_normal(shape)).astype(np.float32)
+
+
+@pytest.mark.parametrize("name", ["lms", "lms@1,2", "bayer-rggb", "bayer-gbrg"])
+@pytest.mark.parametrize("cells", [1, 6])
+def test_kernel_matches_reference(rt, name: str, cells: int) -> None:
+    stage = DemosaicFlat(cfa_from_name(name), cells)
+    x = mosaic((2 * stage.halo + 21, 2 * stage.halo + 37), seed=cells)
+    for origin in ORIGINS:
+        assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), f"{name} cells {cells} {origin}")
+
+
+@pytest.mark.parametrize("name", ["lms", "bayer-rggb"])
+def test_constant_colour_is_reproduced(name: str) -> None:
+    """A field of one colour (each channel constant) comes out as that colour exactly."""
+    cfa = cfa_from_name(name)
+    stage = DemosaicFlat(cfa)
+    colour = np.array([0.2, 0.5, 0.9])
+    x = colour[cfa.channel_map(2 * stage.halo + 9, 2 * stage.halo + 11, (1, 2))]
+    out = stage.reference(x, (1, 2))
+    np.testing.assert_allclose(out, np.broadcast_to(colour, out.shape), atol=1e-12)
+
+
+def test_gradient_is_reproduced() -> None:
+    """Means on cells and bilinear interpolation are exact on a linear gradient (Bayer; LMS's
+    residual has no S taps, an error of at most 0.2 px times the gradient)."""
+    for name, tol in (("bayer-rggb", 1e-12), ("lms", 0.2 * 0.003)):
+        stage = DemosaicFlat(cfa_from_name(name))
+        yy, xx = np.mgrid[0:2 * stage.halo + 8, 0:2 * stage.halo + 12]
+        ramp = 0.1 + 0.002 * yy + 0.001 * xx
+        out = stage.reference(ramp, (0, 4))
+        h = stage.halo
+        np.testing.assert_allclose(out, np.broadcast_to(ramp[h:-h, h:-h, None], out.shape), atol=tol)
+
+
+def test_fine_luminance_kept_chroma_averaged() -> None:
+    """Noise on the luminance channels stays (the residual keeps fine texture: no plastic look);
+    the chroma (channel differences) is a wide mean: far less noisy than the samples."""
+    cfa = cfa_from_name("lms")
+    stage = DemosaicFlat(cfa)
+    x = mosaic((2 * stage.halo + 64, 2 * stage.halo + 64), seed=3).astype(np.float64)
+    out = stage.reference(x, (0, 0))
+    lum = out[..., :2].mean(-1)
+    assert 0.15 < lum.std() / 0.05 < 0.8                      # fine texture kept, a little smoothed
+    assert (out[..., 0] - out[..., 1]).std() < 0.05 * 0.05    # chroma: mean of ~600 samples
+    assert detail_channels(cfa).tolist() == [1, 1, 0]
+
+
+def test_tiled_equals_whole(rt) -> None:
+    cfa = cfa_from_name("lms")
+    pipeline = Pipeline(cfa, [DemosaicFlat(cfa)])
+    x = mosaic((120, 152), seed=5)
+    whole = pipeline.run(x, tile=0)
+    tiled = pipeline.run(x, tile=48)
+    assert_close(tiled, whole, "tiled vs whole")
+
+
+def test_cell_fits_every_cfa() -> None:
+    for name in ("lms", "bayer-rggb"):
+        assert CELL_PX % cfa_from_name(name).period == 0
