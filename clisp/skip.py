@@ -48,8 +48,20 @@ import numpy as np
 from .analysis import SceneAnalysis, analyse
 from .tiling import Tile, TilePlan
 
-PATH_FULL, PATH_LIGHT, PATH_NONE = "full", "light", "none"
-PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE)
+PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT = "full", "light", "none", "flat"
+PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT)
+
+FLAT_DETAIL = 2.0
+"""Largest luminance detail (SceneAnalysis.detail: Laplacian energy of the cell means over what
+the noise alone gives, ~1 on a flat field) of every block a ``flat`` tile depends on."""
+
+FLAT_CHROMA = 2.0
+"""Largest chroma activity (SceneAnalysis.chroma, the same ratio on the chroma planes) of every
+block a ``flat`` tile depends on."""
+
+LIGHT_MAX_FLAT_SHARE = 0.5
+"""A tile takes ``light`` only when at most this share of its blocks is flat: flat areas are where
+the coarse denoiser levels matter (calibrate_skip: -0.26 dB on the LMS sky with ``light``)."""
 
 LIGHT_LEVELS = 1
 """Haar levels of the chroma denoiser on the ``light`` path."""
@@ -70,7 +82,7 @@ VISIBLE_NONE = 1.0e-3
 1/4 of an 8-bit code, 1/4 of the lowest gain-1 figure: in practice never on the simulated sensor
 (no denoising was measured to cost 0.1-0.7 dB at gain 1); left for cleaner sensors."""
 
-RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0}
+RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0}
 """Declared device time of each path's chroma stage per pixel, relative to ``full`` (J = 3),
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
 
@@ -138,7 +150,8 @@ class SkipPlan:
                      if hl else "  highlight handling: not needed (nothing clipped)")
         flat = sum(c.flat for c in self.choices)
         uni = sum(c.uniform for c in self.choices)
-        lines.append(f"  flat tiles {flat}, uniform tiles {uni} (no flat/uniform path yet)")
+        lines.append(f"  tiles without luminance detail {flat}, uniform tiles {uni} (uniform: no path of their own; "
+                     f"they take flat)")
         return "\n".join(lines)
 
     __str__ = explain
@@ -170,6 +183,17 @@ def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
     levels = min(levels, stage.params.levels)
     table = NoiseTable(stage.noise.approx[:levels + 1], stage.noise.detail[:levels + 1])
     return ChromaDenoise(stage.space, table, replace(stage.params, levels=levels), stage.interleaved)
+
+
+def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
+    """The flat path's DemosaicFlat for ``cfa`` and an image of ``shape`` (H, W), or None where it
+    does not apply (not 3 channels)."""
+    from .errors import ClispError
+    from .stages.demosaic_flat import DemosaicFlat
+    try:
+        return DemosaicFlat(cfa, image_shape=(int(shape[0]), int(shape[1])))
+    except ClispError:
+        return None
 
 
 def plain_colour(stage: Any) -> Any:
@@ -208,6 +232,9 @@ class Skipper:
             if denoiser.params.levels > LIGHT_LEVELS:
                 paths[PATH_LIGHT] = stages[:i] + [light_denoiser(denoiser)] + stages[i + 1:]
             paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
+            flat = flat_demosaic(raw.cfa, raw.shape)
+            if flat is not None and i >= 1:       # the stage before the denoiser is the demosaic
+                paths[PATH_FLAT] = stages[:i - 1] + [flat, plain_colour(denoiser)] + stages[i + 1:]
         return cls(analysis, list(stages), paths, denoiser, enabled)
 
     def halo(self, path: str) -> int:
@@ -216,29 +243,39 @@ class Skipper:
     def plan(self, tiles: TilePlan | list[Tile]) -> SkipPlan:
         tile_list = tiles.tiles if isinstance(tiles, TilePlan) else list(tiles)
         a = self.analysis
-        thresholds = {"visible_light": self.visible_light, "visible_none": self.visible_none}
+        thresholds = {"visible_light": self.visible_light, "visible_none": self.visible_none,
+                      "flat_detail": FLAT_DETAIL, "flat_chroma": FLAT_CHROMA}
         margin = self.denoiser.halo if self.denoiser is not None else 0
         vis = visible_chroma_noise(self.denoiser, a) if self.denoiser is not None else None
+        flat_margin = sum(st.halo for st in self.paths[PATH_FLAT]) if PATH_FLAT in self.paths else 0
         choices = []
         for t in tile_list:
             rows, cols = a.blocks_for(t.y0, t.x0, t.h, t.w)
-            own = (a.clipped[rows, cols] > 0).any(), bool((a.detail[rows, cols] < 2.0).all()), \
-                bool(a.uniform[rows, cols].all())
-            highlight, flat, uniform = own
+            highlight = bool((a.clipped[rows, cols] > 0).any())
+            flat_blocks = a.detail[rows, cols] < FLAT_DETAIL
+            flat, uniform = bool(flat_blocks.all()), bool(a.uniform[rows, cols].all())
             if vis is None:
                 path, reason, v = PATH_FULL, "no chroma denoiser in this pipeline", 0.0
             else:
                 grown = a.blocks_for(t.y0, t.x0, t.h, t.w, margin)
                 v = float(vis[grown].max())
+                reach = a.blocks_for(t.y0, t.x0, t.h, t.w, flat_margin)
+                flat_ok = (PATH_FLAT in self.paths and bool((a.detail[reach] < FLAT_DETAIL).all())
+                           and bool((a.chroma[reach] < FLAT_CHROMA).all()) and not (a.clipped[reach] > 0).any())
                 if not self.enabled:
                     path, reason = PATH_FULL, "--no-skip"
+                elif flat_ok:
+                    path, reason = PATH_FLAT, (f"no detail above the noise (luminance < {FLAT_DETAIL:g}x, "
+                                               f"chroma < {FLAT_CHROMA:g}x, nothing clipped)")
                 elif v < self.visible_none and PATH_NONE in self.paths:
                     path, reason = PATH_NONE, f"chroma noise below {self.visible_none:.1e} (invisible)"
-                elif v < self.visible_light and PATH_LIGHT in self.paths:
+                elif v < self.visible_light and PATH_LIGHT in self.paths \
+                        and flat_blocks.mean() <= LIGHT_MAX_FLAT_SHARE:
                     path, reason = PATH_LIGHT, f"chroma noise below {self.visible_light:.1e} (coarse levels not needed)"
                 else:
-                    path, reason = PATH_FULL, "chroma noise visible"
-            choices.append(TileChoice(t, path, reason, v, bool(highlight), flat, uniform))
+                    path, reason = PATH_FULL, "chroma noise visible" if v >= self.visible_light else \
+                        "detail or flat areas that need every stage"
+            choices.append(TileChoice(t, path, reason, v, highlight, flat, uniform))
         note = f"visible chroma noise per block {np.min(vis):.1e}-{np.max(vis):.1e}" if vis is not None else ""
         return SkipPlan(choices, self.enabled, thresholds if vis is not None else {}, note)
 

@@ -31,6 +31,52 @@ __kernel void flat_cells(__global const float *restrict src, __global float *res
         cells[(c * cy + i) * cx + j] = acc[c] * inv_count[c];
 }
 
+/* reflect_term: term t of demosaic_flat.reflect_terms for index i about [first, last] with anchor
+ * K: inside, one term (i, 1); outside, 2K + 2 terms: cells c - K .. c + K with 2 / (2K + 1), then
+ * (2c - i, -1), c = first + K (or last - K). Returns the index, sets *w. */
+inline int reflect_term(const int i, const int first, const int last, const int k, const int t, float *w)
+{
+    if (i >= first && i <= last) {
+        *w = 1.0f;
+        return i;
+    }
+    const int c = i < first ? first + k : last - k;
+    if (t <= 2 * k) {
+        *w = 2.0f / (2 * k + 1);
+        return c - k + t;
+    }
+    *w = -1.0f;
+    return 2 * c - i;
+}
+
+/* flat_reflect: dst = cells with every cell outside rows i0..i1 or columns j0..j1 (past the
+ * image's edges) replaced by the point reflection about the mean of the 2K + 1 edge cells,
+ * separably along y (anchor ky) and x (kx): demosaic_flat.reflect_cells. Launched over exactly
+ * cx x cy. */
+__kernel void flat_reflect(__global const float *restrict cells, __global float *restrict dst,
+                           const int cx, const int cy, const int i0, const int i1, const int j0, const int j1,
+                           const int ky, const int kx)
+{
+    const int j = get_global_id(0);
+    const int i = get_global_id(1);
+    const int ny = (i >= i0 && i <= i1) ? 1 : 2 * ky + 2;
+    const int nx = (j >= j0 && j <= j1) ? 1 : 2 * kx + 2;
+    for (int c = 0; c < NCH; c++) {
+        const __global float *p = cells + c * cy * cx;
+        float v = 0.0f;
+        for (int ty = 0; ty < ny; ty++) {
+            float wy;
+            const int iy = reflect_term(i, i0, i1, ky, ty, &wy);
+            for (int tx = 0; tx < nx; tx++) {
+                float wx;
+                const int jx = reflect_term(j, j0, j1, kx, tx, &wx);
+                v += wy * wx * p[iy * cx + jx];
+            }
+        }
+        dst[(c * cy + i) * cx + j] = v;
+    }
+}
+
 /* flat_box_rows: rows (NCH planes of cy x bw, bw = cx - 2 Rc) = sum of cells j .. j + 2 Rc of each
  * row. Halo Rc cells along x. Launched over exactly bw x cy. */
 __kernel void flat_box_rows(__global const float *restrict cells, __global float *restrict rows,

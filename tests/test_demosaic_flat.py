@@ -24,11 +24,38 @@ def mosaic(shape: tuple[int, int], seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["lms", "lms@1,2", "bayer-rggb", "bayer-gbrg"])
 @pytest.mark.parametrize("cells", [1, 6])
-def test_kernel_matches_reference(rt, name: str, cells: int) -> None:
+@pytest.mark.parametrize("edges", [False, True])
+def test_kernel_matches_reference(rt, name: str, cells: int, edges: bool) -> None:
     stage = DemosaicFlat(cfa_from_name(name), cells)
     x = mosaic((2 * stage.halo + 21, 2 * stage.halo + 37), seed=cells)
     for origin in ORIGINS:
+        if edges:        # an image that ends inside the window on every side
+            stage.image_shape = (x.shape[0] + origin[0] - 9, x.shape[1] + origin[1] - 6)
         assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), f"{name} cells {cells} {origin}")
+
+
+def test_gradient_is_continued_past_the_image_edges(rt) -> None:
+    """With the image's shape, a coloured gradient stays exact up to the image's edges, where the
+    tiler's mirror padding alone would bias the wide means (R / 2 px times the gradient: a colour
+    shift, since the residual cancels it only where every channel has the same gradient)."""
+    from clisp.tiling import gather_window
+    cfa = cfa_from_name("bayer-rggb")
+    yy, xx = np.mgrid[0:96, 0:80]
+    slope = np.array([0.004, 0.002, 0.001])
+    ramps = 0.1 + slope[:, None, None] * yy + 0.5 * slope[:, None, None] * xx     # (3, H, W)
+    mosaic_ = np.take_along_axis(ramps, cfa.channel_map(96, 80)[None].astype(np.intp), 0)[0]
+    stage = DemosaicFlat(cfa, image_shape=mosaic_.shape)
+    h = stage.halo
+    padded = gather_window(mosaic_.astype(np.float32), -h, -h, 96 + 2 * h, 80 + 2 * h, cfa.period)
+    out = stage.reference(padded, (-h, -h))
+    exact = np.moveaxis(ramps, 0, -1)
+    np.testing.assert_allclose(out[1:-1, 1:-1], exact[1:-1, 1:-1], atol=1e-6)
+    # the outermost pixels' 3 x 3 residual reads mirrored samples: at most half a pixel's step
+    assert np.abs(out - exact).max() <= 0.5 * 0.004 + 1e-6
+    assert_close(run_stage(rt, stage, padded, (-h, -h)), out, "kernel at the edges")
+    stage.image_shape = None
+    biased = stage.reference(padded, (-h, -h))
+    assert np.abs(biased - exact).max() > 0.01
 
 
 @pytest.mark.parametrize("name", ["lms", "bayer-rggb"])

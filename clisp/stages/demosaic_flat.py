@@ -61,16 +61,54 @@ def detail_channels(cfa: CFA) -> np.ndarray:
     return mask
 
 
+ANCHOR = 2
+"""Cells past the image's edges are point-reflected about the mean of the 2 ANCHOR + 1 edge cells
+(not the edge cell alone, whose noise the reflection would double in every reflected cell)."""
+
+
+def anchor(first: int, last: int) -> int:
+    """K: the reflection anchors average 2K + 1 cells (ANCHOR, fewer on a narrow grid)."""
+    return max(0, min(ANCHOR, (last - first) // 2))
+
+
+def reflect_terms(i: int, first: int, last: int) -> list[tuple[int, float]]:
+    """f'(i) = sum weight f(index) over the returned terms: f(i) for first <= i <= last, else the
+    point reflection 2 mean(f(c - K .. c + K)) - f(2 c - i) about c = first + K (or last - K)."""
+    if first <= i <= last:
+        return [(i, 1.0)]
+    k = anchor(first, last)
+    c = first + k if i < first else last - k
+    return [(c + d, 2.0 / (2 * k + 1)) for d in range(-k, k + 1)] + [(2 * c - i, -1.0)]
+
+
+def reflect_cells(cells: np.ndarray, i0: int, i1: int, j0: int, j1: int) -> np.ndarray:
+    """(n, cy, cx) cell means with the cells outside rows i0..i1 / columns j0..j1 (past the image's
+    edges) replaced by point reflections (:func:`reflect_terms`), separably along y and x: linear
+    functions are continued exactly, so box means near the image's edges are not biased by the
+    tiler's mirror padding (which would shift a gradient's mean by up to R / 2 px times the
+    gradient)."""
+    n, cy, cx = cells.shape
+    out = np.empty_like(cells)
+    for i in range(cy):
+        for j in range(cx):
+            out[:, i, j] = sum(wy * wx * cells[:, iy, jx] for iy, wy in reflect_terms(i, i0, i1)
+                               for jx, wx in reflect_terms(j, j0, j1))
+    return out
+
+
 @dataclass
 class DemosaicFlat(Stage):
     """H x W white-balanced mosaic -> (H - 2 halo) x (W - 2 halo) x n_channels camera image for
     tiles without detail (module doc). ``cells``: box radius Rc in cells (0: RADIUS_PX / CELL_PX);
-    ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA kind)."""
+    ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA kind);
+    ``image_shape``: (H, W) of the whole image, so that cells past its edges are point-reflected
+    (:func:`reflect_cells`) instead of read from the tiler's mirror padding (None: no image edges)."""
 
     cfa: CFA
     cells: int = 0
     axial: float = -1.0
     diagonal: float = 0.0
+    image_shape: tuple[int, int] | None = None
     name = "demosaic_flat"
     in_channels = 1
     out_channels = 3
@@ -116,6 +154,20 @@ class DemosaicFlat(Stage):
         ay, ax = (-origin[0]) % CELL_PX, (-origin[1]) % CELL_PX
         return ay, ax, (h - ay) // CELL_PX, (w - ax) // CELL_PX
 
+    def inside(self, h: int, w: int, origin: tuple[int, int]) -> tuple[int, int, int, int]:
+        """(i0, i1, j0, j1): the first and last cell rows and columns of the window's cell grid that
+        lie wholly inside the image (the whole grid without ``image_shape``)."""
+        ay, ax, cy, cx = self.grid(h, w, origin)
+        if self.image_shape is None:
+            return 0, cy - 1, 0, cx - 1
+        (ih, iw), s = self.image_shape, CELL_PX
+        i0, j0 = max(0, -(-(-origin[0] - ay) // s)), max(0, -(-(-origin[1] - ax) // s))
+        i1 = min(cy, (ih - origin[0] - ay) // s) - 1
+        j1 = min(cx, (iw - origin[1] - ax) // s) - 1
+        if i1 < i0 or j1 < j0:
+            raise ClispError("flat demosaic: a window without one whole cell inside the image")
+        return i0, i1, j0, j1
+
     def taps(self) -> list[tuple[int, int, float]]:
         """(dy, dx, weight) of the 3 x 3 luminance-residual kernel, row-major."""
         return [(dy, dx, PLUS_CENTRE if dy == dx == 0 else (self.axial if dy == 0 or dx == 0 else self.diagonal))
@@ -151,6 +203,7 @@ class DemosaicFlat(Stage):
                 c = int(channel[ay + py, ax + px])
                 cells[c] += x[ay + py:ay + py + cy * s:s, ax + px:ax + px + cx * s:s]
         cells /= self.counts[:, None, None]
+        cells = reflect_cells(cells, *self.inside(h, w, origin))
         k = 2 * rc + 1
         rows = sum(cells[:, :, j:cx - 2 * rc + j] for j in range(k))
         box = sum(rows[:, i:cy - 2 * rc + i] for i in range(k)) / (k * k)   # box cell i = cell i + rc
@@ -191,6 +244,14 @@ class DemosaicFlat(Stage):
                      i32(src.width), i32(ay), i32(ax), i32(cx), i32(cy),
                      rt.constant(np.ascontiguousarray(self.cell_pattern, dtype=np.int8)),
                      rt.constant(as_f32(1.0 / self.counts)))
+        i0, i1, j0, j1 = self.inside(src.height, src.width, origin)
+        if (i0, i1, j0, j1) != (0, cy - 1, 0, cx - 1):
+            mirrored = rt.acquire(n, cy, cx)
+            launch_exact(rt, rt.kernel("flat", "flat_reflect", defines), cx, cy, cells.buffer, mirrored.buffer,
+                         i32(cx), i32(cy), i32(i0), i32(i1), i32(j0), i32(j1), i32(anchor(i0, i1)),
+                         i32(anchor(j0, j1)))
+            rt.release(cells)
+            cells = mirrored
         bw, bh = cx - 2 * rc, cy - 2 * rc
         rows = rt.acquire(n, cy, bw)
         launch_exact(rt, rt.kernel("flat", "flat_box_rows", defines), bw, cy, cells.buffer, rows.buffer,
