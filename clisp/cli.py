@@ -80,6 +80,13 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
+    p.add_argument("--explain", action="store_true",
+                   help="print the scene analysis, the per-tile plan (which tiles skip what, and why) and, "
+                        "after the run, the time per stage and the estimated time saved")
+    p.add_argument("--no-skip", action="store_true",
+                   help="run every stage on every tile (default: tiles skip what the scene analysis "
+                        "shows they do not need: demosaic + chroma denoise on tiles with nothing but noise, coarse "
+                        "chroma-denoise levels where chroma noise is invisible)")
     p.add_argument("--profile", action="store_true",
                    help="print where the time went: device time per stage and kernel (OpenCL event "
                         "profiling), host time for decode, reading, writing and waiting")
@@ -200,16 +207,22 @@ def cmd_process(args: argparse.Namespace) -> int:
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
     denoise = _denoise_option(args)
-    profile = _start_profile() if args.profile else None
+    profile = _start_profile() if (args.profile or args.explain) and args.backend == "opencl" else None
     with host_timer("decode raw file (header, camera raw pixels)"):
         raw = read_raw(args.raw, lazy=True)
+    skip = (False if args.explain else None) if args.no_skip else True
+    explained: dict = {}
     (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
-                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2)
+                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2, skip=skip,
+                                          explain=explained if args.explain else None)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
-    if profile is not None:
+    if args.explain:
+        from .skip import explain_run
+        print(explain_run(explained.get("pipeline"), stats, profile))
+    if profile is not None and args.profile:
         wall = _process_seconds()
         print(profile.report(stats.megapixels, wall))
         print(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")

@@ -300,12 +300,28 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
         lines.append("  device time per stage:")
         for stage, seconds in sorted(per_stage.items(), key=lambda kv: -kv[1]):
             lines.append(f"    {stage:<28}{seconds:8.3f} s")
-        denoise = per_stage.get("chroma_denoise", 0.0)
-        if plan is not None and denoise > 0:
-            px = {p: plan.pixels(p) for p in PATHS}
-            units = sum(RELATIVE_COST[p] * px[p] for p in PATHS)
-            if units > 0:
-                full_equiv = denoise / units * sum(px.values())
-                lines.append(f"  time saved (estimate): {full_equiv - denoise:.3f} s of chroma denoise "
-                             f"({full_equiv:.3f} s on the full path everywhere, RELATIVE_COST {RELATIVE_COST})")
+        if plan is not None:
+            lines.append("  " + time_saved(plan, per_stage, skipper))
     return "\n".join(lines)
+
+
+def time_saved(plan: SkipPlan, per_stage: dict[str, float], skipper: Skipper) -> str:
+    """The device time the skips saved in one run, estimated from the run itself: the full path's
+    demosaic and chroma-denoise cost per pixel (measured on the tiles that ran them; the denoiser's
+    per path weighted by RELATIVE_COST) times the pixels that skipped them, less what the flat
+    path's own stages took. Without such tiles in the run it cannot be estimated."""
+    px = {p: plan.pixels(p) for p in PATHS}
+    demosaic = skipper.stages[skipper.stages.index(skipper.denoiser) - 1].name if skipper.denoiser else None
+    ran_demosaic = px[PATH_FULL] + px[PATH_LIGHT] + px[PATH_NONE]
+    units = sum(RELATIVE_COST[p] * px[p] for p in (PATH_FULL, PATH_LIGHT, PATH_NONE))
+    if demosaic is None or ran_demosaic == 0 or units == 0:
+        return "time saved: not measurable in this run (no tile ran the full stages; compare with --no-skip)"
+    t_dem = per_stage.get(demosaic, 0.0) / ran_demosaic
+    t_den = per_stage.get("chroma_denoise", 0.0) / units
+    skipped_dem = px[PATH_FLAT] * t_dem
+    skipped_den = sum((1.0 - RELATIVE_COST[p]) * px[p] for p in PATHS) * t_den
+    flat_cost = per_stage.get("demosaic_flat", 0.0)
+    saved = skipped_dem + skipped_den - flat_cost
+    return (f"time saved (estimate from this run's own full-path tiles): {saved:.3f} s of device time "
+            f"({skipped_dem:.3f} s demosaic + {skipped_den:.3f} s chroma denoise skipped, "
+            f"{flat_cost:.3f} s flat path)")

@@ -191,6 +191,28 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
     assert total > 0
 
 
+def test_process_explain_and_no_skip(tmp_path: Path, capsys) -> None:
+    """``--explain`` prints the analysis, the plan and the time per stage; a flat scene's tiles take
+    the flat path, and ``--no-skip`` runs every stage everywhere (issue 13)."""
+    from clisp.rawfile import write_raw
+    from clisp.simulate import simulate
+    yy, xx = np.mgrid[0:256, 0:384] / 384.0
+    sky = np.stack([0.25 + 0.3 * yy, 0.4 + 0.2 * yy, 0.8 - 0.1 * xx], -1)
+    raw_path = tmp_path / "sky.dng"
+    write_raw(raw_path, simulate(sky, cfa="lms", gain=1, seed=0).raw)
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "a.exr", "--explain", "--tile", "128"], capsys)
+    assert code == 0, err
+    for expected in ("scene analysis", "noise  L", "skip plan", "flat ", "no detail above the noise",
+                     "device time per stage", "demosaic_flat", "time saved"):
+        assert expected in out, f"{expected!r} missing from --explain:\n{out}"
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "b.exr", "--explain", "--no-skip", "--tile", "128"],
+                         capsys)
+    assert code == 0, err
+    assert "--no-skip" in out and "demosaic_flat" not in out and "demosaic_lms_guided" in out
+    a, b = read_image(tmp_path / "a.exr")[0], read_image(tmp_path / "b.exr")[0]
+    assert a.shape == b.shape and np.abs(a - b).mean() < 0.01
+
+
 def test_cli_import_leaves_heavy_libraries_out() -> None:
     """Start-up is part of every command's time (issue 11): importing the CLI must not pull in the
     libraries only some commands or the study code need (scipy.ndimage alone cost 0.16 s)."""
