@@ -78,6 +78,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="per-chroma strengths: LMS R-Y,G-Y,B-Y (default 1,1,1.5), Bayer U,V (default 1.5,1)")
     p.add_argument("--wb2", choices=("metadata", "gray_world", "gray_pixels"), default="metadata",
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
+    p.add_argument("--no-crop", action="store_true",
+                   help="keep the whole mosaic; by default the output is the crop the raw declares "
+                        "(a DNG's DefaultCrop inside its ActiveArea, a camera's recommended crop)")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
     p.add_argument("--profile", action="store_true",
@@ -205,7 +208,8 @@ def cmd_process(args: argparse.Namespace) -> int:
         raw = read_raw(args.raw, lazy=True)
     (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
-                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2)
+                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2,
+                                          crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
