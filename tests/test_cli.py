@@ -198,7 +198,7 @@ def test_cli_import_leaves_heavy_libraries_out() -> None:
     libraries only some commands or the study code need (scipy.ndimage alone cost 0.16 s)."""
     import subprocess
     import sys
-    heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy")
+    heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy", "exiv2", "PIL")
     code = f"import sys, clisp.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert loaded == "", f"importing clisp.cli loads {loaded}"
