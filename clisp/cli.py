@@ -31,7 +31,7 @@ EXIT_ERROR = 2
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a noisy LMS or Bayer raw from an sRGB or linear EXR scene",
                        description="Inverse ISP, Airy optics, shot + read noise at analog gain G, 10-bit ADC, "
-                                   "mosaic (SPEC.md section 3). Writes a DNG-style raw.")
+                                   "mosaic (docs/model.md, sections 2-3). Writes a DNG-style raw.")
     p.add_argument("scene", nargs="?", help="sRGB-encoded PNG/TIFF (8 or 16 bit) or linear-sRGB float EXR")
     p.add_argument("--spectral", choices=("colorchecker",), default=None,
                    help="instead of SCENE, a ColorChecker from reflectance spectra under D65 (LMS: Stockman-"
