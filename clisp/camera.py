@@ -1,7 +1,11 @@
 """Camera raws (CR2, CRW, NEF, DNG, KDC, ...) through rawpy / LibRaw.
 
-Only Bayer sensors are supported. The mosaic is LibRaw's *visible* area (``raw_image_visible``,
-margins removed; the DNG DefaultCrop is not applied but recorded in ``metadata["default_crop"]``).
+Only Bayer sensors are supported. The mosaic is LibRaw's *visible* area (``raw_image_visible``:
+a DNG's ActiveArea, or the camera's masked margins, removed). The crop the file declares (a DNG's
+DefaultCrop, inside the ActiveArea; for other raws the maker's crop as LibRaw reports it) is
+``metadata["crop"]`` = [top, left, height, width] in the mosaic's coordinates; ``clisp process``
+applies it to its output (``--no-crop`` keeps the whole mosaic). The shot's EXIF (make, model,
+lens, exposure, ISO, date; clisp.exif, read with exiv2) is ``metadata["exif"]``.
 
 CFA phase: rawpy's ``raw_pattern`` is indexed from the top-left of the *full* raw
 (``raw_pattern[y, x] = COLOR(y - top_margin, x - left_margin)``), so the pattern of the visible area
@@ -232,25 +236,42 @@ def _camera_metadata(raw: Any, p: Path, wb_source: str, matrix_source: str) -> d
     if int(s.crop_width) > 0 and int(s.crop_height) > 0:
         md["default_crop"] = [int(s.crop_top_margin), int(s.crop_left_margin),
                               int(s.crop_height), int(s.crop_width)]
-    md.update(_tiff_make_model(p))
+        crop = visible_crop(md["default_crop"], (int(s.top_margin), int(s.left_margin)),
+                            (int(s.height), int(s.width)))
+        if crop is not None:
+            md["crop"] = crop
+    md["exif"] = _exif(raw, p)
     return md
 
 
-def _tiff_make_model(p: Path) -> dict[str, str]:
-    """Make and Model from the TIFF IFD0 of TIFF-based raws (rawpy does not expose them); may be {}."""
-    try:
-        import tifffile
+def visible_crop(default_crop: Any, visible_origin: tuple[int, int],
+                 visible_shape: tuple[int, int]) -> list[int] | None:
+    """The file's crop [top, left, height, width] in the visible mosaic's coordinates, from LibRaw's
+    crop in full-raw coordinates (``sizes.crop_*``: a DNG's ActiveArea origin plus its
+    DefaultCropOrigin), clipped to the visible area; None when it is the whole visible area or
+    does not overlap it."""
+    top, left, height, width = (int(v) for v in default_crop)
+    y0, x0 = max(top - visible_origin[0], 0), max(left - visible_origin[1], 0)
+    y1 = min(top - visible_origin[0] + height, visible_shape[0])
+    x1 = min(left - visible_origin[1] + width, visible_shape[1])
+    if y1 <= y0 or x1 <= x0 or (y0, x0, y1, x1) == (0, 0, *visible_shape):
+        return None
+    return [y0, x0, y1 - y0, x1 - x0]
 
-        with tifffile.TiffFile(p) as tif:
-            tags = tif.pages[0].tags
-            out = {}
-            for key, code in (("make", 271), ("model", 272)):
-                tag = tags.get(code)
-                if tag is not None and isinstance(tag.value, str) and tag.value.strip():
-                    out[key] = tag.value.strip("\0 ")
-            return out
-    except Exception:  # noqa: BLE001 - best effort only; CRW and others are not TIFF
-        return {}
+
+def _exif(raw: Any, p: Path) -> dict[str, Any]:
+    """The shot's EXIF (clisp.exif.read_exif), with LibRaw's ISO where the tags give none (the
+    Kodak DC50 keeps it in its maker notes)."""
+    from .exif import ISO, read_exif
+    exif = read_exif(p)
+    if ISO not in exif:
+        try:
+            iso = float(raw.other.iso_speed)
+        except (AttributeError, TypeError, ValueError):
+            iso = 0.0
+        if iso >= 1:
+            exif[ISO] = int(round(iso))
+    return exif
 
 
 def _libraw_problem(exc: BaseException) -> str:

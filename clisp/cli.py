@@ -31,7 +31,7 @@ EXIT_ERROR = 2
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a noisy LMS or Bayer raw from an sRGB or linear EXR scene",
                        description="Inverse ISP, Airy optics, shot + read noise at analog gain G, 10-bit ADC, "
-                                   "mosaic (SPEC.md section 3). Writes a DNG-style raw.")
+                                   "mosaic (docs/model.md, sections 2-3). Writes a DNG-style raw.")
     p.add_argument("scene", nargs="?", help="sRGB-encoded PNG/TIFF (8 or 16 bit) or linear-sRGB float EXR")
     p.add_argument("--spectral", choices=("colorchecker",), default=None,
                    help="instead of SCENE, a ColorChecker from reflectance spectra under D65 (LMS: Stockman-"
@@ -78,6 +78,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="per-chroma strengths: LMS R-Y,G-Y,B-Y (default 1,1,1.5), Bayer U,V (default 1.5,1)")
     p.add_argument("--wb2", choices=("metadata", "gray_world", "gray_pixels"), default="metadata",
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
+    p.add_argument("--no-crop", action="store_true",
+                   help="keep the whole mosaic; by default the output is the crop the raw declares "
+                        "(a DNG's DefaultCrop inside its ActiveArea, a camera's recommended crop)")
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
     p.add_argument("--explain", action="store_true",
@@ -215,7 +218,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=denoise, wb2=args.wb2, skip=skip,
-                                          explain=explained if args.explain else None)
+                                          explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")

@@ -1,15 +1,18 @@
 """Scene and output images through OpenImageIO: EXR (linear float), TIFF/PNG (16-bit sRGB).
 
 Outputs are written band by band (:class:`ImageWriter`, scanlines top to bottom), so tile
-streaming never holds a whole output image. Every write goes to a temporary file in the
-destination folder and is renamed into place only after it completed, so a failure never leaves
-a partial or corrupt output.
+streaming never holds a whole output image. Every output says what it holds: TIFF and PNG embed
+an sRGB ICC profile, EXR declares the chromaticities of linear sRGB (Rec. 709 primaries, D65), and
+the caller's attributes (camera EXIF, see clisp.exif) go into the header before the first row.
+Every write goes to a temporary file in the destination folder and is renamed into place only
+after it completed, so a failure never leaves a partial or corrupt output.
 """
 from __future__ import annotations
 
 import os
 import tempfile
 from contextlib import ExitStack, contextmanager
+from functools import lru_cache
 from pathlib import Path
 from typing import Iterator
 
@@ -101,17 +104,18 @@ def read_scene(path: str | Path) -> np.ndarray:
 
 
 def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None,
-                compression: str = "none") -> None:
+                compression: str = "none", attributes: dict | None = None) -> None:
     """Write H x W x 3 float: EXR as float32 linear; TIFF/PNG as 16-bit.
 
     For TIFF/PNG, ``image`` must already be sRGB-encoded in [0, 1] unless ``encoded`` is False,
-    in which case it is tone-mapped here. ``compression``: see DEFAULT_COMPRESSION. Atomic.
+    in which case it is tone-mapped here. ``compression``: see DEFAULT_COMPRESSION.
+    ``attributes``: metadata, see ImageWriter. Atomic.
     """
     pixels = np.asarray(image)
     if output_kind(path) == "srgb" and encoded is False:
         from .colorimetry import srgb_encode
         pixels = srgb_encode(np.asarray(pixels, dtype=np.float32))
-    with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2], compression) as out:
+    with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2], compression, attributes) as out:
         out.write_rows(0, pixels)
 
 
@@ -135,6 +139,38 @@ COMPRESSIONS = {
     ".png": ("none", "zip"),
 }
 """Compression names accepted per output extension (OpenImageIO's; 'zip:N' / 'dwaa:N' set a level)."""
+
+
+SRGB_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+"""CIE xy of the sRGB / Rec. 709 red, green and blue primaries and of the D65 white point: the
+EXR ``chromaticities`` attribute of our linear outputs."""
+
+ATTRIBUTE_TYPES = {"Orientation": "int", "Exif:PhotographicSensitivity": "int", "Exif:ISOSpeed": "uint",
+                   "ExposureTime": "float", "FNumber": "float"}
+"""OpenImageIO types of the numeric attributes we write (OpenImageIO converts them to the EXIF types)."""
+
+
+@lru_cache(maxsize=1)
+def srgb_icc_profile() -> bytes:
+    """An sRGB ICC profile (LittleCMS's built-in sRGB, through Pillow's ImageCms), for TIFF/PNG."""
+    from PIL import ImageCms
+    return ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+
+
+def _describe(spec: object, kind: str, attributes: dict | None) -> None:
+    """Colour space and ``attributes`` into an OpenImageIO ImageSpec (before the file opens)."""
+    oiio = _oiio()
+    if kind == "srgb":
+        spec.attribute("oiio:ColorSpace", "sRGB")
+        icc = np.frombuffer(srgb_icc_profile(), dtype=np.uint8)
+        spec.attribute("ICCProfile", oiio.TypeDesc(f"uint8[{icc.size}]"), icc)
+    else:
+        spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), SRGB_CHROMATICITIES)
+    for name, value in (attributes or {}).items():
+        if name in ATTRIBUTE_TYPES:
+            spec.attribute(name, oiio.TypeDesc(ATTRIBUTE_TYPES[name]), value)
+        elif isinstance(value, str):
+            spec.attribute(name, value)
 
 
 def check_compression(path: str | Path, compression: str) -> None:
@@ -170,15 +206,21 @@ class ImageWriter:
     sRGB-encoded and are clipped to [0, 1] here. Use as a context manager: the file is written
     under a temporary name beside ``path`` and renamed when every row arrived without error;
     otherwise it is removed (ClispError names ``path``).
+
+    TIFF/PNG embed an sRGB ICC profile, EXR declares linear sRGB's chromaticities.
+    ``attributes``: OpenImageIO attribute names and values (strings, and the numbers of
+    ATTRIBUTE_TYPES), e.g. clisp.exif.output_attributes: each format stores what it can (TIFF:
+    its tags and EXIF directory; PNG: text and eXIf chunks; EXR: header attributes).
     """
 
     def __init__(self, path: str | Path, width: int, height: int, channels: int = 3,
-                 compression: str = DEFAULT_COMPRESSION) -> None:
+                 compression: str = DEFAULT_COMPRESSION, attributes: dict | None = None) -> None:
         self.path = Path(path)
         check_compression(self.path, compression)
         self.compression = compression
         self.kind = output_kind(self.path)
         self.width, self.height, self.channels = width, height, channels
+        self.attributes = dict(attributes or {})
         self.next_row = 0
         self._stack = ExitStack()
         self._out = None
@@ -191,8 +233,7 @@ class ImageWriter:
             _png_compression(spec, self.compression)
         else:
             spec.attribute("compression", self.compression)
-        if self.kind == "srgb":
-            spec.attribute("oiio:ColorSpace", "sRGB")
+        _describe(spec, self.kind, self.attributes)
         tmp = self._stack.enter_context(atomic_path(self.path))
         out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])
         if out is None or not out.open(str(tmp), spec):

@@ -488,32 +488,71 @@ def orient(image: np.ndarray, flip: int) -> np.ndarray:
     return image
 
 
-def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "opencl",
+def crop_of(raw: RawImage) -> tuple[int, int, int, int] | None:
+    """The crop ``raw`` declares, (top, left, height, width) in its mosaic's coordinates
+    (``metadata['crop']``: a DNG's DefaultCrop, see clisp.camera), or None for the whole mosaic
+    (none declared, or one that does not lie inside the mosaic)."""
+    crop = raw.metadata.get("crop")
+    try:
+        top, left, height, width = (int(v) for v in crop)
+    except (TypeError, ValueError):
+        return None
+    h, w = raw.shape
+    if top < 0 or left < 0 or height <= 0 or width <= 0 or top + height > h or left + width > w:
+        return None
+    return None if (top, left, height, width) == (0, 0, h, w) else (top, left, height, width)
+
+
+def cropped_writes(write: Callable[[int, np.ndarray], None],
+                   crop: tuple[int, int, int, int]) -> Callable[[int, np.ndarray], None]:
+    """``write(y0, rows)`` of a band sink for the whole mosaic's rows, passing on only the crop's
+    rows and columns, renumbered from the crop's top. The pipeline runs on the whole mosaic (the
+    crop's border pixels see their real neighbours, and tiled still equals whole), the output
+    holds the crop; memory stays one band."""
+    top, left, height, width = crop
+
+    def write_cropped(y0: int, rows: np.ndarray) -> None:
+        a, b = max(y0, top), min(y0 + rows.shape[0], top + height)
+        if a < b:
+            write(a - top, rows[a - y0:b - y0, left:left + width])
+    return write_cropped
+
+
+def _crop_image(image: np.ndarray, crop: tuple[int, int, int, int] | None) -> np.ndarray:
+    if crop is None:
+        return image
+    top, left, height, width = crop
+    return image[top:top + height, left:left + width]
+
+
+def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "opencl", crop: bool = True,
                        **options: Any) -> tuple[np.ndarray, RunStats]:
     """:func:`process` for a RawImage, also returning the run's timing."""
     pipeline = build_pipeline(raw, **options)
     image = pipeline.run(raw.data, tile=tile, backend=backend)
+    image = _crop_image(image, crop_of(raw) if crop else None)
     image = np.ascontiguousarray(orient(image, int(raw.metadata.get("flip", 0) or 0)))
     return image, pipeline.stats
 
 
-def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = "opencl",
+def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = "opencl", crop: bool = True,
             **options: Any) -> np.ndarray:
     """Process a raw image (or a raw file's path) into H x W x 3 float32 sRGB.
 
     ``options`` are :func:`build_pipeline`'s: preset, demosaic, output ('linear': scene-linear
     sRGB, white 1.0, unclipped; 'srgb': sRGB-encoded in [0, 1]), denoise, wb2.
-    Orientation from camera metadata is applied last.
+    ``crop``: keep only the crop the raw declares (:func:`crop_of`, a DNG's DefaultCrop); False
+    keeps the whole mosaic. Orientation from camera metadata is applied last.
     """
     if not isinstance(raw, RawImage):
         from .rawfile import read_raw
         raw = read_raw(raw)
-    return process_with_stats(raw, tile, backend, **options)[0]
+    return process_with_stats(raw, tile, backend, crop, **options)[0]
 
 
 def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budget: int = DEFAULT_BUDGET,
                  backend: str = "opencl", progress: bool = False, compression: str | None = None,
-                 explain: dict | None = None, **options: Any) -> tuple[tuple[int, int], RunStats]:
+                 explain: dict | None = None, crop: bool = True, **options: Any) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
@@ -524,11 +563,17 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
     compression (default imageio.DEFAULT_COMPRESSION). ``options``: :func:`build_pipeline`'s
     (the output kind follows the extension). ``explain``: a dict that receives the pipeline
-    (key 'pipeline'), whose skipper and skip_plan describe the run. Atomic: on failure no file.
+    (key 'pipeline'), whose skipper and skip_plan describe the run. ``crop``: write only the crop
+    the raw declares (:func:`crop_of`; the whole mosaic is processed, see :func:`cropped_writes`);
+    False writes the whole mosaic. The output carries the raw's metadata
+    (clisp.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
+    from .exif import output_attributes
     from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
+    region = crop_of(raw) if crop else None
+    attributes = output_attributes(raw)
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
     if explain is not None:                       # the caller reads the plan after the run
@@ -539,16 +584,19 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
         image = np.empty(raw.shape + (pipeline.out_channels,), dtype=pipeline.out_dtype)
         with closing(window_source(raw.data)) as source:
             pipeline.stream(source, ArraySink(image), plan, backend)
-        oriented = orient(image, flip)
-        write_image(path, oriented, compression=compression)
+        oriented = orient(_crop_image(image, region), flip)
+        write_image(path, oriented, compression=compression, attributes=attributes)
         return oriented.shape[:2], pipeline.stats
     (height, width), channels = raw.shape, pipeline.out_channels
+    out_h, out_w = (height, width) if region is None else region[2:]
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, ImageWriter(path, width, height, channels, compression) as writer, \
-            BandSink(writer.write_rows, plan, width, channels, pipeline.out_dtype) as sink, bar as update:
+    with closing(window_source(raw.data)) as source, \
+            ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
+            BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
+                     plan, width, channels, pipeline.out_dtype) as sink, bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
-    return raw.shape, replace(stats, seconds=time.perf_counter() - start)    # the last write included
+    return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 
 def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, tile: int | None, budget: int,

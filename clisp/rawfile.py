@@ -44,6 +44,8 @@ D65_XYZ = np.array([0.95047, 1.0, 1.08883])
 """CIE XYZ of the D65 white point with Y = 1."""
 
 # TIFF / DNG tag codes and TIFF field types.
+TAG_MAKE = 271
+TAG_MODEL = 272
 TAG_CFA_REPEAT_PATTERN_DIM = 33421
 TAG_CFA_PATTERN = 33422
 TAG_DNG_VERSION = 50706
@@ -54,6 +56,8 @@ TAG_CFA_LAYOUT = 50711
 TAG_BLACK_LEVEL_REPEAT_DIM = 50713
 TAG_BLACK_LEVEL = 50714
 TAG_WHITE_LEVEL = 50717
+TAG_DEFAULT_CROP_ORIGIN = 50719
+TAG_DEFAULT_CROP_SIZE = 50720
 TAG_COLOR_MATRIX1 = 50721
 TAG_AS_SHOT_NEUTRAL = 50728
 TAG_BASELINE_EXPOSURE = 50730
@@ -157,7 +161,10 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
     is_float = raw.data.dtype == np.float32
     black_tile = [float(raw.black_level[c]) for c in cfa.pattern.ravel()]
     model = _model_name(cfa)
+    make, camera = camera_make_model(raw)
     tags: list[tuple[int, int, int, Any, bool]] = [
+        (code, T_ASCII, 0, text, True) for code, text in ((TAG_MAKE, make), (TAG_MODEL, camera)) if text
+    ] + [
         (TAG_DNG_VERSION, T_BYTE, 4, bytes((1, 4, 0, 0)), True),
         (TAG_DNG_BACKWARD_VERSION, T_BYTE, 4, bytes((1, 4, 0, 0) if is_float else (1, 1, 0, 0)), True),
         (TAG_UNIQUE_CAMERA_MODEL, T_ASCII, 0, model, True),
@@ -173,6 +180,10 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
         (TAG_AS_SHOT_NEUTRAL, T_RATIONAL, 3, _rationals(as_shot_neutral(raw), signed=False), True),
         (TAG_BASELINE_EXPOSURE, T_SRATIONAL, 1, _rationals([_baseline_exposure(raw)], signed=True), True),
     ]
+    crop = raw.metadata.get("crop")
+    if isinstance(crop, (list, tuple)) and len(crop) == 4:     # (x, y) and (width, height)
+        tags += [(TAG_DEFAULT_CROP_ORIGIN, T_LONG, 2, (int(crop[1]), int(crop[0])), True),
+                 (TAG_DEFAULT_CROP_SIZE, T_LONG, 2, (int(crop[3]), int(crop[2])), True)]
     private = PRIVATE_PREFIX + json.dumps(_metadata_json(raw), default=_json_default).encode("utf-8")
     tags.append((TAG_DNG_PRIVATE_DATA, T_BYTE, len(private), private, True))
     return tags
@@ -181,6 +192,15 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
 def _model_name(cfa: CFA) -> str:
     """UniqueCameraModel of our simulated sensors."""
     return f"clisp {'LMS' if cfa.kind == 'lms' else 'Bayer'} simulated"
+
+
+def camera_make_model(raw: RawImage) -> tuple[str, str]:
+    """(Make, Model) of ``raw``: a camera raw's from its EXIF (``metadata['exif']``; '' where the
+    file names none), else clisp and our simulated sensor."""
+    exif = raw.metadata.get("exif")
+    if not isinstance(exif, dict):
+        return "clisp", _model_name(raw.cfa)
+    return str(exif.get("Make") or ""), str(exif.get("Model") or "")
 
 
 def dng_colour_matrix(raw: RawImage) -> np.ndarray:
@@ -333,13 +353,22 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         "colour_matrix": raw.colour_matrix.tolist(),
         "wb2": [float(v) for v in raw.wb2],
         "gain": md.get("gain"),
-        "make": md.get("make", "clisp" if kind == SOURCE_CLISP else None),
-        "model": md.get("model", _model_name(raw.cfa) if kind == SOURCE_CLISP else None),
     }
-    for key in ("wb_source", "colour_matrix_source", "flip"):
+    make, model = camera_make_model(raw)
+    info["make"], info["model"] = make or None, model or None
+    exif = md.get("exif") if isinstance(md.get("exif"), dict) else {}
+    for key, name in _INFO_EXIF.items():
+        if key in exif:
+            info[name] = exif[key]
+    for key in ("wb_source", "colour_matrix_source", "flip", "crop"):
         if key in md:
             info[key] = md[key]
     return info
+
+
+_INFO_EXIF = {"Exif:LensModel": "lens", "ExposureTime": "exposure_time_s", "FNumber": "f_number",
+              "Exif:PhotographicSensitivity": "iso", "Exif:DateTimeOriginal": "captured"}
+"""The shot's EXIF (clisp.exif names) that ``clisp info`` shows, and under which key."""
 
 
 def _load(path: str | os.PathLike[str], lazy: bool = False) -> tuple[RawImage, str]:

@@ -15,6 +15,7 @@ from clisp.charts import demo_chart
 from clisp.cli import main
 from clisp.imageio import read_image, write_image
 from clisp.metrics import psnr
+from clisp.pipeline import crop_of
 from clisp.rawfile import read_raw
 
 CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
@@ -162,7 +163,8 @@ def test_camera_raw_to_exr(tmp_path: Path, name: str, capsys) -> None:
     assert code == 0, err
     image, is_float = read_image(out_path)
     raw = read_raw(CAMERA_RAWS / name)
-    assert is_float and image.shape[:2] == raw.shape
+    crop = crop_of(raw)                     # the file's crop is applied by default
+    assert is_float and image.shape[:2] == (raw.shape if crop is None else crop[2:])
     assert np.all(np.isfinite(image)) and 0.0 < float(image.mean()) < 2.0
 
 
@@ -218,7 +220,7 @@ def test_cli_import_leaves_heavy_libraries_out() -> None:
     libraries only some commands or the study code need (scipy.ndimage alone cost 0.16 s)."""
     import subprocess
     import sys
-    heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy")
+    heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy", "exiv2", "PIL")
     code = f"import sys, clisp.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert loaded == "", f"importing clisp.cli loads {loaded}"

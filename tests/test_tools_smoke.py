@@ -144,3 +144,10 @@ def test_bench_demosaic_quality_lms_numpy_hook(capsys):
     scores = {line.rsplit(None, 1)[0].strip(): float(line.rsplit(None, 1)[1])
               for line in text.splitlines() if line.startswith("  LMS ")}
     assert abs(scores["LMS numpy lms_default_reference"] - scores["LMS clisp default"]) < 0.05
+
+
+def test_docs_figures(tmp_path):
+    """docs/model.md's figures redraw from clisp's definitions (no data files)."""
+    import docs_figures
+    assert docs_figures.main(["--out", str(tmp_path)]) == 0
+    assert {p.name for p in tmp_path.glob("*.png")} == {"cfa.png", "spectrum.png", "noise.png"}

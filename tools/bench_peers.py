@@ -50,7 +50,7 @@ from toolkit import (DEFAULT_DATA, KODAK_SCENE, NEUTRAL_CWD, REPO, clisp_cmd, cp
                      last_line, markers, parse_size, repo_env, update_results, write_csv)
 
 CAMERA_RAW = "raw/RAW_CANON_D30_SRGB.CRW"
-STALE_METADATA = ("flip", "raw_size", "visible_origin", "default_crop")
+STALE_METADATA = ("flip", "raw_size", "visible_origin", "default_crop", "crop")
 """Camera metadata that no longer describes the tiled mosaic (orientation, sensor geometry)."""
 
 CLISP_BAYER = [(p, f) for p in ("fast", "balanced", "quality") for f in ("tif", "exr")]
