@@ -288,7 +288,7 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     skipper = getattr(pipeline, "skipper", None)
     plan = getattr(pipeline, "skip_plan", None)
     if skipper is None:
-        return "explain: no scene analysis (--no-skip without --explain)"
+        return "explain: no scene analysis (nothing to skip: this pipeline has no chroma denoiser)"
     lines.append(skipper.analysis.summary())
     lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
     lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP (analysis "
