@@ -4,6 +4,10 @@
                                    [--sky 2048x1536] [--tile N] [--repeat 2]
     python tools/calibrate_skip.py --levels      # predicted visible chroma noise on grey fields
     python tools/calibrate_skip.py --cost        # analysis cost, ms per MP
+    python tools/calibrate_skip.py --cli [--work DIR] [--scenes sky,kodak,mcm] [--repeat 3]
+        # issue 13's acceptance: whole process (`clisp process X.dng -o Y.exr` against
+        # `--no-skip`), 12 MP scenes: the sky, a 5 x 6 collage of Kodak and a 8 x 6 collage of
+        # McMaster images; PSNR is the mean over the collage's images
 
 Per scene, CFA and gain: the raw is simulated (clisp.simulate, seed 1), the 'quality' preset
 pipeline is built with skip=True (default) and skip=False (--no-skip: analysed, every tile full),
@@ -91,8 +95,75 @@ def compare(name: str, scene: np.ndarray, cfa: str, gain: float, tile: int | Non
     return row
 
 
+def collage(name: str, data: Path = DATA) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+    """A 12 MP natural scene and its images' regions (y0, y1, x0, x1): 'kodak' = 24 Kodak images
+    (portrait ones turned) in 6 rows of 5 (3000 x 3840, the last row cut to 440 rows); 'mcm' = the
+    18 McMaster images in 6 rows of 8 (3000 x 4000)."""
+    if name == "kodak":
+        ims = [read_scene(data / "kodak" / f"kodim{i:02d}.png") for i in range(1, 25)]
+        ims = [im if im.shape[0] == 512 else np.rot90(im) for im in ims]
+        grid_, (ih, iw), h, w = (6, 5), (512, 768), 3000, 3840
+    else:
+        ims = [read_scene(data / "mcmaster" / f"{i}.tif") for i in range(1, 19)]
+        grid_, (ih, iw), h, w = (6, 8), (500, 500), 3000, 4000
+    rows = [np.concatenate([ims[(r * grid_[1] + c) % len(ims)] for c in range(grid_[1])], 1) for r in range(grid_[0])]
+    scene = np.ascontiguousarray(np.concatenate(rows, 0)[:h, :w])
+    regions = [(y, min(y + ih, h), x, x + iw) for y in range(0, h, ih) for x in range(0, w, iw) if min(y + ih, h) - y > 100]
+    return scene, regions
+
+
+def cli_acceptance(work: Path, scenes: list[str], cfas: list[str], gains: list[str], repeat: int) -> int:
+    """Simulate each scene (cached in ``work``), then time `clisp process` default against
+    `--no-skip` (interleaved, median of ``repeat``), score both and print the plan."""
+    import subprocess
+    from clisp.imageio import read_image
+    from clisp.rawfile import write_raw
+    work.mkdir(parents=True, exist_ok=True)
+    clisp = [sys.executable, "-m", "clisp"]
+
+    def timed(args: list[str]) -> tuple[float, str]:
+        t = time.perf_counter()
+        r = subprocess.run(clisp + [str(a) for a in args], capture_output=True, text=True)
+        if r.returncode:
+            raise SystemExit(r.stderr)
+        return time.perf_counter() - t, r.stdout
+
+    print(f"{'scene':<7}{'cfa':<6}{'gain':>5}{'default s':>11}{'no-skip s':>11}{'ratio':>7}{'dB default':>12}"
+          f"{'dB no-skip':>12}{'loss':>8}  plan")
+    for name in scenes:
+        scene, regions = (sky(3000, 4000), [(10, 2990, 10, 3990)]) if name == "sky" else collage(name)
+        for cfa in cfas:
+            for gain in gains:
+                raw_path, truth_path = work / f"{name}_{cfa}_g{gain}.dng", work / f"{name}_{cfa}_truth_g{gain}.npy"
+                if not raw_path.exists():
+                    sim = simulate(scene, cfa=cfa, gain=float(gain), seed=1)
+                    write_raw(raw_path, sim.raw)
+                    np.save(truth_path, sim.truth.astype(np.float32))
+                truth = np.load(truth_path)
+                times: dict[str, list[float]] = {"skip": [], "noskip": []}
+                scores = {}
+                for k in range(repeat):
+                    for mode, extra in (("skip", []), ("noskip", ["--no-skip"])):
+                        out = work / f"out_{mode}.exr"
+                        dt, _ = timed(["process", raw_path, "-o", out] + extra)
+                        times[mode].append(dt)
+                        if k == 0:
+                            img = read_image(out)[0]
+                            scores[mode] = float(np.mean([psnr(img, truth, region=r) for r in regions]))
+                _, text = timed(["process", raw_path, "-o", work / "out_explain.exr", "--explain"])
+                plan = "; ".join(" ".join(line.split()[:4]) for line in text.splitlines()
+                                 if line.strip().split(" ")[0] in ("full", "light", "flat", "none"))
+                ts, tn = float(np.median(times["skip"])), float(np.median(times["noskip"]))
+                print(f"{name:<7}{cfa:<6}{gain:>5}{ts:>11.2f}{tn:>11.2f}{ts / tn:>7.2f}{scores['skip']:>12.3f}"
+                      f"{scores['noskip']:>12.3f}{scores['noskip'] - scores['skip']:>8.3f}  {plan}", flush=True)
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cli", action="store_true", help="issue 13's acceptance: whole process, 12 MP scenes")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/calibrate_skip"), help="--cli: raws and outputs")
+    ap.add_argument("--scenes", default="sky,kodak,mcm", help="--cli: sky, kodak, mcm")
     ap.add_argument("--gains", default="1,64")
     ap.add_argument("--cfas", default="lms,bayer")
     ap.add_argument("--kodak", default="5,23")
@@ -103,6 +174,9 @@ def main() -> int:
     ap.add_argument("--levels", action="store_true")
     ap.add_argument("--cost", action="store_true")
     args = ap.parse_args()
+    if args.cli:
+        return cli_acceptance(args.work, args.scenes.split(","), args.cfas.split(","), args.gains.split(","),
+                              args.repeat)
     if args.levels:
         return levels()
     if args.cost:
