@@ -27,6 +27,7 @@ import os
 import sys
 import time
 import uuid
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -182,6 +183,18 @@ def _worker_address() -> str | None:
         return None
 
 
+_CACHE: dict[Any, Any] = {}
+
+
+def worker_cache(key: Any, factory: Callable[[], Any]) -> Any:
+    """``factory()`` once per process and ``key``: state that a worker keeps across tasks (a
+    Runner with its noise tables, a test chart), in this importable module so that functions
+    shipped by value to workers (tools' code) still find it on the next task."""
+    if key not in _CACHE:
+        _CACHE[key] = factory()
+    return _CACHE[key]
+
+
 class RuntimePlugin:
     """Dask worker plugin: builds the worker process's OpenCL context (clisp.runtime.get_runtime,
     once per process) when the worker starts, not inside the first file's time."""
@@ -216,6 +229,19 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def local_worker_env(workers: int) -> dict[str, str]:
+    """Environment of a local cluster's workers: PoCL's CPU device gets CPUs / ``workers``
+    threads per worker (POCL_CPU_MAX_CU_NUM) rather than a thread per CPU in every worker, unless
+    the user set it. (2 workers on 2 CPUs: 1.3x the throughput, tools/bench_batch.py.)"""
+    if workers <= 1 or "POCL_CPU_MAX_CU_NUM" in os.environ:
+        return {}
+    return {"POCL_CPU_MAX_CU_NUM": str(max(1, default_workers() // workers))}
+
+
+class _WorkersCannotRun(Exception):
+    """Setting a worker up failed there (clisp missing or broken on it)."""
+
+
 @contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None,
                 timeout: float = START_TIMEOUT, worker_env: dict[str, str] | None = None) -> Iterator[Any]:
@@ -223,8 +249,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     tcp://host:8786), else on a new local cluster of ``workers`` processes (default: one per CPU)
     with one thread each, on loopback, closed on exit. Each worker builds its OpenCL context
     once (:class:`RuntimePlugin`). ``timeout``: seconds for start-up and for a first worker
-    (ClispError past it). ``worker_env``: extra environment of local workers (e.g. PoCL's
-    POCL_CPU_MAX_CU_NUM)."""
+    (ClispError past it). ``worker_env``: environment of local workers (default
+    :func:`local_worker_env`)."""
     import dask
     try:
         from distributed import Client, LocalCluster
@@ -234,22 +260,29 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     config = {"distributed.comm.timeouts.connect": f"{timeout}s",
               "distributed.scheduler.allowed-failures": 1}   # a file that kills a worker is retried once
     try:
-        with dask.config.set(config):
+        with dask.config.set(config), warnings.catch_warnings():
             if scheduler:
                 client = Client(scheduler, timeout=timeout)
             else:
                 n = workers or default_workers()
+                warnings.filterwarnings("ignore", message="Port .* is already in use")   # a free one is taken
                 cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                        dashboard_address=None, silence_logs=logging.ERROR,
-                                       env=dict(worker_env or {}))
+                                       env=local_worker_env(n) if worker_env is None else dict(worker_env))
                 client = Client(cluster, timeout=timeout)
             client.wait_for_workers(1, timeout=timeout)
-            client.register_plugin(_worker_plugin())
-    except (OSError, TimeoutError) as exc:
+            try:
+                client.register_plugin(_worker_plugin())
+            except Exception as exc:  # noqa: BLE001 - the workers' own error, e.g. no clisp there
+                raise _WorkersCannotRun(" ".join(str(exc).split())) from exc
+    except (OSError, TimeoutError, _WorkersCannotRun) as exc:
         for c in (client, cluster):
             if c is not None:
                 c.close()
         where = f"scheduler {scheduler}" if scheduler else "a local Dask cluster"
+        if isinstance(exc, _WorkersCannotRun):
+            raise ClispError(f"the workers of {where} cannot run clisp ({exc}); install this clisp "
+                             f"({__version__}) where they run") from exc
         raise ClispError(f"cannot start {where} within {timeout:g} s: {' '.join(str(exc).split())}") from exc
     try:
         yield client
@@ -260,10 +293,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
 
 
 def map_ordered(client: Any | None, fn: Callable[..., Any], items: Sequence[Any], *args: Any,
-                progress: str | None = None) -> list[Any]:
+                progress: str | None = None, timeout: float | None = None) -> list[Any]:
     """``[fn(item, *args) for item in items]``, on the Dask cluster of ``client`` (in parallel,
     results in the order of ``items``) or in this process when ``client`` is None. An item's
-    exception is raised here. ``progress``: label of a progress bar (on a terminal)."""
+    exception is raised here; so is TimeoutError when the results take longer than ``timeout``
+    seconds (None: no limit). ``fn`` and ``args`` travel by cloudpickle, so modules registered
+    with ``cloudpickle.register_pickle_by_value`` (tools/ scripts the workers cannot import)
+    reach the workers by value. ``progress``: label of a progress bar (on a terminal)."""
     bar = _progress(len(items), progress)
     try:
         if client is None:
@@ -272,13 +308,23 @@ def map_ordered(client: Any | None, fn: Callable[..., Any], items: Sequence[Any]
                 out.append(fn(item, *args))
                 bar.update(1)
             return out
+        import cloudpickle
         from distributed import as_completed
-        futures = [client.submit(fn, item, *args, pure=False) for item in items]
-        for _ in as_completed(futures):
+        blob = cloudpickle.dumps((fn, args))
+        futures = [client.submit(_call_pickled, blob, item, pure=False) for item in items]
+        for _ in as_completed(futures, timeout=timeout):
             bar.update(1)
         return client.gather(futures)
     finally:
         bar.close()
+
+
+def _call_pickled(blob: bytes, item: Any) -> Any:
+    """On a worker: ``fn(item, *args)`` for ``(fn, args)`` cloudpickled in ``blob`` (unpickled
+    once per process)."""
+    import cloudpickle
+    fn, args = worker_cache(("pickled", hashlib.sha1(blob).hexdigest()), lambda: cloudpickle.loads(blob))
+    return fn(item, *args)
 
 
 def _progress(total: int, label: str | None) -> Any:
@@ -494,5 +540,5 @@ def summary_line(summary: BatchSummary) -> str:
             f"manifest {summary.manifest}")
 
 
-__all__ = ["BatchSettings", "BatchSummary", "Job", "run_batch", "process_one", "dask_client", "map_ordered",
+__all__ = ["BatchSettings", "BatchSummary", "Job", "run_batch", "process_one", "dask_client", "map_ordered", "worker_cache",
            "read_manifest", "is_finished", "summary_line"]

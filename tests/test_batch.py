@@ -151,3 +151,22 @@ def test_cli_batch_killed_then_resumed(tmp_path: Path) -> None:
         assert (outdir / r["output"]).stat().st_size == r["size"]
     assert not list(outdir.glob(".*partial*"))               # the killed run's temporaries are gone
     assert json.loads(manifest.read_text().splitlines()[-1])["run"] != before[-1]["run"]
+
+
+def test_paper_sweep_on_cluster_matches_serial(tmp_path: Path, external_cluster) -> None:
+    """tools/reproduce_paper.py --scheduler: the Table 1 sweep's items run on the cluster (tools'
+    code shipped by value, one Runner per worker) and give the serial numbers exactly."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import paper_tables as pt
+    import reproduce_paper
+    from clisp.charts import demo_chart
+    from clisp.imageio import write_image
+    from clisp.stages.chroma_denoise import ChromaDenoiseParams
+    scene = tmp_path / "scene.png"
+    write_image(scene, demo_chart().image[:64, :96], encoded=False)
+    runner = pt.Runner(ChromaDenoiseParams(), None)
+    items = [(scene, gain, [("bayer", "bilinear"), ("lms", "bilinear")]) for gain in (4, 8)]
+    serial = pt.serial(pt.table1_item, items, runner)
+    with reproduce_paper.sweep_mapper(external_cluster.scheduler_address) as mapper:
+        remote = mapper(pt.table1_item, items, runner, timeout=RESULTS)
+    assert remote == serial and len(serial[0]) == 4
