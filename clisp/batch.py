@@ -146,7 +146,7 @@ def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
 
 def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dict[str, Any]:
     """Process one file (on a worker). Never raises for a bad input: returns its manifest record,
-    status 'ok' with the output's size, mtime and SHA-256, or 'error' with a one-line message
+    status 'ok' with the image's width, height and tiles and the output's size, mtime and SHA-256, or 'error' with a one-line message
     naming the file. ``seconds``: wall time of reading, processing, writing and hashing."""
     from .pipeline import DEFAULT_BUDGET, process_file
     from .rawfile import read_raw
@@ -155,11 +155,11 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
     record["worker"] = _worker_address()
     try:
         raw = read_raw(job.input, lazy=True)
-        (height, width), _ = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
+        (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
                                           demosaic=settings.demosaic)
         st = os.stat(job.output)
-        record.update(width=width, height=height, size=st.st_size, mtime_ns=st.st_mtime_ns,
+        record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))
     except Exception as exc:  # noqa: BLE001 - one bad file must not stop the batch
         record.update(status="error", error=error_line(job.input, exc))
