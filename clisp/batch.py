@@ -379,9 +379,9 @@ def last_ok(records: Iterable[dict[str, Any]]) -> dict[str, dict[str, Any]]:
 
 def is_finished(job: Job, record: dict[str, Any] | None, digest: str, outdir: Path) -> bool:
     """Whether ``record`` (the output's last 'ok') still stands: same settings hash, same input
-    (size, mtime), and the output file complete: its size as recorded, and its SHA-256 as
+    (path, size, mtime), and the output file complete: its size as recorded, and its SHA-256 as
     recorded (re-hashed only when its mtime changed since)."""
-    if record is None or record.get("settings") != digest:
+    if record is None or record.get("settings") != digest or record.get("input") != job.input:
         return False
     if (record.get("input_size"), record.get("input_mtime_ns")) != (job.input_size, job.input_mtime_ns):
         return False
