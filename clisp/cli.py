@@ -1,4 +1,4 @@
-"""Command-line interface: ``clisp simulate | process | info | demo``.
+"""Command-line interface: ``clisp simulate | process | batch | info | demo``.
 
 Names and options here are a contract with users and later work: keep them stable.
 Every user-facing failure is one line on stderr (``clisp: error: FILE: problem``), exit status 2,
@@ -96,6 +96,31 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_process)
 
 
+def _add_batch(sub: argparse._SubParsersAction) -> None:
+    from .batch import FORMATS
+    from .pipeline import DEFAULT_PRESET, DEMOSAICS, PRESETS
+    p = sub.add_parser("batch", help="process many raws (files or folders) in parallel on Dask, resumably",
+                       description="Writes OUTDIR/<input stem>.<format> and OUTDIR/manifest.jsonl (one record per "
+                                   "file and attempt). A re-run skips outputs finished with the same settings. "
+                                   "Exit status 1 when any input failed (the others are processed), 2 when the "
+                                   "batch cannot run.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="raw files, or folders of them (not recursive)")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if missing)")
+    p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
+    p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
+    p.add_argument("--format", choices=FORMATS, default="exr",
+                   help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
+    p.add_argument("--compression", default=None, metavar="NAME", help="EXR/TIFF/PNG compression (as process)")
+    p.add_argument("--mem", type=memory_size, default=None, metavar="SIZE",
+                   help="peak memory of each worker's processing, as process --mem (default 1G)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="worker processes of the local Dask cluster (default: one per CPU)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on an existing Dask cluster, e.g. tcp://host:8786 (its workers need clisp "
+                        "installed and must see the inputs and OUTDIR at the same paths)")
+    p.set_defaults(func=cmd_batch)
+
+
 def _add_info(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="describe a raw file, or the OpenCL device with --device")
     p.add_argument("raw", nargs="?", help="raw file to describe")
@@ -116,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
     _add_process(sub)
+    _add_batch(sub)
     _add_info(sub)
     _add_demo(sub)
     return parser
@@ -230,6 +256,22 @@ def cmd_process(args: argparse.Namespace) -> int:
         print(profile.report(stats.megapixels, wall))
         print(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
     return 0
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import BatchSettings, run_batch, summary_line
+    if args.workers is not None and args.workers < 1:
+        raise ClispError(f"--workers {args.workers}: at least 1")
+    if args.workers is not None and args.scheduler:
+        raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
+    settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
+                             compression=args.compression, mem=args.mem)
+    summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
+                        progress=True)
+    for message in summary.failed:
+        print(f"clisp: error: {message}", file=sys.stderr)
+    print(summary_line(summary))
+    return 1 if summary.errors else 0
 
 
 _STARTUP: dict[str, float] = {}

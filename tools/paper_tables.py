@@ -41,6 +41,7 @@ from typing import Callable
 
 import numpy as np
 
+from clisp.batch import map_ordered, worker_cache
 from clisp.cfa import CFA
 from clisp.charts import demo_chart
 from clisp.imageio import read_scene, write_image
@@ -146,22 +147,58 @@ class Runner:
     def run(self, raw: RawImage, name: str, denoise: bool, noise: ChannelNoise | None = None) -> np.ndarray:
         return self.pipeline(raw, name, denoise, noise).run(raw.data, tile=self.tile)
 
+    def __reduce__(self) -> tuple:
+        """Shipped to a Dask worker (``--scheduler``), a Runner becomes that worker process's own
+        Runner with the same settings, so its noise tables are calibrated once per worker."""
+        return shared_runner, (self.params, self.tile)
+
+
+def shared_runner(params: ChromaDenoiseParams, tile: int | None) -> Runner:
+    """This process's Runner for (params, tile) (clisp.batch.worker_cache)."""
+    return worker_cache(("paper_tables.Runner", params, tile), lambda: Runner(params, tile))
+
+
+Mapper = Callable[..., list]
+"""``mapper(fn, items, *args, progress=label, timeout=s) -> [fn(item, *args) for item in items]``, in order:
+clisp.batch.map_ordered bound to a Dask client (a sweep on a cluster) or to None (this process)."""
+
+
+def serial(fn: Callable, items: list, *args, progress: str | None = None, timeout: float | None = None) -> list:
+    """The default Mapper: this process, one item after another (``timeout`` is not used)."""
+    return map_ordered(None, fn, items, *args, progress=progress)
+
+
+def chart() -> object:
+    """The demo chart, built once per process."""
+    return worker_cache("demo_chart", demo_chart)
+
 
 # ------------------------------------------------------------------------------------------
 # Table 2
 # ------------------------------------------------------------------------------------------
 
-def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int) -> dict:
-    chart = demo_chart()
+def table2_item(item: tuple, runner: Runner) -> dict[bool, np.ndarray]:
+    """One (gain, kind, demosaic, seed) of Table 2: {denoise: gray-panel SNRs}."""
+    gain, kind, name, seed = item
+    demo = chart()
+    raw = simulate(demo.image, kind, gain=gain, seed=seed).raw
+    return {denoise: gray_panel_snr(runner.run(raw, name, denoise), demo.gray_rois) for denoise in (True, False)}
+
+
+def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int, mapper: Mapper = serial) -> dict:
+    items = [(gain, kind, name, seed) for gain in GAINS
+             for kind, names in (("bayer", [bayer_name]), ("lms", lms_names)) for name in names
+             for seed in range(seeds)]
+    snrs = iter(mapper(table2_item, items, runner, progress="Table 2"))
     results: dict = {}
     for gain in GAINS:
         for kind, names in (("bayer", [bayer_name]), ("lms", lms_names)):
             for name in names:
                 snr = {True: [], False: []}
                 for seed in range(seeds):
-                    raw = simulate(chart.image, kind, gain=gain, seed=seed).raw
+                    one = next(snrs)
                     for denoise in (True, False):
-                        snr[denoise].append(gray_panel_snr(runner.run(raw, name, denoise), chart.gray_rois))
+                        snr[denoise].append(one[denoise])
                 results[(gain, kind, name)] = {d: np.mean(v, axis=0) for d, v in snr.items()}
     print(f"\nTable 2: gray-panel SNR (dB), linear output, mean of R, G, B; demo chart, {seeds} seed(s); "
           "'ours' with chroma denoise; paper in brackets")
@@ -187,38 +224,56 @@ def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int) ->
 # Table 1
 # ------------------------------------------------------------------------------------------
 
-def load_set(data: Path, folder: str, patterns: tuple[str, ...], subset: int | None) -> list[tuple[str, np.ndarray]]:
+def set_files(data: Path, folder: str, patterns: tuple[str, ...], subset: int | None) -> list[Path]:
+    """The first ``subset`` images of a set by file name (all for None)."""
     files = sorted({p for pat in patterns for p in (data / folder).glob(pat)})
     if not files:
         raise SystemExit(f"no images in {data / folder}")
-    images = []
-    for path in files[:subset]:
-        scene = read_scene(path)
-        h, w = scene.shape[0] // 4 * 4, scene.shape[1] // 4 * 4
-        images.append((path.name, scene[:h, :w]))
-    return images
+    return files[:subset]
 
 
-def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str], bayer_name: str) -> dict:
+def load_scene(path: Path) -> np.ndarray:
+    """A set's image as linear sRGB, cropped to multiples of 4."""
+    scene = read_scene(path)
+    h, w = scene.shape[0] // 4 * 4, scene.shape[1] // 4 * 4
+    return scene[:h, :w]
+
+
+def load_set(data: Path, folder: str, patterns: tuple[str, ...], subset: int | None) -> list[tuple[str, np.ndarray]]:
+    return [(path.name, load_scene(path)) for path in set_files(data, folder, patterns, subset)]
+
+
+def table1_item(item: tuple, runner: Runner) -> list[tuple[tuple, tuple[float, float]]]:
+    """One (image path, noise level, columns) of Table 1: [((gain, kind, name, run), (PSNR
+    tone-mapped, PSNR linear))] in the order of the serial loop."""
+    path, gain, columns = item
+    scene = load_scene(path)
+    out = []
+    for kind, name in columns:
+        sim = simulate(scene, kind, gain=gain, seed=0)
+        runs = {"with": runner.run(sim.raw, name, True), "without": runner.run(sim.raw, name, False)}
+        if gain is None:
+            est = raw_noise(sim.raw, estimate=True)
+            runs["estimated"] = runner.run(sim.raw, name, True, noise=est)
+        for key, image in runs.items():
+            out.append(((gain, kind, name, key), (psnr(image, sim.truth, border=BORDER),
+                                                   psnr(image, sim.truth, border=BORDER, tone_mapped=False))))
+    return out
+
+
+def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str], bayer_name: str,
+           mapper: Mapper = serial) -> dict:
     levels = [None] + list(GAINS)
     columns = [("bayer", bayer_name)] + [("lms", n) for n in lms_names]
     results: dict = {}
     for set_name, (folder, patterns) in SETS.items():
-        images = load_set(data, folder, patterns, subset)
+        paths = set_files(data, folder, patterns, subset)
         t0 = time.perf_counter()
-        for _, scene in images:
-            for gain in levels:
-                for kind, name in columns:
-                    sim = simulate(scene, kind, gain=gain, seed=0)
-                    runs = {"with": runner.run(sim.raw, name, True), "without": runner.run(sim.raw, name, False)}
-                    if gain is None:
-                        est = raw_noise(sim.raw, estimate=True)
-                        runs["estimated"] = runner.run(sim.raw, name, True, noise=est)
-                    for key, out in runs.items():
-                        acc = results.setdefault((set_name, gain, kind, name, key), [])
-                        acc.append((psnr(out, sim.truth, border=BORDER),
-                                    psnr(out, sim.truth, border=BORDER, tone_mapped=False)))
-        print(f"\n[{set_name}: {len(images)} images in {time.perf_counter() - t0:.0f} s]")
+        items = [(path, gain, columns) for path in paths for gain in levels]
+        for scores in mapper(table1_item, items, runner, progress=f"Table 1 {set_name}"):
+            for (gain, kind, name, key), value in scores:
+                results.setdefault((set_name, gain, kind, name, key), []).append(value)
+        print(f"\n[{set_name}: {len(paths)} images in {time.perf_counter() - t0:.0f} s]")
     mean = {k: np.mean(v, axis=0) for k, v in results.items()}
     for set_name in SETS:
         n = len(results[(set_name, None, "bayer", bayer_name, "with")])
@@ -235,7 +290,7 @@ def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str],
                 label = "noiseless" if gain is None else f"{gain}x"
                 print(f"  {label:>10}  {b[0]:7.2f}/{lm[0]:7.2f}  {lm[0] - b[0]:+9.2f}  {pb:6.2f}/{pl:6.2f}"
                       f"  {pl - pb:+15.2f}  {b[1]:7.2f}/{lm[1]:7.2f}")
-        print(f"  denoiser effect, PSNR with - without (tone-mapped dB); 'with/without' values:")
+        print("  denoiser effect, PSNR with - without (tone-mapped dB); 'with/without' values:")
         for kind, name in columns:
             cells = []
             for gain in levels:

@@ -8,7 +8,11 @@ the spectral row (clisp.spectral.simulate_spectral, compared with the paper's hy
 row) are scored here the same way (tone-mapped PSNR, 10 px border, chroma denoise on).
 
     python tools/reproduce_paper.py [--data ../shared/data] [--subset N] [--seeds S]
-        [--bench-subset N] [--speed-shape HxW] [--repeat R] [--out docs]
+        [--bench-subset N] [--speed-shape HxW] [--repeat R] [--out docs] [--scheduler ADDRESS]
+
+``--scheduler ADDRESS`` runs the sweeps (Table 2 per gain, CFA and seed; Table 1 per image and
+noise level; the chart and spectral rows per noise level) as a batch on that Dask cluster through
+clisp.batch, with the same numbers as the default in-process run.
 """
 from __future__ import annotations
 
@@ -16,7 +20,10 @@ import argparse
 import shlex
 import sys
 import time
+from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -24,7 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench  # noqa: E402
 import paper_tables as pt  # noqa: E402
-from clisp.charts import demo_chart  # noqa: E402
 from clisp.metrics import psnr  # noqa: E402
 from clisp.runtime import get_runtime  # noqa: E402
 from clisp.simulate import simulate  # noqa: E402
@@ -40,34 +46,61 @@ PAPER_T1_EXTRA = {   # SPEC.md section 9, verbatim (Kodak and IMAX/McMaster are 
 LEVELS = [None] + list(pt.GAINS)
 
 
-def chart_rows(runner: pt.Runner, lms: str, bayer: str) -> dict:
+def chart_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[float, float]:
+    """(Bayer, LMS) tone-mapped PSNR on the demo chart at one noise level."""
+    scene = pt.chart().image
+    pair = []
+    for kind, name in (("bayer", bayer), ("lms", lms)):
+        sim = simulate(scene, kind, gain=gain, seed=0)
+        pair.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=pt.BORDER))
+    return tuple(pair)
+
+
+def chart_rows(runner: pt.Runner, lms: str, bayer: str, mapper: pt.Mapper = pt.serial) -> dict:
     """{gain: (Bayer, LMS) tone-mapped PSNR} on the demo chart, chroma denoise on, seed 0."""
-    scene = demo_chart().image
-    out = {}
-    for gain in LEVELS:
-        pair = []
-        for kind, name in (("bayer", bayer), ("lms", lms)):
-            sim = simulate(scene, kind, gain=gain, seed=0)
-            pair.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=pt.BORDER))
-        out[gain] = tuple(pair)
-    return out
+    return dict(zip(LEVELS, mapper(chart_item, LEVELS, runner, lms, bayer, progress="charts")))
 
 
-def spectral_rows(runner: pt.Runner, lms: str, bayer: str) -> tuple[dict, dict]:
+def spectral_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[tuple[float, float], dict]:
+    """Spectral ColorChecker at one noise level: (Bayer, LMS) PSNR, and when noiseless the
+    mean/max CIEDE2000 per kind."""
+    rois = spectral_colorchecker("lms").rois
+    pair, de = [], {}
+    for kind, name in (("bayer", bayer), ("lms", lms)):
+        sim = simulate_spectral(kind, gain=gain, seed=0)
+        image = runner.run(sim.raw, name, True)
+        pair.append(psnr(image, sim.truth, border=pt.BORDER))
+        if gain is None:
+            d = patch_delta_e(image, sim.truth, rois)
+            de[kind] = (float(np.mean(d)), float(np.max(d)))
+    return tuple(pair), de
+
+
+def spectral_rows(runner: pt.Runner, lms: str, bayer: str, mapper: pt.Mapper = pt.serial) -> tuple[dict, dict]:
     """Spectral ColorChecker: {gain: (Bayer, LMS) PSNR} and the noiseless mean/max CIEDE2000 per kind."""
     out, de = {}, {}
-    rois = spectral_colorchecker("lms").rois
-    for gain in LEVELS:
-        pair = []
-        for kind, name in (("bayer", bayer), ("lms", lms)):
-            sim = simulate_spectral(kind, gain=gain, seed=0)
-            image = runner.run(sim.raw, name, True)
-            pair.append(psnr(image, sim.truth, border=pt.BORDER))
-            if gain is None:
-                d = patch_delta_e(image, sim.truth, rois)
-                de[kind] = (float(np.mean(d)), float(np.max(d)))
-        out[gain] = tuple(pair)
+    for gain, (pair, d) in zip(LEVELS, mapper(spectral_item, LEVELS, runner, lms, bayer, progress="spectral")):
+        out[gain] = pair
+        de.update(d)
     return out, de
+
+
+@contextmanager
+def sweep_mapper(scheduler: str | None) -> Iterator[pt.Mapper]:
+    """The Mapper of the per-image/per-gain sweeps: this process, or with ``scheduler`` the Dask
+    cluster there through clisp.batch (each worker: one OpenCL context, one Runner). The tools'
+    functions travel by value, so the workers need clisp, not this checkout's tools/."""
+    if not scheduler:
+        yield pt.serial
+        return
+    import cloudpickle
+    from clisp.batch import dask_client, map_ordered
+    for module in (pt, sys.modules[__name__]):
+        if module.__name__ != "__main__":              # __main__ travels by value anyway
+            cloudpickle.register_pickle_by_value(module)
+    with dask_client(scheduler=scheduler) as client:
+        print(f"sweeps on the Dask cluster at {scheduler}: {len(client.scheduler_info()['workers'])} workers")
+        yield partial(map_ordered, client)
 
 
 def fmt_level(gain) -> str:
@@ -132,6 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speed-shape", default="3000x4000")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", type=Path, default=root / "docs")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the Table 1/2, chart and spectral sweeps (per image and gain) on the Dask "
+                         "cluster at ADDRESS (clisp.batch); the speed benchmark stays in this process")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     data = args.data.resolve()
@@ -142,17 +178,18 @@ def main(argv: list[str] | None = None) -> int:
     runner = pt.Runner(ChromaDenoiseParams(), None)
     times = {}
 
-    t = time.perf_counter()
-    t2 = pt.table2(runner, [lms], bayer, args.seeds)
-    times["Table 2"] = time.perf_counter() - t
-    t = time.perf_counter()
     subset = args.subset or None
-    t1 = pt.table1(runner, data, subset, [lms], bayer)
-    times["Table 1 (Kodak, McMaster)"] = time.perf_counter() - t
-    t = time.perf_counter()
-    charts = chart_rows(runner, lms, bayer)
-    spectral, delta_e = spectral_rows(runner, lms, bayer)
-    times["Table 1 (charts, spectral)"] = time.perf_counter() - t
+    with sweep_mapper(args.scheduler) as mapper:
+        t = time.perf_counter()
+        t2 = pt.table2(runner, [lms], bayer, args.seeds, mapper)
+        times["Table 2"] = time.perf_counter() - t
+        t = time.perf_counter()
+        t1 = pt.table1(runner, data, subset, [lms], bayer, mapper)
+        times["Table 1 (Kodak, McMaster)"] = time.perf_counter() - t
+        t = time.perf_counter()
+        charts = chart_rows(runner, lms, bayer, mapper)
+        spectral, delta_e = spectral_rows(runner, lms, bayer, mapper)
+        times["Table 1 (charts, spectral)"] = time.perf_counter() - t
     t = time.perf_counter()
     csv_path, png_path = out / "bench.csv", out / "bench.png"
     result = bench.run_bench(data, args.bench_subset, [1.0, 8.0, 64.0], bench.parse_shape(args.speed_shape),
