@@ -55,7 +55,8 @@ class BatchSettings:
     """What a batch does to each file. Everything but ``mem`` changes the output and is hashed.
 
     ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif' or 'png';
-    ``compression``: EXR/TIFF/PNG compression (None = clisp's default); ``mem``: peak resident
+    ``compression``: EXR/TIFF/PNG compression (None = clisp's default); ``skip``: as ``process``
+    (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
     """
@@ -64,12 +65,13 @@ class BatchSettings:
     demosaic: str | None = None
     compression: str | None = None
     mem: int | None = None
+    skip: bool = True
 
     def identity(self) -> dict[str, Any]:
         """The hashed part: the resolved preset, the options that change an output, clisp's version."""
         from .pipeline import DEFAULT_PRESET
         return {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
-                "format": self.format, "compression": self.compression}
+                "format": self.format, "compression": self.compression, "skip": self.skip}
 
     def digest(self) -> str:
         """16 hex digits of the SHA-256 of :meth:`identity` (canonical JSON)."""
@@ -157,7 +159,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
         raw = read_raw(job.input, lazy=True)
         (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
-                                          demosaic=settings.demosaic)
+                                          demosaic=settings.demosaic, skip=True if settings.skip else None)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))

@@ -113,6 +113,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compression", default=None, metavar="NAME", help="EXR/TIFF/PNG compression (as process)")
     p.add_argument("--mem", type=memory_size, default=None, metavar="SIZE",
                    help="peak memory of each worker's processing, as process --mem (default 1G)")
+    p.add_argument("--no-skip", action="store_true", help="run every stage on every tile (as process --no-skip)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="worker processes of the local Dask cluster (default: one per CPU)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -265,7 +266,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if args.workers is not None and args.scheduler:
         raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
-                             compression=args.compression, mem=args.mem)
+                             compression=args.compression, mem=args.mem, skip=not args.no_skip)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:
