@@ -30,6 +30,11 @@ brightness from the pixel's unclipped channels ("inpaint opposed", locally)::
     all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
                          channel's record: brightness never falls as the scene brightens)
 
+The clipped test on demosaiced values uses MARGIN times the mosaic's threshold (demosaics put a
+clipped channel a few percent low), and pixels within RIM of a clipped pixel (the demosaic's
+false colour across a light's edge) keep their brightness but take rho^ (``clip``: neutral);
+so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
+
 PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies within R:
 a ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour
 of its unclipped channels. Box sums are separable (rows, then columns); tiled output equals
@@ -48,7 +53,9 @@ from .base import Stage, as_f32
 
 MODES = ("clip", "reconstruct", "off")
 DEFAULT_MODE = "reconstruct"
-"""``--highlights`` default: the mode tools/bench_highlights.py scores best (see its docstring)."""
+"""``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions):
+reconstruct mean CIEDE2000 16.4 / 15.0 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR 17.1 / 15.5
+dB against 10.3 / 10.3 (LibRaw Blend 16.9 dE, ReconstructDefault 17.3 dE on Bayer)."""
 
 RADIUS = 16
 """Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
