@@ -76,8 +76,26 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
         if probed is not None:
             matrix, matrix_source = probed, "probed from LibRaw (not exposed by rawpy)"
     metadata = _camera_metadata(raw, p, wb_source, matrix_source)
+    linear_max = _linear_max(raw, pattern, colours, cfa)
+    if linear_max is not None:
+        metadata["linear_max"] = linear_max
     return RawImage(data=data, cfa=cfa, black_level=black, white_level=float(raw.white_level),
                     wb=wb, colour_matrix=matrix, exposure=1.0, metadata=metadata, source=str(p))
+
+
+def _linear_max(raw: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> list[float] | None:
+    """Per CFA channel clip level in DN (LibRaw's ``color.linear_max``: the camera's per-channel
+    saturation, rawpy's camera_white_level_per_channel), or None when the file gives none. The
+    highlight stage clips each channel at its own level (clisp.stages.highlights)."""
+    levels = getattr(raw, "camera_white_level_per_channel", None)
+    if levels is None:
+        return None
+    values = np.asarray(levels, dtype=np.float64).reshape(-1)
+    if values.size < 3 or not np.all(values[:3] > 0):
+        return None
+    if values.size < 4 or values[3] <= 0:
+        values = np.concatenate([values[:3], values[1:2]])
+    return [float(v) for v in channel_values(values[:4], pattern, colours, cfa)]
 
 
 def _colour_letters(color_desc: bytes) -> str:

@@ -54,7 +54,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, DEMOSAICS, PRESETS
+    from .pipeline import DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS
     p = sub.add_parser("process", help="process a raw (ours or a camera's) into an image",
                        description="OUT by extension: .exr linear sRGB float; .tif/.tiff/.png 16-bit sRGB-encoded.")
     p.add_argument("raw", help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy)")
@@ -78,6 +78,10 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="per-chroma strengths: LMS R-Y,G-Y,B-Y (default 1,1,1.5), Bayer U,V (default 1.5,1)")
     p.add_argument("--wb2", choices=("metadata", "gray_world", "gray_pixels"), default="metadata",
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
+    p.add_argument("--highlights", choices=("clip", "reconstruct", "off"), default=DEFAULT_HIGHLIGHTS,
+                   help="clipped highlights: reconstruct the colour from the unclipped channels and the "
+                        "light's rim, clip to a neutral white, or off (left as the sensor clipped them); "
+                        f"default {DEFAULT_HIGHLIGHTS}. Raws without clipped samples skip the stage")
     p.add_argument("--no-crop", action="store_true",
                    help="keep the whole mosaic; by default the output is the crop the raw declares "
                         "(a DNG's DefaultCrop inside its ActiveArea, a camera's recommended crop)")
@@ -245,6 +249,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=denoise, wb2=args.wb2, skip=skip,
+                                          highlights=args.highlights,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "

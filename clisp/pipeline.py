@@ -29,6 +29,7 @@ from .stages.demosaic_dlmmse import DemosaicDLMMSE
 from .stages.demosaic_lms import DemosaicLMSHybrid
 from .stages.demosaic_lms_guided import DemosaicLMSGuided
 from .stages.demosaic_malvar import DemosaicMalvar
+from .stages.highlights import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from .stages.raw_scale import normalize, white_balance1
 from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
                         progress_bar, run_tiles, window_source)
@@ -427,9 +428,10 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
-                   wb2: str = "metadata", skip: bool | None = None) -> Pipeline:
-    """Stages for ``raw``: normalise, WB pass 1, demosaic, colour (+ chroma denoise), WB pass 2,
-    tone curve.
+                   wb2: str = "metadata", skip: bool | None = None,
+                   highlights: str = DEFAULT_HIGHLIGHTS) -> Pipeline:
+    """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
+    WB pass 2, tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
     ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``denoise``: None =
@@ -441,7 +443,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     each tile skip what it does not need (clisp.skip; the run's plan is ``Pipeline.skip_plan``);
     False = analyse and plan, but every tile takes the full path (``--no-skip --explain``). A
     pipeline without a chroma denoiser (preset fast) has nothing to skip: no analysis (it would
-    cost 10-30 ms/MP for nothing).
+    cost 10-30 ms/MP for nothing). ``highlights``: 'clip', 'reconstruct' or 'off'
+    (clisp.stages.highlights); the stage is left out of raws without clipped samples.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -455,9 +458,13 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
             colour = chroma_denoise_for(raw, demosaic_stage, params)
         except NoiseEstimateError:
             pass        # a raw too small to estimate its noise is processed without chroma denoise
-    stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
-                           white_balance1(cfa, raw.pass1_gains()), demosaic_stage, colour]
     gains2 = estimate_wb2(raw, wb2)
+    stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
+                           white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+    highlight = highlight_stage(raw, highlights, gains2)
+    if highlight is not None:
+        stages.append(highlight)
+    stages.append(colour)
     if not np.allclose(gains2, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(gains2))
     if output in ("srgb", "srgb16"):

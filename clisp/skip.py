@@ -33,9 +33,10 @@ outputs differ; both differ from ``full`` by at most the skip's effect, which th
 the thresholds on both sides of the seam (the margin makes a tile's decision include its
 neighbours' blocks within the halo). tests/test_skip.py measures it.
 
-Highlights: the plan flags every tile with clipped samples (``highlight``); the pipeline has no
-highlight stage yet, so the flag is reported, and a future highlight stage must run on every
-flagged tile.
+Highlights: the plan flags every tile with clipped samples (``highlight``), which never takes
+the flat path. The highlight stage (clisp.stages.highlights, right after the demosaic, only in
+pipelines of raws with clipped samples) is kept on every path: the flat path replaces the demosaic
+and the denoiser around it.
 """
 from __future__ import annotations
 
@@ -202,6 +203,16 @@ def plain_colour(stage: Any) -> Any:
     return ColourMatrix(np.asarray(stage.space.to_rgb))
 
 
+def demosaic_index(stages: list[Any], denoiser_index: int) -> int:
+    """Index of the demosaic in ``stages``: the stage before the chroma denoiser, or before the
+    highlight stage that sits between them (-1 when there is none)."""
+    from .stages.highlights import Highlights
+    d = denoiser_index - 1
+    if d >= 0 and isinstance(stages[d], Highlights):
+        d -= 1
+    return d
+
+
 @dataclass
 class Skipper:
     """Analysis + alternative stage lists of one pipeline; :meth:`plan` makes a run's SkipPlan.
@@ -233,8 +244,9 @@ class Skipper:
                 paths[PATH_LIGHT] = stages[:i] + [light_denoiser(denoiser)] + stages[i + 1:]
             paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
             flat = flat_demosaic(raw.cfa, raw.shape)
-            if flat is not None and i >= 1:       # the stage before the denoiser is the demosaic
-                paths[PATH_FLAT] = stages[:i - 1] + [flat, plain_colour(denoiser)] + stages[i + 1:]
+            d = demosaic_index(stages, i)
+            if flat is not None and d >= 0:       # the demosaic, then (highlights), then the denoiser
+                paths[PATH_FLAT] = stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
         return cls(analysis, list(stages), paths, denoiser, enabled)
 
     def halo(self, path: str) -> int:
@@ -311,7 +323,8 @@ def time_saved(plan: SkipPlan, per_stage: dict[str, float], skipper: Skipper) ->
     per path weighted by RELATIVE_COST) times the pixels that skipped them, less what the flat
     path's own stages took. Without such tiles in the run it cannot be estimated."""
     px = {p: plan.pixels(p) for p in PATHS}
-    demosaic = skipper.stages[skipper.stages.index(skipper.denoiser) - 1].name if skipper.denoiser else None
+    demosaic = skipper.stages[demosaic_index(skipper.stages, skipper.stages.index(skipper.denoiser))].name \
+        if skipper.denoiser else None
     ran_demosaic = px[PATH_FULL] + px[PATH_LIGHT] + px[PATH_NONE]
     units = sum(RELATIVE_COST[p] * px[p] for p in (PATH_FULL, PATH_LIGHT, PATH_NONE))
     if demosaic is None or ran_demosaic == 0 or units == 0:

@@ -1,0 +1,283 @@
+"""Highlight handling: colour where the sensor clipped (issue 14).
+
+After white balance pass 1 each channel c clips at its own level ``L_c = clip_c * gain_c``
+(normalised clip level times the pass-1 gain), so a blown white whose channels all clipped comes
+out as (L_0, L_1, L_2): coloured. This stage runs right after the demosaic, on the white-balanced
+camera channels (H x W x 3; LMS in LMS space), and decides per pixel from the demosaiced values.
+
+Notation: ``n`` is the neutral of the camera space, the white-balanced camera values that the
+colour matrix and white balance pass 2 take to a grey (n = M^-1 W2^-1 (1, 1, 1)); every channel is
+measured in units of it, ``y_c = x_c / n_c`` (a neutral pixel has equal y). A channel is clipped
+where ``y_c >= t_c``, ``t_c = CLIP_FRACTION L_c / n_c`` (the scene analysis' threshold,
+clisp.analysis, so a raw the analysis finds unclipped is left alone exactly).
+
+``clip`` (halo 0): every pixel with a clipped channel becomes the neutral ``s n``,
+``s = min_c t_c``: the brightest neutral that no channel clips on, a consistent white (LibRaw's
+default clips each channel at that level after white balance; we also make the pixel neutral). A
+neutral ramp through the clip point rises to s and stays there.
+
+``reconstruct`` (halo RADIUS): the colour of a clipped light is taken from its unclipped rim, the
+brightness from the pixel's unclipped channels ("inpaint opposed", locally)::
+
+    m(q)    = max_c y_c(q) / t_c                     how close q is to clipping
+    w(q)    = clamp((m - 0.5) / (REF - 0.5), 0, 1)   where m < REF, else 0 (bright, clearly unclipped)
+    rho_c(q) = y_c(q) / mean_k y_k(q)                q's chroma (mean 1 over the channels)
+    rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR)    q in the (2 R + 1)^2 box around p
+
+    none clipped at p:   unchanged
+    some clipped (C):    K = sum_{u not in C} y_u / sum_{u not in C} rho^_u,
+                         y_c <- max(y_c, K rho^_c) for c in C   (never below what was recorded)
+    all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
+                         channel's record: brightness never falls as the scene brightens)
+
+The clipped test on demosaiced values uses MARGIN times the mosaic's threshold (demosaics put a
+clipped channel a few percent low), and pixels within RIM of a clipped pixel (the demosaic's
+false colour across a light's edge) keep their brightness but take rho^ (``clip``: neutral);
+so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
+
+PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies within R:
+a ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour
+of its unclipped channels. Box sums are separable (rows, then columns); tiled output equals
+whole-image output because everything is local within R. Kernels: kernels/highlights.cl.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ClispError
+from ..noise_estimate import CLIP_FRACTION
+from ..runtime import DeviceImage, Runtime, launch_exact
+from .base import Stage, as_f32
+
+MODES = ("clip", "reconstruct", "off")
+DEFAULT_MODE = "reconstruct"
+"""``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions):
+reconstruct mean CIEDE2000 16.4 / 15.0 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR 17.1 / 15.5
+dB against 10.3 / 10.3 (LibRaw Blend 16.9 dE, ReconstructDefault 17.3 dE on Bayer)."""
+
+RADIUS = 16
+"""Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
+
+REF = 0.9
+"""A pixel is a colour reference only while every channel is below this share of its threshold
+(the demosaic blends clipped samples into their neighbours' values just below the threshold)."""
+
+LOW = 0.5
+"""Reference weight ramps from 0 at this share of the threshold to 1 at REF."""
+
+MARGIN = 0.9
+"""The demosaiced test's threshold, as a share of the mosaic's: a demosaic that interpolates a
+channel from colour differences puts a clipped channel a few percent below its clip level where
+the other channels carry noise (DLMMSE, Bayer gain 1: 2-3 %), which left those pixels unhandled
+and tinted (block chroma 0.066 on a neutral ramp with the full threshold)."""
+
+RIM = 4
+"""Pixels within this distance (Chebyshev) of a pixel with a clipped channel form its rim: the
+demosaic carries the clipped pixels' false colour differences a few pixels across the light's
+edge (DLMMSE, Bayer: 3-4 px on a blown lamp, block chroma 0.18 without this). Rim pixels keep
+their brightness (mean of y) and take the reconstructed colour (``clip``: neutral), and are never
+colour references."""
+
+PRIOR = 1.0
+"""Weight of the neutral prior in rho^ (in pixels of full weight)."""
+
+
+@dataclass
+class Highlights(Stage):
+    """Clipped-highlight handling on white-balanced camera channels (see the module docstring).
+
+    neutral    (3,) n: the camera values that come out grey.
+    threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped).
+    white      s = min_c t_c, the neutral level of ``clip`` (units of n).
+    mode       'clip' or 'reconstruct'.
+    radius     R of 'reconstruct' (its halo).
+    """
+
+    neutral: np.ndarray
+    threshold: np.ndarray
+    white: float
+    mode: str = DEFAULT_MODE
+    radius: int = RADIUS
+    rim: int = RIM
+    name = "highlights"
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("clip", "reconstruct"):
+            raise ClispError(f"unknown highlight mode {self.mode!r}; expected clip or reconstruct")
+        self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
+        self.threshold = np.asarray(self.threshold, dtype=np.float64).reshape(3)
+        self.white = float(self.white)
+
+    @property
+    def halo(self) -> int:
+        return self.rim + (self.radius if self.mode == "reconstruct" else 0)
+
+    # ------------------------------------------------------------------------------- reference
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        n, t, d, r = self.neutral, self.threshold, self.rim, self.radius
+        y = np.asarray(x, dtype=np.float64) / n
+        clipped = y >= t
+        near = box_max(box_max(clipped.any(axis=-1).astype(np.float64), d, 1), d, 0) > 0   # window - 2d
+        y = y[d:y.shape[0] - d, d:y.shape[1] - d]
+        clipped = clipped[d:clipped.shape[0] - d, d:clipped.shape[1] - d]
+        if self.mode == "clip":
+            mean = y.mean(axis=-1, keepdims=True)
+            out = np.where(near[..., None], mean, y)
+            return np.where(clipped.any(axis=-1, keepdims=True), self.white, out) * n
+        weights = reference_weights(y, t, near)                             # H x W x 3: w, w rho0, w rho1
+        sums = box_sum(box_sum(weights, r, axis=1), r, axis=0)
+        crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
+        return reconstruct(y[crop], clipped[crop], near[crop], sums) * n
+
+    # ------------------------------------------------------------------------------- OpenCL
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        i32 = np.int32
+        n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
+        w, h, d = src.width, src.height, self.rim
+        r = self.radius if self.mode == "reconstruct" else 0
+        defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
+                   "HL_PRIOR": repr(PRIOR) + "f", "HL_CLIP": int(self.mode == "clip")}
+        flags = rt.acquire(1, h, w)
+        launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
+                     i32(w), i32(h), n, t)
+        w1, h1 = w - 2 * d, h - 2 * d
+        rows = rt.acquire(1, h, w1)
+        launch_exact(rt, rt.kernel("highlights", "hl_near_rows", defines), w1, h, flags.buffer, rows.buffer,
+                     i32(w), i32(w1))
+        rt.release(flags)
+        # planes: near, then (reconstruct) w, w rho0, w rho1 on the window less the rim
+        weights = rt.acquire(4 if r else 1, h1, w1)
+        launch_exact(rt, rt.kernel("highlights", "hl_weights", defines), w1, h1, src.buffer, rows.buffer,
+                     weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t)
+        rt.release(rows)
+        ow, oh = w1 - 2 * r, h1 - 2 * r
+        box = weights
+        if r:
+            box = rt.acquire(3, h1, ow)
+            launch_exact(rt, rt.kernel("highlights", "hl_box_rows", defines), ow, h1, weights.buffer, box.buffer,
+                         i32(w1), i32(h1), i32(ow))
+        dst = rt.acquire(3, oh, ow)
+        launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, weights.buffer,
+                     box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ow), i32(oh), n, t,
+                     np.float32(self.white))
+        rt.release(weights)
+        if r:
+            rt.release(box)
+        return dst
+
+
+def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
+    """Maxima of 2 r + 1 consecutive entries along ``axis`` (the result is 2 r shorter)."""
+    n = a.shape[axis]
+    out = np.take(a, np.arange(0, n - 2 * r), axis=axis)
+    for k in range(1, 2 * r + 1):
+        out = np.maximum(out, np.take(a, np.arange(k, n - 2 * r + k), axis=axis))
+    return out
+
+
+def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(w, w rho_0, w rho_1) per pixel of y (H x W x 3, units of n) for thresholds t; no weight
+    near a clipped pixel."""
+    m = np.max(y / t, axis=-1)
+    w = np.where((m < REF) & ~near, np.clip((m - LOW) / (REF - LOW), 0.0, 1.0), 0.0)
+    total = y.sum(axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(w > 0, 3.0 / total, 0.0)
+    return np.stack([w, w * y[..., 0] * inv, w * y[..., 1] * inv], axis=-1)
+
+
+def box_sum(a: np.ndarray, r: int, axis: int) -> np.ndarray:
+    """Sums of 2 r + 1 consecutive entries along ``axis`` (the result is 2 r shorter)."""
+    c = np.cumsum(a, axis=axis)
+    zero = np.zeros_like(np.take(c, [0], axis=axis))
+    c = np.concatenate([zero, c], axis=axis)
+    k = 2 * r + 1
+    n = a.shape[axis]
+    return np.take(c, np.arange(k, n + 1), axis=axis) - np.take(c, np.arange(0, n + 1 - k), axis=axis)
+
+
+def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray) -> np.ndarray:
+    """The reconstruction rule on y (H x W x 3, units of n) given the box sums (w, w rho0, w rho1)."""
+    sw = sums[..., 0] + PRIOR
+    rho = np.stack([(sums[..., 1] + PRIOR) / sw, (sums[..., 2] + PRIOR) / sw,
+                    (3.0 * sums[..., 0] - sums[..., 1] - sums[..., 2] + PRIOR) / sw], axis=-1)
+    free = ~clipped
+    num = np.sum(np.where(free, y, 0.0), axis=-1)
+    den = np.maximum(np.sum(np.where(free, rho, 0.0), axis=-1), 1e-6)
+    estimate = (num / den)[..., None] * rho
+    out = np.where(clipped, np.maximum(y, estimate), y)
+    count = clipped.sum(axis=-1)
+    out = np.where((near & (count == 0))[..., None], y.mean(axis=-1, keepdims=True) * rho, out)
+    out = np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
+    return out
+
+
+# ----------------------------------------------------------------------------------- from a raw
+
+def channel_clip_dn(raw) -> np.ndarray:
+    """(n_channels,) the level in DN at which each CFA channel clips: the camera's per-channel
+    linear maximum where LibRaw reports one (``metadata['linear_max']``), else the white level."""
+    levels = np.full(raw.cfa.n_channels, float(raw.white_level))
+    linear_max = raw.metadata.get("linear_max")
+    if linear_max is not None:
+        values = np.asarray(linear_max, dtype=np.float64).reshape(-1)
+        if values.size == raw.cfa.n_channels:
+            good = np.isfinite(values) & (values > np.asarray(raw.black_level)) & (values <= raw.white_level)
+            levels = np.where(good, values, levels)
+    return levels
+
+
+def clip_thresholds_dn(raw) -> np.ndarray:
+    """(n_channels,) DN at or above which a sample counts as clipped (CLIP_FRACTION of the range)."""
+    black = np.asarray(raw.black_level, dtype=np.float64)
+    return black + CLIP_FRACTION * (channel_clip_dn(raw) - black)
+
+
+def has_clipped(raw) -> bool:
+    """Whether any sample of ``raw`` reached its channel's clip threshold. Float raws (noiseless
+    simulations) are never clipped. Cost: one max over the mosaic, and one per CFA phase only when
+    that max reaches the lowest threshold."""
+    data = raw.data
+    if data.dtype != np.uint16:
+        return False
+    thresholds = clip_thresholds_dn(raw)
+    if float(data.max()) < float(thresholds.min()):
+        return False
+    p = raw.cfa.period
+    pattern = np.asarray(raw.cfa.pattern)
+    for dy in range(p):
+        for dx in range(p):
+            if float(data[dy::p, dx::p].max(initial=0)) >= thresholds[int(pattern[dy, dx])]:
+                return True
+    return False
+
+
+def neutral_of(colour_matrix: np.ndarray, wb2: np.ndarray | None = None) -> np.ndarray:
+    """n: the white-balanced camera values that the colour matrix and WB pass 2 take to grey,
+    scaled to a largest entry of 1."""
+    target = np.ones(3) if wb2 is None else 1.0 / np.asarray(wb2, dtype=np.float64)
+    n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), target)
+    if not np.all(n > 0):
+        raise ClispError("the colour matrix does not map a positive camera value to grey")
+    return n / n.max()
+
+
+def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False) -> Highlights | None:
+    """The Highlights stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
+    clipped samples (unless ``force``), or a colour matrix without a positive neutral."""
+    if mode not in MODES:
+        raise ClispError(f"unknown highlight mode {mode!r}; expected one of {', '.join(MODES)}")
+    if mode == "off" or raw.cfa.n_channels != 3 or not (force or has_clipped(raw)):
+        return None
+    try:
+        n = neutral_of(raw.colour_matrix, wb2)
+    except (ClispError, np.linalg.LinAlgError):
+        return None
+    black = np.asarray(raw.black_level, dtype=np.float64)
+    clip = (clip_thresholds_dn(raw) - black) / (float(raw.white_level) - black)   # normalised
+    t = clip * raw.pass1_gains() / n                         # after WB pass 1, in units of n
+    return Highlights(n, MARGIN * t, float(t.min()), mode)

@@ -1,0 +1,159 @@
+/* Highlight handling on planar white-balanced camera channels (clisp/stages/highlights.py has
+ * the definitions and the NumPy reference). n: the neutral (3), t: the clip thresholds in units
+ * of n (3). Launched over exactly the output (launch_exact): no bounds checks. */
+
+#ifndef HL_RADIUS
+#define HL_RADIUS 16
+#define HL_RIM 4
+#define HL_CLIP 0
+#define HL_REF 0.9f
+#define HL_LOW 0.5f
+#define HL_PRIOR 1.0f
+#endif
+
+/* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
+ * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
+ * Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R). */
+
+inline int any_clipped(const float y0, const float y1, const float y2, __constant const float *t)
+{
+    return y0 >= t[0] || y1 >= t[1] || y2 >= t[2];
+}
+
+/* hl_flags: 1 where a channel of the pixel reached its threshold, else 0. */
+__kernel void hl_flags(__global const float *restrict src, __global float *restrict dst,
+                       const int width, const int height, __constant const float *restrict n,
+                       __constant const float *restrict t)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = width * height;
+    const int i = y * width + x;
+    dst[i] = any_clipped(src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2], t) ? 1.0f : 0.0f;
+}
+
+/* hl_near_rows: max of the flags over 2 RIM + 1 consecutive columns. */
+__kernel void hl_near_rows(__global const float *restrict src, __global float *restrict dst,
+                           const int width, const int out_w)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    float m = 0.0f;
+    for (int k = 0; k <= 2 * HL_RIM; k++)
+        m = fmax(m, src[y * width + x + k]);
+    dst[y * out_w + x] = m;
+}
+
+/* hl_weights: on the window less the rim (w1 x h1): plane 0 near (a clipped pixel within RIM);
+ * reconstruct: planes 1-3 (w, w rho0, w rho1), w the reference weight (bright, clearly
+ * unclipped, not near), rho_c = y_c / mean(y). */
+__kernel void hl_weights(__global const float *restrict src, __global const float *restrict rows,
+                         __global float *restrict dst, const int width, const int height,
+                         const int w1, const int h1, __constant const float *restrict n,
+                         __constant const float *restrict t)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    float near = 0.0f;
+    for (int k = 0; k <= 2 * HL_RIM; k++)
+        near = fmax(near, rows[(y + k) * w1 + x]);
+    const int o = y * w1 + x, oplane = w1 * h1;
+    dst[o] = near;
+#if HL_RADIUS > 0
+    const int plane = width * height;
+    const int i = (y + HL_RIM) * width + x + HL_RIM;
+    const float y0 = src[i] / n[0], y1 = src[plane + i] / n[1], y2 = src[2 * plane + i] / n[2];
+    const float m = fmax(fmax(y0 / t[0], y1 / t[1]), y2 / t[2]);
+    const float w = (m < HL_REF && near == 0.0f) ? clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f) : 0.0f;
+    const float inv = w > 0.0f ? 3.0f / (y0 + y1 + y2) : 0.0f;
+    dst[oplane + o] = w;
+    dst[2 * oplane + o] = w * y0 * inv;
+    dst[3 * oplane + o] = w * y1 * inv;
+#endif
+}
+
+/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-3 (w1 x h1);
+ * dst out_w x h1, 3 planes. */
+__kernel void hl_box_rows(__global const float *restrict src, __global float *restrict dst,
+                          const int w1, const int h1, const int out_w)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = w1 * h1, oplane = out_w * h1;
+    const int i = y * w1 + x;
+    float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
+    for (int k = 0; k <= 2 * HL_RADIUS; k++) {
+        s0 += src[plane + i + k];
+        s1 += src[2 * plane + i + k];
+        s2 += src[3 * plane + i + k];
+    }
+    const int o = y * out_w + x;
+    dst[o] = s0;
+    dst[oplane + o] = s1;
+    dst[2 * oplane + o] = s2;
+}
+
+/* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
+ * near -> neutral at the mean. Else the reconstruction: box: hl_box_rows' output (out_w x h1),
+ * summed over 2 R + 1 rows only where the pixel is clipped or near. */
+__kernel void hl_apply(__global const float *restrict src, __global const float *restrict weights,
+                       __global const float *restrict box, __global float *restrict dst,
+                       const int width, const int height, const int w1, const int h1,
+                       const int out_w, const int out_h, __constant const float *restrict n,
+                       __constant const float *restrict t, const float white)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = width * height, oplane = out_w * out_h;
+    const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS;
+    float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
+    const int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
+    const int count = c0 + c1 + c2;
+    const float near = weights[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+#if HL_CLIP
+    if (count > 0) {
+        v[0] = v[1] = v[2] = white;
+    } else if (near > 0.0f) {
+        const float mean = (v[0] + v[1] + v[2]) / 3.0f;
+        v[0] = v[1] = v[2] = mean;
+    }
+#else
+    if (count == 3) {
+        const float top = fmax(fmax(v[0], v[1]), v[2]);
+        v[0] = v[1] = v[2] = top;
+    } else if (count > 0 || near > 0.0f) {
+        const int bplane = out_w * h1;
+        float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
+        for (int k = 0; k <= 2 * HL_RADIUS; k++) {
+            const int j = (y + k) * out_w + x;
+            s0 += box[j];
+            s1 += box[bplane + j];
+            s2 += box[2 * bplane + j];
+        }
+        const float sw = s0 + HL_PRIOR;
+        const float rho[3] = {(s1 + HL_PRIOR) / sw, (s2 + HL_PRIOR) / sw, (3.0f * s0 - s1 - s2 + HL_PRIOR) / sw};
+        if (count == 0) {
+            const float mean = (v[0] + v[1] + v[2]) / 3.0f;
+            for (int c = 0; c < 3; c++)
+                v[c] = mean * rho[c];
+        } else {
+            const int clipped[3] = {c0, c1, c2};
+            float num = 0.0f, den = 0.0f;
+            for (int c = 0; c < 3; c++) {
+                if (!clipped[c]) {
+                    num += v[c];
+                    den += rho[c];
+                }
+            }
+            const float k = num / fmax(den, 1e-6f);
+            for (int c = 0; c < 3; c++)
+                if (clipped[c])
+                    v[c] = fmax(v[c], k * rho[c]);
+        }
+    }
+#endif
+    const int o = y * out_w + x;
+    dst[o] = v[0] * n[0];
+    dst[oplane + o] = v[1] * n[1];
+    dst[2 * oplane + o] = v[2] * n[2];
+}

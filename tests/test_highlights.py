@@ -1,0 +1,159 @@
+"""Highlight handling (issue 14): kernel = reference, tiled = whole, neutral clipped whites and
+ramps, no stage without clipped samples, skip paths keep the stage, CLI option."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import clisp
+from clisp.cli import main
+from clisp.pipeline import build_pipeline
+from clisp.stages.highlights import Highlights, has_clipped, highlight_stage
+from tolerance import assert_close
+from test_kernels import from_device, to_device
+
+
+def ramp_scene(h: int = 48, w: int = 384, top: float = 4.0) -> np.ndarray:
+    """A neutral ramp from 0.2 to ``top`` (the clip point is near 1), left to right."""
+    v = np.linspace(0.2, top, w)
+    return np.repeat(np.repeat(v[None, :, None], h, 0), 3, 2)
+
+
+def lamp_scene(size: int = 128, level: float = 4.0) -> np.ndarray:
+    """A blown white disc (radius 30 px) on an 18 % grey."""
+    s = np.full((size, size, 3), 0.18)
+    yy, xx = np.mgrid[:size, :size]
+    s[np.hypot(yy - size / 2, xx - size / 2) < 30] = level
+    return s
+
+
+def block_means(img: np.ndarray, b: int = 16) -> np.ndarray:
+    h, w = img.shape[0] // b * b, img.shape[1] // b * b
+    return img[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+
+
+def block_chroma(m: np.ndarray) -> np.ndarray:
+    """(max - min) / max of each block mean."""
+    return (m.max(-1) - m.min(-1)) / np.maximum(m.max(-1), 1e-9)
+
+
+def stage_input(seed: int, stage: Highlights, shape=(72, 80)) -> np.ndarray:
+    """Camera values with clipped lights (some channels past the threshold), kept clear of the
+    rule's switching points so float32 and float64 decide alike."""
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(0.0, 1.0, size=shape + (3,)) * 0.6
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    for cy, cx, col in ((20, 25, (1.3, 1.1, 0.8)), (50, 55, (2.0, 0.7, 1.5))):
+        r = np.hypot(yy - cy, xx - cx)
+        y += np.clip(1.6 - r / 10, 0, None)[..., None] * np.array(col) * stage.threshold
+    ratio = y / stage.threshold
+    for edge in (1.0, 0.9, 0.5):
+        near = np.abs(ratio - edge) < 2e-3
+        y[near] += 5e-3 * stage.threshold[np.nonzero(near)[-1]]
+    return (y * stage.neutral).astype(np.float32)
+
+
+STAGE = Highlights(np.array([0.95, 0.96, 1.0]), np.array([0.9, 1.1, 2.7]), 1.0, "reconstruct", radius=6, rim=2)
+
+
+@pytest.mark.parametrize("mode", ["clip", "reconstruct"])
+def test_highlights_kernel_matches_reference(rt, mode):
+    stage = Highlights(STAGE.neutral, STAGE.threshold, STAGE.white, mode, radius=6, rim=2)
+    x = stage_input(1, stage)
+    src = to_device(rt, x)
+    dst = stage.enqueue(rt, src, (0, 0))
+    out = from_device(rt, dst)
+    rt.release(src)
+    rt.release(dst)
+    ref = stage.reference(x, (0, 0))
+    assert out.shape == ref.shape == (x.shape[0] - 2 * stage.halo, x.shape[1] - 2 * stage.halo, 3)
+    assert_close(out, ref, f"highlights {mode}")
+    assert not np.allclose(ref, x[stage.halo:-stage.halo, stage.halo:-stage.halo]), "nothing was clipped"
+
+
+def test_highlights_rule():
+    """Unclipped pixels far from a clip are untouched; all-clipped pixels are neutral, never darker;
+    clipped channels never fall below what was recorded."""
+    stage = STAGE
+    x = stage_input(2, stage)
+    h = stage.halo
+    out = stage.reference(x, (0, 0)) / stage.neutral
+    y = x[h:-h, h:-h] / stage.neutral
+    clipped = y >= stage.threshold
+    full = clipped.all(-1)
+    assert full.any() and (clipped.any(-1) & ~full).any()
+    assert np.allclose(out[full], y[full].max(-1, keepdims=True))
+    assert np.all(out[clipped] >= y[clipped] - 1e-12)
+    far = y.max(-1) < 0.3 * stage.threshold.min()
+    from scipy.ndimage import maximum_filter
+    far &= ~maximum_filter(clipped.any(-1), size=2 * stage.rim + 1)
+    assert np.allclose(out[far], y[far])
+
+
+def _accept(cfa: str, scene: np.ndarray, mode: str, region) -> tuple[float, float]:
+    sim = clisp.simulate(scene, cfa=cfa, gain=1, seed=3)
+    out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
+    means = block_means(out)
+    return block_chroma(means)[region(block_means(sim.truth))].max(), means
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+@pytest.mark.parametrize("mode", ["clip", "reconstruct"])
+def test_neutral_ramp_and_lamp_stay_neutral(cfa, mode):
+    """Acceptance (gain 1): block chroma <= 0.03 on a neutral ramp through the clip point and on
+    a blown white lamp; the ramp's brightness never falls by more than 2 % as the scene brightens."""
+    chroma, means = _accept(cfa, ramp_scene(), mode, lambda truth: np.ones(truth.shape[:2], bool))
+    assert chroma <= 0.03, f"ramp block chroma {chroma:.3f}"
+    lum = means.mean(-1).mean(0)
+    drop = float(np.max(np.maximum.accumulate(lum) - lum) / lum.max())
+    assert drop <= 0.02, f"ramp brightness falls by {drop:.3%}"
+    chroma, _ = _accept(cfa, lamp_scene(), mode, lambda truth: truth.max(-1) > 0.5)
+    assert chroma <= 0.03, f"lamp block chroma {chroma:.3f}"
+
+
+def test_off_leaves_clipped_white_coloured():
+    """Without the stage a blown white lamp is coloured (the issue), with it neutral."""
+    sim = clisp.simulate(lamp_scene(64, 4.0), cfa="bayer", gain=1, seed=1)
+    assert "highlights" not in build_pipeline(sim.raw, highlights="off").describe()
+    off = build_pipeline(sim.raw, highlights="off", preset="fast").run(sim.raw.data)[28:36, 28:36]
+    assert block_chroma(off.reshape(-1, 3).mean(0)[None]).max() > 0.3
+
+
+def test_no_stage_without_clipped_samples():
+    dark = clisp.simulate(lamp_scene(64, 0.6), cfa="lms", gain=1, seed=1)
+    assert not has_clipped(dark.raw)
+    assert highlight_stage(dark.raw, "reconstruct") is None
+    assert "highlights" not in build_pipeline(dark.raw).describe()
+    noiseless = clisp.simulate(lamp_scene(64, 4.0), cfa="lms", gain=None)
+    assert highlight_stage(noiseless.raw, "clip") is None            # float raws are never clipped
+    bright = clisp.simulate(lamp_scene(64, 4.0), cfa="lms", gain=1, seed=1)
+    assert has_clipped(bright.raw)
+    assert "highlights" in build_pipeline(bright.raw, preset="fast").describe()
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_tiled_equals_whole_and_skip_paths_keep_the_stage(cfa):
+    sim = clisp.simulate(lamp_scene(128, 3.0), cfa=cfa, gain=4, seed=2)
+    pipe = build_pipeline(sim.raw, skip=True)
+    whole = pipe.run(sim.raw.data, tile=0)
+    tiled = pipe.run(sim.raw.data, tile=48)
+    assert_close(tiled, whole, "tiled vs whole", tol=1e-4)
+    for name, stages in pipe.skipper.paths.items():
+        assert any(isinstance(s, Highlights) for s in stages), name
+    assert pipe.skip_plan.highlight
+
+
+def test_cli_highlights_option(tmp_path):
+    sim = clisp.simulate(lamp_scene(64, 4.0), cfa="bayer", gain=1, seed=1)
+    clisp.write_raw(tmp_path / "lamp.dng", sim.raw)
+    for mode in ("clip", "reconstruct", "off"):
+        out = tmp_path / f"{mode}.exr"
+        assert main(["process", str(tmp_path / "lamp.dng"), "-o", str(out), "--highlights", mode,
+                     "--preset", "fast"]) == 0
+    from clisp.imageio import read_image
+    centre = {mode: read_image(tmp_path / f"{mode}.exr")[0][28:36, 28:36].reshape(-1, 3).mean(0)
+              for mode in ("clip", "reconstruct", "off")}
+    assert block_chroma(centre["off"][None]).max() > 0.3
+    assert block_chroma(centre["clip"][None]).max() < 0.01
+    assert block_chroma(centre["reconstruct"][None]).max() < 0.01
+    assert centre["reconstruct"].mean() > centre["clip"].mean()
