@@ -357,3 +357,33 @@ def test_large_raws_are_sampled(monkeypatch):
     sampled = ne.estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
     for c in range(3):
         assert abs(np.sqrt(sampled.variance(c, 0.3) / whole.variance(c, 0.3)) - 1) < 0.1
+
+
+def test_chroma_range_cap_keeps_colour_edges_at_high_noise() -> None:
+    """Bayer (YUV): the cap leaves k_chroma at gain 16 and lowers it at gain 64, where the ring
+    just outside a green patch on grey (an edge the luminance hardly marks) keeps its colour better
+    (issue 17; tools/bench_bleeding.py measures the whole chart)."""
+    from clisp.charts import colorchecker_linear
+    from clisp.metrics import linear_srgb_to_lab
+    from clisp.pipeline import build_pipeline
+    from clisp.simulate import simulate
+    scene = np.full((160, 160, 3), 0.18)
+    scene[56:104, 56:104] = colorchecker_linear()[13]                 # green
+    yy, xx = np.mgrid[0:160, 0:160]
+    d = np.maximum(np.maximum(56 - yy, yy - 103), np.maximum(56 - xx, xx - 103))
+    ring = (d >= 3) & (d <= 10)
+    factors, shifts = {}, {}
+    for gain in (16, 64):
+        sim = simulate(scene, cfa="bayer", gain=gain, seed=4)
+        for cap in ("space", None):
+            pipe = build_pipeline(sim.raw, denoise=ChromaDenoiseParams(chroma_range_cap=cap))
+            stage = next(s for s in pipe.stages if isinstance(s, ChromaDenoise))
+            factors[gain, cap] = stage.range_cap_factor()
+            if gain == 64:
+                out = pipe.run(sim.raw.data)
+                a = linear_srgb_to_lab(out[ring].mean(axis=0)[None, None])[0, 0]
+                b = linear_srgb_to_lab(sim.truth[ring].mean(axis=0)[None, None])[0, 0]
+                shifts[cap] = float(np.hypot(*(a - b)[1:]))
+    assert factors[16, "space"] == 1.0 and factors[64, None] == 1.0
+    assert 0.3 < factors[64, "space"] < 0.6
+    assert shifts["space"] < 0.7 * shifts[None], shifts

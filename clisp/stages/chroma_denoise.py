@@ -75,6 +75,14 @@ BT601 = np.array([0.299, 0.587, 0.114])
 U_SCALE, V_SCALE = 0.492, 0.877
 """BT.601 U = 0.492 (B - Y), V = 0.877 (R - Y)."""
 ORIENTATIONS = ("dx", "dy", "dd")
+
+CHROMA_RANGE_CAP: dict[str, float | None] = {"yuv": 0.027, "lms": None}
+"""Default ``chroma_range_cap`` per chroma space (ChromaDenoiseParams). Bayer (YUV): 0.027 keeps
+k_chroma = 2 up to gain 16 (sigma_0 = 0.013 at mid-grey on the simulated sensor) and lowers it to
+1.45 at gain 32 and 0.98 at gain 64, where the chroma range sigma otherwise reached 0.055 and
+averaged across isoluminant colour edges: ring colour shift at gain 64 1.45/5.81 -> ~1.0/2.3
+(mean/worst a*b*, tools/bench_bleeding.py) at -0.05 dB PSNR (k_chroma = 1 at every gain cost up
+to 0.24 dB at gains 1-16). LMS: none yet (its shift comes from the guided demosaic)."""
 SHRINK_RULES = ("soft", "wiener", "none")
 
 
@@ -163,6 +171,14 @@ class ChromaDenoiseParams:
     """Bilateral spatial sigma (px of that level)."""
     k_chroma: float = 2.0
     """Chroma range sigma = k_chroma * s_k * chroma noise std at the level (Zhang & Gunturk: ~2)."""
+    k_chroma_coarse: float | None = None
+    """k_chroma at the pyramid levels j >= 1 (None: k_chroma). Smaller keeps isoluminant colour
+    edges where the level's chroma noise is low (issue 17)."""
+    chroma_range_cap: float | str | None = "space"
+    """Upper bound of the level-0 chroma range sigma k_chroma * sigma_0 at mid-grey (Y = 0.18;
+    chroma units of the space, linear): at high noise k_chroma shrinks to cap / sigma_0 (every
+    level alike), so colour edges of more than about the cap are no longer averaged across
+    (issue 17). "space": the space's CHROMA_RANGE_CAP; None: no cap."""
     k_luma: float = 2.0
     """Guide range sigma = k_luma * Y noise std at the level; 0 disables the guide (plain bilateral)."""
     shrink_radius: int = 2
@@ -465,7 +481,6 @@ class ChromaDenoise(Stage):
         prm, sp = self.params, self.space
         plan = make_plan(prm.levels, prm.radius, x.shape[0], x.shape[1], origin)
         approx_var, detail_var = self._scaled_noise()
-        k_chroma = prm.k_chroma * self.strengths
         (sy, sx), (ny, nx) = plan.skip, plan.size
         cam = np.moveaxis(x.astype(np.float64), -1, 0)[:, sy:sy + ny, sx:sx + nx]
         a = chroma_split(cam, sp.split_matrix)                      # (1 + n, ny, nx)
@@ -479,8 +494,8 @@ class ChromaDenoise(Stage):
         start = 0                                                    # level-j start of c
         for j in range(prm.levels, -1, -1):
             y_j = ys[j][start:ys[j].shape[0] - start, start:ys[j].shape[1] - start]
-            c = joint_bilateral(c, y_j, approx_var[j, 0], approx_var[j, 1:], prm.k_luma, k_chroma,
-                                prm.sigma_d, r, prm.sigma_floor)      # now starts at m[j]
+            c = joint_bilateral(c, y_j, approx_var[j, 0], approx_var[j, 1:], prm.k_luma,
+                                self.k_chroma(j), prm.sigma_d, r, prm.sigma_floor)      # now starts at m[j]
             if j == 0:
                 break
             d = details[j]
@@ -520,11 +535,30 @@ class ChromaDenoise(Stage):
                 "SHRINK_RADIUS": self.params.shrink_radius,
                 "SHRINK_RULE": SHRINK_RULES.index(self.params.shrink)}
 
+    def k_chroma(self, level: int) -> np.ndarray:
+        """(n,) chroma range factors at ``level``: k_chroma (k_chroma_coarse at j >= 1) * s_k, times
+        the high-noise factor of ``chroma_range_cap`` (:meth:`range_cap_factor`)."""
+        prm = self.params
+        k = prm.k_chroma if level == 0 or prm.k_chroma_coarse is None else prm.k_chroma_coarse
+        return k * self.range_cap_factor() * np.asarray(self.strengths, dtype=np.float64)
+
+    def range_cap_factor(self) -> float:
+        """min(1, cap / (k_chroma sigma_0)), sigma_0 = rms over the chroma channels of the level-0
+        chroma noise at Y = 0.18 (noise_scale included); 1 without a cap or without noise."""
+        prm = self.params
+        cap = CHROMA_RANGE_CAP.get(self.space.name) if prm.chroma_range_cap == "space" else prm.chroma_range_cap
+        if cap is None:
+            return 1.0
+        approx, _ = self._scaled_noise()
+        var = approx[0, 1:, 0] * 0.18 + approx[0, 1:, 1]
+        sigma = float(np.sqrt(max(np.mean(var), 0.0)))
+        return 1.0 if sigma <= 0 else min(1.0, float(cap) / (prm.k_chroma * sigma))
+
     def bilateral_constants(self, level: int) -> np.ndarray:
         """prm of ``joint_bilateral`` at ``level``: [1/(2 sd^2), floor^2, aY, bY, a_k, b_k ...]."""
         prm = self.params
         approx_var, _ = self._scaled_noise()
-        k_c2 = (prm.k_chroma * self.strengths) ** 2
+        k_c2 = self.k_chroma(level) ** 2
         chroma = approx_var[level, 1:] * k_c2[:, None]
         return np.concatenate([[0.5 / prm.sigma_d ** 2, prm.sigma_floor ** 2],
                                approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel()])
