@@ -280,9 +280,12 @@ class Pipeline:
 
             def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
                      d: int = d) -> Any:
-                if window is not None:
-                    window = np.ascontiguousarray(window[d:window.shape[0] - d, d:window.shape[1] - d])
-                return run(t, window, target)
+                if window is None:
+                    return run(t, window, target)
+                inner = np.ascontiguousarray(window[d:window.shape[0] - d, d:window.shape[1] - d])
+                # the device may read ``inner`` in place (or copy it asynchronously) until the tile's
+                # event: keep it alive with the event, not only for this call
+                return KeepAlive(run(t, inner, target), inner)
             computes[name] = crop
         return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
 
@@ -386,6 +389,20 @@ class Pipeline:
             rt.release(src)                           # the in-order queue copies before reuse
         rt.queue.flush()
         return event
+
+
+class KeepAlive:
+    """A tile's event that also holds host arrays the device reads until it completes (a window
+    made for one call, e.g. a path's cropped window): ``wait()`` waits for the event, then lets
+    them go."""
+
+    def __init__(self, event: Any, *arrays: np.ndarray) -> None:
+        self.event, self.arrays = event, arrays
+
+    def wait(self) -> None:
+        if self.event is not None:
+            self.event.wait()
+        self.arrays = ()
 
 
 def device_limits(backend: str) -> DeviceLimits:

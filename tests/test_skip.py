@@ -255,3 +255,40 @@ def test_flat_and_full_tiles_meet_without_a_seam(cfa: str) -> None:
             step = np.abs(out[t.y0:t.y0 + t.h, x] - out[t.y0:t.y0 + t.h, x - 1]).mean()
             inner = np.abs(out[t.y0:t.y0 + t.h, x - 2] - out[t.y0:t.y0 + t.h, x - 3]).mean()
             assert step < 2.0 * inner + 1e-3, (x, step, inner)
+
+
+def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A path with a smaller halo runs on a cropped copy of the tile's window, which the device may
+    read in place (Runtime.host_input) after compute returns: the copy must live until the tile's
+    event, not only for the call (a freed copy gave tiles of garbage, now and then, when the device
+    did not gather windows itself: file raws, unaligned arrays)."""
+    import gc
+    import weakref
+    import clisp.pipeline as pipeline_module
+    from clisp.runtime import get_runtime
+    from clisp.streaming import ArrayWindows
+    rt = get_runtime()
+    raw, pipe, sk = _skipper(1, "lms", smooth_scene())
+    monkeypatch.setattr(pipeline_module.Pipeline, "_device_source", staticmethod(lambda source: None))
+    seen: list = []
+    host_input = rt.host_input
+    monkeypatch.setattr(rt, "host_input", lambda array: seen.append(weakref.ref(array)) or host_input(array))
+    real_run_tiles = pipeline_module.run_tiles
+    alive: list[bool] = []
+
+    def checking_run_tiles(plan, read, compute, sink, progress=None, release=None):
+        def compute_and_check(t, window, target):
+            event = compute(t, window, target)
+            gc.collect()
+            alive.append(all(ref() is not None for ref in seen))
+            seen.clear()
+            return event
+        return real_run_tiles(plan, read, compute_and_check, sink, progress, release)
+
+    monkeypatch.setattr(pipeline_module, "run_tiles", checking_run_tiles)
+    out = np.zeros(raw.shape + (3,), np.float32)
+    plan = pipe.plan(raw.shape, raw.data.dtype, 64)
+    pipe.stream(ArrayWindows(raw.data), pipeline_module.ArraySink(out), plan)
+    assert set(pipe.skip_plan.counts) - {PATH_FULL}, pipe.skip_plan.explain()
+    assert alive and all(alive)
+    rt.queue.finish()
