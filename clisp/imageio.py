@@ -92,7 +92,7 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
     with library_output() as said:
         inp = oiio.ImageInput.open(str(path))
         if inp is None:
-            problem = oiio.geterror().strip() or "unknown format"
+            problem = _error_text(oiio) or "unknown format"
         else:
             try:
                 spec = inp.spec()
@@ -100,12 +100,12 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
                 pixels = None if problem else inp.read_image(0, 0, 0, spec.nchannels, "float")
                 if not problem and (pixels is None or not isinstance(pixels, np.ndarray)
                                     or pixels.size != spec.width * spec.height * spec.nchannels):
-                    problem = f"cannot read pixels ({inp.geterror().strip() or 'truncated file?'})"
+                    problem = f"cannot read pixels ({_error_text(inp) or 'truncated file?'})"
                 is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
             finally:
-                inp.geterror()
+                _error_text(inp)
                 inp.close()
-            oiio.geterror()                      # nothing left pending for OpenImageIO to print at exit
+            _error_text(oiio)                    # nothing left pending for OpenImageIO to print at exit
     if inp is None:
         raise ClispError(f"{path}: cannot read image ({clip(problem)}{said.note(40)})")
     if problem:
@@ -114,6 +114,16 @@ def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
     if spec.nchannels in (1, 2):
         pixels = np.repeat(pixels[..., :1], 3, axis=2)
     return np.ascontiguousarray(pixels[..., :3], dtype=np.float32), is_float
+
+
+def _error_text(source: object) -> str:
+    """OpenImageIO's pending error of ``source`` (the module or an ImageInput/ImageOutput), cleared,
+    on one line and cut; its text may quote the file's bytes, which the bindings fail to decode
+    as UTF-8 (found by fuzzing): then a placeholder."""
+    try:
+        return clip(source.geterror(), 100)
+    except UnicodeDecodeError:
+        return "(undecodable error text)"
 
 
 def _implausible(spec: object, file_size: int) -> str | None:
@@ -278,7 +288,7 @@ class ImageWriter:
         out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])
         if out is None or not out.open(str(tmp), spec):
             self._stack.close()
-            raise ClispError(f"{self.path}: cannot open for writing ({oiio.geterror().strip()})")
+            raise ClispError(f"{self.path}: cannot open for writing ({_error_text(oiio)})")
         self._out = out
         return self
 
@@ -294,7 +304,7 @@ class ImageWriter:
     def _write_rows(self, rows: np.ndarray) -> None:
         for pixels in self._chunks(rows):
             if not self._out.write_scanlines(self.next_row, self.next_row + pixels.shape[0], 0, pixels):
-                raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
+                raise ClispError(f"{self.path}: write failed ({_error_text(self._out)})")
             self.next_row += pixels.shape[0]
 
     def _chunks(self, rows: np.ndarray) -> Iterator[np.ndarray]:
@@ -324,7 +334,7 @@ class ImageWriter:
         if error is None and self.next_row != self.height:
             error = ClispError(f"{self.path}: only {self.next_row} of {self.height} rows were written")
         elif error is None and not closed:
-            error = ClispError(f"{self.path}: write failed ({out.geterror().strip()})")
+            error = ClispError(f"{self.path}: write failed ({_error_text(out)})")
         if error is None:
             self._stack.close()                                   # rename into place
             return
