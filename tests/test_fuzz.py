@@ -263,8 +263,9 @@ def test_crafted_headers(fuzz_dir, name):
     _check("crafted", path, data, _read_and_process)
 
 
-def test_fuzz_report(capsys):
-    """The figures of the run above (printed; ``-s`` shows them), and the bounds over all readers."""
+def test_fuzz_report(capsys, stress):
+    """The figures of the run above (printed; ``-s`` shows them), and the bounds over all readers;
+    the stress run must have tried at least 10,000 inputs."""
     if not STATS:
         pytest.skip("no fuzzing ran")
     total = sum(s["inputs"] for s in STATS.values())
@@ -277,3 +278,5 @@ def test_fuzz_report(capsys):
     if out:
         Path(out).write_text(json.dumps(report, indent=1, default=float))
     assert growth <= RSS_GROWTH
+    if stress:
+        assert total >= 10_000
