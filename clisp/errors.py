@@ -41,6 +41,14 @@ def error_line(message: object, prefix: str = "clisp: error: ") -> str:
     characters (the middle is cut, so that the file named at the start and the problem's end stay)."""
     text = clip(message, 10**6)
     room = MAX_MESSAGE - len(prefix)
+    while len(text) > room:                  # first shorten paths to their file names
+        longest = max(text.split(" "), key=lambda w: len(w) if "/" in w[:-1] else 0)
+        folder = longest.rstrip("'\":,").rpartition("/")[0]
+        if "/" not in longest[:-1] or not folder.strip("'\"."):
+            break
+        text = text.replace(folder.lstrip("'\""), "...", 1) if folder.lstrip("'\"") else text
+        if folder.lstrip("'\"") in ("", "..."):
+            break
     if len(text) > room:
         head = room * 2 // 3
         text = text[:head].rstrip() + " ... " + text[-(room - head - 5):].lstrip()
