@@ -22,7 +22,7 @@ import numpy as np
 
 from .cfa import CFA, cfa_from_pattern
 from .colorimetry import XYZ_TO_SRGB
-from .errors import ClispError
+from .errors import ClispError, clip, library_output
 from .rawimage import RawImage
 from .streaming import aligned_copy
 from .white_balance import gray_world_gains
@@ -41,15 +41,44 @@ def read_camera_raw(path: str | os.PathLike[str]) -> RawImage:
     import rawpy
 
     p = Path(path)
+    said = None
     try:
-        with rawpy.imread(str(p)) as raw:
+        with library_output() as said, rawpy.RawPy() as raw:   # LibRaw's stderr: into our message
+            raw.open_file(str(p))
+            _check_size(raw, p)
+            raw.unpack()
             return _from_rawpy(raw, p)
-    except ClispError:
+    except ClispError as exc:
+        if said is not None and said.text and str(p) in str(exc):
+            raise ClispError(f"{exc}{said.note(50, str(p))}") from exc
         raise
     except rawpy.LibRawError as exc:
-        raise ClispError(f"cannot read raw file '{p}': {_libraw_problem(exc)}") from exc
-    except (OSError, RuntimeError, NotImplementedError, ValueError, TypeError, MemoryError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': {type(exc).__name__}: {_one_line(exc)}") from exc
+        raise ClispError(f"cannot read raw file '{p}': {_libraw_problem(exc)}{said.note(50, str(p))}") from exc
+    except (OSError, RuntimeError, NotImplementedError, ValueError, TypeError, MemoryError,
+            IndexError, KeyError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as exc:
+        raise ClispError(f"cannot read raw file '{p}': {type(exc).__name__}: {clip(_one_line(exc))}") from exc
+
+
+MAX_RAW_PIXELS = 2**28
+"""Largest camera raw (pixels of LibRaw's full raw area) clisp decodes: 268 MP."""
+
+MAX_BITS_PER_BYTE = 64
+"""Most raw pixels one byte of a camera raw file may encode; lossless raw compression reaches
+about 8 (1 bit a pixel on a black frame): a header declaring more is corrupt and refused before
+LibRaw allocates the mosaic."""
+
+
+def _check_size(raw: Any, p: Path) -> None:
+    """ClispError when the opened raw declares more pixels than MAX_RAW_PIXELS or than its file
+    could hold (checked after LibRaw read the header, before it unpacks the pixels)."""
+    s = raw.sizes
+    pixels = int(s.raw_height) * int(s.raw_width)
+    size = p.stat().st_size
+    if pixels <= 0:
+        raise ClispError(f"cannot read raw file '{p}': no image ({s.raw_width}x{s.raw_height} pixels)")
+    if pixels > MAX_RAW_PIXELS or pixels > MAX_BITS_PER_BYTE * size + 2**20:
+        raise ClispError(f"cannot read raw file '{p}': declares {s.raw_width}x{s.raw_height} pixels, "
+                         f"more than a file of {size} bytes holds (corrupt header)")
 
 
 def _from_rawpy(raw: Any, p: Path) -> RawImage:
@@ -68,7 +97,11 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
     black = channel_values(raw.black_level_per_channel, pattern, colours, cfa)
     wb, wb_source = pick_wb(raw.camera_whitebalance, pattern, colours, cfa)
     if wb is None:
-        wb, wb_source = gray_world_gains(data, cfa, black, float(raw.white_level)), "gray world (file has no camera WB)"
+        try:
+            wb = gray_world_gains(data, cfa, black, float(raw.white_level))
+        except ClispError as exc:
+            raise ClispError(f"cannot read raw file '{p}': no camera white balance, and {exc}") from exc
+        wb_source = "gray world (file has no camera WB)"
     matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
                                                np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
     if matrix_source.startswith("identity"):

@@ -11,15 +11,16 @@ import json
 import os
 import sys
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from . import __version__
-from .errors import ClispError
+from .errors import ClispError, clip, error_line
 from .profile import host_timer
 from .tiling import Tile
 
@@ -399,14 +400,29 @@ def _format_value(value: object) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``clisp`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except ClispError as exc:
-        print(f"clisp: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("clisp: interrupted", file=sys.stderr)
-        return 130
+    return run_command(args.func, args)
+
+
+def run_command(func: "Callable[[argparse.Namespace], int | None]", args: argparse.Namespace) -> int:
+    """Run one command and turn its failure into the CLI's contract: one line on stderr of at
+    most errors.MAX_MESSAGE characters, exit status 2 (130 for Ctrl-C); no output file is left
+    (every writer is atomic). Python warnings raised meanwhile (numpy, libraries) are held back:
+    a failure's line names the first one when it has room, a success drops them."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return int(func(args) or 0)
+        except ClispError as exc:
+            message = str(exc)
+        except MemoryError:
+            message = "out of memory; try a smaller --mem or --tile"
+        except KeyboardInterrupt:
+            print("clisp: interrupted; no output written", file=sys.stderr)
+            return 130
+    if caught and len(message) < 120:
+        message += f" (warning: {clip(caught[0].message, 40)})"
+    print(error_line(message), file=sys.stderr)
+    return EXIT_ERROR
 
 
 if __name__ == "__main__":

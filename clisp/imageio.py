@@ -19,7 +19,7 @@ from typing import Iterator
 import numpy as np
 
 from .colorimetry import srgb_decode
-from .errors import ClispError
+from .errors import ClispError, clip, library_output
 from .profile import host_timer
 
 LINEAR_EXTENSIONS = (".exr",)
@@ -50,7 +50,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise ClispError(f"{path}: output folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.partial-", suffix=path.suffix, dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.partial-", suffix=path.suffix, dir=folder)
+    except OSError as exc:
+        raise ClispError(f"{path}: cannot write in {folder} ({clip(exc.strerror or exc)})") from exc
     os.close(fd)
     tmp_path = Path(tmp)
     umask = os.umask(0)
@@ -59,35 +62,82 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp_path
         os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as exc:
         tmp_path.unlink(missing_ok=True)
+        if isinstance(exc, OSError):             # full disk, vanished folder, target is a folder
+            raise ClispError(f"{path}: write failed ({clip(exc.strerror or exc)})") from exc
         raise
+
+
+MAX_SCENE_PIXELS = 2**28
+"""Largest scene image (pixels) read_image accepts: 256 MP, checked before the pixels are read."""
+
+MAX_EXPANSION = 1100
+"""Most bytes a byte of an image file may decode to: deflate's ceiling is about 1032:1 (PNG,
+TIFF and EXR zip), the others' are lower; a header declaring more pixels than that is corrupt,
+refused before anything is allocated."""
 
 
 def read_image(path: str | Path) -> tuple[np.ndarray, bool]:
     """Read an image as H x W x 3 float32; returns (pixels, is_float_file).
 
     Integer files are scaled to [0, 1]; grey images are replicated to 3 channels, alpha dropped.
+    ClispError naming the file for anything unreadable, with OpenImageIO's complaint (what it
+    prints on stderr is folded into the message), for sizes a file of its size cannot hold.
     """
     oiio = _oiio()
     path = Path(path)
     if not path.is_file():
         raise ClispError(f"{path}: no such file")
-    inp = oiio.ImageInput.open(str(path))
+    with library_output() as said:
+        inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            problem = _error_text(oiio) or "unknown format"
+        else:
+            try:
+                spec = inp.spec()
+                problem = _implausible(spec, path.stat().st_size)
+                pixels = None if problem else inp.read_image(0, 0, 0, spec.nchannels, "float")
+                if not problem and (pixels is None or not isinstance(pixels, np.ndarray)
+                                    or pixels.size != spec.width * spec.height * spec.nchannels):
+                    problem = f"cannot read pixels ({_error_text(inp) or 'truncated file?'})"
+                is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+            finally:
+                _error_text(inp)
+                inp.close()
+            _error_text(oiio)                    # nothing left pending for OpenImageIO to print at exit
     if inp is None:
-        raise ClispError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown format'})")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        if pixels is None or not isinstance(pixels, np.ndarray):
-            raise ClispError(f"{path}: cannot read pixels ({inp.geterror().strip() or 'truncated file?'})")
-        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
-    finally:
-        inp.close()
+        raise ClispError(f"{path}: cannot read image ({clip(problem)}{said.note(40)})")
+    if problem:
+        raise ClispError(f"{path}: {clip(problem, 100)}{said.note(40)}")
     pixels = pixels.reshape(spec.height, spec.width, spec.nchannels)
     if spec.nchannels in (1, 2):
         pixels = np.repeat(pixels[..., :1], 3, axis=2)
     return np.ascontiguousarray(pixels[..., :3], dtype=np.float32), is_float
+
+
+def _error_text(source: object) -> str:
+    """OpenImageIO's pending error of ``source`` (the module or an ImageInput/ImageOutput), cleared,
+    on one line and cut; its text may quote the file's bytes, which the bindings fail to decode
+    as UTF-8 (found by fuzzing): then a placeholder."""
+    try:
+        return clip(source.geterror(), 100)
+    except UnicodeDecodeError:
+        return "(undecodable error text)"
+
+
+def _implausible(spec: object, file_size: int) -> str | None:
+    """Why an image header cannot be right (sizes out of range, more pixels than a file of
+    ``file_size`` bytes can hold), or None."""
+    w, h, c = int(spec.width), int(spec.height), int(spec.nchannels)
+    if w <= 0 or h <= 0 or not 1 <= c <= 64:
+        return f"image of {w}x{h} pixels and {c} channels"
+    if w * h > MAX_SCENE_PIXELS:
+        return f"image of {w}x{h} pixels, more than clisp's limit of {MAX_SCENE_PIXELS // 2**20} MP"
+    stored = w * h * c * max(1, int(spec.format.size()))
+    if stored > MAX_EXPANSION * file_size + 2**16:
+        return f"header declares {w}x{h}x{c}, more than a file of {file_size} bytes can hold (corrupt)"
+    return None
 
 
 def read_scene(path: str | Path) -> np.ndarray:
@@ -238,7 +288,7 @@ class ImageWriter:
         out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])
         if out is None or not out.open(str(tmp), spec):
             self._stack.close()
-            raise ClispError(f"{self.path}: cannot open for writing ({oiio.geterror().strip()})")
+            raise ClispError(f"{self.path}: cannot open for writing ({_error_text(oiio)})")
         self._out = out
         return self
 
@@ -254,7 +304,7 @@ class ImageWriter:
     def _write_rows(self, rows: np.ndarray) -> None:
         for pixels in self._chunks(rows):
             if not self._out.write_scanlines(self.next_row, self.next_row + pixels.shape[0], 0, pixels):
-                raise ClispError(f"{self.path}: write failed ({self._out.geterror().strip()})")
+                raise ClispError(f"{self.path}: write failed ({_error_text(self._out)})")
             self.next_row += pixels.shape[0]
 
     def _chunks(self, rows: np.ndarray) -> Iterator[np.ndarray]:
@@ -271,6 +321,10 @@ class ImageWriter:
                 yield np.ascontiguousarray(rows[start:start + WRITE_ROWS])
                 continue
             pixels = np.ascontiguousarray(rows[start:start + WRITE_ROWS], dtype=np.float32)
+            if not np.isfinite(pixels).all():            # the last guard: no NaN/Inf in a file
+                bad = int(pixels.size - np.count_nonzero(np.isfinite(pixels)))
+                raise ClispError(f"{self.path}: {bad} non-finite values in output rows "
+                                 f"{self.next_row}..{self.next_row + pixels.shape[0] - 1}; nothing written")
             yield np.clip(pixels, 0.0, 1.0) if self.kind == "srgb" else pixels
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
@@ -280,7 +334,7 @@ class ImageWriter:
         if error is None and self.next_row != self.height:
             error = ClispError(f"{self.path}: only {self.next_row} of {self.height} rows were written")
         elif error is None and not closed:
-            error = ClispError(f"{self.path}: write failed ({out.geterror().strip()})")
+            error = ClispError(f"{self.path}: write failed ({_error_text(out)})")
         if error is None:
             self._stack.close()                                   # rename into place
             return

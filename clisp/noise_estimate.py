@@ -92,7 +92,7 @@ def fit_affine_variance(level: np.ndarray, resid: np.ndarray, texture: np.ndarra
     """
     n = level.size
     if n < 2 * min_per_bin:
-        raise ClispError(f"noise estimate: only {n} usable samples in a channel (need {2 * min_per_bin})")
+        raise NoiseEstimateError(f"noise estimate: only {n} usable samples in a channel (need {2 * min_per_bin})")
     edges = np.linspace(0, n, min(bins, n // min_per_bin) + 1).astype(int)
     order = np.argpartition(level, edges[1:-1]) if len(edges) > 2 else np.arange(n)
     xs, vs, ws = [], [], []

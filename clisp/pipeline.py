@@ -16,8 +16,8 @@ from typing import Any, Callable
 import numpy as np
 
 from .cfa import CFA
-from .errors import ClispError
-from .rawimage import RawImage
+from .errors import ClispError, clip
+from .rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .profile import host_timer, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stages.base import Stage, fuse_stages
@@ -465,6 +465,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
+    check_raw(raw)
     cfa = raw.cfa
     options = resolve_options(preset, demosaic, cfa.kind)
     demosaic_stage = make_demosaic(options["demosaic"], raw)
@@ -475,7 +476,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
             colour = chroma_denoise_for(raw, demosaic_stage, params)
         except NoiseEstimateError:
             pass        # a raw too small to estimate its noise is processed without chroma denoise
-    gains2 = estimate_wb2(raw, wb2)
+    gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
                            white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     highlight = highlight_stage(raw, highlights, gains2)
@@ -491,6 +492,35 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         from .skip import Skipper                  # nothing to skip without a chroma denoiser
         pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
     return pipeline
+
+
+def check_raw(raw: RawImage) -> None:
+    """ClispError naming ``raw.source`` for what the pipeline cannot process into finite pixels:
+    levels and gains out of range (rawimage.check_levels), NaN, infinite or absurd samples in a
+    float raw (rawimage.check_samples; such raws are refused, not repaired), a mosaic smaller
+    than one CFA tile."""
+    problem = check_levels(raw)
+    if problem:
+        raise ClispError(f"{raw.source}: {problem}")
+    if raw.data.ndim != 2 or min(raw.data.shape) < raw.cfa.period:
+        raise ClispError(f"{raw.source}: raw of {raw.shape[1]}x{raw.shape[0]} is smaller than one "
+                         f"{raw.cfa.period}x{raw.cfa.period} CFA tile")
+    check_samples(raw)
+
+
+def _wb2_gains(raw: RawImage, method: str) -> np.ndarray:
+    """estimate_wb2's gains, refused (ClispError naming the raw) when not finite and positive:
+    a gray-world estimate of a black frame, or a corrupt illuminant in the metadata."""
+    try:
+        gains = np.asarray(estimate_wb2(raw, method), dtype=np.float64).reshape(3)
+    except ClispError as exc:
+        raise ClispError(f"{raw.source}: {clip(exc, 120)}") from exc
+    except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
+        raise ClispError(f"{raw.source}: white balance pass 2 from the metadata failed ({clip(exc)})") from exc
+    if not np.all(np.isfinite(gains)) or np.any(gains < 1.0 / MAX_GAIN) or np.any(gains > MAX_GAIN):
+        raise ClispError(f"{raw.source}: white balance pass 2 ({method}) gives unusable gains "
+                         f"{', '.join(f'{g:.3g}' for g in gains)}")
+    return gains
 
 
 def denoise_params(denoise: ChromaDenoiseParams | bool | None, levels: int) -> ChromaDenoiseParams | None:

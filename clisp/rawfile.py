@@ -25,8 +25,8 @@ import tifffile
 
 from .cfa import CFA, cfa_from_name
 from .colorimetry import XYZ_TO_SRGB
-from .errors import ClispError
-from .rawimage import RawImage
+from .errors import ClispError, clip, library_output
+from .rawimage import RawImage, check_levels
 
 ROWS_PER_STRIP = 16
 """Rows per uncompressed strip in files we write."""
@@ -66,6 +66,9 @@ TAG_CALIBRATION_ILLUMINANT1 = 50778
 PHOTOMETRIC_CFA = 32803
 ILLUMINANT_D65 = 21
 T_BYTE, T_ASCII, T_SHORT, T_LONG, T_RATIONAL, T_SRATIONAL = 1, 2, 3, 4, 5, 10
+
+MAX_PIXELS = 2**30
+"""Largest mosaic a raw file may declare (1 gigapixel): checked before anything is allocated."""
 
 _INT32_MAX = 2**31 - 1
 _UINT32_MAX = 2**32 - 1
@@ -410,7 +413,7 @@ def _check_readable(p: Path) -> None:
 def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str | None]:
     """(RawImage, None) for one of our files; (None, tifffile's complaint or None) otherwise."""
     try:
-        with tifffile.TiffFile(p) as tif:
+        with library_output(), tifffile.TiffFile(p) as tif:
             if not tif.pages:
                 return None, "no images"
             page = tif.pages[0]
@@ -421,7 +424,7 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
     except ClispError:
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
-        return None, _one_line(exc)
+        return None, clip(_one_line(exc))
     return _rebuild(meta, data, p), None
 
 
@@ -437,12 +440,14 @@ def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:
     try:
         meta = json.loads(blob[len(PRIVATE_PREFIX):].rstrip(b"\0").decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({_one_line(exc)})") from exc
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(_one_line(exc))})") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
         raise ClispError(f"cannot read raw file '{p}': unrecognised clisp metadata")
-    if int(meta.get("version", 0)) > FORMAT_VERSION:
-        raise ClispError(f"cannot read raw file '{p}': written by a newer clisp "
-                         f"(format version {meta.get('version')})")
+    version = meta.get("version", 0)
+    if not isinstance(version, int) or version < 1:
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (version {clip(version, 20)})")
+    if version > FORMAT_VERSION:
+        raise ClispError(f"cannot read raw file '{p}': written by a newer clisp (format version {version})")
     return meta
 
 
@@ -451,10 +456,19 @@ def _read_pixels(page: Any, p: Path, meta: dict[str, Any], lazy: bool = False) -
     not read, when the file allows it)."""
     if int(page.photometric) != PHOTOMETRIC_CFA:
         raise ClispError(f"cannot read raw file '{p}': photometric {int(page.photometric)} is not CFA")
+    want_dtype, want_shape = _declared_layout(meta, p)
+    if int(page.compression) != 1:
+        raise ClispError(f"cannot read raw file '{p}': compressed image data (compression "
+                         f"{int(page.compression)}); clisp writes its raws uncompressed")
+    if tuple(page.shape) != want_shape or page.dtype is None or \
+            np.dtype(page.dtype).newbyteorder("=") != want_dtype:
+        raise ClispError(f"cannot read raw file '{p}': image is {clip(page.dtype, 20)} {clip(tuple(page.shape), 40)}, "
+                         f"metadata says {want_dtype} {want_shape}")
     size = p.stat().st_size
     ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts)]
-    if not ends or max(ends) > size:
-        need = max(ends) if ends else 0
+    need = want_shape[0] * want_shape[1] * want_dtype.itemsize
+    if not ends or max(ends) > size or sum(int(n) for n in page.databytecounts) < need:
+        need = max(max(ends) if ends else 0, need)
         raise ClispError(f"cannot read raw file '{p}': truncated (image data needs {need} bytes, "
                          f"file has {size})")
     try:
@@ -462,15 +476,27 @@ def _read_pixels(page: Any, p: Path, meta: dict[str, Any], lazy: bool = False) -
         if data is None:
             data = page.asarray()
     except Exception as exc:  # noqa: BLE001
-        raise ClispError(f"cannot read raw file '{p}': damaged image data ({_one_line(exc)})") from exc
-    want_dtype = np.dtype(meta.get("dtype", str(data.dtype)))
-    want_shape = tuple(int(v) for v in meta.get("shape", data.shape))
+        raise ClispError(f"cannot read raw file '{p}': damaged image data ({clip(_one_line(exc))})") from exc
     if data.shape != want_shape or data.dtype.newbyteorder("=") != want_dtype.newbyteorder("="):
         raise ClispError(f"cannot read raw file '{p}': image is {data.dtype} {data.shape}, "
                          f"metadata says {want_dtype} {want_shape}")
     if isinstance(data, np.memmap):
         return data
     return np.ascontiguousarray(data, dtype=want_dtype.newbyteorder("="))
+
+
+def _declared_layout(meta: dict[str, Any], p: Path) -> tuple[np.dtype, tuple[int, int]]:
+    """The dtype (uint16 or float32) and shape our metadata declares, checked against
+    MAX_PIXELS before anything is read or allocated."""
+    dtype, shape = meta.get("dtype"), meta.get("shape")
+    if dtype not in ("uint16", "float32"):
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (dtype {clip(dtype, 20)})")
+    if not (isinstance(shape, list) and len(shape) == 2 and all(type(v) is int and v > 0 for v in shape)):
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (shape {clip(shape, 30)})")
+    if shape[0] * shape[1] > MAX_PIXELS:
+        raise ClispError(f"cannot read raw file '{p}': declares {shape[1]}x{shape[0]} pixels, "
+                         f"more than clisp's limit of {MAX_PIXELS // 2**20} MP")
+    return np.dtype(dtype), (shape[0], shape[1])
 
 
 def _mapped_pixels(page: Any, p: Path) -> np.memmap | None:
@@ -488,7 +514,7 @@ def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:
     """RawImage from our JSON metadata and the pixels."""
     try:
         cfa = _rebuild_cfa(meta["cfa"], p)
-        return RawImage(
+        raw = RawImage(
             data=data,
             cfa=cfa,
             black_level=np.asarray(meta["black_level"], dtype=np.float64),
@@ -502,13 +528,19 @@ def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:
         )
     except ClispError:
         raise
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({_one_line(exc)})") from exc
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as exc:
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(_one_line(exc))})") from exc
+    problem = check_levels(raw)
+    if problem:
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({problem})")
+    return raw
 
 
 def _rebuild_cfa(desc: dict[str, Any], p: Path) -> CFA:
     """The CFA named in the metadata, checked against the stored kind, channels and pattern."""
-    name = str(desc.get("name"))
+    if not isinstance(desc, dict):
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (cfa {clip(desc, 30)})")
+    name = clip(desc.get("name"), 30)
     try:
         cfa = cfa_from_name(name)
     except ClispError as exc:

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .cfa import CFA
+from .errors import ClispError
 
 
 @dataclass
@@ -55,3 +56,61 @@ class RawImage:
         """Multipliers per CFA channel that take black-subtracted, white-normalised data to
         white-balanced camera values (WB pass 1 times exposure), shape (n_channels,)."""
         return self.wb * self.exposure
+
+
+MAX_GAIN = 1e4
+"""Largest white-balance or exposure multiplier (and smallest: its inverse) a raw may carry; past
+it the float32 kernels' intermediates (squares in the guided filters) leave their precision."""
+
+FLOAT_RANGE = 2.0**20
+"""Float raws (noiseless simulations) may exceed the white level, not beyond FLOAT_RANGE times the
+black-to-white span (an unclipped highlight 10^6 times white is corrupt data, and its square
+would leave float32's range in the guided filters)."""
+
+_SCAN_ROWS = 256
+"""Rows of a (memory-mapped) float raw checked at once by :func:`check_samples`."""
+
+
+def check_levels(raw: RawImage) -> str | None:
+    """What is wrong with ``raw``'s levels and gains (black, white, WB passes, exposure, colour
+    matrix), as a short phrase, or None when the pipeline can use them: finite, black below white,
+    gains within [1/MAX_GAIN, MAX_GAIN]."""
+    black, white = raw.black_level, float(raw.white_level)
+    if not np.all(np.isfinite(black)) or not np.isfinite(white):
+        return "black or white level is not a finite number"
+    if white <= float(np.max(black)):
+        return f"white level {white:g} is not above the black level {float(np.max(black)):g}"
+    for name, gains in (("white balance", raw.wb), ("exposure", np.array([raw.exposure])),
+                        ("white balance pass 2", raw.wb2)):
+        if not np.all(np.isfinite(gains)) or np.any(gains < 1.0 / MAX_GAIN) or np.any(gains > MAX_GAIN):
+            shown = ", ".join(f"{float(v):.4g}" for v in np.ravel(gains)[:3])
+            return f"{name} {shown} outside {1 / MAX_GAIN:g}..{MAX_GAIN:g}"
+    m = raw.colour_matrix
+    if not np.all(np.isfinite(m)) or np.max(np.abs(m)) > MAX_GAIN:
+        return "colour matrix is not finite or has entries beyond 1e4"
+    return None
+
+
+def check_samples(raw: RawImage) -> None:
+    """ClispError naming ``raw.source`` when a float raw holds NaN or infinite samples, or samples
+    beyond FLOAT_RANGE (corrupt data; the kernels would turn them into NaN/Inf pixels). Integer
+    raws hold nothing the pipeline cannot take. A memory-mapped raw is scanned _SCAN_ROWS at a time."""
+    data = raw.data
+    if data.dtype.kind != "f":
+        return
+    span = float(raw.white_level) - float(np.min(raw.black_level))
+    lo = float(np.min(raw.black_level)) - FLOAT_RANGE * abs(span)
+    hi = float(np.max(raw.black_level)) + FLOAT_RANGE * abs(span)
+    bad = far = 0
+    for y in range(0, data.shape[0], _SCAN_ROWS):
+        rows = np.asarray(data[y:y + _SCAN_ROWS])
+        finite = np.isfinite(rows)
+        bad += int(rows.size - np.count_nonzero(finite))
+        far += int(np.count_nonzero(finite & ((rows < lo) | (rows > hi))))
+    total = data.shape[0] * data.shape[1]
+    if bad:
+        raise ClispError(f"{raw.source}: {bad} of {total} samples are NaN or infinite (corrupt float raw); "
+                         f"not processed")
+    if far:
+        raise ClispError(f"{raw.source}: {far} of {total} samples lie beyond {FLOAT_RANGE:g} times the "
+                         f"white level (corrupt float raw); not processed")
