@@ -79,10 +79,11 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="per-chroma strengths: LMS R-Y,G-Y,B-Y (default 1,1,1.5), Bayer U,V (default 1.5,1)")
     p.add_argument("--wb2", choices=("metadata", "gray_world", "gray_pixels"), default="metadata",
                    help="white balance pass 2: known illuminant (default), gray world, gray pixels")
-    p.add_argument("--highlights", choices=("clip", "reconstruct", "off"), default=DEFAULT_HIGHLIGHTS,
+    p.add_argument("--highlights", choices=("clip", "reconstruct", "clamp", "off"), default=None,
                    help="clipped highlights: reconstruct the colour from the unclipped channels and the "
-                        "light's rim, clip to a neutral white, or off (left as the sensor clipped them); "
-                        f"default {DEFAULT_HIGHLIGHTS}. Raws without clipped samples skip the stage")
+                        "light's rim, clip to a neutral white, clamp every channel at that white (per pixel, "
+                        "as LibRaw), or off (left as the sensor clipped them); default from the preset "
+                        f"(fast: clamp, else {DEFAULT_HIGHLIGHTS}). Raws without clipped samples skip the stage")
     p.add_argument("--no-crop", action="store_true",
                    help="keep the whole mosaic; by default the output is the crop the raw declares "
                         "(a DNG's DefaultCrop inside its ActiveArea, a camera's recommended crop)")

@@ -10,6 +10,9 @@
 #define HL_LOW 0.5f
 #define HL_PRIOR 1.0f
 #endif
+#ifndef HL_BLOCK
+#define HL_BLOCK 32
+#endif
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
  * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
@@ -32,12 +35,57 @@ __kernel void hl_flags(__global const float *restrict src, __global float *restr
     dst[i] = any_clipped(src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2], t) ? 1.0f : 0.0f;
 }
 
+/* Sparsity: the stage changes only pixels within RIM of a clipped one, so every kernel after
+ * hl_flags works only where a clipped pixel lies near enough for its result to be read.
+ * hl_blocks: blocks (nby x nbx, HL_BLOCK px of the src window each) = 1 where the block holds a
+ * clipped pixel. hl_reach: plane d - 1 (d = 1..4) = 1 where a block within d blocks does. A
+ * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set, d the
+ * blocks its readers can be away (apply 1: RIM <= HL_BLOCK; box 2; weights 3; near rows 4), so
+ * nothing an active pixel reads was skipped (HL_RADIUS, HL_RIM <= HL_BLOCK). */
+__kernel void hl_blocks(__global const float *restrict flags, __global float *restrict blocks,
+                        const int width, const int height, const int nbx)
+{
+    const int bx = get_global_id(0);
+    const int by = get_global_id(1);
+    const int x0 = bx * HL_BLOCK, y0 = by * HL_BLOCK;
+    const int x1 = min(x0 + HL_BLOCK, width), y1 = min(y0 + HL_BLOCK, height);
+    float m = 0.0f;
+    for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++)
+            m = fmax(m, flags[y * width + x]);
+    blocks[by * nbx + bx] = m;
+}
+
+__kernel void hl_reach(__global const float *restrict blocks, __global float *restrict reach,
+                       const int nbx, const int nby)
+{
+    const int bx = get_global_id(0);
+    const int by = get_global_id(1);
+    for (int d = 1; d <= 4; d++) {
+        float m = 0.0f;
+        for (int j = max(by - d, 0); j <= min(by + d, nby - 1); j++)
+            for (int i = max(bx - d, 0); i <= min(bx + d, nbx - 1); i++)
+                m = fmax(m, blocks[j * nbx + i]);
+        reach[((d - 1) * nby + by) * nbx + bx] = m;
+    }
+}
+
+/* active: whether src pixel (sx, sy) lies in a block with reach[d] set. */
+inline int active(__global const float *reach, const int d, const int sx, const int sy, const int nbx,
+                  const int nby)
+{
+    return reach[((d - 1) * nby + sy / HL_BLOCK) * nbx + sx / HL_BLOCK] > 0.0f;
+}
+
 /* hl_near_rows: max of the flags over 2 RIM + 1 consecutive columns. */
 __kernel void hl_near_rows(__global const float *restrict src, __global float *restrict dst,
-                           const int width, const int out_w)
+                           const int width, const int out_w, __global const float *restrict reach,
+                           const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
+    if (!active(reach, 4, x + HL_RIM, y, nbx, nby))
+        return;
     float m = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
         m = fmax(m, src[y * width + x + k]);
@@ -50,10 +98,13 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
 __kernel void hl_weights(__global const float *restrict src, __global const float *restrict rows,
                          __global float *restrict dst, const int width, const int height,
                          const int w1, const int h1, __constant const float *restrict n,
-                         __constant const float *restrict t)
+                         __constant const float *restrict t, __global const float *restrict reach,
+                         const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
+    if (!active(reach, 3, x + HL_RIM, y + HL_RIM, nbx, nby))
+        return;
     float near = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
         near = fmax(near, rows[(y + k) * w1 + x]);
@@ -75,10 +126,13 @@ __kernel void hl_weights(__global const float *restrict src, __global const floa
 /* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-3 (w1 x h1);
  * dst out_w x h1, 3 planes. */
 __kernel void hl_box_rows(__global const float *restrict src, __global float *restrict dst,
-                          const int w1, const int h1, const int out_w)
+                          const int w1, const int h1, const int out_w, __global const float *restrict reach,
+                          const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
+    if (!active(reach, 2, x + HL_RIM + HL_RADIUS, y + HL_RIM, nbx, nby))
+        return;
     const int plane = w1 * h1, oplane = out_w * h1;
     const int i = y * w1 + x;
     float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
@@ -100,12 +154,20 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
                        __global const float *restrict box, __global float *restrict dst,
                        const int width, const int height, const int w1, const int h1,
                        const int out_w, const int out_h, __constant const float *restrict n,
-                       __constant const float *restrict t, const float white)
+                       __constant const float *restrict t, const float white,
+                       __global const float *restrict reach, const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int plane = width * height, oplane = out_w * out_h;
     const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS;
+    if (!active(reach, 1, x + HL_RIM + HL_RADIUS, y + HL_RIM + HL_RADIUS, nbx, nby)) {
+        const int o = y * out_w + x;                  /* nothing clipped within RIM: unchanged */
+        dst[o] = src[i];
+        dst[oplane + o] = src[plane + i];
+        dst[2 * oplane + o] = src[2 * plane + i];
+        return;
+    }
     float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
     const int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
     const int count = c0 + c1 + c2;
@@ -156,4 +218,13 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     dst[o] = v[0] * n[0];
     dst[oplane + o] = v[1] * n[1];
     dst[2 * oplane + o] = v[2] * n[2];
+}
+
+/* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast). Halo 0. */
+__kernel void hl_clamp(__global const float *restrict src, __global float *restrict dst, const int width,
+                       const int plane, __constant const float *restrict cap)
+{
+    const int i = get_global_id(1) * width + get_global_id(0);
+    for (int c = 0; c < 3; c++)
+        dst[c * plane + i] = fmin(src[c * plane + i], cap[c]);
 }

@@ -157,3 +157,44 @@ def test_cli_highlights_option(tmp_path):
     assert block_chroma(centre["clip"][None]).max() < 0.01
     assert block_chroma(centre["reconstruct"][None]).max() < 0.01
     assert centre["reconstruct"].mean() > centre["clip"].mean()
+
+
+@pytest.mark.parametrize("mode", ["clip", "reconstruct"])
+def test_kernel_matches_reference_where_clipping_is_sparse(rt, mode):
+    """The kernels skip blocks with no clipped pixel within reach (highlights.BLOCK): on a window
+    with one light in a corner and nothing clipped elsewhere the result still equals the reference
+    everywhere (nothing an active pixel reads was skipped; skipped pixels are unchanged)."""
+    stage = Highlights(STAGE.neutral, STAGE.threshold, STAGE.white, mode)      # default radius, rim
+    x = stage_input(3, stage, shape=(260, 330))
+    ratio = x / (stage.neutral * stage.threshold)
+    far = np.ones(x.shape[:2], bool)
+    far[:100, :110] = False
+    x[far] = np.minimum(x[far], 0.6 * (stage.neutral * stage.threshold)[None, :].astype(np.float32))
+    assert (ratio[~far] >= 1).any() and not (x[far] / (stage.neutral * stage.threshold) >= 1).any()
+    import pyopencl as cl
+    junk = [rt.acquire(4, x.shape[0], x.shape[1]) for _ in range(6)]     # the pool: NaN, not zeros
+    for image in junk:
+        cl.enqueue_fill_buffer(rt.queue, image.buffer, np.float32(np.nan), 0, image.capacity)
+    for image in junk:
+        rt.release(image)
+    src = to_device(rt, x)
+    out = from_device(rt, stage.enqueue(rt, src, (0, 0)))
+    assert_close(out, stage.reference(x, (0, 0)), f"sparse highlights {mode}")
+
+
+def test_clamp_mode_kernel_reference_and_fast_preset(rt):
+    """``clamp`` (preset fast): each channel capped at the common white, per pixel; a blown white
+    comes out neutral. Kernel = reference; the fast preset picks it, quality reconstructs."""
+    from clisp.stages.highlights import HighlightClamp
+    stage = HighlightClamp(STAGE.neutral, STAGE.white)
+    x = stage_input(2, STAGE)
+    assert stage.halo == 0
+    out = from_device(rt, stage.enqueue(rt, to_device(rt, x), (0, 0)))
+    ref = stage.reference(x, (0, 0))
+    assert_close(out, ref, "clamp")
+    blown = stage.reference(np.full((1, 1, 3), 10.0) * STAGE.neutral, (0, 0))[0, 0] / STAGE.neutral
+    assert np.allclose(blown, STAGE.white)
+    sim = clisp.simulate(lamp_scene(64, 4.0), cfa="bayer", gain=1, seed=1)
+    kinds = {preset: [type(s).__name__ for s in build_pipeline(sim.raw, preset=preset).stages]
+             for preset in ("fast", "quality")}
+    assert "HighlightClamp" in kinds["fast"] and "Highlights" in kinds["quality"]

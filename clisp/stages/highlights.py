@@ -11,7 +11,10 @@ measured in units of it, ``y_c = x_c / n_c`` (a neutral pixel has equal y). A ch
 where ``y_c >= t_c``, ``t_c = CLIP_FRACTION L_c / n_c`` (the scene analysis' threshold,
 clisp.analysis, so a raw the analysis finds unclipped is left alone exactly).
 
-``clip`` (halo 0): every pixel with a clipped channel becomes the neutral ``s n``,
+``clamp`` (halo 0, :class:`HighlightClamp`, preset fast): every channel capped at ``s n_c``, per
+pixel (LibRaw's default): a blown white is neutral, a partly clipped pixel keeps some colour.
+
+``clip`` (halo RIM): every pixel with a clipped channel becomes the neutral ``s n``,
 ``s = min_c t_c``: the brightest neutral that no channel clips on, a consistent white (LibRaw's
 default clips each channel at that level after white balance; we also make the pixel neutral). A
 neutral ramp through the clip point rises to s and stays there.
@@ -51,13 +54,17 @@ from ..noise_estimate import CLIP_FRACTION
 from ..runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 
-MODES = ("clip", "reconstruct", "off")
+MODES = ("clip", "reconstruct", "clamp", "off")
 DEFAULT_MODE = "reconstruct"
 """``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions):
 reconstruct mean CIEDE2000 16.4 / 15.0 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR 17.1 / 15.5
 dB against 10.3 / 10.3 (LibRaw Blend 16.9 dE, ReconstructDefault 17.3 dE on Bayer)."""
 
 RADIUS = 16
+BLOCK = 32
+"""Side of the blocks the OpenCL path tests for clipped pixels (kernels/highlights.cl): every
+kernel after the flags works only within 1-4 blocks of one, so raws with few clipped pixels pay
+little more than the flags pass. Must be >= RADIUS and >= RIM."""
 """Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
 
 REF = 0.9
@@ -141,29 +148,40 @@ class Highlights(Stage):
         r = self.radius if self.mode == "reconstruct" else 0
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
                    "HL_PRIOR": repr(PRIOR) + "f", "HL_CLIP": int(self.mode == "clip")}
+        defines["HL_BLOCK"] = BLOCK
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
                      i32(w), i32(h), n, t)
+        nbx, nby = -(-w // BLOCK), -(-h // BLOCK)
+        blocks = rt.acquire(1, nby, nbx)
+        launch_exact(rt, rt.kernel("highlights", "hl_blocks", defines), nbx, nby, flags.buffer, blocks.buffer,
+                     i32(w), i32(h), i32(nbx))
+        reach = rt.acquire(4, nby, nbx)
+        launch_exact(rt, rt.kernel("highlights", "hl_reach", defines), nbx, nby, blocks.buffer, reach.buffer,
+                     i32(nbx), i32(nby))
+        rt.release(blocks)
+        sparse = (reach.buffer, i32(nbx), i32(nby))
         w1, h1 = w - 2 * d, h - 2 * d
         rows = rt.acquire(1, h, w1)
         launch_exact(rt, rt.kernel("highlights", "hl_near_rows", defines), w1, h, flags.buffer, rows.buffer,
-                     i32(w), i32(w1))
+                     i32(w), i32(w1), *sparse)
         rt.release(flags)
         # planes: near, then (reconstruct) w, w rho0, w rho1 on the window less the rim
         weights = rt.acquire(4 if r else 1, h1, w1)
         launch_exact(rt, rt.kernel("highlights", "hl_weights", defines), w1, h1, src.buffer, rows.buffer,
-                     weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t)
+                     weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t, *sparse)
         rt.release(rows)
         ow, oh = w1 - 2 * r, h1 - 2 * r
         box = weights
         if r:
             box = rt.acquire(3, h1, ow)
             launch_exact(rt, rt.kernel("highlights", "hl_box_rows", defines), ow, h1, weights.buffer, box.buffer,
-                         i32(w1), i32(h1), i32(ow))
+                         i32(w1), i32(h1), i32(ow), *sparse)
         dst = rt.acquire(3, oh, ow)
         launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, weights.buffer,
                      box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ow), i32(oh), n, t,
-                     np.float32(self.white))
+                     np.float32(self.white), *sparse)
+        rt.release(reach)
         rt.release(weights)
         if r:
             rt.release(box)
@@ -280,4 +298,32 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
     black = np.asarray(raw.black_level, dtype=np.float64)
     clip = (clip_thresholds_dn(raw) - black) / (float(raw.white_level) - black)   # normalised
     t = clip * raw.pass1_gains() / n                         # after WB pass 1, in units of n
+    if mode == "clamp":
+        return HighlightClamp(n, float(t.min()))
     return Highlights(n, MARGIN * t, float(t.min()), mode)
+
+
+@dataclass
+class HighlightClamp(Stage):
+    """``clamp`` (preset fast): every channel capped at the brightest neutral no channel clips on,
+    per pixel: x_c <- min(x_c, s n_c), halo 0, one pass. LibRaw's default: a blown white (every
+    channel clipped) comes out neutral at s; a partly clipped pixel moves toward neutral but keeps
+    some colour. ``neutral`` n and ``white`` s as in :class:`Highlights`."""
+
+    neutral: np.ndarray
+    white: float
+    name = "highlights"
+
+    def __post_init__(self) -> None:
+        self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
+        self.white = float(self.white)
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return np.minimum(np.asarray(x, dtype=np.float64), self.white * self.neutral)
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        dst = rt.acquire(3, src.height, src.width)
+        launch_exact(rt, rt.kernel("highlights", "hl_clamp"), src.width, src.height, src.buffer, dst.buffer,
+                     np.int32(src.width), np.int32(src.width * src.height),
+                     rt.constant(as_f32(self.white * self.neutral)))
+        return dst
