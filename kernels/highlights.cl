@@ -18,6 +18,12 @@
  * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
  * Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R). */
 
+/* max without fmax: PoCL 3 does not vectorise fmax/fmin (3x slower kernels); inputs are finite. */
+inline float hl_max(const float a, const float b)
+{
+    return a > b ? a : b;
+}
+
 inline int any_clipped(const float y0, const float y1, const float y2, __constant const float *t)
 {
     return y0 >= t[0] || y1 >= t[1] || y2 >= t[2];
@@ -52,7 +58,7 @@ __kernel void hl_blocks(__global const float *restrict flags, __global float *re
     float m = 0.0f;
     for (int y = y0; y < y1; y++)
         for (int x = x0; x < x1; x++)
-            m = fmax(m, flags[y * width + x]);
+            m = hl_max(m, flags[y * width + x]);
     blocks[by * nbx + bx] = m;
 }
 
@@ -65,7 +71,7 @@ __kernel void hl_reach(__global const float *restrict blocks, __global float *re
         float m = 0.0f;
         for (int j = max(by - d, 0); j <= min(by + d, nby - 1); j++)
             for (int i = max(bx - d, 0); i <= min(bx + d, nbx - 1); i++)
-                m = fmax(m, blocks[j * nbx + i]);
+                m = hl_max(m, blocks[j * nbx + i]);
         reach[((d - 1) * nby + by) * nbx + bx] = m;
     }
 }
@@ -88,7 +94,7 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
         return;
     float m = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
-        m = fmax(m, src[y * width + x + k]);
+        m = hl_max(m, src[y * width + x + k]);
     dst[y * out_w + x] = m;
 }
 
@@ -107,14 +113,14 @@ __kernel void hl_weights(__global const float *restrict src, __global const floa
         return;
     float near = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
-        near = fmax(near, rows[(y + k) * w1 + x]);
+        near = hl_max(near, rows[(y + k) * w1 + x]);
     const int o = y * w1 + x, oplane = w1 * h1;
     dst[o] = near;
 #if HL_RADIUS > 0
     const int plane = width * height;
     const int i = (y + HL_RIM) * width + x + HL_RIM;
     const float y0 = src[i] / n[0], y1 = src[plane + i] / n[1], y2 = src[2 * plane + i] / n[2];
-    const float m = fmax(fmax(y0 / t[0], y1 / t[1]), y2 / t[2]);
+    const float m = hl_max(hl_max(y0 / t[0], y1 / t[1]), y2 / t[2]);
     const float w = (m < HL_REF && near == 0.0f) ? clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f) : 0.0f;
     const float inv = w > 0.0f ? 3.0f / (y0 + y1 + y2) : 0.0f;
     dst[oplane + o] = w;
@@ -181,7 +187,7 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     }
 #else
     if (count == 3) {
-        const float top = fmax(fmax(v[0], v[1]), v[2]);
+        const float top = hl_max(hl_max(v[0], v[1]), v[2]);
         v[0] = v[1] = v[2] = top;
     } else if (count > 0 || near > 0.0f) {
         const int bplane = out_w * h1;
@@ -207,10 +213,10 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
                     den += rho[c];
                 }
             }
-            const float k = num / fmax(den, 1e-6f);
+            const float k = num / hl_max(den, 1e-6f);
             for (int c = 0; c < 3; c++)
                 if (clipped[c])
-                    v[c] = fmax(v[c], k * rho[c]);
+                    v[c] = hl_max(v[c], k * rho[c]);
         }
     }
 #endif
@@ -220,11 +226,28 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     dst[2 * oplane + o] = v[2] * n[2];
 }
 
-/* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast). Halo 0. */
+/* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast); MATRIX 1 then
+ * applies the 3 x 3 matrix m (the colour matrix that follows, fused). Halo 0. */
+#ifndef MATRIX
+#define MATRIX 0
+#endif
 __kernel void hl_clamp(__global const float *restrict src, __global float *restrict dst, const int width,
-                       const int plane, __constant const float *restrict cap)
+                       const int height, const float cap0, const float cap1, const float cap2,
+                       __constant const float *restrict m)
 {
-    const int i = get_global_id(1) * width + get_global_id(0);
-    for (int c = 0; c < 3; c++)
-        dst[c * plane + i] = fmin(src[c * plane + i], cap[c]);
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    const int plane = width * height;
+    const int i = y * width + x;
+    const float a0 = src[i], b0 = src[plane + i], c0 = src[2 * plane + i];
+    const float a = a0 < cap0 ? a0 : cap0, b = b0 < cap1 ? b0 : cap1, c = c0 < cap2 ? c0 : cap2;   /* not fmin: PoCL does not vectorise it */
+#if MATRIX
+    dst[i]             = m[0] * a + m[1] * b + m[2] * c;
+    dst[plane + i]     = m[3] * a + m[4] * b + m[5] * c;
+    dst[2 * plane + i] = m[6] * a + m[7] * b + m[8] * c;
+#else
+    dst[i] = a;
+    dst[plane + i] = b;
+    dst[2 * plane + i] = c;
+#endif
 }

@@ -318,12 +318,24 @@ class HighlightClamp(Stage):
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
         self.white = float(self.white)
 
+    matrix: np.ndarray | None = None
+    """A 3 x 3 matrix applied after the clamp (the colour matrix fused in: :meth:`fuse`), or None."""
+
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        return np.minimum(np.asarray(x, dtype=np.float64), self.white * self.neutral)
+        out = np.minimum(np.asarray(x, dtype=np.float64), self.white * self.neutral)
+        return out if self.matrix is None else out @ np.asarray(self.matrix, dtype=np.float64).T
+
+    def fuse(self, following: Stage) -> Stage | None:
+        from .colour import ColourMatrix
+        if self.matrix is None and type(following) is ColourMatrix:
+            return HighlightClamp(self.neutral, self.white, np.asarray(following.matrix, dtype=np.float64))
+        return None
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         dst = rt.acquire(3, src.height, src.width)
-        launch_exact(rt, rt.kernel("highlights", "hl_clamp"), src.width, src.height, src.buffer, dst.buffer,
-                     np.int32(src.width), np.int32(src.width * src.height),
-                     rt.constant(as_f32(self.white * self.neutral)))
+        cap = self.white * self.neutral
+        m = np.eye(3) if self.matrix is None else self.matrix
+        kernel = rt.kernel("highlights", "hl_clamp", {"MATRIX": int(self.matrix is not None)})
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
+                     np.int32(src.height), *(np.float32(v) for v in cap), rt.constant(as_f32(m)))
         return dst
