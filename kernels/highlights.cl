@@ -45,9 +45,11 @@ __kernel void hl_flags(__global const float *restrict src, __global float *restr
  * hl_flags works only where a clipped pixel lies near enough for its result to be read.
  * hl_blocks: blocks (nby x nbx, HL_BLOCK px of the src window each) = 1 where the block holds a
  * clipped pixel. hl_reach: plane d - 1 (d = 1..4) = 1 where a block within d blocks does. A
- * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set, d the
- * blocks its readers can be away (apply 1: RIM <= HL_BLOCK; box 2; weights 3; near rows 4), so
- * nothing an active pixel reads was skipped (HL_RADIUS, HL_RIM <= HL_BLOCK). */
+ * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set. Only
+ * pixels with a clipped pixel within RIM change (and read the box): so box rows are read within
+ * RIM + R of a clipped pixel (d = 1), weights within RIM + 2 R (d = 2), near rows within 2 RIM + 2 R
+ * (d = 2), as long as RIM + R <= HL_BLOCK and 2 (RIM + R) <= 2 HL_BLOCK; nothing an active pixel
+ * reads was skipped. Skipped apply pixels are copied unchanged. */
 __kernel void hl_blocks(__global const float *restrict flags, __global float *restrict blocks,
                         const int width, const int height, const int nbx)
 {
@@ -90,7 +92,7 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (!active(reach, 4, x + HL_RIM, y, nbx, nby))
+    if (!active(reach, 2, x + HL_RIM, y, nbx, nby))
         return;
     float m = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
@@ -109,7 +111,7 @@ __kernel void hl_weights(__global const float *restrict src, __global const floa
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (!active(reach, 3, x + HL_RIM, y + HL_RIM, nbx, nby))
+    if (!active(reach, 2, x + HL_RIM, y + HL_RIM, nbx, nby))
         return;
     float near = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
@@ -137,7 +139,7 @@ __kernel void hl_box_rows(__global const float *restrict src, __global float *re
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (!active(reach, 2, x + HL_RIM + HL_RADIUS, y + HL_RIM, nbx, nby))
+    if (!active(reach, 1, x + HL_RIM + HL_RADIUS, y + HL_RIM, nbx, nby))
         return;
     const int plane = w1 * h1, oplane = out_w * h1;
     const int i = y * w1 + x;

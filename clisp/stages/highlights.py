@@ -63,8 +63,8 @@ dB against 10.3 / 10.3 (LibRaw Blend 16.9 dE, ReconstructDefault 17.3 dE on Baye
 RADIUS = 16
 BLOCK = 32
 """Side of the blocks the OpenCL path tests for clipped pixels (kernels/highlights.cl): every
-kernel after the flags works only within 1-4 blocks of one, so raws with few clipped pixels pay
-little more than the flags pass. Must be >= RADIUS and >= RIM."""
+kernel after the flags works only within 1-2 blocks of one, so raws with few clipped pixels pay
+little more than the flags pass. Must be >= RADIUS + RIM."""
 """Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
 
 REF = 0.9
@@ -111,6 +111,8 @@ class Highlights(Stage):
     name = "highlights"
 
     def __post_init__(self) -> None:
+        if self.rim + self.radius > BLOCK:
+            raise ClispError(f"highlights: rim + radius {self.rim + self.radius} exceeds the block of {BLOCK} px")
         if self.mode not in ("clip", "reconstruct"):
             raise ClispError(f"unknown highlight mode {self.mode!r}; expected clip or reconstruct")
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
