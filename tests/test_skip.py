@@ -7,7 +7,7 @@ import pytest
 from clisp.analysis import analyse
 from clisp.pipeline import build_pipeline
 from clisp.simulate import simulate
-from clisp.skip import PATH_FLAT, PATH_FULL, PATH_LIGHT, PATH_NONE, SkipPlan, Skipper
+from clisp.skip import PATH_FLAT, PATH_FULL, PATH_LIGHT, PATH_NONE, SkipPlan
 from clisp.tiling import Tile, grid
 
 
@@ -156,6 +156,20 @@ def test_plan_is_data() -> None:
     assert "light" in str(plan)
 
 
+def assert_no_step_at_path_seams(out: np.ndarray, plan: SkipPlan) -> None:
+    """Where a tile's right neighbour takes another path, the jump across the boundary is no
+    larger than twice the jumps inside the tile (a seam would be a step)."""
+    paths = {(c.tile.y0, c.tile.x0): c.path for c in plan.choices}
+    for c in plan.choices:
+        t = c.tile
+        right = paths.get((t.y0, t.x0 + t.w))
+        if right is not None and right != c.path:
+            x = t.x0 + t.w
+            step = np.abs(out[t.y0:t.y0 + t.h, x] - out[t.y0:t.y0 + t.h, x - 1]).mean()
+            inner = np.abs(out[t.y0:t.y0 + t.h, x - 2] - out[t.y0:t.y0 + t.h, x - 3]).mean()
+            assert step < 2.0 * inner + 1e-3, (x, step, inner)
+
+
 SEAM_TOLERANCE = 0.02
 """Largest |skip - no-skip| (linear, white 1) anywhere, seams included, on the gain-1 test scene
 (measured 0.0095 for LMS and Bayer): the light path's own effect, not a seam artefact."""
@@ -191,15 +205,7 @@ def test_tiles_on_different_paths_meet_without_a_seam(cfa: str, monkeypatch: pyt
     diff = np.abs(out - full).max(axis=-1)
     print(f"max |skip - no-skip| {diff.max():.4f}")
     assert diff.max() < SEAM_TOLERANCE
-    # no step at a seam: the jump across a path boundary is no larger than the jumps inside tiles
-    for c in plan.choices:
-        t = c.tile
-        right = paths.get((t.y0, t.x0 + t.w))
-        if right is not None and right != c.path:
-            x = t.x0 + t.w
-            step = np.abs(out[t.y0:t.y0 + t.h, x] - out[t.y0:t.y0 + t.h, x - 1]).mean()
-            inner = np.abs(out[t.y0:t.y0 + t.h, x - 2] - out[t.y0:t.y0 + t.h, x - 3]).mean()
-            assert step < 2.0 * inner + 1e-3
+    assert_no_step_at_path_seams(out, plan)
 
 
 def test_build_pipeline_skip_none_keeps_the_old_behaviour() -> None:
@@ -247,14 +253,7 @@ def test_flat_and_full_tiles_meet_without_a_seam(cfa: str) -> None:
     ratio = shift(out) / shift(full)
     print(f"8 x 8 mean error on the flat tiles: skip / no-skip {ratio:.2f}")
     assert ratio <= FLAT_SHIFT_RATIO
-    for c in plan.choices:                                     # no step where the paths meet
-        t = c.tile
-        right = paths.get((t.y0, t.x0 + t.w))
-        if right is not None and right != c.path:
-            x = t.x0 + t.w
-            step = np.abs(out[t.y0:t.y0 + t.h, x] - out[t.y0:t.y0 + t.h, x - 1]).mean()
-            inner = np.abs(out[t.y0:t.y0 + t.h, x - 2] - out[t.y0:t.y0 + t.h, x - 3]).mean()
-            assert step < 2.0 * inner + 1e-3, (x, step, inner)
+    assert_no_step_at_path_seams(out, plan)
 
 
 def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.MonkeyPatch) -> None:
