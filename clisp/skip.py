@@ -206,9 +206,9 @@ def plain_colour(stage: Any) -> Any:
 def demosaic_index(stages: list[Any], denoiser_index: int) -> int:
     """Index of the demosaic in ``stages``: the stage before the chroma denoiser, or before the
     highlight stage that sits between them (-1 when there is none)."""
-    from .stages.highlights import Highlights
+    from .stages.highlights import HighlightClamp, Highlights
     d = denoiser_index - 1
-    if d >= 0 and isinstance(stages[d], Highlights):
+    if d >= 0 and isinstance(stages[d], (Highlights, HighlightClamp)):
         d -= 1
     return d
 

@@ -291,3 +291,13 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     assert set(pipe.skip_plan.counts) - {PATH_FULL}, pipe.skip_plan.explain()
     assert alive and all(alive)
     rt.queue.finish()
+
+
+@pytest.mark.parametrize("mode", ["reconstruct", "clamp"])
+def test_flat_path_replaces_the_demosaic_and_keeps_the_highlight_stage(mode: str) -> None:
+    scene = smooth_scene()
+    scene[100:110, 200:210] = 3.0
+    raw = simulate(scene, cfa="lms", gain=1, seed=2).raw
+    pipe = build_pipeline(raw, skip=True, highlights=mode)
+    names = [s.name for s in pipe.skipper.paths[PATH_FLAT]]
+    assert "demosaic_flat" in names and "demosaic_lms_guided" not in names and "highlights" in names, names
