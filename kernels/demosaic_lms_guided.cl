@@ -210,6 +210,16 @@ __kernel void chroma_input(__global const float *restrict m, __global const floa
     dst[y * out_w + x] = acc * mod_f(y + 2 + oy, x + 2 + ox);
 }
 
+/* chroma_guide: dst = ylp + lambda cin on cin's window (ylp's larger by PRE = 2): the chroma
+ * filter's colour-aware guide (LMSGuidedParams.chroma_guide). R = 0. */
+__kernel void chroma_guide(__global const float *restrict ylp, __global const float *restrict cin,
+                           __global float *restrict dst, const int ylp_w, const int out_w, const float lambda)
+{
+    const int x = get_global_id(0);
+    const int y = get_global_id(1);
+    dst[y * out_w + x] = ylp[(y + 2) * ylp_w + x + 2] + lambda * cin[y * out_w + x];
+}
+
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
  * kernel's window, m on a window larger by m_off. R = 0. */
 __kernel void keep_luminance(__global const float *restrict m, __global const float *restrict c, __global float *restrict dst,

@@ -86,6 +86,24 @@ def test_stage_matches_reference(rt, phase, noisy):
     rt.release(src)
 
 
+@pytest.mark.parametrize("noisy", [False, True])
+def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
+    """chroma_guide (issue 17 study, off by default): the chroma filter's guide ylp + lambda cin and
+    its regulariser, kernel against reference; lambda 0 is today's filter exactly."""
+    cfa = lms_cfa()
+    stage = DemosaicLMSGuided(cfa, LMSGuidedParams(chroma_guide=4.0), noise=NOISE if noisy else None,
+                              neutral=NEUTRAL if noisy else (1.0, 1.0, 1.0))
+    x = mosaic(cfa, 8.0 if noisy else None)
+    src = rt.upload(x)
+    ref = stage.reference(x.astype(np.float64), ORIGINS[1])
+    out = stage.enqueue(rt, src, ORIGINS[1])
+    assert_close(download(rt, out), ref, f"chroma guide noisy {noisy}")
+    rt.release(out)
+    rt.release(src)
+    plain = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None, neutral=NEUTRAL if noisy else (1.0, 1.0, 1.0))
+    assert not np.allclose(plain.reference(x.astype(np.float64), ORIGINS[1]), ref)
+
+
 def test_halo_and_shapes():
     stage = DemosaicLMSGuided(lms_cfa())
     assert stage.halo == sum(stage.radii.values()) == 59

@@ -176,6 +176,14 @@ class LMSGuidedParams:
     """Chroma: guided-filter radius (px) of the demodulated chroma against ylp."""
     chroma_eps: float = 1e-5
     """Chroma: guided-filter regulariser (signal^2), plus the noise variance of ylp."""
+    chroma_guide: float = 0.0
+    """Chroma: weight lambda of the demodulated chroma cin in the filter's guide, ylp + lambda cin, so
+    that colour edges the luminance does not mark guide the chroma too (issue 17; 0: ylp alone).
+    Study (docs/RESULTS.md): lambda 4 halves the worst ring shift at gain 1; at high noise cin's
+    noise enters the guide, so it is off until a noise-dependent lambda is measured."""
+    chroma_guide_noise: float = 4.0
+    """kappa: the guide's chroma noise, lambda^2 kappa sum(B5^2) times the L/M noise, is added to
+    the chroma filter's regulariser (dimensionless)."""
     s_radius: int = 4
     """S: guided-filter radius (px) over the S sites against M."""
     s_eps: float = 1e-4
@@ -474,10 +482,18 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         ylp = lum_lowpass(m)
         cin = chroma_input(m, ylp, mod)
         ylp_c = valid(ylp, PRE_RADIUS)
-        shot = LUM_NOISE_GAIN * 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m])
-        floor = LUM_NOISE_GAIN * 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
-        c = guided_filter(ylp_c, cin, None, r, prm.chroma_eps, shot, floor, True)
+        shot, floor = self._chroma_noise(noise)
+        guide = ylp_c + prm.chroma_guide * cin if prm.chroma_guide else ylp_c
+        c = guided_filter(guide, cin, None, r, prm.chroma_eps, shot, floor, True)
         return c, valid(ylp_c, 2 * r - margin)
+
+    def _chroma_noise(self, noise: ChannelNoise) -> tuple[float, float]:
+        """(shot, floor) of the chroma filter's regulariser: ylp's noise, plus the guide's chroma
+        noise lambda^2 kappa sum(B5^2) (var_L + var_M) / 2 when ``chroma_guide`` is set."""
+        prm = self.params
+        ms, mf = 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m]), 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
+        k = LUM_NOISE_GAIN + prm.chroma_guide ** 2 * prm.chroma_guide_noise * float((B5 ** 2).sum())
+        return k * ms, k * mf
 
     def _m_at_s(self, p: np.ndarray, ch: np.ndarray, guide: np.ndarray, r: int,
                 directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -639,8 +655,15 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         self._launch(rt, "chroma_input", wc, hc, m.buffer, ylp.buffer, cin.buffer, i32(w), i32(m.width), i32(wc),
                      *self._origin(y_origin), rt.constant(as_f32(B5)))
         c_origin = (y_origin[0] + PRE_RADIUS, y_origin[1] + PRE_RADIUS)
-        c = enqueue_guided_filter(rt, (hc, wc), c_origin, self.shift, ylp, PRE_RADIUS, cin, 0, r, MASK_ALL,
-                                  prm.chroma_eps, self._lum_noise(), True)
+        guide, g_off = ylp, PRE_RADIUS
+        if prm.chroma_guide:                              # ylp + lambda cin on cin's window
+            guide, g_off = rt.acquire(1, hc, wc), 0
+            self._launch(rt, "chroma_guide", wc, hc, ylp.buffer, cin.buffer, guide.buffer, i32(w), i32(wc),
+                         f32(prm.chroma_guide))
+        c = enqueue_guided_filter(rt, (hc, wc), c_origin, self.shift, guide, g_off, cin, 0, r, MASK_ALL,
+                                  prm.chroma_eps, self._chroma_noise(self.pixel_noise), True)
+        if guide is not ylp:
+            rt.release(guide)
         rt.release(cin)
         return c, ylp
 
