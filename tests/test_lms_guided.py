@@ -88,8 +88,8 @@ def test_stage_matches_reference(rt, phase, noisy):
 
 @pytest.mark.parametrize("noisy", [False, True])
 def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
-    """chroma_guide (issue 17 study, off by default): the chroma filter's guide ylp + lambda cin and
-    its regulariser, kernel against reference; lambda 0 is today's filter exactly."""
+    """chroma_guide (issue 17): the chroma filter's guide ylp + lambda cin and its regulariser, kernel
+    against reference; lambda 0 is the luminance-only filter."""
     cfa = lms_cfa()
     stage = DemosaicLMSGuided(cfa, LMSGuidedParams(chroma_guide=4.0), noise=NOISE if noisy else None,
                               neutral=NEUTRAL if noisy else (1.0, 1.0, 1.0))
@@ -100,8 +100,22 @@ def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
     assert_close(download(rt, out), ref, f"chroma guide noisy {noisy}")
     rt.release(out)
     rt.release(src)
-    plain = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None, neutral=NEUTRAL if noisy else (1.0, 1.0, 1.0))
+    plain = DemosaicLMSGuided(cfa, noise=NOISE if noisy else None,
+                              neutral=NEUTRAL if noisy else (1.0, 1.0, 1.0))
     assert not np.allclose(plain.reference(x.astype(np.float64), ORIGINS[1]), ref)
+
+
+def test_chroma_guide_fades_with_the_noise():
+    """lambda in full at low noise, 0 at high noise (its PSNR cost there), linear in between."""
+    from clisp.noise import ChannelNoise
+    cfa = lms_cfa()
+    params = LMSGuidedParams(chroma_guide=4.0)
+    stage = DemosaicLMSGuided(cfa, params)
+    lo, hi = params.chroma_guide_sigma
+    assert stage.guide_lambda == 4.0 and DemosaicLMSGuided(cfa).guide_lambda == 0.0  # noiseless; default off
+    for sigma, expected in ((0.5 * lo, 4.0), (0.5 * (lo + hi), 2.0), (2 * hi, 0.0)):
+        noise = ChannelNoise((0.0, 0.0, 0.0), (sigma ** 2,) * 3)
+        assert DemosaicLMSGuided(cfa, params, noise=noise).guide_lambda == pytest.approx(expected)
 
 
 def test_halo_and_shapes():

@@ -178,9 +178,15 @@ class LMSGuidedParams:
     """Chroma: guided-filter regulariser (signal^2), plus the noise variance of ylp."""
     chroma_guide: float = 0.0
     """Chroma: weight lambda of the demodulated chroma cin in the filter's guide, ylp + lambda cin, so
-    that colour edges the luminance does not mark guide the chroma too (issue 17; 0: ylp alone).
-    Study (docs/RESULTS.md): lambda 4 halves the worst ring shift at gain 1; at high noise cin's
-    noise enters the guide, so it is off until a noise-dependent lambda is measured."""
+    that colour edges the luminance does not mark guide the chroma too (issue 17; 0: ylp alone, the
+    default). It applies in full up to the L/M noise std chroma_guide_sigma[0] at mid-grey and fades
+    to 0 at chroma_guide_sigma[1] (:attr:`DemosaicLMSGuided.guide_lambda`): at high noise cin's noise
+    enters the guide and costs PSNR for little gain. Off by default because cin also carries aliased
+    luminance at (pi, pi): with lambda 4 the noiseless zone plate falls from over 40 to 25.6 dB (the
+    guide makes the chroma follow the alias); see docs/RESULTS.md."""
+    chroma_guide_sigma: tuple[float, float] = (0.011, 0.022)
+    """(full, off): L/M noise std at mid-grey (0.18, white-balanced) where chroma_guide applies in
+    full and where it is 0; linear in between. Simulated sensor: 0.011 at gain 4, 0.022 at gain 16."""
     chroma_guide_noise: float = 4.0
     """kappa: the guide's chroma noise, lambda^2 kappa sum(B5^2) times the L/M noise, is added to
     the chroma filter's regulariser (dimensionless)."""
@@ -483,7 +489,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         cin = chroma_input(m, ylp, mod)
         ylp_c = valid(ylp, PRE_RADIUS)
         shot, floor = self._chroma_noise(noise)
-        guide = ylp_c + prm.chroma_guide * cin if prm.chroma_guide else ylp_c
+        lam = self.guide_lambda
+        guide = ylp_c + lam * cin if lam else ylp_c
         c = guided_filter(guide, cin, None, r, prm.chroma_eps, shot, floor, True)
         return c, valid(ylp_c, 2 * r - margin)
 
@@ -492,8 +499,20 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         noise lambda^2 kappa sum(B5^2) (var_L + var_M) / 2 when ``chroma_guide`` is set."""
         prm = self.params
         ms, mf = 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m]), 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
-        k = LUM_NOISE_GAIN + prm.chroma_guide ** 2 * prm.chroma_guide_noise * float((B5 ** 2).sum())
+        k = LUM_NOISE_GAIN + self.guide_lambda ** 2 * prm.chroma_guide_noise * float((B5 ** 2).sum())
         return k * ms, k * mf
+
+    @property
+    def guide_lambda(self) -> float:
+        """The chroma guide's lambda for this stage's noise: chroma_guide, faded linearly from the
+        L/M noise std (at mid-grey) chroma_guide_sigma[0] to 0 at chroma_guide_sigma[1]."""
+        prm = self.params
+        if not prm.chroma_guide:
+            return 0.0
+        n = self.pixel_noise
+        sigma = float(np.sqrt(max(0.5 * (n.variance(self.ch_l, 0.18) + n.variance(self.ch_m, 0.18)), 0.0)))
+        lo, hi = prm.chroma_guide_sigma
+        return float(prm.chroma_guide * np.clip((hi - sigma) / (hi - lo), 0.0, 1.0))
 
     def _m_at_s(self, p: np.ndarray, ch: np.ndarray, guide: np.ndarray, r: int,
                 directional: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -656,10 +675,10 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                      *self._origin(y_origin), rt.constant(as_f32(B5)))
         c_origin = (y_origin[0] + PRE_RADIUS, y_origin[1] + PRE_RADIUS)
         guide, g_off = ylp, PRE_RADIUS
-        if prm.chroma_guide:                              # ylp + lambda cin on cin's window
+        if self.guide_lambda:                             # ylp + lambda cin on cin's window
             guide, g_off = rt.acquire(1, hc, wc), 0
             self._launch(rt, "chroma_guide", wc, hc, ylp.buffer, cin.buffer, guide.buffer, i32(w), i32(wc),
-                         f32(prm.chroma_guide))
+                         f32(self.guide_lambda))
         c = enqueue_guided_filter(rt, (hc, wc), c_origin, self.shift, guide, g_off, cin, 0, r, MASK_ALL,
                                   prm.chroma_eps, self._chroma_noise(self.pixel_noise), True)
         if guide is not ylp:
