@@ -13,6 +13,9 @@
 #ifndef HL_BLOCK
 #define HL_BLOCK 32
 #endif
+#ifndef HL_DIP
+#define HL_DIP 0.8f
+#endif
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
  * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
@@ -27,6 +30,22 @@ inline float hl_max(const float a, const float b)
 inline int any_clipped(const float y0, const float y1, const float y2, __constant const float *t)
 {
     return y0 >= t[0] || y1 >= t[1] || y2 >= t[2];
+}
+
+/* soft_clipped: channel c (plane at src + offset) at src index i, not clipped itself, counts as
+ * clipped when y_c >= HL_DIP t_c and y_c >= t_c at one of the 8 neighbours (the caller has
+ * another channel clipped at i: highlights.clipped_channels, and keeps i one pixel inside the
+ * window). */
+inline int soft_clipped(__global const float *src, const int i, const int width, const float inv_n,
+                        const float t)
+{
+    if (src[i] * inv_n < HL_DIP * t)
+        return 0;
+    float m = 0.0f;
+    for (int dy = -1; dy <= 1; dy++)
+        for (int dx = -1; dx <= 1; dx++)
+            m = hl_max(m, src[i + dy * width + dx]);
+    return m * inv_n >= t;
 }
 
 /* hl_flags: 1 where a channel of the pixel reached its threshold, else 0. */
@@ -177,7 +196,12 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         return;
     }
     float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
-    const int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
+    int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
+    if (c0 + c1 + c2 > 0) {
+        c0 = c0 || soft_clipped(src, i, width, 1.0f / n[0], t[0]);
+        c1 = c1 || soft_clipped(src + plane, i, width, 1.0f / n[1], t[1]);
+        c2 = c2 || soft_clipped(src + 2 * plane, i, width, 1.0f / n[2], t[2]);
+    }
     const int count = c0 + c1 + c2;
     const float near = weights[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
 #if HL_CLIP

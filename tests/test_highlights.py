@@ -27,6 +27,14 @@ def lamp_scene(size: int = 128, level: float = 4.0) -> np.ndarray:
     return s
 
 
+def soft_lamp_scene(size: int = 128, level: float = 4.0) -> np.ndarray:
+    """A white disc (radius size / 4) whose edge ramps over 0.03 size from 18 % grey up to
+    ``level`` (tools/bench_highlights.py's white lamp)."""
+    yy, xx = np.mgrid[:size, :size] / size
+    disc = np.clip((0.25 - np.hypot(yy - 0.5, xx - 0.5)) / 0.03, 0, 1)[..., None]
+    return np.full((size, size, 3), 0.18) * (1 - disc) + level * disc
+
+
 def block_means(img: np.ndarray, b: int = 16) -> np.ndarray:
     h, w = img.shape[0] // b * b, img.shape[1] // b * b
     return img[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
@@ -109,6 +117,20 @@ def test_neutral_ramp_and_lamp_stay_neutral(cfa, mode):
     assert drop <= 0.02, f"ramp brightness falls by {drop:.3%}"
     chroma, _ = _accept(cfa, lamp_scene(), mode, lambda truth: truth.max(-1) > 0.5)
     assert chroma <= 0.03, f"lamp block chroma {chroma:.3f}"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_soft_edged_lamp_stays_neutral(cfa):
+    """A blown lamp with a soft edge, gain 1: block chroma <= 0.03, and not one pixel of the
+    clipped disc strongly coloured (per-pixel chroma <= 0.3). Without highlights.DIP the guided
+    LMS demosaic's dips left pixels at chroma 0.7 and blocks at 0.043-0.055."""
+    sim = clisp.simulate(soft_lamp_scene(), cfa=cfa, gain=1, seed=1)
+    out = build_pipeline(sim.raw, highlights="reconstruct").run(sim.raw.data)
+    disc = sim.truth.max(-1) > 2.0
+    chroma = block_chroma(block_means(out))[block_means(sim.truth).max(-1) > 0.5].max()
+    assert chroma <= 0.03, f"soft lamp block chroma {chroma:.3f}"
+    pixel = block_chroma(out)[disc].max()
+    assert pixel <= 0.3, f"a pixel of the blown disc has chroma {pixel:.2f}"
 
 
 def test_off_leaves_clipped_white_coloured():
