@@ -16,6 +16,9 @@
 #ifndef HL_DIP
 #define HL_DIP 0.8f
 #endif
+#ifndef HL_RHO_MIN
+#define HL_RHO_MIN 0.2f
+#endif
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
  * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
@@ -239,7 +242,10 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
                     den += rho[c];
                 }
             }
-            const float k = num / hl_max(den, 1e-6f);
+            float k = num / hl_max(den, 1e-6f);
+            for (int c = 0; c < 3; c++)          /* a clipped record bounds the brightness below */
+                if (clipped[c] && rho[c] >= HL_RHO_MIN)
+                    k = hl_max(k, v[c] / rho[c]);
             for (int c = 0; c < 3; c++)
                 if (clipped[c])
                     v[c] = hl_max(v[c], k * rho[c]);

@@ -98,6 +98,22 @@ def test_highlights_rule():
     assert np.allclose(out[far], y[far])
 
 
+def test_clipped_record_bounds_the_brightness():
+    """A clipped channel is a lower bound on the truth: with a neutral reference colour, a pixel
+    whose clipped channel reads 1.2 while the free ones read 1.0 comes out at least 1.2 in every
+    clipped channel and keeps its free ones; the free channels alone would have said K = 1.0."""
+    from clisp.stages.highlights import reconstruct
+    y = np.array([[[1.2, 1.25, 1.0]]])
+    clipped = np.array([[[True, True, False]]])
+    sums = np.array([[[100.0, 100.0, 100.0]]])             # rho^ = (1, 1, 1)
+    out = reconstruct(y, clipped, np.array([[True]]), sums)
+    assert np.allclose(out[0, 0], [1.25, 1.25, 1.0])
+    # a reference colour that calls the clipped channel nearly dark gives it no say (RHO_MIN)
+    sums = np.array([[[100.0, 10.0, 145.0]]])              # rho^ = (0.1, 1.45, 1.45)
+    out = reconstruct(y, clipped, np.array([[True]]), sums)
+    assert np.all(np.isfinite(out)) and out[0, 0, 1] < 2.0
+
+
 def _accept(cfa: str, scene: np.ndarray, mode: str, region) -> tuple[float, float]:
     sim = clisp.simulate(scene, cfa=cfa, gain=1, seed=3)
     out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)

@@ -28,8 +28,14 @@ brightness from the pixel's unclipped channels ("inpaint opposed", locally)::
     rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR)    q in the (2 R + 1)^2 box around p
 
     none clipped at p:   unchanged
-    some clipped (C):    K = sum_{u not in C} y_u / sum_{u not in C} rho^_u,
+    some clipped (C):    K = max(sum_{u not in C} y_u / sum_{u not in C} rho^_u,
+                                 max_{c in C} y_c / rho^_c)      (rho^_c >= RHO_MIN only)
                          y_c <- max(y_c, K rho^_c) for c in C   (never below what was recorded)
+
+A clipped channel's record is a lower bound on the truth, so the brightness K is at least what it
+implies with the colour rho^: without that, a channel that the demosaic put a little low (the
+unclipped S beside clipped L on the LMS ramp) dragged the clipped ones below a channel that had
+just passed its threshold, and coloured lights lost the bright side of their colour.
     all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
                          channel's record: brightness never falls as the scene brightens)
 
@@ -90,6 +96,11 @@ colour references."""
 
 PRIOR = 1.0
 """Weight of the neutral prior in rho^ (in pixels of full weight)."""
+
+RHO_MIN = 0.2
+"""A clipped channel bounds the brightness K from below only where its reference chroma rho^_c is
+at least this (mean 1 over the channels): a clipped channel the references call nearly dark
+contradicts them, and y_c / rho^_c would blow the other channels up."""
 
 DIP = 0.8
 """At a pixel with a clipped channel, another channel at or above this share of its threshold
@@ -160,7 +171,7 @@ class Highlights(Stage):
         w, h, d = src.width, src.height, self.rim
         r = self.radius if self.mode == "reconstruct" else 0
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
-                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_CLIP": int(self.mode == "clip")}
+                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip")}
         defines["HL_BLOCK"] = BLOCK
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
@@ -253,7 +264,8 @@ def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.n
     free = ~clipped
     num = np.sum(np.where(free, y, 0.0), axis=-1)
     den = np.maximum(np.sum(np.where(free, rho, 0.0), axis=-1), 1e-6)
-    estimate = (num / den)[..., None] * rho
+    bound = np.where(clipped & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
+    estimate = np.maximum(num / den, bound)[..., None] * rho
     out = np.where(clipped, np.maximum(y, estimate), y)
     count = clipped.sum(axis=-1)
     out = np.where((near & (count == 0))[..., None], y.mean(axis=-1, keepdims=True) * rho, out)
