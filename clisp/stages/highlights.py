@@ -63,9 +63,9 @@ from .base import Stage, as_f32
 
 MODES = ("clip", "reconstruct", "clamp", "off")
 DEFAULT_MODE = "reconstruct"
-"""``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions):
-reconstruct mean CIEDE2000 16.4 / 15.0 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR 17.1 / 15.5
-dB against 10.3 / 10.3 (LibRaw Blend 16.9 dE, ReconstructDefault 17.3 dE on Bayer)."""
+"""``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions,
+2026-11-25): reconstruct mean CIEDE2000 13.1 / 13.4 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR
+18.3 / 15.6 dB against 10.3 / 10.3 (LibRaw on Bayer: Blend 16.9 dE, ReconstructDefault 17.2 dE)."""
 
 RADIUS = 16
 BLOCK = 32
