@@ -120,10 +120,10 @@ def test_chroma_guide_fades_with_the_noise():
 
 def test_halo_and_shapes():
     stage = DemosaicLMSGuided(lms_cfa())
-    assert stage.halo == sum(stage.radii.values()) == 59
-    assert stage.reference(np.full((128, 139), 0.3), (0, 0)).shape == (10, 21, 3)
+    assert stage.halo == sum(stage.radii.values()) == 55
+    assert stage.reference(np.full((128, 139), 0.3), (0, 0)).shape == (18, 29, 3)
     small = DemosaicLMSGuided(lms_cfa(), LMSGuidedParams(ms_radius1=2, chroma_radius=2, s_radius=2))
-    assert small.halo == 59 - 2 - 2 * 2 - 4
+    assert small.halo == 55 - 2 - 4
 
 
 @pytest.mark.parametrize("noisy", [False, True])

@@ -19,11 +19,11 @@ Steps (one function per kernel below, the GF's in ``guided_filter``; radius = ha
     M at S, pass 1    r 8   GF of the M samples and of the S samples against I0 (radius r1 = 3):
                             Mfit, Sfit; at S sites M = Mfit + gamma (S - Sfit)
                             (gamma = 1 noiseless: the S sample's own detail is M's detail)
-    chroma, pass 1    r 12  ylp = D * m; cin = B5 * ((m - ylp) mod); c = GF(ylp, cin) (radius 3),
+    chroma, pass 1    r 10  ylp = D * m; cin = B5 * ((m - ylp) mod); c = GF(ylp, cin) (radius 2),
                             y = m - c mod (every sample kept: y = L - c at L, M + c at M sites)
     M at S, pass 2    r 6   as pass 1 with guide y (radius r2 = 2), fused with an edge-directed
                             estimate yd - c where its prediction error is small (below)
-    chroma, pass 2    r 12  as pass 1 on the new m
+    chroma, pass 2    r 10  as pass 1 on the new m
     luminance blend   r 2   Y = ybl + w (y - ybl), w = max(E - k vn, 0) / E (LMMSE-style),
                             E = 5 x 5 mean of (y - ylp)^2, vn its noise variance from the noise
                             model; ybl = m / 2 + (4 axial neighbours of m) / 8, the flat-field
@@ -33,7 +33,7 @@ Steps (one function per kernel below, the GF's in ``guided_filter``; radius = ha
                             S = g + gamma_S * tent-interpolation over the S lattice of (p - g)
     S alias           r 4   S toward the neutral s_from_m M where luminance detail can alias (below)
 
-Halo 4 + 6 + 2 + 12 + 6 + 12 + 2 + 11 + 4 = 59 px with the default radii (``halo``).
+Halo 4 + 6 + 2 + 10 + 6 + 10 + 2 + 11 + 4 = 55 px with the default radii (``halo``).
 
 Alias suppression (in M at S pass 2, the L, M output and S alias; ``alias_*`` parameters). Where the luminance has strong
 detail beyond the quincunx baseband (the diamond |wx| + |wy| < pi), its harmonics and the S-lattice
@@ -67,10 +67,11 @@ Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the 
 comes from; on detail w -> 1 and every sample is kept.
 
 Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
-means; ``tools/lms_demosaic_eval.py``): Kodak 24 37.50 dB, McMaster 18 34.55 dB (Bayer DLMMSE 36.21 /
-32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 43.06 dB (Bayer DLMMSE 29.64, hybrid 14.97).
-Without alias suppression: Kodak 37.46, McMaster 34.42, zone plate 28.67 (with the generic L - M term
-alone strong enough for 40 dB, alias_c = 0.1, Kodak fell to 37.02).
+means; ``tools/lms_demosaic_eval.py``, 2026-11-25): Kodak 24 37.59 dB, McMaster 18 34.74 dB (Bayer
+DLMMSE 36.21 / 32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 40.37 dB, linear 46.64 (Bayer
+DLMMSE 29.64 / 44.55, hybrid 14.97). With chroma_radius 3 (until issue 17): 37.50 / 34.55, zone
+plate 43.06 / 52.14. Without alias suppression (radius 3): Kodak 37.46, McMaster 34.42, zone plate
+28.67 (with the generic L - M term alone strong enough for 40 dB, alias_c = 0.1, Kodak fell to 37.02).
 
 Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata, neutral from its
 colour matrix); a raw without a gain in its metadata is treated as noiseless.
@@ -172,8 +173,13 @@ class LMSGuidedParams:
     """M at S, pass 2: guided-filter radius (px) against the pass-1 luminance y."""
     ms_eps: float = 1e-4
     """M at S: guided-filter regulariser (signal^2), plus the target's noise variance."""
-    chroma_radius: int = 3
-    """Chroma: guided-filter radius (px) of the demodulated chroma against ylp."""
+    chroma_radius: int = 2
+    """Chroma: guided-filter radius (px) of the demodulated chroma against ylp. 2 (was 3): the chroma
+    of an edge the luminance does not mark spreads over the filter's support (B5, then windows of
+    2 r + 1 averaged over 2 r + 1 px), so colour moves across it (issue 17). Ring colour shift of
+    tools/bench_bleeding.py (mean / worst a*b*): noiseless 0.49 / 2.60 -> 0.33 / 1.36, gain 8
+    0.71 / 2.31 -> 0.61 / 1.43, gain 64 unchanged (the denoiser's); noiseless Kodak +0.09 dB,
+    McMaster +0.19 dB, zone plate 43.06 -> 40.37 dB; PSNR at gains 4-64 within 0.03 dB."""
     chroma_eps: float = 1e-5
     """Chroma: guided-filter regulariser (signal^2), plus the noise variance of ylp."""
     chroma_guide: float = 0.0
