@@ -190,12 +190,18 @@ __kernel void bayes_shrink(__global const float *restrict detail, __global const
     }
 }
 
+#ifndef JOINT_RANGE
+#define JOINT_RANGE 0
+#endif
+
 /* joint_bilateral: luminance-guided bilateral of NCHROMA chroma planes. Halo RADIUS: output (u, v)
  * is centred on chroma pixel (u + R, v + R) (planes at src + c_offset, c_w x c_h) and on luminance
  * pixel (u + R + y_shift, v + R + y_shift) of the level image (plane 0, y_w wide). prm:
- * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n]: range variances aY max(Y,0) + bY and
+ * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n, j]: range variances aY max(Y,0) + bY and
  * a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y term.
- * w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))).
+ * w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))), per plane; with
+ * JOINT_RANGE one w for every plane, its chroma term j sum_k (c_q,k - c_p,k)^2/(2 sc_k^2)
+ * (j = range_joint / NCHROMA). 
  * All planes in one pass: the guide tap and its spatial + luminance term are read and computed once
  * per tap for every plane. Each work item computes VEC consecutive pixels of a row (width >= VEC);
  * the last one of a row starts at width - VEC, recomputing a few pixels with identical results. */
@@ -215,6 +221,7 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
     __global const float *c = src + c_offset + ci;
     __global const float *g = level + yi;
     const float inv2sd2 = prm[0], floor2 = prm[1];
+    const float joint = prm[4 + 2 * NCHROMA];     /* range_joint / NCHROMA (JOINT_RANGE) */
     const floatv yp = LOADV(g);
     const floatv s = MAXV(yp, 0.0f);
     const floatv inv_y = guide ? 0.5f / MAXV(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
@@ -232,6 +239,22 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
         for (int dx = -RADIUS; dx <= RADIUS; ++dx) {
             const floatv dyq = LOADV(g + dy * y_w + dx) - yp;
             const floatv base = (float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y;
+#if JOINT_RANGE
+            floatv cq[NCHROMA];
+            floatv rng = 0.0f;
+            #pragma unroll
+            for (int k = 0; k < NCHROMA; ++k) {
+                cq[k] = LOADV(c + k * c_plane + dy * c_w + dx);
+                const floatv dc = cq[k] - cp[k];
+                rng += dc * dc * inv_c[k];
+            }
+            const floatv w = exp_neg(-(base + joint * rng));
+            #pragma unroll
+            for (int k = 0; k < NCHROMA; ++k) {
+                num[k] += w * cq[k];
+                den[k] += w;
+            }
+#else
             #pragma unroll
             for (int k = 0; k < NCHROMA; ++k) {
                 const floatv cq = LOADV(c + k * c_plane + dy * c_w + dx);
@@ -240,6 +263,7 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
                 num[k] += w * cq;
                 den[k] += w;
             }
+#endif
         }
     }
     #pragma unroll

@@ -15,6 +15,7 @@ import pytest
 from clisp.cfa import cfa_from_name
 from clisp.charts import colorchecker
 from clisp.colorimetry import B_BAYER, P_LMS
+from clisp.errors import ClispError
 from clisp.noise import NoiseModel
 from clisp.noise import ChannelNoise
 from clisp.noise_estimate import estimate_raw_noise, raw_noise
@@ -123,8 +124,8 @@ def test_kernels_match_reference(rt, monkeypatch, name, vec):
 @pytest.mark.parametrize("params", [
     ChromaDenoiseParams(shrink="wiener"), ChromaDenoiseParams(shrink="none"),
     ChromaDenoiseParams(shrink_guide=False, k_luma=0.0), ChromaDenoiseParams(levels=2, radius=2, shrink_radius=1),
-    ChromaDenoiseParams(strengths=(2.0, 0.5, 1.0), noise_scale=1.5),
-], ids=["wiener", "no-shrink", "unguided", "J2r2", "strengths"])
+    ChromaDenoiseParams(strengths=(2.0, 0.5, 1.0), noise_scale=1.5), ChromaDenoiseParams(range_joint=3.0),
+], ids=["wiener", "no-shrink", "unguided", "J2r2", "strengths", "joint"])
 def test_kernel_options_match_reference(rt, params):
     space = SPACES["lms"]
     stage = ChromaDenoise(space, random_table(space, seed=2, levels=params.levels), params)
@@ -387,3 +388,35 @@ def test_chroma_range_cap_keeps_colour_edges_at_high_noise() -> None:
     assert factors[16, "space"] == 1.0 and factors[64, None] == 1.0
     assert 0.3 < factors[64, "space"] < 0.6
     assert shifts["space"] < 0.7 * shifts[None], shifts
+
+
+def test_joint_range_keeps_colour_edges_at_high_noise() -> None:
+    """Bayer (YUV, range_joint 'space' = 2): at the coarse levels U and V share one range weight,
+    so the blue sky's edge, plain in U, also stops V from being averaged across it: the ring just
+    outside the patch keeps its colour better at gain 64 than with a weight per plane (issue 17)."""
+    from clisp.charts import colorchecker_linear
+    from clisp.metrics import linear_srgb_to_lab
+    from clisp.pipeline import build_pipeline
+    from clisp.simulate import simulate
+    scene = np.full((160, 160, 3), 0.18)
+    scene[56:104, 56:104] = colorchecker_linear()[2]                  # blue sky
+    yy, xx = np.mgrid[0:160, 0:160]
+    d = np.maximum(np.maximum(56 - yy, yy - 103), np.maximum(56 - xx, xx - 103))
+    ring = (d >= 3) & (d <= 10)
+    shifts = {"space": 0.0, 0.0: 0.0}
+    for seed in (4, 5):
+        sim = simulate(scene, cfa="bayer", gain=64, seed=seed)
+        for joint in shifts:
+            pipe = build_pipeline(sim.raw, denoise=ChromaDenoiseParams(range_joint=joint))
+            stage = next(s for s in pipe.stages if isinstance(s, ChromaDenoise))
+            assert stage.range_joint(0) == 0.0 and stage.range_joint(1) == (2.0 if joint == "space" else 0.0)
+            out = pipe.run(sim.raw.data)
+            a = linear_srgb_to_lab(out[ring].mean(axis=0)[None, None])[0, 0]
+            b = linear_srgb_to_lab(sim.truth[ring].mean(axis=0)[None, None])[0, 0]
+            shifts[joint] += float(np.hypot(*(a - b)[1:]))
+    assert shifts["space"] < 0.75 * shifts[0.0], shifts
+
+
+def test_range_joint_is_checked() -> None:
+    with pytest.raises(ClispError):
+        ChromaDenoiseParams(range_joint=-1.0)

@@ -24,6 +24,8 @@ Per chroma channel k and level j = J .. 1, from the coarsest::
     joint_bilateral: out(p) = sum_q w(p,q) a(q) / sum_q w(p,q) over |q - p|_inf <= r,
       w(p,q) = exp(-|p-q|^2 / 2 sd^2 - (Y_p - Y_q)^2 / 2 sY(p)^2 - (a_p - a_q)^2 / 2 sc(p)^2),
       sY = k_Y sigma_Y,j(Y_p),  sc = k_c s_k sigma_k,j(Y_p)     (floored at sigma_floor)
+      range_joint s > 0 (levels j >= 1; Bayer's default): one w for every chroma plane, its
+      chroma term s mean_k (a_k,p - a_k,q)^2 / 2 sc_k^2 (issue 17)
     bayes_shrink (BayesShrink, Chang, Yu & Vetterli, IEEE TIP 9(9), 2000, with a local variance):
       sigma_n = s_k sigma_k,j,o(Y_j),  E = mean of d^2 over the (2 r_w + 1)^2 window,
       sigma_x = sqrt(max(E - sigma_n^2, 0)),  T = sigma_n^2 / sigma_x (T = inf when sigma_x = 0),
@@ -83,6 +85,13 @@ k_chroma = 2 up to gain 16 (sigma_0 = 0.013 at mid-grey on the simulated sensor)
 averaged across isoluminant colour edges: ring colour shift at gain 64 1.45/5.81 -> ~1.0/2.3
 (mean/worst a*b*, tools/bench_bleeding.py) at -0.05 dB PSNR (k_chroma = 1 at every gain cost up
 to 0.24 dB at gains 1-16). LMS: none yet (its shift comes from the guided demosaic)."""
+RANGE_JOINT: dict[str, float] = {"yuv": 2.0, "lms": 0.0}
+"""Default ``range_joint`` per chroma space (ChromaDenoiseParams). Bayer (YUV): 2, the sum of the
+U and V range terms at the coarse levels: ring colour shift at gain 64 0.99 / 2.27 -> 0.91 / 1.78
+(patches, mean / worst a*b*, tools/bench_bleeding.py; discs 1.17 / 2.43 -> 0.94 / 1.74), PSNR of
+8 Kodak + 6 McMaster images within 0.015 dB at every gain, gray-panel SNR unchanged. LMS: 0 (the
+sum of the three terms, 3, took gain 64 from 1.60 / 4.46 to 1.30 / 3.51 but cost 0.11-0.12 dB
+PSNR at gains 4-64: its R-Y noise, the largest, then held back the smoothing of B-Y)."""
 SHRINK_RULES = ("soft", "wiener", "none")
 
 
@@ -179,6 +188,12 @@ class ChromaDenoiseParams:
     chroma units of the space, linear): at high noise k_chroma shrinks to cap / sigma_0 (every
     level alike), so colour edges of more than about the cap are no longer averaged across
     (issue 17). "space": the space's CHROMA_RANGE_CAP; None: no cap."""
+    range_joint: float | str = "space"
+    """"space": the space's RANGE_JOINT. At the pyramid levels j >= 1: 0, each chroma plane's bilateral weight has its own range term
+    (the plane's difference over its range sigma); s > 0, one weight shared by every plane, whose
+    range term is s times the mean of the planes' terms, so that a colour edge one plane shows
+    stops the averaging of the others as well (issue 17: in the LMS space the blue sky's edge is 2.3 range sigmas in B-Y
+    but 1.1 in R-Y at gain 64, so R-Y was averaged across it)."""
     k_luma: float = 2.0
     """Guide range sigma = k_luma * Y noise std at the level; 0 disables the guide (plain bilateral)."""
     shrink_radius: int = 2
@@ -205,6 +220,8 @@ class ChromaDenoiseParams:
         if self.sigma_d <= 0 or self.k_chroma <= 0 or self.k_luma < 0 or self.noise_scale < 0 \
                 or self.sigma_floor <= 0:
             raise ClispError("chroma denoise: sigma_d, k_chroma, sigma_floor > 0; k_luma, noise_scale >= 0")
+        if self.range_joint != "space" and not (isinstance(self.range_joint, (int, float)) and self.range_joint >= 0):
+            raise ClispError(f"chroma denoise range_joint must be 'space' or >= 0, got {self.range_joint!r}")
 
 
 # ---------------------------------------------------------------------------------- noise table
@@ -375,12 +392,14 @@ def bayes_shrink(detail: np.ndarray, y: np.ndarray, var_coef: np.ndarray, streng
 
 def joint_bilateral(c: np.ndarray, y: np.ndarray, var_y: np.ndarray, var_c: np.ndarray,
                     k_luma: float, k_chroma: np.ndarray, sigma_d: float, radius: int,
-                    sigma_floor: float) -> np.ndarray:
+                    sigma_floor: float, joint: float = 0.0) -> np.ndarray:
     """Luminance-guided bilateral of chroma planes (n, h, w) with guide y (h, w) -> (n, h-2r, w-2r).
 
     var_y (2,), var_c (n, 2): affine noise variances of Y and of each chroma plane at this level;
     range sigmas sY = k_luma sigma_Y(Y_p), sc_k = k_chroma[k] sigma_k(Y_p), floored at sigma_floor.
-    k_luma = 0 drops the guide term."""
+    k_luma = 0 drops the guide term. ``joint`` = 0: each plane's weight has its own chroma term
+    (c_p - c_q)^2 / 2 sc^2; > 0: every plane shares one weight whose chroma term is ``joint`` times
+    the mean over the planes of theirs (ChromaDenoiseParams.range_joint)."""
     r = radius
     yc = _window(y, r, 0, 0)
     cc = _window(c, r, 0, 0)
@@ -393,7 +412,10 @@ def joint_bilateral(c: np.ndarray, y: np.ndarray, var_y: np.ndarray, var_c: np.n
         for dx in range(-r, r + 1):
             cq = _window(c, r, dy, dx)
             base = (dy * dy + dx * dx) / (2.0 * sigma_d * sigma_d) + (_window(y, r, dy, dx) - yc) ** 2 * inv_y
-            w = np.exp(-(base + (cq - cc) ** 2 * inv_c))
+            rng = (cq - cc) ** 2 * inv_c
+            if joint > 0:
+                rng = joint * rng.mean(axis=0, keepdims=True)
+            w = np.exp(-(base + rng))
             num += w * cq
             den += w
     return num / den
@@ -495,7 +517,8 @@ class ChromaDenoise(Stage):
         for j in range(prm.levels, -1, -1):
             y_j = ys[j][start:ys[j].shape[0] - start, start:ys[j].shape[1] - start]
             c = joint_bilateral(c, y_j, approx_var[j, 0], approx_var[j, 1:], prm.k_luma,
-                                self.k_chroma(j), prm.sigma_d, r, prm.sigma_floor)      # now starts at m[j]
+                                self.k_chroma(j), prm.sigma_d, r, prm.sigma_floor,
+                                self.range_joint(j))                                  # now starts at m[j]
             if j == 0:
                 break
             d = details[j]
@@ -535,6 +558,14 @@ class ChromaDenoise(Stage):
                 "SHRINK_RADIUS": self.params.shrink_radius,
                 "SHRINK_RULE": SHRINK_RULES.index(self.params.shrink)}
 
+    def range_joint(self, level: int) -> float:
+        """The joint range factor of ``level``'s bilateral: range_joint (or the space's RANGE_JOINT)
+        at levels >= 1, 0 at level 0."""
+        joint = self.params.range_joint
+        if joint == "space":
+            joint = RANGE_JOINT.get(self.space.name, 0.0)
+        return float(joint) if level >= 1 else 0.0
+
     def k_chroma(self, level: int) -> np.ndarray:
         """(n,) chroma range factors at ``level``: k_chroma (k_chroma_coarse at j >= 1) * s_k, times
         the high-noise factor of ``chroma_range_cap`` (:meth:`range_cap_factor`)."""
@@ -561,7 +592,8 @@ class ChromaDenoise(Stage):
         k_c2 = self.k_chroma(level) ** 2
         chroma = approx_var[level, 1:] * k_c2[:, None]
         return np.concatenate([[0.5 / prm.sigma_d ** 2, prm.sigma_floor ** 2],
-                               approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel()])
+                               approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel(),
+                               [self.range_joint(level) / self.space.n_chroma]])
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         prm, sp, n = self.params, self.space, self.space.n_chroma
@@ -607,7 +639,7 @@ class ChromaDenoise(Stage):
         for j in range(prm.levels, -1, -1):
             lvl = levels[j]
             out = rt.acquire(n, c.height - 2 * r, c.width - 2 * r)
-            bilateral, gx = vec_kernel("joint_bilateral", out.width)
+            bilateral, gx = vec_kernel("joint_bilateral", out.width, {"JOINT_RANGE": int(self.range_joint(j) > 0)})
             rt.launch(bilateral, gx, out.height, c.buffer, np.int32(c_offset), lvl.buffer,
                       out.buffer, np.int32(c.width), np.int32(c.height), np.int32(lvl.width),
                       np.int32(start), np.int32(out.width), np.int32(out.height),
