@@ -113,7 +113,7 @@ def measure(cfa: str, gain: float, seeds: int, preset: str | None, denoise: bool
         if crops is not None and seed == 0:
             from clisp.imageio import write_image
             crops.mkdir(parents=True, exist_ok=True)
-            write_image(crops / f"bleeding_{cfa}_g{gain:g}.png", np.clip(out[:400, :560], 0, 1), kind="srgb")
+            write_image(crops / f"bleeding_{cfa}_g{gain:g}.png", np.clip(out[:400, :560], 0, 1), encoded=False)
     p, d = np.mean(patches, axis=0), np.mean(discs, axis=0)
     return {"patch_mean": float(p.mean()), "patch_worst": float(p.max()), "disc_mean": float(d.mean()),
             "disc_worst": float(d.max()), "gray_snr": float(np.mean(snr)), "seconds": seconds / seeds}
