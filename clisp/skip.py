@@ -180,10 +180,10 @@ def visible_chroma_noise(denoiser: Any, analysis: SceneAnalysis) -> np.ndarray:
 def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
     """``stage`` (a ChromaDenoise) with ``levels`` Haar levels: its noise table's first levels
     (the calibration measures every level on the same fields, so the prefix is exact)."""
-    from .stages.chroma_denoise import ChromaDenoise, NoiseTable
+    from .stages.chroma_denoise import ChromaDenoise
     levels = min(levels, stage.params.levels)
-    table = NoiseTable(stage.noise.approx[:levels + 1], stage.noise.detail[:levels + 1])
-    return ChromaDenoise(stage.space, table, replace(stage.params, levels=levels), stage.interleaved)
+    return ChromaDenoise(stage.space, stage.noise.prefix(levels), replace(stage.params, levels=levels),
+                         stage.interleaved)
 
 
 def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:

@@ -197,11 +197,11 @@ __kernel void bayes_shrink(__global const float *restrict detail, __global const
 /* joint_bilateral: luminance-guided bilateral of NCHROMA chroma planes. Halo RADIUS: output (u, v)
  * is centred on chroma pixel (u + R, v + R) (planes at src + c_offset, c_w x c_h) and on luminance
  * pixel (u + R + y_shift, v + R + y_shift) of the level image (plane 0, y_w wide). prm:
- * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n, j]: range variances aY max(Y,0) + bY and
- * a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y term.
- * w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))), per plane; with
- * JOINT_RANGE one w for every plane, its chroma term j sum_k (c_q,k - c_p,k)^2/(2 sc_k^2)
- * (j = range_joint / NCHROMA). 
+ * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n, M (n x n)]: range variances aY max(Y,0) + bY
+ * and a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y
+ * term. w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))), per plane;
+ * with JOINT_RANGE one w for every plane, its chroma term z^T M z, z_k = (c_q,k - c_p,k)/(sqrt2 sc_k)
+ * (ChromaDenoise.range_metric). 
  * All planes in one pass: the guide tap and its spatial + luminance term are read and computed once
  * per tap for every plane. Each work item computes VEC consecutive pixels of a row (width >= VEC);
  * the last one of a row starts at width - VEC, recomputing a few pixels with identical results. */
@@ -221,15 +221,21 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
     __global const float *c = src + c_offset + ci;
     __global const float *g = level + yi;
     const float inv2sd2 = prm[0], floor2 = prm[1];
-    const float joint = prm[4 + 2 * NCHROMA];     /* range_joint / NCHROMA (JOINT_RANGE) */
+    __constant const float *metric = prm + 4 + 2 * NCHROMA;     /* M, n x n (JOINT_RANGE) */
     const floatv yp = LOADV(g);
     const floatv s = MAXV(yp, 0.0f);
     const floatv inv_y = guide ? 0.5f / MAXV(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
     floatv cp[NCHROMA], inv_c[NCHROMA], num[NCHROMA], den[NCHROMA];
+#if JOINT_RANGE
+    floatv sq_c[NCHROMA];
+#endif
     #pragma unroll
     for (int k = 0; k < NCHROMA; ++k) {
         cp[k] = LOADV(c + k * c_plane);
         inv_c[k] = 0.5f / MAXV(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
+#if JOINT_RANGE
+        sq_c[k] = sqrt(inv_c[k]);
+#endif
         num[k] = 0.0f;
         den[k] = 0.0f;
     }
@@ -240,15 +246,22 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
             const floatv dyq = LOADV(g + dy * y_w + dx) - yp;
             const floatv base = (float)(dy * dy + dx * dx) * inv2sd2 + dyq * dyq * inv_y;
 #if JOINT_RANGE
-            floatv cq[NCHROMA];
-            floatv rng = 0.0f;
+            floatv cq[NCHROMA], z[NCHROMA];
             #pragma unroll
             for (int k = 0; k < NCHROMA; ++k) {
                 cq[k] = LOADV(c + k * c_plane + dy * c_w + dx);
-                const floatv dc = cq[k] - cp[k];
-                rng += dc * dc * inv_c[k];
+                z[k] = (cq[k] - cp[k]) * sq_c[k];
             }
-            const floatv w = exp_neg(-(base + joint * rng));
+            floatv rng = 0.0f;
+            #pragma unroll
+            for (int k = 0; k < NCHROMA; ++k) {
+                floatv mz = 0.0f;
+                #pragma unroll
+                for (int l = 0; l < NCHROMA; ++l)
+                    mz += metric[k * NCHROMA + l] * z[l];
+                rng += z[k] * mz;
+            }
+            const floatv w = exp_neg(-(base + rng));
             #pragma unroll
             for (int k = 0; k < NCHROMA; ++k) {
                 num[k] += w * cq[k];

@@ -58,13 +58,21 @@ def run_stage(rt, stage, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
     return out
 
 
-def random_table(space, seed: int, levels: int = 3) -> NoiseTable:
-    """Noise levels of a mid-gain capture: std ~0.005..0.05 at s = 0.3, random per subband."""
+def random_table(space, seed: int, levels: int = 3, correlated: bool = False) -> NoiseTable:
+    """Noise levels of a mid-gain capture: std ~0.005..0.05 at s = 0.3, random per subband;
+    ``correlated``: chroma noise from n - 1 random sources (a rank-deficient correlation, as LMS's
+    three planes from two)."""
     rng = np.random.default_rng(seed)
     n = space.n_chroma
     scale = np.array([2e-3, 2e-4])
+    corr = None
+    if correlated:
+        mix = rng.standard_normal((levels + 1, n, max(n - 1, 1)))
+        cov = mix @ np.swapaxes(mix, 1, 2)
+        sd = np.sqrt(np.einsum("jkk->jk", cov))
+        corr = cov / (sd[:, :, None] * sd[:, None, :])
     return NoiseTable(rng.uniform(0.1, 1.0, (levels + 1, 1 + n, 2)) * scale,
-                      rng.uniform(0.1, 1.0, (levels + 1, 1 + n, 3, 2)) * scale)
+                      rng.uniform(0.1, 1.0, (levels + 1, 1 + n, 3, 2)) * scale, corr)
 
 
 def noisy_camera(shape, seed: int) -> np.ndarray:
@@ -124,11 +132,13 @@ def test_kernels_match_reference(rt, monkeypatch, name, vec):
 @pytest.mark.parametrize("params", [
     ChromaDenoiseParams(shrink="wiener"), ChromaDenoiseParams(shrink="none"),
     ChromaDenoiseParams(shrink_guide=False, k_luma=0.0), ChromaDenoiseParams(levels=2, radius=2, shrink_radius=1),
-    ChromaDenoiseParams(strengths=(2.0, 0.5, 1.0), noise_scale=1.5), ChromaDenoiseParams(range_joint=3.0),
+    ChromaDenoiseParams(strengths=(2.0, 0.5, 1.0), noise_scale=1.5),
+    ChromaDenoiseParams(range_joint=3.0, range_joint_sigma=(0.0, 0.0), strengths=(1.0, 2.0, 1.5)),
 ], ids=["wiener", "no-shrink", "unguided", "J2r2", "strengths", "joint"])
 def test_kernel_options_match_reference(rt, params):
     space = SPACES["lms"]
-    stage = ChromaDenoise(space, random_table(space, seed=2, levels=params.levels), params)
+    table = random_table(space, seed=2, levels=params.levels, correlated=params.range_joint != "space")
+    stage = ChromaDenoise(space, table, params)
     shape, origin = (2 * stage.halo + 29, 2 * stage.halo + 35), (-7, 6)
     x = noisy_camera(shape, seed=5)
     assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), str(params))
@@ -377,7 +387,7 @@ def test_chroma_range_cap_keeps_colour_edges_at_high_noise() -> None:
     for gain in (16, 64):
         sim = simulate(scene, cfa="bayer", gain=gain, seed=4)
         for cap in ("space", None):
-            pipe = build_pipeline(sim.raw, denoise=ChromaDenoiseParams(chroma_range_cap=cap))
+            pipe = build_pipeline(sim.raw, denoise=ChromaDenoiseParams(chroma_range_cap=cap, range_joint=0.0))
             stage = next(s for s in pipe.stages if isinstance(s, ChromaDenoise))
             factors[gain, cap] = stage.range_cap_factor()
             if gain == 64:
@@ -420,3 +430,24 @@ def test_joint_range_keeps_colour_edges_at_high_noise() -> None:
 def test_range_joint_is_checked() -> None:
     with pytest.raises(ClispError):
         ChromaDenoiseParams(range_joint=-1.0)
+
+
+def test_range_metric_is_the_mahalanobis_distance() -> None:
+    """Uncorrelated planes: range_joint times the mean of the planes' own terms; correlated planes
+    from fewer sources: the pseudo-inverse over the sources' rank, so a difference along the noise
+    gets the same penalty however many planes carry it; level 0 and low noise have no joint term."""
+    space = SPACES["lms"]
+    plain = ChromaDenoise(space, random_table(space, seed=3), ChromaDenoiseParams(
+        range_joint=2.0, range_joint_sigma=(0.0, 0.0), strengths=(1.0, 1.0, 1.0)))
+    np.testing.assert_allclose(plain.range_metric(1), 2.0 * np.eye(3) / 3)
+    assert plain.range_metric(0) is None
+    table = random_table(space, seed=4, correlated=True)
+    stage = ChromaDenoise(space, table, ChromaDenoiseParams(range_joint=2.0, range_joint_sigma=(0.0, 0.0),
+                                                            strengths=(1.0, 1.0, 1.0)))
+    r = table.correlation(2, 3)
+    m = stage.range_metric(2)
+    # for noise z ~ N(0, R): E[z^T M z] = tr(M R) = range_joint tr(R^+ R) / rank = range_joint
+    assert np.trace(m @ r) == pytest.approx(2.0, rel=1e-6)
+    faded = ChromaDenoise(space, random_table(space, seed=3), ChromaDenoiseParams(
+        range_joint=2.0, range_joint_sigma=(1.0, 2.0)))
+    assert faded.range_joint(1) == 0.0 and faded.range_metric(1) is None

@@ -85,13 +85,28 @@ k_chroma = 2 up to gain 16 (sigma_0 = 0.013 at mid-grey on the simulated sensor)
 averaged across isoluminant colour edges: ring colour shift at gain 64 1.45/5.81 -> ~1.0/2.3
 (mean/worst a*b*, tools/bench_bleeding.py) at -0.05 dB PSNR (k_chroma = 1 at every gain cost up
 to 0.24 dB at gains 1-16). LMS: none yet (its shift comes from the guided demosaic)."""
-RANGE_JOINT: dict[str, float] = {"yuv": 2.0, "lms": 0.0}
-"""Default ``range_joint`` per chroma space (ChromaDenoiseParams). Bayer (YUV): 2, the sum of the
-U and V range terms at the coarse levels: ring colour shift at gain 64 0.99 / 2.27 -> 0.91 / 1.78
-(patches, mean / worst a*b*, tools/bench_bleeding.py; discs 1.17 / 2.43 -> 0.94 / 1.74), PSNR of
-8 Kodak + 6 McMaster images within 0.015 dB at every gain, gray-panel SNR unchanged. LMS: 0 (the
-sum of the three terms, 3, took gain 64 from 1.60 / 4.46 to 1.30 / 3.51 but cost 0.11-0.12 dB
-PSNR at gains 4-64: its R-Y noise, the largest, then held back the smoothing of B-Y)."""
+CORR_CUT = 1e-2
+"""Eigenvalues of a noise correlation matrix below this share of the largest are left out of the
+range metric's pseudo-inverse: LMS's R-Y, G-Y, B-Y have 2 noise sources, and the third
+eigenvalue (about 1e-4, from the colour matrix not being exactly white-preserving) would
+otherwise weigh its direction 100x."""
+RANGE_JOINT_SIGMA: dict[str, tuple[float, float]] = {"yuv": (0.0, 0.0), "lms": (0.015, 0.03)}
+"""Default ``range_joint_sigma`` per chroma space. LMS: off up to sigma_0 0.015 (gain ~12 on the
+simulated sensor; sigma_0 0.013 at gain 8, 0.039 at 64), in full from 0.03 (gain ~45): where the
+noise is low the planes' own range terms already keep colour edges, and the joint term held back
+the smoothing (gain 8: ring shift 0.61 / 1.43 -> 0.63 / 1.49). Bayer: in full at every gain (its
+gain-8 discs 0.92 -> 0.74 worst with it)."""
+RANGE_JOINT: dict[str, float] = {"yuv": 2.0, "lms": 2.0}
+"""Default ``range_joint`` per chroma space (ChromaDenoiseParams): the coarse levels' joint range
+term, a Mahalanobis distance of the chroma planes in k_chroma noise sigmas (range_metric).
+Measured with tools/bench_bleeding.py (ring colour shift, patches mean / worst a*b*, 2 seeds) and
+8 Kodak + 6 McMaster images (PSNR), 2026-11-25:
+Bayer (YUV), 2: gain 64 0.99 / 2.27 -> 0.90 / 1.86 (discs 1.17 / 2.43 -> 0.94 / 1.75), PSNR within
+0.015 dB at every gain (the plain sum of U's and V's terms, measured first, was alike).
+LMS, 2 (faded in by RANGE_JOINT_SIGMA): gain 64 1.60 / 4.46 -> 1.20 / 2.57 at -0.04..-0.05 dB
+PSNR from gain 4 (before the fade), gray-panel SNR 18.05 -> 18.04 dB. The plain sum of LMS's
+three planes (3) gave 1.30 / 3.51 at -0.11..-0.14 dB: R-Y, G-Y and B-Y share two noise sources,
+and the sum counted their common noise three times."""
 SHRINK_RULES = ("soft", "wiener", "none")
 
 
@@ -194,6 +209,10 @@ class ChromaDenoiseParams:
     range term is s times the mean of the planes' terms, so that a colour edge one plane shows
     stops the averaging of the others as well (issue 17: in the LMS space the blue sky's edge is 2.3 range sigmas in B-Y
     but 1.1 in R-Y at gain 64, so R-Y was averaged across it)."""
+    range_joint_sigma: tuple[float, float] | str = "space"
+    """(off, full): level-0 chroma noise std at mid-grey (sigma_0, :meth:`ChromaDenoise.mid_grey_sigma`)
+    below which range_joint is 0 and from which it applies in full, linear in between; (0, 0): in
+    full at every noise. "space": the space's RANGE_JOINT_SIGMA."""
     k_luma: float = 2.0
     """Guide range sigma = k_luma * Y noise std at the level; 0 disables the guide (plain bilateral)."""
     shrink_radius: int = 2
@@ -237,10 +256,23 @@ class NoiseTable:
 
     approx: np.ndarray
     detail: np.ndarray
+    corr: np.ndarray | None = None
+    """(J + 1, n, n) correlation matrices of the chroma approximations' noise at every level
+    (measured on the calibration fields), or None: uncorrelated."""
 
     @classmethod
     def zero(cls, levels: int, n_chroma: int) -> "NoiseTable":
         return cls(np.zeros((levels + 1, 1 + n_chroma, 2)), np.zeros((levels + 1, 1 + n_chroma, 3, 2)))
+
+    def prefix(self, levels: int) -> "NoiseTable":
+        """The table of the first ``levels`` Haar levels (calibration measures every level on the
+        same fields, so the prefix is exact)."""
+        corr = None if self.corr is None else self.corr[:levels + 1]
+        return NoiseTable(self.approx[:levels + 1], self.detail[:levels + 1], corr)
+
+    def correlation(self, level: int, n_chroma: int) -> np.ndarray:
+        """(n, n) noise correlation of the chroma approximations at ``level`` (identity without)."""
+        return np.eye(n_chroma) if self.corr is None else np.asarray(self.corr[level], dtype=np.float64)
 
     @property
     def levels(self) -> int:
@@ -392,14 +424,14 @@ def bayes_shrink(detail: np.ndarray, y: np.ndarray, var_coef: np.ndarray, streng
 
 def joint_bilateral(c: np.ndarray, y: np.ndarray, var_y: np.ndarray, var_c: np.ndarray,
                     k_luma: float, k_chroma: np.ndarray, sigma_d: float, radius: int,
-                    sigma_floor: float, joint: float = 0.0) -> np.ndarray:
+                    sigma_floor: float, metric: np.ndarray | None = None) -> np.ndarray:
     """Luminance-guided bilateral of chroma planes (n, h, w) with guide y (h, w) -> (n, h-2r, w-2r).
 
     var_y (2,), var_c (n, 2): affine noise variances of Y and of each chroma plane at this level;
     range sigmas sY = k_luma sigma_Y(Y_p), sc_k = k_chroma[k] sigma_k(Y_p), floored at sigma_floor.
-    k_luma = 0 drops the guide term. ``joint`` = 0: each plane's weight has its own chroma term
-    (c_p - c_q)^2 / 2 sc^2; > 0: every plane shares one weight whose chroma term is ``joint`` times
-    the mean over the planes of theirs (ChromaDenoiseParams.range_joint)."""
+    k_luma = 0 drops the guide term. ``metric`` None: each plane's weight has its own chroma term
+    z_k^2, z_k = (c_q,k - c_p,k) / (sqrt 2 sc_k); an (n, n) M: every plane shares one weight whose
+    chroma term is z^T M z (ChromaDenoise.range_metric)."""
     r = radius
     yc = _window(y, r, 0, 0)
     cc = _window(c, r, 0, 0)
@@ -412,9 +444,11 @@ def joint_bilateral(c: np.ndarray, y: np.ndarray, var_y: np.ndarray, var_c: np.n
         for dx in range(-r, r + 1):
             cq = _window(c, r, dy, dx)
             base = (dy * dy + dx * dx) / (2.0 * sigma_d * sigma_d) + (_window(y, r, dy, dx) - yc) ** 2 * inv_y
-            rng = (cq - cc) ** 2 * inv_c
-            if joint > 0:
-                rng = joint * rng.mean(axis=0, keepdims=True)
+            if metric is None:
+                rng = (cq - cc) ** 2 * inv_c
+            else:
+                z = (cq - cc) * np.sqrt(inv_c)
+                rng = np.einsum("khw,kl,lhw->hw", z, metric, z)[None]
             w = np.exp(-(base + rng))
             num += w * cq
             den += w
@@ -518,7 +552,7 @@ class ChromaDenoise(Stage):
             y_j = ys[j][start:ys[j].shape[0] - start, start:ys[j].shape[1] - start]
             c = joint_bilateral(c, y_j, approx_var[j, 0], approx_var[j, 1:], prm.k_luma,
                                 self.k_chroma(j), prm.sigma_d, r, prm.sigma_floor,
-                                self.range_joint(j))                                  # now starts at m[j]
+                                self.range_metric(j))                                 # now starts at m[j]
             if j == 0:
                 break
             d = details[j]
@@ -558,13 +592,38 @@ class ChromaDenoise(Stage):
                 "SHRINK_RADIUS": self.params.shrink_radius,
                 "SHRINK_RULE": SHRINK_RULES.index(self.params.shrink)}
 
+    def range_metric(self, level: int) -> np.ndarray | None:
+        """(n, n) M of the joint range term at ``level`` (None where range_joint is 0): the term is
+        z^T M z, z_k = (c_q,k - c_p,k) / (sqrt 2 sc_k), M = range_joint S R^+ S / rank (S = diag of
+        the strengths s_k, so that the term measures differences in k_chroma noise sigmas whatever
+        the planes' strengths), R the level's
+        noise correlation of the chroma planes, its pseudo-inverse over the eigenvalues above
+        CORR_CUT of the largest (rank of them). Uncorrelated planes: range_joint times the mean of
+        the planes' own terms; correlated ones (LMS's R-Y, G-Y, B-Y share two noise sources): the
+        Mahalanobis distance, so a difference that noise makes only in one combination does not
+        count as often as there are planes."""
+        joint = self.range_joint(level)
+        if joint <= 0:
+            return None
+        n = self.space.n_chroma
+        w, v = np.linalg.eigh(self.noise.correlation(level, n))
+        keep = w > CORR_CUT * w.max()
+        inverse = (v[:, keep] / w[keep]) @ v[:, keep].T
+        strengths = np.asarray(self.strengths, dtype=np.float64)      # z_k carries 1 / s_k: undo it
+        return joint * np.outer(strengths, strengths) * inverse / int(keep.sum())
+
     def range_joint(self, level: int) -> float:
         """The joint range factor of ``level``'s bilateral: range_joint (or the space's RANGE_JOINT)
-        at levels >= 1, 0 at level 0."""
+        at levels >= 1 times the noise fade of range_joint_sigma, 0 at level 0."""
         joint = self.params.range_joint
         if joint == "space":
             joint = RANGE_JOINT.get(self.space.name, 0.0)
-        return float(joint) if level >= 1 else 0.0
+        if level < 1 or joint <= 0:
+            return 0.0
+        fade = self.params.range_joint_sigma
+        lo, hi = RANGE_JOINT_SIGMA.get(self.space.name, (0.0, 0.0)) if fade == "space" else fade
+        fade = float(np.clip((self.mid_grey_sigma() - lo) / (hi - lo), 0.0, 1.0)) if hi > lo else 1.0
+        return float(joint) * fade
 
     def k_chroma(self, level: int) -> np.ndarray:
         """(n,) chroma range factors at ``level``: k_chroma (k_chroma_coarse at j >= 1) * s_k, times
@@ -580,20 +639,27 @@ class ChromaDenoise(Stage):
         cap = CHROMA_RANGE_CAP.get(self.space.name) if prm.chroma_range_cap == "space" else prm.chroma_range_cap
         if cap is None:
             return 1.0
-        approx, _ = self._scaled_noise()
-        var = approx[0, 1:, 0] * 0.18 + approx[0, 1:, 1]
-        sigma = float(np.sqrt(max(np.mean(var), 0.0)))
+        sigma = self.mid_grey_sigma()
         return 1.0 if sigma <= 0 else min(1.0, float(cap) / (prm.k_chroma * sigma))
 
+    def mid_grey_sigma(self) -> float:
+        """sigma_0: rms over the chroma channels of the level-0 chroma noise std at Y = 0.18
+        (noise_scale included); 0 without noise."""
+        approx, _ = self._scaled_noise()
+        var = approx[0, 1:, 0] * 0.18 + approx[0, 1:, 1]
+        return float(np.sqrt(max(np.mean(var), 0.0)))
+
     def bilateral_constants(self, level: int) -> np.ndarray:
-        """prm of ``joint_bilateral`` at ``level``: [1/(2 sd^2), floor^2, aY, bY, a_k, b_k ...]."""
+        """prm of ``joint_bilateral`` at ``level``: [1/(2 sd^2), floor^2, aY, bY, a_k, b_k ..., M (n x n,
+        row-major; zeros without a joint range term)]."""
         prm = self.params
         approx_var, _ = self._scaled_noise()
         k_c2 = self.k_chroma(level) ** 2
         chroma = approx_var[level, 1:] * k_c2[:, None]
+        metric = self.range_metric(level)
+        metric = np.zeros((self.space.n_chroma,) * 2) if metric is None else metric
         return np.concatenate([[0.5 / prm.sigma_d ** 2, prm.sigma_floor ** 2],
-                               approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel(),
-                               [self.range_joint(level) / self.space.n_chroma]])
+                               approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel(), metric.ravel()])
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         prm, sp, n = self.params, self.space, self.space.n_chroma
@@ -683,19 +749,35 @@ CALIBRATION_SIZE = 384
 CALIBRATION_SEED = 20240601
 
 
-def measure_noise(cam: np.ndarray, space: ChromaSpace, levels: int) -> tuple[float, np.ndarray, np.ndarray]:
-    """Variances of a flat noisy camera image (h, w, 3): (mean Y, approx (J+1, 1+n), detail (J+1, 1+n, 3))."""
+def measure_noise(cam: np.ndarray, space: ChromaSpace, levels: int
+                  ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """Noise of a flat noisy camera image (h, w, 3): (mean Y, approx variances (J+1, 1+n), detail
+    variances (J+1, 1+n, 3), chroma approx correlations (J+1, n, n))."""
     a = chroma_split(np.moveaxis(cam, -1, 0), space.split_matrix)
     n = space.n_chroma
     approx = np.zeros((levels + 1, 1 + n))
     detail = np.zeros((levels + 1, 1 + n, 3))
+    corr = np.zeros((levels + 1, n, n))
     approx[0] = a.reshape(a.shape[0], -1).var(axis=1)
+    corr[0] = _correlation(a[1:])
     mean_y = float(a[0].mean())
     for j in range(1, levels + 1):
         a, d = haar_analyze(a)
         approx[j] = a.reshape(a.shape[0], -1).var(axis=1)
         detail[j] = np.mean(d ** 2, axis=(2, 3)).T
-    return mean_y, approx, detail
+        corr[j] = _correlation(a[1:])
+    return mean_y, approx, detail, corr
+
+
+def _correlation(planes: np.ndarray) -> np.ndarray:
+    """(n, n) correlation matrix of n planes (n, h, w); identity where a plane has no variance."""
+    x = planes.reshape(planes.shape[0], -1)
+    x = x - x.mean(axis=1, keepdims=True)
+    cov = x @ x.T / x.shape[1]
+    sd = np.sqrt(np.diag(cov))
+    if np.any(sd <= 0):
+        return np.eye(planes.shape[0])
+    return cov / np.outer(sd, sd)
 
 
 def is_noiseless(noise) -> bool:
@@ -749,12 +831,12 @@ def calibrate_noise(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels:
         mosaic = level + rng.standard_normal(level.shape) * np.sqrt(var)
         cam = run_demosaic(demosaic, mosaic, backend)
         points.append(measure_noise(cam, space, levels))
-    (s0, a0, d0), (s1, a1, d1) = points
+    (s0, a0, d0, r0), (s1, a1, d1, r1) = points
     def fit(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
         shot = np.maximum((v1 - v0) / (s1 - s0), 0.0)
         floor = np.maximum(v0 - shot * s0, 0.0)
         return np.stack([shot, floor], axis=-1)
-    return NoiseTable(fit(a0, a1), fit(d0, d1))
+    return NoiseTable(fit(a0, a1), fit(d0, d1), (r0 + r1) / 2.0)
 
 
 # ---------------------------------------------------------------------------------- pipeline helper
