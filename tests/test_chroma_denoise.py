@@ -401,7 +401,7 @@ def test_chroma_range_cap_keeps_colour_edges_at_high_noise() -> None:
 
 
 def test_joint_range_keeps_colour_edges_at_high_noise() -> None:
-    """Bayer (YUV, range_joint 'space' = 2): at the coarse levels U and V share one range weight,
+    """Bayer (YUV, range_joint 'space' = 1): at the coarse levels U and V share one range weight,
     so the blue sky's edge, plain in U, also stops V from being averaged across it: the ring just
     outside the patch keeps its colour better at gain 64 than with a weight per plane (issue 17)."""
     from clisp.charts import colorchecker_linear
@@ -419,7 +419,7 @@ def test_joint_range_keeps_colour_edges_at_high_noise() -> None:
         for joint in shifts:
             pipe = build_pipeline(sim.raw, denoise=ChromaDenoiseParams(range_joint=joint))
             stage = next(s for s in pipe.stages if isinstance(s, ChromaDenoise))
-            assert stage.range_joint(0) == 0.0 and stage.range_joint(1) == (2.0 if joint == "space" else 0.0)
+            assert stage.range_joint(0) == 0.0 and stage.range_joint(1) == (1.0 if joint == "space" else 0.0)
             out = pipe.run(sim.raw.data)
             a = linear_srgb_to_lab(out[ring].mean(axis=0)[None, None])[0, 0]
             b = linear_srgb_to_lab(sim.truth[ring].mean(axis=0)[None, None])[0, 0]

@@ -10,8 +10,9 @@ quality, written as sRGB 8-bit PNGs (Pillow):
     bayer_g64_before.png   Bayer as before issue 17: chroma denoiser without the range cap and
                            with a range weight per plane (chroma_range_cap=None, range_joint=0)
     bayer_g64_after.png    Bayer, today's defaults (the cap and the joint range weight)
-    lms_g64_before.png     LMS as before issue 17: guided demosaic chroma radius 3
-    lms_g64_after.png      LMS, today's defaults (chroma radius 2)
+    lms_g64_before.png     LMS as before issue 17: guided demosaic chroma radius 3, no joint range
+                           weight in the denoiser (range_joint=0)
+    lms_g64_after.png      LMS, today's defaults (chroma radius 2, the joint range weight)
 
 The "before" settings are passed explicitly, so the crops can be remade from any later checkout.
 """
@@ -66,7 +67,7 @@ def main() -> int:
     runs = {
         f"bayer_{tag}_before": ("bayer", {"denoise": ChromaDenoiseParams(chroma_range_cap=None, range_joint=0.0)}),
         f"bayer_{tag}_after": ("bayer", {}),
-        f"lms_{tag}_before": ("lms", {"demosaic": "guided-r3"}),
+        f"lms_{tag}_before": ("lms", {"demosaic": "guided-r3", "denoise": ChromaDenoiseParams(range_joint=0.0)}),
         f"lms_{tag}_after": ("lms", {}),
     }
     truth = None

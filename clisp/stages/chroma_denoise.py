@@ -95,14 +95,15 @@ RANGE_JOINT_SIGMA: dict[str, tuple[float, float]] = {"yuv": (0.0, 0.0), "lms": (
 simulated sensor; sigma_0 0.013 at gain 8, 0.039 at 64), in full from 0.03 (gain ~45): where the
 noise is low the planes' own range terms already keep colour edges, and the joint term held back
 the smoothing (gain 8: ring shift 0.61 / 1.43 -> 0.63 / 1.49). Bayer: in full at every gain (its
-gain-8 discs 0.92 -> 0.74 worst with it)."""
-RANGE_JOINT: dict[str, float] = {"yuv": 2.0, "lms": 2.0}
+gain-8 discs 0.92 -> 0.70 worst with it)."""
+RANGE_JOINT: dict[str, float] = {"yuv": 1.0, "lms": 2.0}
 """Default ``range_joint`` per chroma space (ChromaDenoiseParams): the coarse levels' joint range
 term, a Mahalanobis distance of the chroma planes in k_chroma noise sigmas (range_metric).
 Measured with tools/bench_bleeding.py (ring colour shift, patches mean / worst a*b*, 2 seeds) and
 8 Kodak + 6 McMaster images (PSNR), 2026-11-25:
-Bayer (YUV), 2: gain 64 0.99 / 2.27 -> 0.90 / 1.86 (discs 1.17 / 2.43 -> 0.94 / 1.75), PSNR within
-0.015 dB at every gain (the plain sum of U's and V's terms, measured first, was alike).
+Bayer (YUV), 1: gain 64 0.99 / 2.27 -> 0.86 / 1.81 (discs 1.17 / 2.43 -> 0.94 / 1.78), PSNR of all
+24 Kodak images at 64x +0.03 dB against no joint term; 2 gave 0.98 / 2.06 and -0.04 dB (Table 1's
+Kodak 64x fell 0.12 dB below the last reproduction with it and the range cap together).
 LMS, 2 (faded in by RANGE_JOINT_SIGMA): gain 64 1.60 / 4.46 -> 1.20 / 2.57 at -0.04..-0.05 dB
 PSNR from gain 4 (before the fade), gray-panel SNR 18.05 -> 18.04 dB. The plain sum of LMS's
 three planes (3) gave 1.30 / 3.51 at -0.11..-0.14 dB: R-Y, G-Y and B-Y share two noise sources,
