@@ -12,7 +12,12 @@ the simulation's raw): CIEDE2000 and tone-mapped PSNR (dB), both after dividing 
 the scene's peak (so values up to the peak are compared, not clipped at 1). ``chroma`` is the
 largest (max - min)/max of 16 px block means over the clipped region, for the neutral scenes.
 
-Usage: python tools/bench_highlights.py [--size 192] [--no-libraw]
+``--accept``: issue 14's acceptance figures instead, at gain 1, for clip and reconstruct, LMS and
+Bayer: the worst 16 px block chroma of a neutral ramp from 0.2 to 4 (48 x 384 px) and of blown white
+lamps (a hard-edged disc of radius 30 px and the soft-edged lamp above, 128 px), and the largest fall
+of the ramp's column brightness as the scene brightens (the scenes of tests/test_highlights.py).
+
+Usage: python tools/bench_highlights.py [--size 192] [--no-libraw] [--accept]
 """
 from __future__ import annotations
 
@@ -86,11 +91,46 @@ def libraw(raw, mode: str, folder: Path, mask: np.ndarray, reference: np.ndarray
     return (rgb * level).astype(np.float32)
 
 
+def block_chroma(image: np.ndarray, b: int = 16) -> np.ndarray:
+    """(max - min) / max of the b x b block means of an H x W x 3 image."""
+    h, w = image.shape[0] // b * b, image.shape[1] // b * b
+    m = image[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+    return (m.max(-1) - m.min(-1)) / np.maximum(m.max(-1), 1e-9)
+
+
+def accept() -> int:
+    """Issue 14's acceptance figures (gain 1): ramp and lamps' worst block chroma, ramp fall."""
+    ramp = np.repeat(np.repeat(np.linspace(0.2, PEAK, 384)[None, :, None], 48, 0), 3, 2)
+    yy, xx = np.mgrid[:128, :128]
+    hard = np.full((128, 128, 3), 0.18)
+    hard[np.hypot(yy - 64, xx - 64) < 30] = PEAK
+    soft = scenes(128)["white lamp"]
+    for cfa in ("lms", "bayer"):
+        for mode in ("reconstruct", "clip"):
+            sim = clisp.simulate(ramp, cfa=cfa, gain=1, seed=3)
+            out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
+            lum = out[:48 // 16 * 16].reshape(3, 16, 24, 16, 3).mean(axis=(0, 1, 3, 4))
+            fall = float(np.max(np.maximum.accumulate(lum) - lum) / lum.max())
+            cells = [f"ramp chroma {block_chroma(out).max():.3f}, fall {100 * fall:.1f} %"]
+            for name, scene, seed in (("hard lamp", hard, 3), ("soft lamp", soft, 1)):
+                sim = clisp.simulate(scene, cfa=cfa, gain=1, seed=seed)
+                out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
+                b = 16
+                h, w = sim.truth.shape[0] // b * b, sim.truth.shape[1] // b * b
+                bright = sim.truth[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3)).max(-1) > 0.5
+                cells.append(f"{name} {block_chroma(out)[bright].max():.4f}")
+            print(f"{cfa:5s} {mode:11s} " + " | ".join(cells), flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=192)
     ap.add_argument("--no-libraw", action="store_true")
+    ap.add_argument("--accept", action="store_true", help="issue 14's acceptance figures instead")
     args = ap.parse_args(argv)
+    if args.accept:
+        return accept()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, scene in scenes(args.size).items():
