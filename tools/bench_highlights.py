@@ -36,6 +36,8 @@ from clisp.pipeline import build_pipeline  # noqa: E402
 from clisp.simulate import inverse_isp_matrix  # noqa: E402
 
 PEAK = 4.0
+BLOCK = 16
+"""Side of the blocks whose mean colour the chroma figures use (px)."""
 
 
 def scenes(n: int) -> dict[str, np.ndarray]:
@@ -62,16 +64,19 @@ def clipped_region(truth: np.ndarray, cfa: str) -> np.ndarray:
     return raw.max(-1) >= 1.0
 
 
+def block_means(image: np.ndarray, b: int = BLOCK) -> np.ndarray:
+    """Means of the whole b x b blocks of an H x W x C image: (H // b) x (W // b) x C."""
+    h, w = image.shape[0] // b * b, image.shape[1] // b * b
+    return image[:h, :w].reshape(h // b, b, w // b, b, image.shape[2]).mean(axis=(1, 3))
+
+
 def score(out: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
     o, t = out[mask][None] / PEAK, truth[mask][None] / PEAK
     de = ciede2000(o, t)
     p = psnr(o, t, border=0)
-    b = 16
-    h, w = out.shape[0] // b * b, out.shape[1] // b * b
-    means = out[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
-    cover = mask[:h, :w].reshape(h // b, b, w // b, b).any(axis=(1, 3))
-    chroma = (means.max(-1) - means.min(-1)) / np.maximum(means.max(-1), 1e-9)
-    return de, p, float(chroma[cover].max()) if cover.any() else float("nan")
+    cover = block_means(mask[..., None].astype(np.float64)) > 0
+    chroma = block_chroma(out)
+    return de, p, float(chroma[cover[..., 0]].max()) if cover.any() else float("nan")
 
 
 def libraw(raw, mode: str, folder: Path, mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -91,10 +96,9 @@ def libraw(raw, mode: str, folder: Path, mask: np.ndarray, reference: np.ndarray
     return (rgb * level).astype(np.float32)
 
 
-def block_chroma(image: np.ndarray, b: int = 16) -> np.ndarray:
+def block_chroma(image: np.ndarray, b: int = BLOCK) -> np.ndarray:
     """(max - min) / max of the b x b block means of an H x W x 3 image."""
-    h, w = image.shape[0] // b * b, image.shape[1] // b * b
-    m = image[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))
+    m = block_means(image, b)
     return (m.max(-1) - m.min(-1)) / np.maximum(m.max(-1), 1e-9)
 
 
@@ -109,15 +113,13 @@ def accept() -> int:
         for mode in ("reconstruct", "clip"):
             sim = clisp.simulate(ramp, cfa=cfa, gain=1, seed=3)
             out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
-            lum = out[:48 // 16 * 16].reshape(3, 16, 24, 16, 3).mean(axis=(0, 1, 3, 4))
+            lum = block_means(out).mean(axis=(0, 2))
             fall = float(np.max(np.maximum.accumulate(lum) - lum) / lum.max())
             cells = [f"ramp chroma {block_chroma(out).max():.3f}, fall {100 * fall:.1f} %"]
             for name, scene, seed in (("hard lamp", hard, 3), ("soft lamp", soft, 1)):
                 sim = clisp.simulate(scene, cfa=cfa, gain=1, seed=seed)
                 out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
-                b = 16
-                h, w = sim.truth.shape[0] // b * b, sim.truth.shape[1] // b * b
-                bright = sim.truth[:h, :w].reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3)).max(-1) > 0.5
+                bright = block_means(sim.truth).max(-1) > 0.5
                 cells.append(f"{name} {block_chroma(out)[bright].max():.4f}")
             print(f"{cfa:5s} {mode:11s} " + " | ".join(cells), flush=True)
     return 0
