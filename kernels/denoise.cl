@@ -201,7 +201,7 @@ __kernel void bayes_shrink(__global const float *restrict detail, __global const
  * and a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y
  * term. w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))), per plane;
  * with JOINT_RANGE one w for every plane, its chroma term z^T M z, z_k = (c_q,k - c_p,k)/(sqrt2 sc_k)
- * (ChromaDenoise.range_metric). 
+ * (ChromaDenoise.range_metric).
  * All planes in one pass: the guide tap and its spatial + luminance term are read and computed once
  * per tap for every plane. Each work item computes VEC consecutive pixels of a row (width >= VEC);
  * the last one of a row starts at width - VEC, recomputing a few pixels with identical results. */

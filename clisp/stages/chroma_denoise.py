@@ -24,8 +24,9 @@ Per chroma channel k and level j = J .. 1, from the coarsest::
     joint_bilateral: out(p) = sum_q w(p,q) a(q) / sum_q w(p,q) over |q - p|_inf <= r,
       w(p,q) = exp(-|p-q|^2 / 2 sd^2 - (Y_p - Y_q)^2 / 2 sY(p)^2 - (a_p - a_q)^2 / 2 sc(p)^2),
       sY = k_Y sigma_Y,j(Y_p),  sc = k_c s_k sigma_k,j(Y_p)     (floored at sigma_floor)
-      range_joint s > 0 (levels j >= 1; Bayer's default): one w for every chroma plane, its
-      chroma term s mean_k (a_k,p - a_k,q)^2 / 2 sc_k^2 (issue 17)
+      range_joint > 0 (levels j >= 1, both spaces by default): one w for every chroma plane, its
+      chroma term the Mahalanobis distance of the planes' differences in noise sigmas
+      (ChromaDenoise.range_metric; issue 17)
     bayes_shrink (BayesShrink, Chang, Yu & Vetterli, IEEE TIP 9(9), 2000, with a local variance):
       sigma_n = s_k sigma_k,j,o(Y_j),  E = mean of d^2 over the (2 r_w + 1)^2 window,
       sigma_x = sqrt(max(E - sigma_n^2, 0)),  T = sigma_n^2 / sigma_x (T = inf when sigma_x = 0),
@@ -205,11 +206,13 @@ class ChromaDenoiseParams:
     level alike), so colour edges of more than about the cap are no longer averaged across
     (issue 17). "space": the space's CHROMA_RANGE_CAP; None: no cap."""
     range_joint: float | str = "space"
-    """"space": the space's RANGE_JOINT. At the pyramid levels j >= 1: 0, each chroma plane's bilateral weight has its own range term
+    """At the pyramid levels j >= 1: 0, each chroma plane's bilateral weight has its own range term
     (the plane's difference over its range sigma); s > 0, one weight shared by every plane, whose
-    range term is s times the mean of the planes' terms, so that a colour edge one plane shows
-    stops the averaging of the others as well (issue 17: in the LMS space the blue sky's edge is 2.3 range sigmas in B-Y
-    but 1.1 in R-Y at gain 64, so R-Y was averaged across it)."""
+    range term is s times the Mahalanobis distance of the planes' differences over their rank
+    (:meth:`ChromaDenoise.range_metric`), so that a colour edge one plane shows stops the
+    averaging of the others as well (issue 17: in the LMS space the blue sky's edge is 2.3 range
+    sigmas in B-Y but 1.1 in R-Y at gain 64, so R-Y was averaged across it). "space": the space's
+    RANGE_JOINT."""
     range_joint_sigma: tuple[float, float] | str = "space"
     """(off, full): level-0 chroma noise std at mid-grey (sigma_0, :meth:`ChromaDenoise.mid_grey_sigma`)
     below which range_joint is 0 and from which it applies in full, linear in between; (0, 0): in
@@ -597,8 +600,8 @@ class ChromaDenoise(Stage):
         """(n, n) M of the joint range term at ``level`` (None where range_joint is 0): the term is
         z^T M z, z_k = (c_q,k - c_p,k) / (sqrt 2 sc_k), M = range_joint S R^+ S / rank (S = diag of
         the strengths s_k, so that the term measures differences in k_chroma noise sigmas whatever
-        the planes' strengths), R the level's
-        noise correlation of the chroma planes, its pseudo-inverse over the eigenvalues above
+        the planes' strengths), R the level's noise correlation of the chroma planes, its
+        pseudo-inverse over the eigenvalues above
         CORR_CUT of the largest (rank of them). Uncorrelated planes: range_joint times the mean of
         the planes' own terms; correlated ones (LMS's R-Y, G-Y, B-Y share two noise sources): the
         Mahalanobis distance, so a difference that noise makes only in one combination does not
@@ -621,8 +624,8 @@ class ChromaDenoise(Stage):
             joint = RANGE_JOINT.get(self.space.name, 0.0)
         if level < 1 or joint <= 0:
             return 0.0
-        fade = self.params.range_joint_sigma
-        lo, hi = RANGE_JOINT_SIGMA.get(self.space.name, (0.0, 0.0)) if fade == "space" else fade
+        sigmas = self.params.range_joint_sigma
+        lo, hi = RANGE_JOINT_SIGMA.get(self.space.name, (0.0, 0.0)) if sigmas == "space" else sigmas
         fade = float(np.clip((self.mid_grey_sigma() - lo) / (hi - lo), 0.0, 1.0)) if hi > lo else 1.0
         return float(joint) * fade
 

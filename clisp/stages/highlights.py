@@ -31,19 +31,19 @@ brightness from the pixel's unclipped channels ("inpaint opposed", locally)::
     some clipped (C):    K = max(sum_{u not in C} y_u / sum_{u not in C} rho^_u,
                                  max_{c in C} y_c / rho^_c)      (rho^_c >= RHO_MIN only)
                          y_c <- max(y_c, K rho^_c) for c in C   (never below what was recorded)
+    all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
+                         channel's record: brightness never falls as the scene brightens)
 
 A clipped channel's record is a lower bound on the truth, so the brightness K is at least what it
 implies with the colour rho^: without that, a channel that the demosaic put a little low (the
 unclipped S beside clipped L on the LMS ramp) dragged the clipped ones below a channel that had
 just passed its threshold, and coloured lights lost the bright side of their colour.
-    all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
-                         channel's record: brightness never falls as the scene brightens)
 
 The clipped test on demosaiced values uses MARGIN times the mosaic's threshold (demosaics put a
 clipped channel a few percent low), and DIP times that next to a pixel where the channel is
-clipped (at the other channels' sites they put it lower still); and pixels within RIM of a clipped pixel (the demosaic's
-false colour across a light's edge) keep their brightness but take rho^ (``clip``: neutral);
-so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
+clipped (at the other channels' sites they put it lower still); and pixels within RIM of a
+clipped pixel (the demosaic's false colour across a light's edge) keep their brightness but take
+rho^ (``clip``: neutral); so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
 
 PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies within R:
 a ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour
@@ -104,8 +104,8 @@ contradicts them, and y_c / rho^_c would blow the other channels up."""
 
 DIP = 0.8
 """At a pixel with a clipped channel, another channel at or above this share of its threshold
-counts as clipped where it is clipped at one of the 8 neighbours: a demosaic puts a clipped channel well below its clip level at the sites of
-the other channels (guided LMS, a blown lamp: M 3 % under its threshold at S sites, next to
+counts as clipped where it is clipped at one of the 8 neighbours: a demosaic puts a clipped
+channel well below its clip level at the sites of the other channels (guided LMS, a blown lamp: M 3 % under its threshold at S sites, next to
 clipped M), which left single pixels coloured on blown whites (per-pixel chroma up to 0.7; 16 px
 block chroma 0.043-0.055 on the benchmark's soft-edged lamp, LMS gain 1, 128 px; 0.001 with
 it). Only where another channel is clipped: on a light's edge, where no channel is clipped, the
@@ -171,7 +171,8 @@ class Highlights(Stage):
         w, h, d = src.width, src.height, self.rim
         r = self.radius if self.mode == "reconstruct" else 0
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
-                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip")}
+                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
+                   "HL_CLIP": int(self.mode == "clip")}
         defines["HL_BLOCK"] = BLOCK
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
