@@ -2,23 +2,10 @@
  * the definitions and the NumPy reference). n: the neutral (3), t: the clip thresholds in units
  * of n (3). Launched over exactly the output (launch_exact): no bounds checks. */
 
-#ifndef HL_RADIUS
-#define HL_RADIUS 16
-#define HL_RIM 4
-#define HL_CLIP 0
-#define HL_REF 0.9f
-#define HL_LOW 0.5f
-#define HL_PRIOR 1.0f
-#endif
-#ifndef HL_BLOCK
-#define HL_BLOCK 32
-#endif
-#ifndef HL_DIP
-#define HL_DIP 0.8f
-#endif
-#ifndef HL_RHO_MIN
-#define HL_RHO_MIN 0.2f
-#endif
+/* The reconstruct/clip kernels need the host's constants (clisp/stages/highlights.py, as
+ * defines): HL_RADIUS, HL_RIM, HL_BLOCK, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
+ * HL_AGREE_LO, HL_AGREE_HI. Built without them (the clamp alone), the file holds hl_clamp only. */
+#ifdef HL_RADIUS
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
  * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
@@ -123,8 +110,9 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
 }
 
 /* hl_weights: on the window less the rim (w1 x h1): plane 0 near (a clipped pixel within RIM);
- * reconstruct: planes 1-3 (w, w rho0, w rho1), w the reference weight (bright, clearly
- * unclipped, not near), rho_c = y_c / mean(y). */
+ * reconstruct: planes 1-3 (w, w rho0, w rho1) of the far references (bright, clearly unclipped,
+ * not near), planes 4-6 the same of the rim references (near, no channel clipped, bright);
+ * rho_c = y_c / mean(y). Halo 0 (reads the near rows' 2 RIM + 1 rows). */
 __kernel void hl_weights(__global const float *restrict src, __global const float *restrict rows,
                          __global float *restrict dst, const int width, const int height,
                          const int w1, const int h1, __constant const float *restrict n,
@@ -145,16 +133,22 @@ __kernel void hl_weights(__global const float *restrict src, __global const floa
     const int i = (y + HL_RIM) * width + x + HL_RIM;
     const float y0 = src[i] / n[0], y1 = src[plane + i] / n[1], y2 = src[2 * plane + i] / n[2];
     const float m = hl_max(hl_max(y0 / t[0], y1 / t[1]), y2 / t[2]);
-    const float w = (m < HL_REF && near == 0.0f) ? clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f) : 0.0f;
-    const float inv = w > 0.0f ? 3.0f / (y0 + y1 + y2) : 0.0f;
-    dst[oplane + o] = w;
-    dst[2 * oplane + o] = w * y0 * inv;
-    dst[3 * oplane + o] = w * y1 * inv;
+    const float ramp = clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f);
+    const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
+    const float rim = (near > 0.0f && !any_clipped(y0, y1, y2, t)) ? ramp : 0.0f;
+    const float total = y0 + y1 + y2;
+    const float inv = total > 0.0f ? 3.0f / total : 0.0f;
+    dst[oplane + o] = far;
+    dst[2 * oplane + o] = far * y0 * inv;
+    dst[3 * oplane + o] = far * y1 * inv;
+    dst[4 * oplane + o] = rim;
+    dst[5 * oplane + o] = rim * y0 * inv;
+    dst[6 * oplane + o] = rim * y1 * inv;
 #endif
 }
 
-/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-3 (w1 x h1);
- * dst out_w x h1, 3 planes. */
+/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-6 (w1 x h1);
+ * dst out_w x h1, 6 planes. */
 __kernel void hl_box_rows(__global const float *restrict src, __global float *restrict dst,
                           const int w1, const int h1, const int out_w, __global const float *restrict reach,
                           const int nbx, const int nby)
@@ -165,27 +159,45 @@ __kernel void hl_box_rows(__global const float *restrict src, __global float *re
         return;
     const int plane = w1 * h1, oplane = out_w * h1;
     const int i = y * w1 + x;
-    float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
-    for (int k = 0; k <= 2 * HL_RADIUS; k++) {
-        s0 += src[plane + i + k];
-        s1 += src[2 * plane + i + k];
-        s2 += src[3 * plane + i + k];
-    }
+    float s[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int k = 0; k <= 2 * HL_RADIUS; k++)
+        for (int p = 0; p < 6; p++)
+            s[p] += src[(p + 1) * plane + i + k];
     const int o = y * out_w + x;
-    dst[o] = s0;
-    dst[oplane + o] = s1;
-    dst[2 * oplane + o] = s2;
+    for (int p = 0; p < 6; p++)
+        dst[p * oplane + o] = s[p];
+}
+
+/* chroma_of: rho^ (mean 1) from box sums (w, w rho0, w rho1) and the neutral prior. */
+inline void chroma_of(const float s0, const float s1, const float s2, float *rho)
+{
+    const float sw = s0 + HL_PRIOR;
+    rho[0] = (s1 + HL_PRIOR) / sw;
+    rho[1] = (s2 + HL_PRIOR) / sw;
+    rho[2] = (3.0f * s0 - s1 - s2 + HL_PRIOR) / sw;
+}
+
+/* agreement: 1 where chromas a and b differ by at most HL_AGREE_LO in every output channel
+ * (d (a - b), d the display matrix, row-major), 0 from HL_AGREE_HI, linear between. */
+inline float agreement(const float *a, const float *b, __constant const float *d)
+{
+    const float e0 = a[0] - b[0], e1 = a[1] - b[1], e2 = a[2] - b[2];
+    float dist = 0.0f;
+    for (int r = 0; r < 3; r++)
+        dist = hl_max(dist, fabs(d[3 * r] * e0 + d[3 * r + 1] * e1 + d[3 * r + 2] * e2));
+    return clamp((HL_AGREE_HI - dist) / (HL_AGREE_HI - HL_AGREE_LO), 0.0f, 1.0f);
 }
 
 /* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
- * near -> neutral at the mean. Else the reconstruction: box: hl_box_rows' output (out_w x h1),
- * summed over 2 R + 1 rows only where the pixel is clipped or near. */
+ * near -> neutral at the mean. Else the reconstruction: box: hl_box_rows' output (out_w x h1,
+ * far then rim sums), summed over 2 R + 1 rows only where the pixel is clipped or near; d the
+ * display matrix of agreement(). */
 __kernel void hl_apply(__global const float *restrict src, __global const float *restrict weights,
                        __global const float *restrict box, __global float *restrict dst,
                        const int width, const int height, const int w1, const int h1,
                        const int out_w, const int out_h, __constant const float *restrict n,
-                       __constant const float *restrict t, const float white,
-                       __global const float *restrict reach, const int nbx, const int nby)
+                       __constant const float *restrict t, __constant const float *restrict d,
+                       const float white, __global const float *restrict reach, const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -220,21 +232,38 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         v[0] = v[1] = v[2] = top;
     } else if (count > 0 || near > 0.0f) {
         const int bplane = out_w * h1;
-        float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
+        float s[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
         for (int k = 0; k <= 2 * HL_RADIUS; k++) {
             const int j = (y + k) * out_w + x;
-            s0 += box[j];
-            s1 += box[bplane + j];
-            s2 += box[2 * bplane + j];
+            for (int p = 0; p < 6; p++)
+                s[p] += box[p * bplane + j];
         }
-        const float sw = s0 + HL_PRIOR;
-        const float rho[3] = {(s1 + HL_PRIOR) / sw, (s2 + HL_PRIOR) / sw, (3.0f * s0 - s1 - s2 + HL_PRIOR) / sw};
+        float far[3], rim[3];
+        chroma_of(s[0], s[1], s[2], far);
+        chroma_of(s[3], s[4], s[5], rim);
+        float trust = agreement(far, rim, d);
+        const int clipped[3] = {c0, c1, c2};
+        if (count == 1) {                    /* the pixel's two free channels against far */
+            float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
+            for (int c = 0; c < 3; c++) {
+                fy[c] = clipped[c] ? 0.0f : v[c];
+                fr[c] = clipped[c] ? 0.0f : far[c];
+                sy += fy[c];
+                sr += fr[c];
+            }
+            const float scale = sr / hl_max(sy, 1e-9f);
+            for (int c = 0; c < 3; c++)
+                fy[c] *= scale;
+            trust *= agreement(fy, fr, d);
+        }
+        float rho[3];
+        for (int c = 0; c < 3; c++)
+            rho[c] = 1.0f + trust * (far[c] - 1.0f);
         if (count == 0) {
             const float mean = (v[0] + v[1] + v[2]) / 3.0f;
             for (int c = 0; c < 3; c++)
                 v[c] = mean * rho[c];
         } else {
-            const int clipped[3] = {c0, c1, c2};
             float num = 0.0f, den = 0.0f;
             for (int c = 0; c < 3; c++) {
                 if (!clipped[c]) {
@@ -257,6 +286,8 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     dst[oplane + o] = v[1] * n[1];
     dst[2 * oplane + o] = v[2] * n[2];
 }
+
+#endif /* HL_RADIUS */
 
 /* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast); MATRIX 1 then
  * applies the 3 x 3 matrix m (the colour matrix that follows, fused). Halo 0. */

@@ -97,6 +97,12 @@ colour references."""
 PRIOR = 1.0
 """Weight of the neutral prior in rho^ (in pixels of full weight)."""
 
+AGREE_LO = 0.1
+AGREE_HI = 0.25
+"""Trust in the far references' chroma falls from 1 to 0 as its largest channel difference (mean-1
+chroma) from the rim's chroma, or from the pixel's own two free channels, goes from AGREE_LO to
+AGREE_HI; where it is 0 the pixel is reconstructed as a neutral."""
+
 RHO_MIN = 0.2
 """A clipped channel bounds the brightness K from below only where its reference chroma rho^_c is
 at least this (mean 1 over the channels): a clipped channel the references call nearly dark
@@ -130,6 +136,7 @@ class Highlights(Stage):
     mode: str = DEFAULT_MODE
     radius: int = RADIUS
     rim: int = RIM
+    display: np.ndarray | None = None
     name = "highlights"
 
     def __post_init__(self) -> None:
@@ -140,10 +147,17 @@ class Highlights(Stage):
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
         self.threshold = np.asarray(self.threshold, dtype=np.float64).reshape(3)
         self.white = float(self.white)
+        self.display = np.eye(3) if self.display is None else np.asarray(self.display, dtype=np.float64).reshape(3, 3)
 
     @property
     def halo(self) -> int:
         return self.rim + (self.radius if self.mode == "reconstruct" else 0)
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """float32 planes per input pixel: flags, near rows, weights (near; reconstruct: far and
+        rim sums, 7), box rows (reconstruct, 6), output (3)."""
+        return 4.0 * (5 + (13 if self.mode == "reconstruct" else 1))
 
     # ------------------------------------------------------------------------------- reference
 
@@ -158,10 +172,10 @@ class Highlights(Stage):
             mean = y.mean(axis=-1, keepdims=True)
             out = np.where(near[..., None], mean, y)
             return np.where(clipped.any(axis=-1, keepdims=True), self.white, out) * n
-        weights = reference_weights(y, t, near)                             # H x W x 3: w, w rho0, w rho1
+        weights = reference_weights(y, t, near, clipped)                    # H x W x 6: far, near rim
         sums = box_sum(box_sum(weights, r, axis=1), r, axis=0)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
-        return reconstruct(y[crop], clipped[crop], near[crop], sums) * n
+        return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display) * n
 
     # ------------------------------------------------------------------------------- OpenCL
 
@@ -172,7 +186,8 @@ class Highlights(Stage):
         r = self.radius if self.mode == "reconstruct" else 0
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
                    "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
-                   "HL_CLIP": int(self.mode == "clip")}
+                   "HL_CLIP": int(self.mode == "clip"), "HL_AGREE_LO": repr(AGREE_LO) + "f",
+                   "HL_AGREE_HI": repr(AGREE_HI) + "f"}
         defines["HL_BLOCK"] = BLOCK
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
@@ -192,20 +207,20 @@ class Highlights(Stage):
                      i32(w), i32(w1), *sparse)
         rt.release(flags)
         # planes: near, then (reconstruct) w, w rho0, w rho1 on the window less the rim
-        weights = rt.acquire(4 if r else 1, h1, w1)
+        weights = rt.acquire(7 if r else 1, h1, w1)
         launch_exact(rt, rt.kernel("highlights", "hl_weights", defines), w1, h1, src.buffer, rows.buffer,
                      weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t, *sparse)
         rt.release(rows)
         ow, oh = w1 - 2 * r, h1 - 2 * r
         box = weights
         if r:
-            box = rt.acquire(3, h1, ow)
+            box = rt.acquire(6, h1, ow)
             launch_exact(rt, rt.kernel("highlights", "hl_box_rows", defines), ow, h1, weights.buffer, box.buffer,
                          i32(w1), i32(h1), i32(ow), *sparse)
         dst = rt.acquire(3, oh, ow)
         launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, weights.buffer,
                      box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ow), i32(oh), n, t,
-                     np.float32(self.white), *sparse)
+                     rt.constant(as_f32(self.display)), np.float32(self.white), *sparse)
         rt.release(reach)
         rt.release(weights)
         if r:
@@ -236,15 +251,19 @@ def clipped_channels(y: np.ndarray, t: np.ndarray) -> np.ndarray:
     return hard | (beside & (y >= DIP * t) & hard.any(axis=-1, keepdims=True))
 
 
-def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """(w, w rho_0, w rho_1) per pixel of y (H x W x 3, units of n) for thresholds t; no weight
-    near a clipped pixel."""
+def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray, clipped: np.ndarray) -> np.ndarray:
+    """H x W x 6 per pixel of y (H x W x 3, units of n) for thresholds t: (w, w rho_0, w rho_1)
+    of the far references (bright, clearly unclipped, not near a clipped pixel), then the same of
+    the rim references (near a clipped pixel, no channel clipped, bright)."""
     m = np.max(y / t, axis=-1)
-    w = np.where((m < REF) & ~near, np.clip((m - LOW) / (REF - LOW), 0.0, 1.0), 0.0)
+    ramp = np.clip((m - LOW) / (REF - LOW), 0.0, 1.0)
+    far = np.where((m < REF) & ~near, ramp, 0.0)
+    rim = np.where(near & ~clipped.any(axis=-1), ramp, 0.0)
     total = y.sum(axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(w > 0, 3.0 / total, 0.0)
-    return np.stack([w, w * y[..., 0] * inv, w * y[..., 1] * inv], axis=-1)
+        inv = np.where(total > 0, 3.0 / total, 0.0)
+    return np.stack([far, far * y[..., 0] * inv, far * y[..., 1] * inv,
+                     rim, rim * y[..., 0] * inv, rim * y[..., 1] * inv], axis=-1)
 
 
 def box_sum(a: np.ndarray, r: int, axis: int) -> np.ndarray:
@@ -257,18 +276,39 @@ def box_sum(a: np.ndarray, r: int, axis: int) -> np.ndarray:
     return np.take(c, np.arange(k, n + 1), axis=axis) - np.take(c, np.arange(0, n + 1 - k), axis=axis)
 
 
-def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray) -> np.ndarray:
-    """The reconstruction rule on y (H x W x 3, units of n) given the box sums (w, w rho0, w rho1)."""
+def chroma_of(sums: np.ndarray) -> np.ndarray:
+    """rho^ (H x W x 3, mean 1) from box sums (w, w rho0, w rho1) with the neutral prior."""
     sw = sums[..., 0] + PRIOR
-    rho = np.stack([(sums[..., 1] + PRIOR) / sw, (sums[..., 2] + PRIOR) / sw,
-                    (3.0 * sums[..., 0] - sums[..., 1] - sums[..., 2] + PRIOR) / sw], axis=-1)
+    return np.stack([(sums[..., 1] + PRIOR) / sw, (sums[..., 2] + PRIOR) / sw,
+                     (3.0 * sums[..., 0] - sums[..., 1] - sums[..., 2] + PRIOR) / sw], axis=-1)
+
+
+def agreement(a: np.ndarray, b: np.ndarray, display: np.ndarray) -> np.ndarray:
+    """1 where two chromas a, b (... x 3, units of n) differ by at most AGREE_LO in every output
+    channel (display @ (a - b)), 0 from AGREE_HI, linear between."""
+    distance = np.abs((a - b) @ display.T).max(axis=-1)
+    return np.clip((AGREE_HI - distance) / (AGREE_HI - AGREE_LO), 0.0, 1.0)
+
+
+def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray,
+                display: np.ndarray = np.eye(3)) -> np.ndarray:
+    """The reconstruction rule on y (H x W x 3, units of n) given the box sums (far, rim)."""
+    far, rim = chroma_of(sums[..., :3]), chroma_of(sums[..., 3:])
+    trust = agreement(far, rim, display)
     free = ~clipped
+    count = clipped.sum(axis=-1)
+    # the pixel's own free channels against the far chroma, scaled to the same sum (two free channels)
+    fy = np.where(free, y, 0.0)
+    fr = np.where(free, far, 0.0)
+    scale = fr.sum(axis=-1, keepdims=True) / np.maximum(fy.sum(axis=-1, keepdims=True), 1e-9)
+    own = agreement(fy * scale, fr, display)
+    trust = np.where(count == 1, trust * own, trust)
+    rho = 1.0 + trust[..., None] * (far - 1.0)
     num = np.sum(np.where(free, y, 0.0), axis=-1)
     den = np.maximum(np.sum(np.where(free, rho, 0.0), axis=-1), 1e-6)
     bound = np.where(clipped & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
     estimate = np.maximum(num / den, bound)[..., None] * rho
     out = np.where(clipped, np.maximum(y, estimate), y)
-    count = clipped.sum(axis=-1)
     out = np.where((near & (count == 0))[..., None], y.mean(axis=-1, keepdims=True) * rho, out)
     out = np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
     return out
@@ -324,6 +364,14 @@ def neutral_of(colour_matrix: np.ndarray, wb2: np.ndarray | None = None) -> np.n
     return n / n.max()
 
 
+def display_matrix(colour_matrix: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+    """3 x 3: camera values in units of the neutral n to output RGB, scaled so that the neutral
+    (1, 1, 1) comes out with mean 1: the space in which highlight chromas are compared (the LMS
+    matrix turns a small L - M difference into a large red one)."""
+    a = np.asarray(colour_matrix, dtype=np.float64) @ np.diag(neutral)
+    return a / float(a.sum(axis=1).mean())
+
+
 def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False) -> Highlights | None:
     """The Highlights stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
     clipped samples (unless ``force``), or a colour matrix without a positive neutral."""
@@ -340,7 +388,7 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
     t = clip * raw.pass1_gains() / n                         # after WB pass 1, in units of n
     if mode == "clamp":
         return HighlightClamp(n, float(t.min()))
-    return Highlights(n, MARGIN * t, float(t.min()), mode)
+    return Highlights(n, MARGIN * t, float(t.min()), mode, display=display_matrix(raw.colour_matrix, n))
 
 
 @dataclass
