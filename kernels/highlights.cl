@@ -4,7 +4,7 @@
 
 /* The reconstruct/clip kernels need the host's constants (clisp/stages/highlights.py, as
  * defines): HL_RADIUS, HL_RIM, HL_BLOCK, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
- * HL_AGREE_LO, HL_AGREE_HI. Built without them (the clamp alone), the file holds hl_clamp only. */
+ * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
@@ -110,9 +110,10 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
 }
 
 /* hl_weights: on the window less the rim (w1 x h1): plane 0 near (a clipped pixel within RIM);
- * reconstruct: planes 1-3 (w, w rho0, w rho1) of the far references (bright, clearly unclipped,
- * not near), planes 4-6 the same of the rim references (near, no channel clipped, bright);
- * rho_c = y_c / mean(y). Halo 0 (reads the near rows' 2 RIM + 1 rows). */
+ * reconstruct: planes 1-4 (w, w rho0, w rho1, w mean(y)) of the far references (bright, clearly
+ * unclipped, not near), planes 5-7 (w, w rho0, w rho1) of the rim references (near, no channel
+ * clipped, bright); rho_c = y_c / mean(y) (highlights.reference_weights). Reads the near rows'
+ * 2 RIM + 1 rows. */
 __kernel void hl_weights(__global const float *restrict src, __global const float *restrict rows,
                          __global float *restrict dst, const int width, const int height,
                          const int w1, const int h1, __constant const float *restrict n,
@@ -135,20 +136,21 @@ __kernel void hl_weights(__global const float *restrict src, __global const floa
     const float m = hl_max(hl_max(y0 / t[0], y1 / t[1]), y2 / t[2]);
     const float ramp = clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f);
     const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
-    const float rim = (near > 0.0f && !any_clipped(y0, y1, y2, t)) ? ramp : 0.0f;
-    const float total = y0 + y1 + y2;
-    const float inv = total > 0.0f ? 3.0f / total : 0.0f;
+    const float rim = (near > 0.0f && m < 1.0f) ? ramp : 0.0f;
+    const float mean = (y0 + y1 + y2) / 3.0f;
+    const float inv = mean > 0.0f ? 1.0f / mean : 0.0f;
     dst[oplane + o] = far;
     dst[2 * oplane + o] = far * y0 * inv;
     dst[3 * oplane + o] = far * y1 * inv;
-    dst[4 * oplane + o] = rim;
-    dst[5 * oplane + o] = rim * y0 * inv;
-    dst[6 * oplane + o] = rim * y1 * inv;
+    dst[4 * oplane + o] = far * mean;
+    dst[5 * oplane + o] = rim;
+    dst[6 * oplane + o] = rim * y0 * inv;
+    dst[7 * oplane + o] = rim * y1 * inv;
 #endif
 }
 
-/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-6 (w1 x h1);
- * dst out_w x h1, 6 planes. */
+/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-7 (w1 x h1);
+ * dst out_w x h1, 7 planes. */
 __kernel void hl_box_rows(__global const float *restrict src, __global float *restrict dst,
                           const int w1, const int h1, const int out_w, __global const float *restrict reach,
                           const int nbx, const int nby)
@@ -159,12 +161,14 @@ __kernel void hl_box_rows(__global const float *restrict src, __global float *re
         return;
     const int plane = w1 * h1, oplane = out_w * h1;
     const int i = y * w1 + x;
-    float s[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float s[HL_SUMS];
+    for (int p = 0; p < HL_SUMS; p++)
+        s[p] = 0.0f;
     for (int k = 0; k <= 2 * HL_RADIUS; k++)
-        for (int p = 0; p < 6; p++)
+        for (int p = 0; p < HL_SUMS; p++)
             s[p] += src[(p + 1) * plane + i + k];
     const int o = y * out_w + x;
-    for (int p = 0; p < 6; p++)
+    for (int p = 0; p < HL_SUMS; p++)
         dst[p * oplane + o] = s[p];
 }
 
@@ -190,7 +194,7 @@ inline float agreement(const float *a, const float *b, __constant const float *d
 
 /* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
  * near -> neutral at the mean. Else the reconstruction: box: hl_box_rows' output (out_w x h1,
- * far then rim sums), summed over 2 R + 1 rows only where the pixel is clipped or near; d the
+ * far then rim sums, HL_SUMS planes), summed over 2 R + 1 rows only where the pixel is clipped or near; d the
  * display matrix of agreement(). */
 __kernel void hl_apply(__global const float *restrict src, __global const float *restrict weights,
                        __global const float *restrict box, __global float *restrict dst,
@@ -232,46 +236,56 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         v[0] = v[1] = v[2] = top;
     } else if (count > 0 || near > 0.0f) {
         const int bplane = out_w * h1;
-        float s[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+        float s[HL_SUMS];
+        for (int p = 0; p < HL_SUMS; p++)
+            s[p] = 0.0f;
         for (int k = 0; k <= 2 * HL_RADIUS; k++) {
             const int j = (y + k) * out_w + x;
-            for (int p = 0; p < 6; p++)
+            for (int p = 0; p < HL_SUMS; p++)
                 s[p] += box[p * bplane + j];
         }
         float far[3], rim[3];
         chroma_of(s[0], s[1], s[2], far);
-        chroma_of(s[3], s[4], s[5], rim);
-        float trust = agreement(far, rim, d);
+        chroma_of(s[4], s[5], s[6], rim);
         const int clipped[3] = {c0, c1, c2};
+        /* trust in the far chroma (highlights.trust_in_far) */
+        float trust = agreement(far, rim, d);
+        float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
+        for (int c = 0; c < 3; c++) {
+            fy[c] = clipped[c] ? 0.0f : v[c];
+            fr[c] = clipped[c] ? 0.0f : far[c];
+            sy += fy[c];
+            sr += fr[c];
+        }
         if (count == 1) {                    /* the pixel's two free channels against far */
-            float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
-            for (int c = 0; c < 3; c++) {
-                fy[c] = clipped[c] ? 0.0f : v[c];
-                fr[c] = clipped[c] ? 0.0f : far[c];
-                sy += fy[c];
-                sr += fr[c];
-            }
             const float scale = sr / hl_max(sy, 1e-9f);
+            float sc[3];
             for (int c = 0; c < 3; c++)
-                fy[c] *= scale;
-            trust *= agreement(fy, fr, d);
+                sc[c] = fy[c] * scale;
+            trust *= agreement(sc, fr, d);
+        }
+        if (count > 0) {                     /* the brightness far implies, against its references' */
+            const float implied = sy / hl_max(sr, 1e-6f);
+            const float rise = s[0] > 0.0f ? implied * s[0] / hl_max(s[3], 1e-9f) : 0.0f;
+            trust *= clamp((HL_RISE_HI - rise) / (HL_RISE_HI - HL_RISE_LO), 0.0f, 1.0f);
         }
         float rho[3];
         for (int c = 0; c < 3; c++)
             rho[c] = 1.0f + trust * (far[c] - 1.0f);
-        if (count == 0) {
+        if (count == 0) {                    /* rim: reference colour, unless a surface of its own */
             const float mean = (v[0] + v[1] + v[2]) / 3.0f;
+            float own[3];
             for (int c = 0; c < 3; c++)
-                v[c] = mean * rho[c];
+                own[c] = mean > 0.0f ? v[c] / mean : 1.0f;
+            const float keep = s[0] / (s[0] + HL_EVIDENCE) * (1.0f - agreement(own, far, d));
+            for (int c = 0; c < 3; c++)
+                v[c] += (1.0f - keep) * (mean * rho[c] - v[c]);
         } else {
-            float num = 0.0f, den = 0.0f;
-            for (int c = 0; c < 3; c++) {
-                if (!clipped[c]) {
-                    num += v[c];
+            float den = 0.0f;
+            for (int c = 0; c < 3; c++)
+                if (!clipped[c])
                     den += rho[c];
-                }
-            }
-            float k = num / hl_max(den, 1e-6f);
+            float k = sy / hl_max(den, 1e-6f);
             for (int c = 0; c < 3; c++)          /* a clipped record bounds the brightness below */
                 if (clipped[c] && rho[c] >= HL_RHO_MIN)
                     k = hl_max(k, v[c] / rho[c]);

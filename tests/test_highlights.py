@@ -105,11 +105,11 @@ def test_clipped_record_bounds_the_brightness():
     from clisp.stages.highlights import reconstruct
     y = np.array([[[1.2, 1.25, 1.0]]])
     clipped = np.array([[[True, True, False]]])
-    sums = np.array([[[100.0, 100.0, 100.0] * 2]])          # far and rim rho^ = (1, 1, 1)
+    sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.allclose(out[0, 0], [1.25, 1.25, 1.0])
     # a reference colour that calls the clipped channel nearly dark gives it no say (RHO_MIN)
-    sums = np.array([[[100.0, 10.0, 145.0] * 2]])           # far and rim rho^ = (0.1, 1.45, 1.45)
+    sums = np.array([[[100.0, 10.0, 145.0, 100.0, 100.0, 10.0, 145.0]]])     # rho^ = (0.1, 1.45, 1.45)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.all(np.isfinite(out)) and out[0, 0, 1] < 2.0
 
@@ -236,3 +236,55 @@ def test_clamp_mode_kernel_reference_and_fast_preset(rt):
     kinds = {preset: [type(s).__name__ for s in build_pipeline(sim.raw, preset=preset).stages]
              for preset in ("fast", "quality")}
     assert "HighlightClamp" in kinds["fast"] and "Highlights" in kinds["quality"]
+
+
+def white_disc_scene(size: int = 128, level: float = 1.0) -> np.ndarray:
+    """A white disc (radius size / 5) at ``level`` on saturated teal (left half) and yellow
+    (right half): a clipped white beside saturated colour, as in photos (issue 25)."""
+    s = np.empty((size, size, 3))
+    s[:, : size // 2] = (0.02, 0.55, 0.5)
+    s[:, size // 2:] = (0.9, 0.7, 0.02)
+    yy, xx = np.mgrid[:size, :size]
+    s[np.hypot(yy - size / 2, xx - size / 2) < size / 5] = level
+    return s
+
+
+def _errors(sim, mode: str) -> np.ndarray:
+    out = build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
+    return np.abs(out - sim.truth).max(-1)
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+@pytest.mark.parametrize("level", [1.0, 1.2])
+def test_clipped_white_beside_saturated_colour(cfa, level):
+    """A white just past the clip point beside saturated teal and yellow: no pixel of the default
+    output more than 0.5 off the truth at gain 1; at gain 8 no pixel more than 1.0 off and no more
+    such pixels than ``clip`` has. The references' colour used to be taken from the bright
+    saturated neighbours and the brightness divided by their small chroma (LMS: 1415 pixels over
+    0.5, worst 4.6 at gain 1; Bayer 950)."""
+    scene = white_disc_scene(level=level)
+    sim = clisp.simulate(scene, cfa=cfa, gain=1, seed=1)
+    assert has_clipped(sim.raw)
+    err = _errors(sim, "reconstruct")
+    assert (err > 0.5).sum() == 0, f"{(err > 0.5).sum()} pixels over 0.5, worst {err.max():.2f}"
+    sim = clisp.simulate(scene, cfa=cfa, gain=8, seed=1)
+    err, clip = _errors(sim, "reconstruct"), _errors(sim, "clip")
+    assert err.max() <= 1.0 and (err > 0.5).sum() <= (clip > 0.5).sum(), f"worst {err.max():.2f}"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_kernel_matches_reference_beside_saturated_colour(rt, cfa):
+    """Kernel = reference on a demosaiced raw of the white disc beside teal and yellow, with the
+    raw's own thresholds and display matrix (every branch of the trust rule is taken there)."""
+    from clisp.pipeline import Pipeline
+    sim = clisp.simulate(white_disc_scene(level=1.2), cfa=cfa, gain=8, seed=1)
+    pipe = build_pipeline(sim.raw)
+    k = next(i for i, s in enumerate(pipe.stages) if isinstance(s, Highlights))
+    stage = pipe.stages[k]
+    x = Pipeline(pipe.cfa, pipe.stages[:k]).run(sim.raw.data, tile=0)
+    src = to_device(rt, x)
+    out = from_device(rt, stage.enqueue(rt, src, (0, 0)))
+    ref = stage.reference(x, (0, 0))
+    assert_close(out, ref, f"highlights beside saturated colour ({cfa})")
+    h = stage.halo
+    assert not np.allclose(ref, x[h:-h, h:-h]), "nothing was reconstructed"

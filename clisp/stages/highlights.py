@@ -68,6 +68,8 @@ DEFAULT_MODE = "reconstruct"
 18.3 / 15.6 dB against 10.3 / 10.3 (LibRaw on Bayer: Blend 16.9 dE, ReconstructDefault 17.2 dE)."""
 
 RADIUS = 16
+SUMS = 7
+"""Reference planes that ``reconstruct`` box-sums (:func:`reference_weights`): far (4), rim (3)."""
 BLOCK = 32
 """Side of the blocks the OpenCL path tests for clipped pixels (kernels/highlights.cl): every
 kernel after the flags works only within 1-2 blocks of one, so raws with few clipped pixels pay
@@ -96,6 +98,11 @@ colour references."""
 
 PRIOR = 1.0
 """Weight of the neutral prior in rho^ (in pixels of full weight)."""
+
+RISE_LO = 2.0
+RISE_HI = 4.0
+
+EVIDENCE = 8.0
 
 AGREE_LO = 0.1
 AGREE_HI = 0.25
@@ -155,9 +162,9 @@ class Highlights(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """float32 planes per input pixel: flags, near rows, weights (near; reconstruct: far and
-        rim sums, 7), box rows (reconstruct, 6), output (3)."""
-        return 4.0 * (5 + (13 if self.mode == "reconstruct" else 1))
+        """float32 planes per input pixel: flags, near rows, weights (near; reconstruct: the SUMS
+        reference planes too), box rows (reconstruct: SUMS), output (3)."""
+        return 4.0 * (6 + (2 * SUMS if self.mode == "reconstruct" else 0))
 
     # ------------------------------------------------------------------------------- reference
 
@@ -172,7 +179,7 @@ class Highlights(Stage):
             mean = y.mean(axis=-1, keepdims=True)
             out = np.where(near[..., None], mean, y)
             return np.where(clipped.any(axis=-1, keepdims=True), self.white, out) * n
-        weights = reference_weights(y, t, near, clipped)                    # H x W x 6: far, near rim
+        weights = reference_weights(y, t, near)                             # H x W x 7: far, rim
         sums = box_sum(box_sum(weights, r, axis=1), r, axis=0)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
         return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display) * n
@@ -187,7 +194,8 @@ class Highlights(Stage):
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
                    "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
                    "HL_CLIP": int(self.mode == "clip"), "HL_AGREE_LO": repr(AGREE_LO) + "f",
-                   "HL_AGREE_HI": repr(AGREE_HI) + "f"}
+                   "HL_AGREE_HI": repr(AGREE_HI) + "f", "HL_RISE_LO": repr(RISE_LO) + "f",
+                   "HL_RISE_HI": repr(RISE_HI) + "f", "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS}
         defines["HL_BLOCK"] = BLOCK
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
@@ -207,14 +215,14 @@ class Highlights(Stage):
                      i32(w), i32(w1), *sparse)
         rt.release(flags)
         # planes: near, then (reconstruct) w, w rho0, w rho1 on the window less the rim
-        weights = rt.acquire(7 if r else 1, h1, w1)
+        weights = rt.acquire(1 + SUMS if r else 1, h1, w1)
         launch_exact(rt, rt.kernel("highlights", "hl_weights", defines), w1, h1, src.buffer, rows.buffer,
                      weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t, *sparse)
         rt.release(rows)
         ow, oh = w1 - 2 * r, h1 - 2 * r
         box = weights
         if r:
-            box = rt.acquire(6, h1, ow)
+            box = rt.acquire(SUMS, h1, ow)
             launch_exact(rt, rt.kernel("highlights", "hl_box_rows", defines), ow, h1, weights.buffer, box.buffer,
                          i32(w1), i32(h1), i32(ow), *sparse)
         dst = rt.acquire(3, oh, ow)
@@ -251,18 +259,19 @@ def clipped_channels(y: np.ndarray, t: np.ndarray) -> np.ndarray:
     return hard | (beside & (y >= DIP * t) & hard.any(axis=-1, keepdims=True))
 
 
-def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray, clipped: np.ndarray) -> np.ndarray:
-    """H x W x 6 per pixel of y (H x W x 3, units of n) for thresholds t: (w, w rho_0, w rho_1)
-    of the far references (bright, clearly unclipped, not near a clipped pixel), then the same of
-    the rim references (near a clipped pixel, no channel clipped, bright)."""
+def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """H x W x 7 per pixel of y (H x W x 3, units of n) for thresholds t and the near mask:
+    (w, w rho_0, w rho_1, w mean(y)) of the far references (bright, clearly unclipped, not near a
+    clipped pixel), then (w, w rho_0, w rho_1) of the rim references (near, no channel clipped,
+    bright); w ramps from 0 at LOW to 1 at REF of the threshold, rho_c = y_c / mean(y)."""
     m = np.max(y / t, axis=-1)
     ramp = np.clip((m - LOW) / (REF - LOW), 0.0, 1.0)
     far = np.where((m < REF) & ~near, ramp, 0.0)
-    rim = np.where(near & ~clipped.any(axis=-1), ramp, 0.0)
-    total = y.sum(axis=-1)
+    rim = np.where(near & (m < 1.0), ramp, 0.0)
+    mean = y.mean(axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(total > 0, 3.0 / total, 0.0)
-    return np.stack([far, far * y[..., 0] * inv, far * y[..., 1] * inv,
+        inv = np.where(mean > 0, 1.0 / mean, 0.0)
+    return np.stack([far, far * y[..., 0] * inv, far * y[..., 1] * inv, far * mean,
                      rim, rim * y[..., 0] * inv, rim * y[..., 1] * inv], axis=-1)
 
 
@@ -290,28 +299,45 @@ def agreement(a: np.ndarray, b: np.ndarray, display: np.ndarray) -> np.ndarray:
     return np.clip((AGREE_HI - distance) / (AGREE_HI - AGREE_LO), 0.0, 1.0)
 
 
-def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray,
-                display: np.ndarray = np.eye(3)) -> np.ndarray:
-    """The reconstruction rule on y (H x W x 3, units of n) given the box sums (far, rim)."""
-    far, rim = chroma_of(sums[..., :3]), chroma_of(sums[..., 3:])
-    trust = agreement(far, rim, display)
+def trust_in_far(y: np.ndarray, clipped: np.ndarray, sums: np.ndarray, display: np.ndarray) -> np.ndarray:
+    """H x W in [0, 1]: how far the far references' chroma may be trusted at each pixel. The
+    product of its agreement with the rim's chroma, with the pixel's two free channels (one
+    channel clipped), and of the brightness it implies against the references' own (RISE)."""
+    far, rim = chroma_of(sums[..., :3]), chroma_of(sums[..., 4:7])
     free = ~clipped
     count = clipped.sum(axis=-1)
-    # the pixel's own free channels against the far chroma, scaled to the same sum (two free channels)
-    fy = np.where(free, y, 0.0)
-    fr = np.where(free, far, 0.0)
+    trust = agreement(far, rim, display)
+    fy, fr = np.where(free, y, 0.0), np.where(free, far, 0.0)
     scale = fr.sum(axis=-1, keepdims=True) / np.maximum(fy.sum(axis=-1, keepdims=True), 1e-9)
-    own = agreement(fy * scale, fr, display)
-    trust = np.where(count == 1, trust * own, trust)
+    trust = np.where(count == 1, trust * agreement(fy * scale, fr, display), trust)
+    implied = fy.sum(axis=-1) / np.maximum(fr.sum(axis=-1), 1e-6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rise = np.where(sums[..., 0] > 0, implied * sums[..., 0] / np.maximum(sums[..., 3], 1e-9), 0.0)
+    rise_ok = np.clip((RISE_HI - rise) / (RISE_HI - RISE_LO), 0.0, 1.0)
+    return np.where(count > 0, trust * rise_ok, trust)
+
+
+def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray,
+                display: np.ndarray = np.eye(3)) -> np.ndarray:
+    """The reconstruction rule on y (H x W x 3, units of n), given the clipped channels, the near
+    mask, the box sums of :func:`reference_weights` (H x W x 7) and the display matrix."""
+    far = chroma_of(sums[..., :3])
+    trust = trust_in_far(y, clipped, sums, display)
     rho = 1.0 + trust[..., None] * (far - 1.0)
+    free = ~clipped
+    count = clipped.sum(axis=-1)
     num = np.sum(np.where(free, y, 0.0), axis=-1)
     den = np.maximum(np.sum(np.where(free, rho, 0.0), axis=-1), 1e-6)
     bound = np.where(clipped & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
     estimate = np.maximum(num / den, bound)[..., None] * rho
     out = np.where(clipped, np.maximum(y, estimate), y)
-    out = np.where((near & (count == 0))[..., None], y.mean(axis=-1, keepdims=True) * rho, out)
-    out = np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
-    return out
+    mean = y.mean(axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = np.where(mean > 0, y / mean, 1.0)
+    keep = sums[..., 0] / (sums[..., 0] + EVIDENCE) * (1.0 - agreement(own, far, display))
+    rim = y + (1.0 - keep)[..., None] * (mean * rho - y)
+    out = np.where((near & (count == 0))[..., None], rim, out)
+    return np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
 
 
 # ----------------------------------------------------------------------------------- from a raw
