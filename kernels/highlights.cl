@@ -4,11 +4,13 @@
 
 /* The reconstruct/clip kernels need the host's constants (clisp/stages/highlights.py, as
  * defines): HL_RADIUS, HL_RIM, HL_BLOCK, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
- * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS. Built without them (the clamp alone), the file holds hl_clamp only. */
+ * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R and
+ * the reach levels HL_D_APPLY, HL_D_CELLS, HL_D_NEAR, HL_D_NEAR_ROWS. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
- * weights on the window less the rim (w1 x h1) -> box rows (ow = w1 - 2 R) -> output (ow x oh).
+ * near on the window less the rim (w1 x h1) -> reference sums per cell and over each cell's
+ * neighbourhood (ncw x nch cells of the image's grid) -> output (ow x oh, w1 - 2 R x h1 - 2 R).
  * Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R). */
 
 /* max without fmax: PoCL 3 does not vectorise fmax/fmin (3x slower kernels); inputs are finite. */
@@ -54,11 +56,14 @@ __kernel void hl_flags(__global const float *restrict src, __global float *restr
  * hl_flags works only where a clipped pixel lies near enough for its result to be read.
  * hl_blocks: blocks (nby x nbx, HL_BLOCK px of the src window each) = 1 where the block holds a
  * clipped pixel. hl_reach: plane d - 1 (d = 1..4) = 1 where a block within d blocks does. A
- * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set. Only
- * pixels with a clipped pixel within RIM change (and read the box): so box rows are read within
- * RIM + R of a clipped pixel (d = 1), weights within RIM + 2 R (d = 2), near rows within 2 RIM + 2 R
- * (d = 2), as long as RIM + R <= HL_BLOCK and 2 (RIM + R) <= 2 HL_BLOCK; nothing an active pixel
- * reads was skipped. Skipped apply pixels are copied unchanged. */
+ * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set, d the
+ * host's level for that kernel (highlights.reach_levels): apply works within HL_D_APPLY blocks
+ * (every pixel it changes lies within RIM of a clipped one) and reads the cell box sums of its
+ * cell and near there; the cell box sums read cells up to (HL_CELL_R + 1) HL_CELL - 1 px away
+ * (HL_D_CELLS), the cells read near at their pixels (HL_D_NEAR, a block more: a cell may straddle
+ * a block edge), near reads the near rows RIM rows away (HL_D_NEAR_ROWS); nothing a working pixel
+ * reads was skipped, whatever the pool's buffers held before. Skipped apply pixels are copied
+ * unchanged. */
 __kernel void hl_blocks(__global const float *restrict flags, __global float *restrict blocks,
                         const int width, const int height, const int nbx)
 {
@@ -101,7 +106,7 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (!active(reach, 2, x + HL_RIM, y, nbx, nby))
+    if (!active(reach, HL_D_NEAR_ROWS, x + HL_RIM, y, nbx, nby))
         return;
     float m = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
@@ -109,68 +114,112 @@ __kernel void hl_near_rows(__global const float *restrict src, __global float *r
     dst[y * out_w + x] = m;
 }
 
-/* hl_weights: on the window less the rim (w1 x h1): plane 0 near (a clipped pixel within RIM);
- * reconstruct: planes 1-4 (w, w rho0, w rho1, w mean(y)) of the far references (bright, clearly
- * unclipped, not near), planes 5-7 (w, w rho0, w rho1) of the rim references (near, no channel
- * clipped, bright); rho_c = y_c / mean(y) (highlights.reference_weights). Reads the near rows'
- * 2 RIM + 1 rows. */
-__kernel void hl_weights(__global const float *restrict src, __global const float *restrict rows,
-                         __global float *restrict dst, const int width, const int height,
-                         const int w1, const int h1, __constant const float *restrict n,
-                         __constant const float *restrict t, __global const float *restrict reach,
-                         const int nbx, const int nby)
+/* hl_near: on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
+ * channel (max of the near rows over 2 RIM + 1 rows), else 0. */
+__kernel void hl_near(__global const float *restrict rows, __global float *restrict dst, const int w1,
+                      const int h1, __global const float *restrict reach, const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    if (!active(reach, 2, x + HL_RIM, y + HL_RIM, nbx, nby))
+    if (!active(reach, HL_D_NEAR, x + HL_RIM, y + HL_RIM, nbx, nby))
         return;
     float near = 0.0f;
     for (int k = 0; k <= 2 * HL_RIM; k++)
         near = hl_max(near, rows[(y + k) * w1 + x]);
-    const int o = y * w1 + x, oplane = w1 * h1;
-    dst[o] = near;
-#if HL_RADIUS > 0
-    const int plane = width * height;
-    const int i = (y + HL_RIM) * width + x + HL_RIM;
-    const float y0 = src[i] / n[0], y1 = src[plane + i] / n[1], y2 = src[2 * plane + i] / n[2];
-    const float m = hl_max(hl_max(y0 / t[0], y1 / t[1]), y2 / t[2]);
-    const float ramp = clamp((m - HL_LOW) / (HL_REF - HL_LOW), 0.0f, 1.0f);
-    const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
-    const float rim = (near > 0.0f && m < 1.0f) ? ramp : 0.0f;
-    const float mean = (y0 + y1 + y2) / 3.0f;
-    const float inv = mean > 0.0f ? 1.0f / mean : 0.0f;
-    dst[oplane + o] = far;
-    dst[2 * oplane + o] = far * y0 * inv;
-    dst[3 * oplane + o] = far * y1 * inv;
-    dst[4 * oplane + o] = far * mean;
-    dst[5 * oplane + o] = rim;
-    dst[6 * oplane + o] = rim * y0 * inv;
-    dst[7 * oplane + o] = rim * y1 * inv;
-#endif
+    dst[y * w1 + x] = near;
 }
 
-/* hl_box_rows: sums of 2 HL_RADIUS + 1 consecutive columns of weight planes 1-7 (w1 x h1);
- * dst out_w x h1, 7 planes. */
-__kernel void hl_box_rows(__global const float *restrict src, __global float *restrict dst,
-                          const int w1, const int h1, const int out_w, __global const float *restrict reach,
-                          const int nbx, const int nby)
+#if HL_RADIUS > 0
+/* reference_weights: the HL_SUMS reference planes of highlights.reference_weights at src index i
+ * (near: the pixel's near flag): (w, w rho0, w rho1, w mean(y)) of a far reference (bright,
+ * clearly unclipped, not near), then (w, w rho0, w rho1) of a rim reference (near, no channel
+ * clipped, bright); rho_c = y_c / mean(y). */
+inline void reference_weights(__global const float *src, const int i, const int plane, const float near,
+                              const float *inv_n, const float *inv_nt, float *w)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    if (!active(reach, 1, x + HL_RIM + HL_RADIUS, y + HL_RIM, nbx, nby))
+    const float x0 = src[i], x1 = src[plane + i], x2 = src[2 * plane + i];
+    const float y0 = x0 * inv_n[0], y1 = x1 * inv_n[1], y2 = x2 * inv_n[2];
+    const float m = hl_max(hl_max(x0 * inv_nt[0], x1 * inv_nt[1]), x2 * inv_nt[2]);
+    const float ramp = clamp((m - HL_LOW) * (1.0f / (HL_REF - HL_LOW)), 0.0f, 1.0f);
+    const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
+    const float rim = (near > 0.0f && m < 1.0f) ? ramp : 0.0f;
+    const float total = y0 + y1 + y2;
+    const float inv = total > 0.0f ? 3.0f / total : 0.0f;
+    w[0] = far;
+    w[1] = far * y0 * inv;
+    w[2] = far * y1 * inv;
+    w[3] = far * total * (1.0f / 3.0f);
+    w[4] = rim;
+    w[5] = rim * y0 * inv;
+    w[6] = rim * y1 * inv;
+}
+
+/* cell_active: whether the cell whose window-less-rim pixels span rows y0..y1, columns x0..x1
+ * touches a block with reach[d] set (its corners lie in every block it touches). */
+inline int cell_active(__global const float *reach, const int d, const int x0, const int x1, const int y0,
+                       const int y1, const int nbx, const int nby)
+{
+    return active(reach, d, x0 + HL_RIM, y0 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y0 + HL_RIM, nbx, nby) ||
+           active(reach, d, x0 + HL_RIM, y1 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y1 + HL_RIM, nbx, nby);
+}
+
+/* hl_cells: the reference weights (reference_weights of src and near) summed over each cell of
+ * HL_CELL x HL_CELL px of the window less the rim (w1 x h1); cells lie on the image's grid, the
+ * window's first pixel at (oy, ox) of its cell, so cell (j, i) covers rows j HL_CELL - oy ..
+ * + HL_CELL - 1 (cut at the window's edges). dst: HL_SUMS planes of nch x ncw cells. */
+__kernel void hl_cells(__global const float *restrict src, __global const float *restrict near,
+                       __global float *restrict dst, const int width, const int height, const int w1,
+                       const int h1, const int ncw, const int nch, const int oy, const int ox,
+                       __constant const float *restrict n, __constant const float *restrict t,
+                       __global const float *restrict reach, const int nbx, const int nby)
+{
+    const int i = get_global_id(0);
+    const int j = get_global_id(1);
+    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
+    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
+    if (!cell_active(reach, HL_D_CELLS, x0, x1, y0, y1, nbx, nby))
         return;
-    const int plane = w1 * h1, oplane = out_w * h1;
-    const int i = y * w1 + x;
-    float s[HL_SUMS];
+    const int plane = width * height, cplane = ncw * nch;
+    const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
+    const float inv_nt[3] = {inv_n[0] / t[0], inv_n[1] / t[1], inv_n[2] / t[2]};
+    float s[HL_SUMS], w[HL_SUMS];
     for (int p = 0; p < HL_SUMS; p++)
         s[p] = 0.0f;
-    for (int k = 0; k <= 2 * HL_RADIUS; k++)
-        for (int p = 0; p < HL_SUMS; p++)
-            s[p] += src[(p + 1) * plane + i + k];
-    const int o = y * out_w + x;
+    for (int y = y0; y <= y1; y++)
+        for (int x = x0; x <= x1; x++) {
+            reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
+            for (int p = 0; p < HL_SUMS; p++)
+                s[p] += w[p];
+        }
     for (int p = 0; p < HL_SUMS; p++)
-        dst[p * oplane + o] = s[p];
+        dst[p * cplane + j * ncw + i] = s[p];
 }
+
+/* hl_cell_box: the sums of each cell's (2 HL_CELL_R + 1)^2 neighbourhood of cells (cells outside
+ * the window count 0), HL_SUMS planes of nch x ncw; only cells holding a pixel where hl_apply
+ * works. */
+__kernel void hl_cell_box(__global const float *restrict cells, __global float *restrict dst, const int ncw,
+                          const int nch, const int w1, const int h1, const int oy, const int ox,
+                          __global const float *restrict reach, const int nbx, const int nby)
+{
+    const int i = get_global_id(0);
+    const int j = get_global_id(1);
+    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
+    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
+    if (!cell_active(reach, HL_D_APPLY, x0, x1, y0, y1, nbx, nby))
+        return;
+    const int cplane = ncw * nch;
+    const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
+    const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
+    for (int p = 0; p < HL_SUMS; p++) {
+        float s = 0.0f;
+        for (int jj = j0; jj <= j1; jj++)
+            for (int ii = i0; ii <= i1; ii++)
+                s += cells[p * cplane + jj * ncw + ii];
+        dst[p * cplane + j * ncw + i] = s;
+    }
+}
+#endif /* HL_RADIUS > 0 */
 
 /* chroma_of: rho^ (mean 1) from box sums (w, w rho0, w rho1) and the neutral prior. */
 inline void chroma_of(const float s0, const float s1, const float s2, float *rho)
@@ -193,15 +242,16 @@ inline float agreement(const float *a, const float *b, __constant const float *d
 }
 
 /* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
- * near -> neutral at the mean. Else the reconstruction: box: hl_box_rows' output (out_w x h1,
- * far then rim sums, HL_SUMS planes), summed over 2 R + 1 rows only where the pixel is clipped or near; d the
- * display matrix of agreement(). */
-__kernel void hl_apply(__global const float *restrict src, __global const float *restrict weights,
+ * near -> neutral at the mean. Else the reconstruction: box: hl_cell_box's sums (ncw x nch cells,
+ * far then rim, HL_SUMS planes) at the pixel's cell, read where the pixel is clipped or near; d
+ * the display matrix of agreement(). */
+__kernel void hl_apply(__global const float *restrict src, __global const float *restrict nearby,
                        __global const float *restrict box, __global float *restrict dst,
-                       const int width, const int height, const int w1, const int h1,
-                       const int out_w, const int out_h, __constant const float *restrict n,
-                       __constant const float *restrict t, __constant const float *restrict d,
-                       const float white, __global const float *restrict reach, const int nbx, const int nby)
+                       const int width, const int height, const int w1, const int ncw, const int nch,
+                       const int oy, const int ox, const int out_w, const int out_h,
+                       __constant const float *restrict n, __constant const float *restrict t,
+                       __constant const float *restrict d, const float white,
+                       __global const float *restrict reach, const int nbx, const int nby)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
@@ -222,7 +272,7 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         c2 = c2 || soft_clipped(src + 2 * plane, i, width, 1.0f / n[2], t[2]);
     }
     const int count = c0 + c1 + c2;
-    const float near = weights[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+    const float near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
 #if HL_CLIP
     if (count > 0) {
         v[0] = v[1] = v[2] = white;
@@ -235,15 +285,10 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         const float top = hl_max(hl_max(v[0], v[1]), v[2]);
         v[0] = v[1] = v[2] = top;
     } else if (count > 0 || near > 0.0f) {
-        const int bplane = out_w * h1;
+        const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL;
         float s[HL_SUMS];
         for (int p = 0; p < HL_SUMS; p++)
-            s[p] = 0.0f;
-        for (int k = 0; k <= 2 * HL_RADIUS; k++) {
-            const int j = (y + k) * out_w + x;
-            for (int p = 0; p < HL_SUMS; p++)
-                s[p] += box[p * bplane + j];
-        }
+            s[p] = box[p * ncw * nch + cell];
         float far[3], rim[3];
         chroma_of(s[0], s[1], s[2], far);
         chroma_of(s[4], s[5], s[6], rim);

@@ -19,36 +19,62 @@ pixel (LibRaw's default): a blown white is neutral, a partly clipped pixel keeps
 default clips each channel at that level after white balance; we also make the pixel neutral). A
 neutral ramp through the clip point rises to s and stays there.
 
-``reconstruct`` (halo RADIUS): the colour of a clipped light is taken from its unclipped rim, the
-brightness from the pixel's unclipped channels ("inpaint opposed", locally)::
+``reconstruct`` (halo RIM + RADIUS): the colour of a clipped light is taken from bright unclipped
+pixels around it where the evidence supports it, the brightness from the pixel's unclipped
+channels ("inpaint opposed", locally); where the evidence is weak the pixel becomes a neutral
+(as ``clip``, but never below its records)::
 
-    m(q)    = max_c y_c(q) / t_c                     how close q is to clipping
-    w(q)    = clamp((m - 0.5) / (REF - 0.5), 0, 1)   where m < REF, else 0 (bright, clearly unclipped)
+    m(q)     = max_c y_c(q) / t_c                    how close q is to clipping
+    ramp(q)  = clamp((m - LOW) / (REF - LOW), 0, 1)
+    far:  w = ramp where m < REF and q is not near   rim:  w = ramp where q is near, m < 1
     rho_c(q) = y_c(q) / mean_k y_k(q)                q's chroma (mean 1 over the channels)
-    rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR)    q in the (2 R + 1)^2 box around p
+    rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR),  q in the (2 R + 1)^2 box around p,
+                for the far (F^) and the rim (R^) references
 
-    none clipped at p:   unchanged
-    some clipped (C):    K = max(sum_{u not in C} y_u / sum_{u not in C} rho^_u,
-                                 max_{c in C} y_c / rho^_c)      (rho^_c >= RHO_MIN only)
-                         y_c <- max(y_c, K rho^_c) for c in C   (never below what was recorded)
-    all clipped:         neutral at V = max_c y_c (the least bright neutral consistent with every
-                         channel's record: brightness never falls as the scene brightens)
+    trust(p) = agree(F^, R^)                                the light's edge has the far colour
+             x agree(y_free / sum y_free, F^_free / sum F^_free)      (one channel clipped)
+             x clamp((RISE_HI - rise) / (RISE_HI - RISE_LO), 0, 1)    (some channel clipped)
+      agree(a, b) = clamp((AGREE_HI - |D (a - b)|_inf) / (AGREE_HI - AGREE_LO), 0, 1), D the
+                    display matrix (output RGB), rise = (sum y_free / sum F^_free) / the far
+                    references' mean brightness
+    rho = 1 + trust (F^ - 1)
+
+    none clipped, not near:  unchanged
+    near, none clipped:      y + (1 - keep) (mean(y) rho - y),
+                             keep = sum w_far / (sum w_far + EVIDENCE) (1 - agree(y / mean y, F^))
+    some clipped (C):        K = max(sum_{u not in C} y_u / sum_{u not in C} rho_u,
+                                     max_{c in C} y_c / rho_c)      (rho_c >= RHO_MIN only)
+                             y_c <- max(y_c, K rho_c) for c in C   (never below what was recorded)
+    all clipped:             neutral at V = max_c y_c (the least bright neutral consistent with
+                             every channel's record: brightness never falls as the scene brightens)
+
+Why trust: the far references are every bright unclipped pixel within R, whether or not they
+belong to the light. A white highlight beside saturated feathers (Kodak 23) took their colour,
+and dividing the free channel by their small chroma made K up to 5x the record; the LMS matrix
+(R = 4.73 L - 3.87 M) turns a 10 % L - M error into 0.5 of red. So the far colour is used only
+where the light's own edge (the rim, within RIM of clipped pixels) has that colour, where the
+pixel's two free channels have it, and where the brightness it implies is within a few times
+that of the references; distances are taken after the colour matrix, where they are seen. A rim
+pixel whose colour differs from many far references is a surface of its own (teal beside a white
+disc) and keeps its colour; one with few far references around it (a lamp on a dark wall)
+takes the neutral, which removes the demosaic's false colour there.
 
 A clipped channel's record is a lower bound on the truth, so the brightness K is at least what it
-implies with the colour rho^: without that, a channel that the demosaic put a little low (the
+implies with the colour rho: without that, a channel that the demosaic put a little low (the
 unclipped S beside clipped L on the LMS ramp) dragged the clipped ones below a channel that had
 just passed its threshold, and coloured lights lost the bright side of their colour.
 
 The clipped test on demosaiced values uses MARGIN times the mosaic's threshold (demosaics put a
 clipped channel a few percent low), and DIP times that next to a pixel where the channel is
-clipped (at the other channels' sites they put it lower still); and pixels within RIM of a
-clipped pixel (the demosaic's false colour across a light's edge) keep their brightness but take
-rho^ (``clip``: neutral); so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
+clipped (at the other channels' sites they put it lower still); pixels within RIM of a clipped
+pixel (the demosaic's false colour across a light's edge) keep their brightness but take rho
+(``clip``: neutral), so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
 
 PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies within R:
 a ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour
 of its unclipped channels. Box sums are separable (rows, then columns); tiled output equals
 whole-image output because everything is local within R. Kernels: kernels/highlights.cl.
+Measured figures: docs/RESULTS.md, "Highlights".
 """
 from __future__ import annotations
 
@@ -63,18 +89,24 @@ from .base import Stage, as_f32
 
 MODES = ("clip", "reconstruct", "clamp", "off")
 DEFAULT_MODE = "reconstruct"
-"""``--highlights`` default: tools/bench_highlights.py (5 scenes x gains 1, 8, clipped regions,
-2026-11-25): reconstruct mean CIEDE2000 13.1 / 13.4 (LMS / Bayer) against clip's 23.8 / 23.8, PSNR
-18.3 / 15.6 dB against 10.3 / 10.3 (LibRaw on Bayer: Blend 16.9 dE, ReconstructDefault 17.2 dE)."""
+"""``--highlights`` default (tools/bench_highlights.py; docs/RESULTS.md, "Highlights")."""
 
 RADIUS = 16
+"""Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
+
 SUMS = 7
 """Reference planes that ``reconstruct`` box-sums (:func:`reference_weights`): far (4), rim (3)."""
-BLOCK = 32
+
+CELL = 4
+"""The references are summed over cells of CELL x CELL px on the image's grid, and a pixel's
+reference colour over the (2 k + 1)^2 cells around its cell, k = :func:`cell_radius` (RADIUS 16:
+7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of seven planes cost
+more than the rest of the stage."""
+
+BLOCK = 16
 """Side of the blocks the OpenCL path tests for clipped pixels (kernels/highlights.cl): every
-kernel after the flags works only within 1-2 blocks of one, so raws with few clipped pixels pay
-little more than the flags pass. Must be >= RADIUS + RIM."""
-"""Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
+kernel after the flags works only within the few blocks of one whose results can be read
+(:func:`reach_levels`), so raws with few clipped pixels pay little more than the flags pass."""
 
 REF = 0.9
 """A pixel is a colour reference only while every channel is below this share of its threshold
@@ -99,16 +131,22 @@ colour references."""
 PRIOR = 1.0
 """Weight of the neutral prior in rho^ (in pixels of full weight)."""
 
-RISE_LO = 2.0
-RISE_HI = 4.0
-
-EVIDENCE = 8.0
-
 AGREE_LO = 0.1
 AGREE_HI = 0.25
-"""Trust in the far references' chroma falls from 1 to 0 as its largest channel difference (mean-1
-chroma) from the rim's chroma, or from the pixel's own two free channels, goes from AGREE_LO to
-AGREE_HI; where it is 0 the pixel is reconstructed as a neutral."""
+"""Two chromas (mean 1 over the channels) agree fully while they differ by at most AGREE_LO in
+every output channel (after the display matrix: 0.1 is a 2 % L - M difference on LMS), not at
+all from AGREE_HI (chosen on Kodak's gross errors: docs/RESULTS.md, "Highlights")."""
+
+RISE_LO = 2.0
+RISE_HI = 4.0
+"""Trust in the far chroma falls from 1 to 0 as the brightness it implies at a clipped pixel
+goes from RISE_LO to RISE_HI times the far references' own mean brightness: a light is a few
+times brighter than its rim, a white beside a saturated surface implies far more through the
+surface's small chroma (docs/RESULTS.md, "Highlights")."""
+
+EVIDENCE = 8.0
+"""Far-reference weight (in pixels of full weight) at which a rim pixel whose colour differs from
+theirs keeps half of its own colour."""
 
 RHO_MIN = 0.2
 """A clipped channel bounds the brightness K from below only where its reference chroma rho^_c is
@@ -147,8 +185,8 @@ class Highlights(Stage):
     name = "highlights"
 
     def __post_init__(self) -> None:
-        if self.rim + self.radius > BLOCK:
-            raise ClispError(f"highlights: rim + radius {self.rim + self.radius} exceeds the block of {BLOCK} px")
+        if max(reach_levels(self.rim, self.radius).values()) > 4:
+            raise ClispError(f"highlights: rim {self.rim} + radius {self.radius} reach past 4 blocks of {BLOCK} px")
         if self.mode not in ("clip", "reconstruct"):
             raise ClispError(f"unknown highlight mode {self.mode!r}; expected clip or reconstruct")
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
@@ -162,9 +200,9 @@ class Highlights(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """float32 planes per input pixel: flags, near rows, weights (near; reconstruct: the SUMS
-        reference planes too), box rows (reconstruct: SUMS), output (3)."""
-        return 4.0 * (6 + (2 * SUMS if self.mode == "reconstruct" else 0))
+        """float32 planes per input pixel: flags, near rows, near, output (3); reconstruct: the
+        cell and cell-box sums (SUMS planes each at 1 / CELL^2 of the pixels)."""
+        return 4.0 * (6 + (2 * SUMS / CELL ** 2 if self.mode == "reconstruct" else 0))
 
     # ------------------------------------------------------------------------------- reference
 
@@ -180,7 +218,8 @@ class Highlights(Stage):
             out = np.where(near[..., None], mean, y)
             return np.where(clipped.any(axis=-1, keepdims=True), self.white, out) * n
         weights = reference_weights(y, t, near)                             # H x W x 7: far, rim
-        sums = box_sum(box_sum(weights, r, axis=1), r, axis=0)
+        offset = tuple((o + d) % CELL for o in origin)     # the cell grid in image coordinates
+        sums = cell_box_sums(weights, offset, r)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
         return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display) * n
 
@@ -195,8 +234,10 @@ class Highlights(Stage):
                    "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
                    "HL_CLIP": int(self.mode == "clip"), "HL_AGREE_LO": repr(AGREE_LO) + "f",
                    "HL_AGREE_HI": repr(AGREE_HI) + "f", "HL_RISE_LO": repr(RISE_LO) + "f",
-                   "HL_RISE_HI": repr(RISE_HI) + "f", "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS}
+                   "HL_RISE_HI": repr(RISE_HI) + "f", "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS,
+                   "HL_CELL": CELL, "HL_CELL_R": cell_radius(self.radius)}
         defines["HL_BLOCK"] = BLOCK
+        defines.update({f"HL_D_{k.upper()}": v for k, v in reach_levels(d, r).items()})
         flags = rt.acquire(1, h, w)
         launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
                      i32(w), i32(h), n, t)
@@ -214,26 +255,53 @@ class Highlights(Stage):
         launch_exact(rt, rt.kernel("highlights", "hl_near_rows", defines), w1, h, flags.buffer, rows.buffer,
                      i32(w), i32(w1), *sparse)
         rt.release(flags)
-        # planes: near, then (reconstruct) w, w rho0, w rho1 on the window less the rim
-        weights = rt.acquire(1 + SUMS if r else 1, h1, w1)
-        launch_exact(rt, rt.kernel("highlights", "hl_weights", defines), w1, h1, src.buffer, rows.buffer,
-                     weights.buffer, i32(w), i32(h), i32(w1), i32(h1), n, t, *sparse)
+        near = rt.acquire(1, h1, w1)                    # on the window less the rim
+        launch_exact(rt, rt.kernel("highlights", "hl_near", defines), w1, h1, rows.buffer, near.buffer,
+                     i32(w1), i32(h1), *sparse)
         rt.release(rows)
         ow, oh = w1 - 2 * r, h1 - 2 * r
-        box = weights
+        oy, ox = ((o + d) % CELL for o in origin)       # the window's first pixel in its cell
+        ncw, nch = -(-(w1 + ox) // CELL), -(-(h1 + oy) // CELL)
+        box = near
         if r:
-            box = rt.acquire(SUMS, h1, ow)
-            launch_exact(rt, rt.kernel("highlights", "hl_box_rows", defines), ow, h1, weights.buffer, box.buffer,
-                         i32(w1), i32(h1), i32(ow), *sparse)
+            cells = rt.acquire(SUMS, nch, ncw)
+            launch_exact(rt, rt.kernel("highlights", "hl_cells", defines), ncw, nch, src.buffer, near.buffer,
+                         cells.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ncw), i32(nch), i32(oy), i32(ox),
+                         n, t, *sparse)
+            box = rt.acquire(SUMS, nch, ncw)
+            launch_exact(rt, rt.kernel("highlights", "hl_cell_box", defines), ncw, nch, cells.buffer, box.buffer,
+                         i32(ncw), i32(nch), i32(w1), i32(h1), i32(oy), i32(ox), *sparse)
+            rt.release(cells)
         dst = rt.acquire(3, oh, ow)
-        launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, weights.buffer,
-                     box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ow), i32(oh), n, t,
-                     rt.constant(as_f32(self.display)), np.float32(self.white), *sparse)
+        launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, near.buffer,
+                     box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(ncw), i32(nch), i32(oy), i32(ox),
+                     i32(ow), i32(oh), n, t, rt.constant(as_f32(self.display)), np.float32(self.white), *sparse)
         rt.release(reach)
-        rt.release(weights)
+        rt.release(near)
         if r:
             rt.release(box)
         return dst
+
+
+def reach_levels(rim: int, radius: int) -> dict[str, int]:
+    """Blocks (of BLOCK px) around a clipped pixel's block within which each kernel works. Apply
+    changes pixels within ``rim`` of a clipped one, so it works within ceil(rim / BLOCK) blocks and
+    copies the rest; each kernel that feeds another works wherever that one works, widened by the
+    reach of its reads there: the cells (:func:`cell_box_sums`) up to (k + 1) CELL - 1 px beyond
+    the cells apply reads, near a block more (a cell may straddle a block edge), the near rows
+    ``rim`` rows more. So no working pixel reads a value that was skipped.
+
+    >>> reach_levels(4, 16)
+    {'apply': 1, 'cells': 2, 'near': 3, 'near_rows': 4}
+    >>> reach_levels(4, 0)
+    {'apply': 1, 'cells': 1, 'near': 1, 'near_rows': 2}
+    """
+    def blocks(distance: int) -> int:
+        return -(-distance // BLOCK)
+    apply = max(1, blocks(rim))
+    cells = apply + blocks((cell_radius(radius) + 1) * CELL - 1) if radius else apply
+    near = cells + 1 if radius else apply
+    return {"apply": apply, "cells": cells, "near": near, "near_rows": near + blocks(rim)}
 
 
 def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
@@ -273,6 +341,40 @@ def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndar
         inv = np.where(mean > 0, 1.0 / mean, 0.0)
     return np.stack([far, far * y[..., 0] * inv, far * y[..., 1] * inv, far * mean,
                      rim, rim * y[..., 0] * inv, rim * y[..., 1] * inv], axis=-1)
+
+
+def cell_radius(radius: int) -> int:
+    """Cells on each side of a pixel's cell whose references it reads, so that they all lie within
+    ``radius`` px of it (k CELL + CELL - 1 <= radius).
+
+    >>> cell_radius(16), cell_radius(6)
+    (3, 0)
+    """
+    return max(0, (radius - CELL + 1) // CELL)
+
+
+def cell_box_sums(weights: np.ndarray, offset: tuple[int, int], radius: int) -> np.ndarray:
+    """Box sums of ``weights`` (H x W x C) over cells: the sum over the (2 k + 1)^2 cells of
+    CELL x CELL px around each pixel's cell (k = cell_radius(radius)), for the pixels ``radius`` or
+    more from the edge ((H - 2 radius) x (W - 2 radius) x C). Cells lie on the image's grid of CELL
+    px: ``offset`` (dy, dx) is the window's first pixel modulo CELL, so every tile sums the same
+    cells; the cells a pixel reads lie within ``radius`` px of it, inside the window.
+
+    >>> int(cell_box_sums(np.ones((40, 40, 1)), (0, 0), 16)[0, 0, 0])      # 7 x 7 cells of 16 px
+    784
+    """
+    h, w, c = weights.shape
+    oy, ox = offset
+    ch, cw = -(-(h + oy) // CELL), -(-(w + ox) // CELL)
+    padded = np.zeros((ch * CELL, cw * CELL, c))
+    padded[oy:oy + h, ox:ox + w] = weights
+    cells = padded.reshape(ch, CELL, cw, CELL, c).sum(axis=(1, 3))
+    k = cell_radius(radius)
+    cells = np.pad(cells, ((k, k), (k, k), (0, 0)))
+    boxed = box_sum(box_sum(cells, k, axis=0), k, axis=1)                  # ch x cw x c
+    rows = (np.arange(radius, h - radius) + oy) // CELL
+    cols = (np.arange(radius, w - radius) + ox) // CELL
+    return boxed[rows[:, None], cols[None, :]]
 
 
 def box_sum(a: np.ndarray, r: int, axis: int) -> np.ndarray:
