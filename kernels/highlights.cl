@@ -154,11 +154,18 @@ inline void reference_weights(__global const float *src, const int i, const int 
     w[6] = rim * y1 * inv;
 }
 
-/* cell_active: whether the cell whose window-less-rim pixels span rows y0..y1, columns x0..x1
- * touches a block with reach[d] set (its corners lie in every block it touches). */
-inline int cell_active(__global const float *reach, const int d, const int x0, const int x1, const int y0,
-                       const int y1, const int nbx, const int nby)
+/* cell_active: whether cell (i, j) (rows j HL_CELL - oy .. + HL_CELL - 1 of the window less the
+ * rim, w1 x h1, cut at its edges; columns likewise) touches a block with reach[d] set: its corners
+ * lie in every block it touches. span: the cell's first and last column and row. */
+inline int cell_active(__global const float *reach, const int d, const int i, const int j, const int ox,
+                       const int oy, const int w1, const int h1, const int nbx, const int nby, int *span)
 {
+    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
+    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
+    span[0] = x0;
+    span[1] = x1;
+    span[2] = y0;
+    span[3] = y1;
     return active(reach, d, x0 + HL_RIM, y0 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y0 + HL_RIM, nbx, nby) ||
            active(reach, d, x0 + HL_RIM, y1 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y1 + HL_RIM, nbx, nby);
 }
@@ -175,9 +182,8 @@ __kernel void hl_cells(__global const float *restrict src, __global const float 
 {
     const int i = get_global_id(0);
     const int j = get_global_id(1);
-    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
-    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
-    if (!cell_active(reach, HL_D_CELLS, x0, x1, y0, y1, nbx, nby))
+    int span[4];
+    if (!cell_active(reach, HL_D_CELLS, i, j, ox, oy, w1, h1, nbx, nby, span))
         return;
     const int plane = width * height, cplane = ncw * nch;
     const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
@@ -185,8 +191,8 @@ __kernel void hl_cells(__global const float *restrict src, __global const float 
     float s[HL_SUMS], w[HL_SUMS];
     for (int p = 0; p < HL_SUMS; p++)
         s[p] = 0.0f;
-    for (int y = y0; y <= y1; y++)
-        for (int x = x0; x <= x1; x++) {
+    for (int y = span[2]; y <= span[3]; y++)
+        for (int x = span[0]; x <= span[1]; x++) {
             reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
             for (int p = 0; p < HL_SUMS; p++)
                 s[p] += w[p];
@@ -204,9 +210,8 @@ __kernel void hl_cell_box(__global const float *restrict cells, __global float *
 {
     const int i = get_global_id(0);
     const int j = get_global_id(1);
-    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
-    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
-    if (!cell_active(reach, HL_D_APPLY, x0, x1, y0, y1, nbx, nby))
+    int span[4];
+    if (!cell_active(reach, HL_D_APPLY, i, j, ox, oy, w1, h1, nbx, nby, span))
         return;
     const int cplane = ncw * nch;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);

@@ -5,6 +5,8 @@ import csv
 import sys
 from pathlib import Path
 
+import numpy as np
+
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
 sys.path.insert(0, str(TOOLS))
@@ -151,3 +153,19 @@ def test_docs_figures(tmp_path):
     import docs_figures
     assert docs_figures.main(["--out", str(tmp_path)]) == 0
     assert {p.name for p in tmp_path.glob("*.png")} == {"cfa.png", "spectrum.png", "noise.png"}
+
+
+def test_bench_highlights_own_photos_and_gross_errors():
+    """issue 25's own photos: every one has light past the clip point (truth over 1.0 at gain 1)
+    and saturated colour (a channel under a quarter of another's); gross errors count pixels with a
+    channel more than 0.5 off."""
+    from bench_highlights import gross_errors, own_photos
+    photos = own_photos(96)
+    assert set(photos) == {"glossy spheres", "window and curtain", "sunset", "flowers"}
+    for name, scene in photos.items():
+        assert scene.shape == (96, 96, 3) and scene.max() > 1.0, name
+        assert (scene.min(-1) < 0.25 * scene.max(-1)).any(), name
+    truth = np.zeros((2, 2, 3))
+    out = truth.copy()
+    out[0, 0, 1], out[1, 1, 2] = 0.6, -0.4
+    assert gross_errors(out, truth) == (1, 0.6)

@@ -12,16 +12,28 @@ the simulation's raw): CIEDE2000 and tone-mapped PSNR (dB), both after dividing 
 the scene's peak (so values up to the peak are compared, not clipped at 1). ``chroma`` is the
 largest (max - min)/max of 16 px block means over the clipped region, for the neutral scenes.
 
+``--natural``: issue 25's natural scenes instead: every Kodak image of ``--data`` (sRGB PNGs, so
+the truth stays at or under 1.0 and clipping is shallow, as in most photos) and four photos of our
+own making (:func:`own_photos`: glossy spheres with white specular highlights, a window beside a
+red curtain, a sunset with a clipped orange sun, saturated flowers with white petals past the clip
+point), at gains 1 and 8, LMS and Bayer, seed 1, modes off, clamp, clip, reconstruct (and LibRaw's
+for Bayer). Per mode: gross-error pixels (any channel more than 0.5 linear off the truth), the
+worst error, and mean CIEDE2000 over the clipped region and a 3 px rim around it (output and truth
+divided by the truth's peak, at least 1); per image, whether reconstruct has more gross pixels
+than clip or any pixel over 1.0 off (issue 25's acceptance). ``--csv`` writes every row.
+
 ``--accept``: issue 14's acceptance figures instead, at gain 1, for clip and reconstruct, LMS and
 Bayer: the worst 16 px block chroma of a neutral ramp from 0.2 to 4 (48 x 384 px) and of blown white
 lamps (a hard-edged disc of radius 30 px and the soft-edged lamp above, 128 px), and the largest fall
 of the ramp's column brightness as the scene brightens (the scenes of tests/test_highlights.py).
 
 Usage: python tools/bench_highlights.py [--size 192] [--no-libraw] [--accept]
+       python tools/bench_highlights.py --natural [--data DIR] [--only kodim23] [--csv PATH] [--no-libraw]
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 import tempfile
 from pathlib import Path
@@ -34,6 +46,9 @@ import clisp  # noqa: E402
 from clisp.metrics import ciede2000, psnr  # noqa: E402
 from clisp.pipeline import build_pipeline  # noqa: E402
 from clisp.simulate import inverse_isp_matrix  # noqa: E402
+from clisp.noise_estimate import CLIP_FRACTION  # noqa: E402
+from clisp.stages.highlights import box_max  # noqa: E402
+from toolkit import DEFAULT_DATA  # noqa: E402
 
 PEAK = 4.0
 BLOCK = 16
@@ -57,11 +72,11 @@ def scenes(n: int) -> dict[str, np.ndarray]:
     return out
 
 
-def clipped_region(truth: np.ndarray, cfa: str) -> np.ndarray:
-    """Pixels whose truth, in the simulation's raw channels, passes the clip point."""
+def clipped_region(truth: np.ndarray, cfa: str, level: float = 1.0) -> np.ndarray:
+    """Pixels whose truth, in the simulation's raw channels, reaches ``level`` of the clip point."""
     a, _ = inverse_isp_matrix(cfa)
     raw = truth @ a.T
-    return raw.max(-1) >= 1.0
+    return raw.max(-1) >= level
 
 
 def block_means(image: np.ndarray, b: int = BLOCK) -> np.ndarray:
@@ -125,14 +140,143 @@ def accept() -> int:
     return 0
 
 
+GROSS = 0.5
+"""A pixel is a gross error where some channel is more than this off the truth (linear)."""
+WORST = 1.0
+"""Issue 25's acceptance: no pixel of reconstruct more than this off the truth."""
+RIM = 3
+"""Pixels within this distance (Chebyshev) of the clipped region join it for CIEDE2000."""
+
+
+def own_photos(n: int = 384, seed: int = 7) -> dict[str, np.ndarray]:
+    """Four linear-sRGB scenes of our own making (n x n) where clipped whites or lights meet
+    saturated colour, as in photos; values past 1.0 are past the clip point at gain 1."""
+    rng = np.random.default_rng(seed)
+    yy, xx = (np.mgrid[:n, :n] + 0.5) / n
+    out = {}
+    # glossy spheres: Lambert + Blinn-Phong, white specular highlights up to 3x white
+    img = np.stack([0.25 + 0.2 * yy, 0.22 + 0.15 * yy, 0.18 + 0.1 * yy], -1)
+    light = np.array([-0.4, -0.5, 0.77]) / np.linalg.norm([-0.4, -0.5, 0.77])
+    half = (light + [0, 0, 1]) / np.linalg.norm(light + [0, 0, 1])
+    for cy, cx, r, col in ((0.3, 0.28, 0.17, (0.8, 0.05, 0.04)), (0.3, 0.72, 0.16, (0.02, 0.55, 0.5)),
+                           (0.72, 0.25, 0.15, (0.9, 0.7, 0.02)), (0.7, 0.72, 0.18, (0.05, 0.1, 0.75)),
+                           (0.5, 0.5, 0.09, (0.1, 0.6, 0.08))):
+        dx, dy = (xx - cx) / r, (yy - cy) / r
+        inside = dx ** 2 + dy ** 2 < 1
+        nz = np.sqrt(np.clip(1 - dx ** 2 - dy ** 2, 0, 1))
+        normal = np.stack([dx, dy, nz], -1)
+        diffuse = np.clip(normal @ light, 0, 1)[..., None] * np.array(col) * 1.1 + 0.03
+        spec = 3.0 * np.clip(normal @ half, 0, 1)[..., None] ** 60
+        img = np.where(inside[..., None], diffuse + spec, img)
+    out["glossy spheres"] = img
+    # a bright window (sky, 1.6x white) in a dim wall, a red curtain with folds beside it
+    img = np.full((n, n, 3), 0.12) * np.array([1.0, 0.95, 0.85])
+    window = (np.abs(xx - 0.63) < 0.21) & (np.abs(yy - 0.45) < 0.3)
+    img[window] = np.array([1.3, 1.5, 1.8])[None] * (1 + 0.1 * yy[window])[..., None]
+    folds = 0.55 + 0.45 * np.sin(2 * np.pi * 9 * xx + 2 * yy) ** 2
+    curtain = (xx > 0.2) & (xx < 0.42)
+    img[curtain] = (folds[curtain, None] * np.array([0.85, 0.05, 0.08]))
+    out["window and curtain"] = img
+    # sunset: an orange sky, a clipped sun (coloured light), dark hills
+    img = np.stack([0.9 - 0.5 * yy, 0.45 - 0.3 * yy, 0.2 - 0.1 * yy], -1).clip(0.02)
+    sun = np.clip((0.09 - np.hypot(yy - 0.42, xx - 0.55)) / 0.05, 0, 1)[..., None]
+    img = img * (1 - sun) + sun * np.array([3.0, 1.9, 0.7])
+    hills = yy > 0.62 + 0.08 * np.sin(2 * np.pi * 2.3 * xx)
+    img[hills] = np.array([0.03, 0.04, 0.02])
+    out["sunset"] = img
+    # flowers: saturated discs with white petals just past the clip point, on green leaves
+    img = np.stack([0.05 + 0.05 * rng.random((n, n)), 0.2 + 0.1 * rng.random((n, n)), 0.04 + 0.03 * rng.random((n, n))], -1)
+    colours = np.array([(0.85, 0.05, 0.3), (0.9, 0.75, 0.02), (0.5, 0.05, 0.8), (1.25, 1.22, 1.18), (1.4, 1.38, 1.3)])
+    for _ in range(40):
+        cy, cx, r = rng.random(), rng.random(), 0.02 + 0.07 * rng.random()
+        img[np.hypot(yy - cy, xx - cx) < r] = colours[rng.integers(len(colours))]
+    out["flowers"] = img
+    return out
+
+
+def natural_scenes(data: Path, only: str) -> dict[str, np.ndarray]:
+    """Kodak images of ``data``/kodak (linear sRGB) and :func:`own_photos`, by name."""
+    from clisp.imageio import read_scene
+    scenes_ = {path.stem: read_scene(path) for path in sorted((data / "kodak").glob("kodim*.png"))}
+    scenes_.update(own_photos())
+    return {k: v for k, v in scenes_.items() if not only or only in k}
+
+
+def gross_errors(out: np.ndarray, truth: np.ndarray) -> tuple[int, float]:
+    """(pixels with a channel more than GROSS off the truth, the largest error)."""
+    err = np.abs(out.astype(np.float64) - truth).max(-1)
+    return int((err > GROSS).sum()), float(err.max())
+
+
+def natural(args: argparse.Namespace) -> int:
+    """Issue 25's table: gross errors and CIEDE2000 per mode on natural scenes."""
+    rows, fails = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, scene in natural_scenes(Path(args.data), args.only).items():
+            for cfa in ("lms", "bayer"):
+                for gain in (1, 8):
+                    sim = clisp.simulate(scene, cfa=cfa, gain=gain, seed=1)
+                    mask = clipped_region(sim.truth, cfa, CLIP_FRACTION)
+                    if mask.any():
+                        mask = box_max(box_max(np.pad(mask, RIM).astype(float), RIM, 0), RIM, 1) > 0
+                    methods = {f"clisp {mode}": build_pipeline(sim.raw, highlights=mode).run(sim.raw.data)
+                               for mode in ("off", "clamp", "clip", "reconstruct")}
+                    if cfa == "bayer" and not args.no_libraw:
+                        for mode in ("Clip", "Ignore", "Blend", "ReconstructDefault"):
+                            methods[f"LibRaw {mode}"] = libraw(sim.raw, mode, Path(tmp), mask, sim.truth)
+                    peak = max(float(sim.truth.max()), 1.0)
+                    cells = {}
+                    for method, out in methods.items():
+                        g, w = gross_errors(out, sim.truth)
+                        de = ciede2000(out[mask][None] / peak, sim.truth[mask][None] / peak) if mask.any() else np.nan
+                        rows.append({"scene": name, "cfa": cfa, "gain": gain, "method": method, "gross": g,
+                                     "worst": round(w, 3), "de00": round(float(de), 3), "clipped_px": int(mask.sum())})
+                        cells[method] = (g, w)
+                    rec, clip = cells["clisp reconstruct"], cells["clisp clip"]
+                    above = rec[0] > clip[0] or rec[1] > WORST          # issue 25's test, Kodak only
+                    kodak = name.startswith("kodim")
+                    if above and kodak:
+                        fails.append(f"{name} {cfa} g{gain}")
+                    tag = ("  FAIL" if kodak else "  (above clip or 1.0)") if above else ""
+                    print(f"{name:20s} {cfa:5s} g{gain:<2d} " + "  ".join(
+                        f"{m.split()[-1]} {g}/{w:.2f}" for m, (g, w) in cells.items()) + tag, flush=True)
+    if args.csv:
+        with open(args.csv, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    print("\ntotals: gross-error pixels (sum), worst error (max), CIEDE2000 over clipped + rim (mean)")
+    for group, pick in (("Kodak", lambda r: r["scene"].startswith("kodim")),
+                        ("own photos", lambda r: not r["scene"].startswith("kodim"))):
+        for cfa in ("lms", "bayer"):
+            for gain in (1, 8):
+                sel = [r for r in rows if pick(r) and r["cfa"] == cfa and r["gain"] == gain]
+                for method in dict.fromkeys(r["method"] for r in sel):
+                    m = [r for r in sel if r["method"] == method]
+                    if not m:
+                        continue
+                    de = [r["de00"] for r in m if r["clipped_px"]]
+                    print(f"  {group:10s} {cfa:5s} g{gain:<2d} {method:26s} gross {sum(r['gross'] for r in m):6d}  "
+                          f"worst {max(r['worst'] for r in m):5.2f}  dE00 {np.mean(de) if de else float('nan'):6.2f}")
+    print(f"\nKodak images where reconstruct has more gross pixels than clip, or a pixel over {WORST}: "
+          + (", ".join(fails) if fails else "none"))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=192)
     ap.add_argument("--no-libraw", action="store_true")
     ap.add_argument("--accept", action="store_true", help="issue 14's acceptance figures instead")
+    ap.add_argument("--natural", action="store_true", help="issue 25's natural scenes instead")
+    ap.add_argument("--data", default=str(DEFAULT_DATA), help="folder with kodak/ (--natural)")
+    ap.add_argument("--only", default="", help="scenes whose name contains this (--natural)")
+    ap.add_argument("--csv", default="", help="write every row of --natural here")
     args = ap.parse_args(argv)
     if args.accept:
         return accept()
+    if args.natural:
+        return natural(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, scene in scenes(args.size).items():

@@ -28,8 +28,8 @@ channels ("inpaint opposed", locally); where the evidence is weak the pixel beco
     ramp(q)  = clamp((m - LOW) / (REF - LOW), 0, 1)
     far:  w = ramp where m < REF and q is not near   rim:  w = ramp where q is near, m < 1
     rho_c(q) = y_c(q) / mean_k y_k(q)                q's chroma (mean 1 over the channels)
-    rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR),  q in the (2 R + 1)^2 box around p,
-                for the far (F^) and the rim (R^) references
+    rho^_c(p) = (sum_q w rho_c + PRIOR) / (sum_q w + PRIOR),  q in the 7 x 7 cells of 4 x 4 px
+                (image grid) around p's cell, for the far (F^) and the rim (R^) references
 
     trust(p) = agree(F^, R^)                                the light's edge has the far colour
              x agree(y_free / sum y_free, F^_free / sum F^_free)      (one channel clipped)
@@ -70,10 +70,11 @@ clipped (at the other channels' sites they put it lower still); pixels within RI
 pixel (the demosaic's false colour across a light's edge) keep their brightness but take rho
 (``clip``: neutral), so the stage's halo is RIM (+ RADIUS for ``reconstruct``).
 
-PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies within R:
-a ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour
-of its unclipped channels. Box sums are separable (rows, then columns); tiled output equals
-whole-image output because everything is local within R. Kernels: kernels/highlights.cl.
+PRIOR (one pixel's weight) pulls rho^ to neutral where no bright unclipped pixel lies near: a
+ramp or a white light keeps its neutral, a coloured light larger than the box keeps the colour of
+its unclipped channels. The sums are taken per cell of CELL px on the image's grid, then over the
+cells around each pixel's cell (:func:`cell_box_sums`, all within RADIUS of the pixel), so tiled
+output equals whole-image output. Kernels: kernels/highlights.cl.
 Measured figures: docs/RESULTS.md, "Highlights".
 """
 from __future__ import annotations
@@ -92,7 +93,8 @@ DEFAULT_MODE = "reconstruct"
 """``--highlights`` default (tools/bench_highlights.py; docs/RESULTS.md, "Highlights")."""
 
 RADIUS = 16
-"""Half side of the box whose bright unclipped pixels give a clipped pixel its colour (px)."""
+"""How far (px) the bright unclipped pixels that give a clipped pixel its colour may lie: the
+stage's halo beyond RIM; the cells it reads lie within it (:func:`cell_radius`)."""
 
 SUMS = 7
 """Reference planes that ``reconstruct`` box-sums (:func:`reference_weights`): far (4), rim (3)."""

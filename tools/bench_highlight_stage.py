@@ -1,0 +1,124 @@
+"""Device time of the highlight stage (``reconstruct``) on a 24 MP image, against another tree's.
+
+    python tools/bench_highlight_stage.py [--baseline DIR] [--size 6000x4000] [--lights 60] [--repeat 3]
+
+The input: white-balanced camera values (planar float32, neutral n = (0.95, 0.96, 1), thresholds
+t = (0.9, 1.1, 2.7) in units of n) of uniform noise in 0.1..0.7 of t with ``--lights`` soft
+coloured lights (seeded) past the clip point; the script prints the share of 32 px blocks holding
+a clipped pixel (60 lights at 24 MP: about a fifth, as on the D30 DNG). The stage runs on the
+whole image as one window, after one untimed run; rounds interleave this tree's stage and the
+baseline's (``--baseline DIR``: a clisp source tree; its stages/highlights.py and
+kernels/highlights.cl, built in this process), so drift hits both alike. Per kernel: device
+seconds from OpenCL events (the last round); per stage: median wall seconds and MP/s.
+Choose the device with CLISP_DEVICE (e.g. ``gpu``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from clisp import profile  # noqa: E402
+from clisp.runtime import _ProfiledKernel, _define_flags, get_runtime  # noqa: E402
+from clisp.stages import highlights  # noqa: E402
+from toolkit import parse_size  # noqa: E402
+
+NEUTRAL = np.array([0.95, 0.96, 1.0])
+THRESHOLD = np.array([0.9, 1.1, 2.7])
+DISPLAY = np.array([[4.73, -3.87, 0.14], [-0.9, 1.9, 0.0], [0.0, -0.2, 1.2]])
+"""An LMS-like display matrix (rows: output R, G, B), so the trust rule's distances matter."""
+
+
+class BaselineRuntime:
+    """The runtime, with ``kernel`` building the baseline tree's kernels/<name>.cl instead."""
+
+    def __init__(self, rt, root: Path) -> None:
+        self._rt, self._root, self._kernels = rt, root, {}
+
+    def __getattr__(self, name: str):
+        return getattr(self._rt, name)
+
+    def kernel(self, name: str, kernel_name: str, defines=None, generated: str = ""):
+        flags = tuple(_define_flags(defines or {}))
+        key = (name, flags, kernel_name)
+        if key not in self._kernels:
+            folder = self._root / "kernels"
+            source = "\n".join([(folder / "common.h").read_text(), generated, (folder / f"{name}.cl").read_text()])
+            prg = self._rt.cl.Program(self._rt.context, source).build(options=list(flags) + ["-cl-std=CL1.2"])
+            self._kernels[key] = _ProfiledKernel(self._rt.cl.Kernel(prg, kernel_name), kernel_name)
+        return self._kernels[key]
+
+
+def baseline_module(root: Path):
+    """The baseline tree's stages/highlights.py, imported beside ours."""
+    name = "clisp.stages.highlights_baseline"
+    spec = importlib.util.spec_from_file_location(name, root / "clisp" / "stages" / "highlights.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def scene(h: int, w: int, lights: int) -> np.ndarray:
+    """3 x h x w float32 camera values (see the module docstring)."""
+    rng = np.random.default_rng(0)
+    y = rng.uniform(0.1, 0.7, size=(h, w, 3)).astype(np.float32)
+    for _ in range(lights):
+        cy, cx, r = rng.integers(h), rng.integers(w), int(rng.integers(10, 120))
+        rows, cols = slice(max(cy - 2 * r, 0), min(cy + 2 * r, h)), slice(max(cx - 2 * r, 0), min(cx + 2 * r, w))
+        yy, xx = np.mgrid[rows, cols]
+        d = np.hypot(yy - cy, xx - cx)
+        y[rows, cols] += (np.clip(2.5 - d / r, 0, None)[..., None] * rng.uniform(0.3, 1.5, 3) * THRESHOLD
+                          ).astype(np.float32)
+    return np.ascontiguousarray((y * NEUTRAL).transpose(2, 0, 1).astype(np.float32))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--baseline", type=Path, default=None, help="another clisp source tree")
+    ap.add_argument("--size", type=parse_size, default=(6000, 4000), metavar="WxH")
+    ap.add_argument("--lights", type=int, default=60)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args(argv)
+    rt = get_runtime(profiling=True)
+    print(f"device: {rt.describe()}", flush=True)
+    w, h = args.size
+    x = scene(h, w, args.lights)
+    bh, bw = h // 32 * 32, w // 32 * 32
+    clipped = (x[:, :bh, :bw] / (NEUTRAL * THRESHOLD)[:, None, None] >= 1).any(axis=0)
+    print(f"{w}x{h}, blocks of 32 px with a clipped pixel: {clipped.reshape(bh // 32, 32, bw // 32, 32).any(axis=(1, 3)).mean():.2f}",
+          flush=True)
+    src = rt.upload(x)
+    stages = {"this tree": (rt, highlights.Highlights(NEUTRAL, THRESHOLD, 1.0, "reconstruct", display=DISPLAY))}
+    if args.baseline:
+        old = baseline_module(args.baseline.resolve())
+        stages["baseline"] = (BaselineRuntime(rt, args.baseline.resolve()), old.Highlights(NEUTRAL, THRESHOLD, 1.0, "reconstruct"))
+    walls: dict[str, list[float]] = {k: [] for k in stages}
+    for rnd in range(args.repeat + 1):
+        for name, (runtime, stage) in stages.items():
+            prof = profile.start()
+            rt.queue.finish()
+            t0 = time.perf_counter()
+            out = stage.enqueue(runtime, src, (0, 0))
+            rt.queue.finish()
+            if rnd:
+                walls[name].append(time.perf_counter() - t0)
+            if rnd == args.repeat:
+                kernels = {k[1]: v[0] for k, v in prof.device_seconds().items()}
+                print(f"{name}: device {sum(kernels.values()):.4f} s = " +
+                      ", ".join(f"{k} {v:.4f}" for k, v in kernels.items()), flush=True)
+            rt.release(out)
+    mp = w * h / 1e6
+    for name, ts in walls.items():
+        print(f"{name:9s} median wall {np.median(ts):.4f} s ({mp / np.median(ts):.0f} MP/s)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
