@@ -174,7 +174,10 @@ class Highlights(Stage):
     threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped).
     white      s = min_c t_c, the neutral level of ``clip`` (units of n).
     mode       'clip' or 'reconstruct'.
-    radius     R of 'reconstruct' (its halo).
+    radius     R of 'reconstruct' (its halo beyond the rim).
+    rim        RIM: the false-colour rim around clipped pixels (px).
+    display    (3, 3) camera values in units of n to output RGB (:func:`display_matrix`), where
+               'reconstruct' compares chromas; None: the identity.
     """
 
     neutral: np.ndarray
