@@ -9,7 +9,7 @@ Array API (rawpy users ask for arrays)::
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from .version import __version__  # noqa: E402
 
 # Imported eagerly on purpose: the function ``simulate`` shares its name with the module
 # ``clisp.simulate``; binding it here after the submodule loads keeps ``clisp.simulate`` the

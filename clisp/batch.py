@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-from . import __version__
+from .version import __version__
 from .errors import ClispError
 
 MANIFEST = "manifest.jsonl"

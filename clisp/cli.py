@@ -19,7 +19,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from . import __version__
+from .version import __version__
 from .errors import ClispError, clip, error_line
 from .profile import host_timer
 from .tiling import Tile

@@ -13,7 +13,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from . import __version__
+from .version import __version__
+from .cfa import CFA
 from .rawimage import RawImage
 
 MAKE, MODEL, LENS = "Make", "Model", "Exif:LensModel"
@@ -106,7 +107,6 @@ def output_attributes(raw: RawImage) -> dict[str, Any]:
     if isinstance(exif, dict):
         attrs.update({k: v for k, v in exif.items() if isinstance(v, (str, int, float))})
     else:                                                # one of our simulated raws
-        from .rawfile import camera_make_model
         attrs[MAKE], attrs[MODEL] = camera_make_model(raw)
     if "simulator" in md:
         attrs["ImageDescription"] = "clisp simulated raw: " + json.dumps(md, sort_keys=True, default=str)
@@ -115,3 +115,22 @@ def output_attributes(raw: RawImage) -> dict[str, Any]:
     attrs["Orientation"] = 1
     attrs["Software"] = f"clisp {__version__}"
     return attrs
+
+
+def simulated_model_name(cfa: CFA) -> str:
+    """UniqueCameraModel (and EXIF Model) of our simulated sensors.
+
+    >>> from clisp.cfa import cfa_from_name
+    >>> simulated_model_name(cfa_from_name("lms"))
+    'clisp LMS simulated'
+    """
+    return f"clisp {'LMS' if cfa.kind == 'lms' else 'Bayer'} simulated"
+
+
+def camera_make_model(raw: RawImage) -> tuple[str, str]:
+    """(Make, Model) of ``raw``: a camera raw's from its EXIF (``metadata['exif']``; '' where the
+    file names none), else clisp and our simulated sensor."""
+    exif = raw.metadata.get("exif")
+    if not isinstance(exif, dict):
+        return "clisp", simulated_model_name(raw.cfa)
+    return str(exif.get("Make") or ""), str(exif.get("Model") or "")

@@ -26,6 +26,7 @@ import tifffile
 from .cfa import CFA, cfa_from_name
 from .colorimetry import XYZ_TO_SRGB
 from .errors import ClispError, clip, library_output
+from .exif import camera_make_model, simulated_model_name
 from .rawimage import RawImage, check_levels
 
 ROWS_PER_STRIP = 16
@@ -163,7 +164,7 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
     p = cfa.period
     is_float = raw.data.dtype == np.float32
     black_tile = [float(raw.black_level[c]) for c in cfa.pattern.ravel()]
-    model = _model_name(cfa)
+    model = simulated_model_name(cfa)
     make, camera = camera_make_model(raw)
     tags: list[tuple[int, int, int, Any, bool]] = [
         (code, T_ASCII, 0, text, True) for code, text in ((TAG_MAKE, make), (TAG_MODEL, camera)) if text
@@ -190,20 +191,6 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
     private = PRIVATE_PREFIX + json.dumps(_metadata_json(raw), default=_json_default).encode("utf-8")
     tags.append((TAG_DNG_PRIVATE_DATA, T_BYTE, len(private), private, True))
     return tags
-
-
-def _model_name(cfa: CFA) -> str:
-    """UniqueCameraModel of our simulated sensors."""
-    return f"clisp {'LMS' if cfa.kind == 'lms' else 'Bayer'} simulated"
-
-
-def camera_make_model(raw: RawImage) -> tuple[str, str]:
-    """(Make, Model) of ``raw``: a camera raw's from its EXIF (``metadata['exif']``; '' where the
-    file names none), else clisp and our simulated sensor."""
-    exif = raw.metadata.get("exif")
-    if not isinstance(exif, dict):
-        return "clisp", _model_name(raw.cfa)
-    return str(exif.get("Make") or ""), str(exif.get("Model") or "")
 
 
 def dng_colour_matrix(raw: RawImage) -> np.ndarray:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
+from .version import __version__
 from .cfa import CFA, cfa_from_name
 from .colorimetry import camera_constants
 from .errors import ClispError
