@@ -14,7 +14,7 @@ from clisp.charts import dead_leaves
 from clisp.colorimetry import srgb_encode
 from clisp.errors import ClispError
 from clisp.metrics import psnr
-from clisp.stages import bayer_gbtf, bayer_rcd, bayer_rcd_gbtf
+from research.demosaic import bayer_gbtf, bayer_rcd, bayer_rcd_gbtf
 
 CANDIDATES = {
     "rcd": (bayer_rcd.demosaic_rcd, bayer_rcd.HALO),

@@ -1,4 +1,4 @@
-"""The LMS residual-interpolation study demosaic (clisp.stages.lms_ri): samples kept, flat colour
+"""The LMS residual-interpolation study demosaic (research.demosaic.lms_ri): samples kept, flat colour
 exact, and its one measured strength (saturated colour edges, dead leaves) holds."""
 import numpy as np
 
@@ -7,7 +7,7 @@ from clisp.charts import dead_leaves
 from clisp.colorimetry import P_LMS
 from clisp.metrics import psnr
 from clisp.simulate import simulate
-from clisp.stages.lms_ri import demosaic_lms_ri, guided_reference
+from research.demosaic.lms_ri import demosaic_lms_ri, guided_reference
 
 
 def _mosaic(lms: np.ndarray, cfa) -> np.ndarray:

@@ -65,6 +65,7 @@ from clisp.simulate import simulate
 from clisp.stages.base import Stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: the demosaic studies
 from bench import bayer_pattern, crop4, libraw_level, libraw_options, normalised_mosaic  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -171,7 +172,7 @@ def numpy_function(spec: str) -> Callable[..., np.ndarray]:
 def lms_default_reference(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
     """The default LMS demosaic's NumPy reference (noiseless, neutral of P_LMS) as an --lms-numpy
     candidate: it must score as "LMS clisp default" (the check of the --lms-numpy hook)."""
-    from clisp.stages.lms_ri import guided_reference
+    from research.demosaic.lms_ri import guided_reference
     return guided_reference(mosaic, cfa)
 
 

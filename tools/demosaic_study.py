@@ -7,7 +7,7 @@ demosaicked, clipped to [0, 1] and scored by CPSNR with a 10 px border excluded.
 
 Methods:
 
-    RCD, GBTF, RCD-GBTF, ...     clisp.stages.bayer_rcd / bayer_gbtf / bayer_rcd_gbtf and their
+    RCD, GBTF, RCD-GBTF, ...     research.demosaic.bayer_rcd / bayer_gbtf / bayer_rcd_gbtf and their
                                  variants, NumPy float64, on the mosaic
     RI, MLRI, ARI, ...           clisp.stages.bayer_ri (residual interpolation) and its variants;
                                  ARI takes about 9 s per Kodak image: select with --methods
@@ -51,13 +51,14 @@ from typing import Callable
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: the demosaic studies
 from bayer_demosaic_protocol import CFA, SETS, cpsnr, load_8bit, mosaic  # noqa: E402
 
 from clisp.pipeline import Pipeline  # noqa: E402
 from clisp.stages import bayer_ri  # noqa: E402
-from clisp.stages.bayer_gbtf import SLOW_TAPS, demosaic_gbtf  # noqa: E402
-from clisp.stages.bayer_rcd import demosaic_rcd  # noqa: E402
-from clisp.stages.bayer_rcd_gbtf import demosaic_rcd_gbtf  # noqa: E402
+from research.demosaic.bayer_gbtf import SLOW_TAPS, demosaic_gbtf  # noqa: E402
+from research.demosaic.bayer_rcd import demosaic_rcd  # noqa: E402
+from research.demosaic.bayer_rcd_gbtf import demosaic_rcd_gbtf  # noqa: E402
 from clisp.stages.demosaic_bilinear import DemosaicBilinear  # noqa: E402
 from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE  # noqa: E402
 

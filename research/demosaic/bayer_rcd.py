@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bayer_numpy import at, crop, rggb_masks, rggb_window
+from research.demosaic.bayer_numpy import at, crop, rggb_masks, rggb_window
 
 EPS = 1e-5
 EPS_SQ = 1e-10

@@ -45,9 +45,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import bayer_gbtf as gbtf
-from . import bayer_rcd as rcd
-from .bayer_numpy import at, box_sum, crop, rggb_masks, rggb_window
+from research.demosaic import bayer_gbtf as gbtf
+from research.demosaic import bayer_rcd as rcd
+from research.demosaic.bayer_numpy import at, box_sum, crop, rggb_masks, rggb_window
 
 HALO = 14
 MARGIN = HALO + 2          # even (keeps the CFA phase) and more than the halo

@@ -60,10 +60,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..cfa import CFA
-from .bayer_ri import (LAPLACIAN, MLRI_MERGE, NEIGHBOUR_MEAN, RESIDUAL_LINEAR, _adaptive, _along,
+from clisp.cfa import CFA
+from clisp.stages.bayer_ri import (LAPLACIAN, MLRI_MERGE, NEIGHBOUR_MEAN, RESIDUAL_LINEAR, _adaptive, _along,
                        _criterion, _gbtf_merge, _taps, guided_filter, guided_pair)
-from .lms_common import check_lms_structure
+from clisp.stages.lms_common import check_lms_structure
 
 SCALE = 255.0
 """Working scale (8-bit code values, the units of bayer_ri's constants)."""
@@ -136,7 +136,7 @@ DIAGONAL = {(1, 1): 0.25, (1, -1): 0.25, (-1, 1): 0.25, (-1, -1): 0.25}
 def _criterion_2d(err: list[Array]) -> Array:
     """ARI's criterion c^2 g in 2-D: c = sum |err|, g = sum of |[-1, 0, 1]| gradients of err along x
     and y, both 5 x 5 Gaussian-smoothed (sigma 2)."""
-    from .bayer_ri import GRADIENT, _gauss
+    from clisp.stages.bayer_ri import GRADIENT, _gauss
     c = sum(np.abs(e) for e in err)
     g = sum(np.abs(_taps(e, _along(d, GRADIENT))) for e in err for d in ("h", "v"))
     return _gauss(c, 2, 2.0) ** 2 * _gauss(g, 2, 2.0)
@@ -149,7 +149,7 @@ def _lm_2d(raw: Array, l: Array, m: Array, s: Array, iterations: int, radius: in
     filter over their own sites, box radius ``radius`` growing by 1, residual interpolated over the
     four axial neighbours, at S sites over the four diagonal M), guide = (L + M) / 2 of the result."""
     from scipy.ndimage import correlate
-    from .lms_common import diamond_halfband
+    from clisp.stages.lms_common import diamond_halfband
     filled = np.where(s, _taps(raw, DIAGONAL), raw)
     guide = correlate(filled, diamond_halfband(4), mode="mirror")
     lp, mp = guide, guide
@@ -240,8 +240,8 @@ def demosaic_lms_ri(mosaic: Array, cfa: CFA, iterations: int = 11, kinds: tuple[
 def guided_reference(mosaic: Array, cfa: CFA) -> Array:
     """The default LMS demosaic's NumPy reference (DemosaicLMSGuided, noiseless, neutral of P_LMS) on
     a whole H x W mosaic, mirror-padded by its halo rounded up to the CFA period: H x W x 3."""
-    from ..colorimetry import P_LMS
-    from .demosaic_lms_guided import DemosaicLMSGuided, neutral_of
+    from clisp.colorimetry import P_LMS
+    from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, neutral_of
     stage = DemosaicLMSGuided(cfa, neutral=neutral_of(P_LMS))
     pad = -(-stage.halo // 4) * 4
     out = stage.reference(np.pad(np.asarray(mosaic, np.float64), pad, mode="reflect"), (-pad, -pad))

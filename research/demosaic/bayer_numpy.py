@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from ..errors import ClispError
+from clisp.errors import ClispError
 
 R, G, B = 0, 1, 2
 

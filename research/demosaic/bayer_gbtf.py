@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .bayer_numpy import at, box_sum, crop, rggb_masks, rggb_window
+from research.demosaic.bayer_numpy import at, box_sum, crop, rggb_masks, rggb_window
 
 EPS = 1e-10
 HALO = 11
