@@ -106,6 +106,32 @@ def _define_flags(defines: Mapping[str, Any]) -> list[str]:
     return flags
 
 
+BUILD_OPTIONS = ["-cl-std=CL1.2", "-cl-kernel-arg-info"]
+"""Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
+the parameters' names kept for :meth:`Runtime.launch_named` (no effect on the code)."""
+
+SCALARS = {"int": np.int32, "uint": np.uint32, "float": np.float32, "short": np.int16, "ushort": np.uint16,
+           "char": np.int8, "uchar": np.uint8, "long": np.int64, "ulong": np.uint64}
+"""NumPy types of the OpenCL scalar parameter types a launch converts to."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A kernel parameter: its name, OpenCL type name ('float*', 'int', ...) and whether it is a
+    pointer (global or constant memory)."""
+
+    name: str
+    type_name: str
+    pointer: bool
+
+    def convert(self, value: Any) -> Any:
+        """``value`` as the kernel takes it: a DeviceImage's buffer, a scalar as the declared type."""
+        if self.pointer:
+            return value.buffer if isinstance(value, DeviceImage) else value
+        scalar = SCALARS.get(self.type_name)
+        return value if scalar is None else scalar(value)
+
+
 @dataclass
 class DeviceImage:
     """A planar float32 (or raw-typed) image on the device: ``channels`` planes of ``height x width``."""
@@ -137,6 +163,7 @@ class Runtime:
         self.queue = cl.CommandQueue(self.context, properties=props)
         self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
+        self._signatures: dict[tuple[str, tuple[str, ...], str], tuple[Parameter, ...]] = {}
         self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
@@ -176,7 +203,7 @@ class Runtime:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
-                    prg = self.cl.Program(self.context, source).build(options=list(flags) + ["-cl-std=CL1.2"])
+                    prg = self.cl.Program(self.context, source).build(options=list(flags) + BUILD_OPTIONS)
             except self.cl.RuntimeError as exc:
                 raise ClispError(f"OpenCL build of {path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
             self._programs[key] = prg
@@ -203,6 +230,46 @@ class Runtime:
                 kernel = _ProfiledKernel(kernel, kernel_name)
             self._kernels[key] = kernel
         return self._kernels[key]
+
+    def signature(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
+                  generated: str = "") -> tuple["Parameter", ...]:
+        """The parameters of ``kernel_name`` in ``kernels/<name>.cl`` as the compiler reads them
+        (macros expanded): name, type and whether it is a pointer; cached per build."""
+        flags = tuple(_define_flags(defines or {}))
+        key = (name, flags + (generated,), kernel_name)
+        if key not in self._signatures:
+            kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+            info, qualifier = self.cl.kernel_arg_info, self.cl.kernel_arg_address_qualifier
+            self._signatures[key] = tuple(
+                Parameter(kernel.get_arg_info(i, info.NAME), kernel.get_arg_info(i, info.TYPE_NAME),
+                          kernel.get_arg_info(i, info.ADDRESS_QUALIFIER) != qualifier.PRIVATE)
+                for i in range(kernel.get_info(self.cl.kernel_info.NUM_ARGS)))
+        return self._signatures[key]
+
+    def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
+                     defines: Mapping[str, Any] | None = None, generated: str = "",
+                     group: tuple[int, int] | None = None, x0: int = 0, exact: bool = True) -> None:
+        """Enqueue ``kernel_name`` of ``kernels/<name>.cl`` over exactly width x height outputs
+        (:func:`launch_exact`; ``exact`` False: rounded up to LOCAL_SIZE, :meth:`launch`, for kernels
+        that check their bounds) with its arguments by name: ``args`` maps every parameter's name to
+        its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
+        Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
+        name is a ClispError naming them.
+
+        >>> rt.launch_named("highlights", "hl_near", w1, h1, dict(rows=rows, dst=near, w1=w1, h1=h1,
+        ...                 reach=reach, nbx=nbx, nby=nby), defines)          # doctest: +SKIP
+        """
+        params = self.signature(name, kernel_name, defines, generated)
+        names = [p.name for p in params]
+        missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
+        if missing or unknown:
+            raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
+        values = [p.convert(args[p.name]) for p in params]
+        kernel = self.kernel(name, kernel_name, defines, generated)
+        if exact:
+            launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
+        else:
+            self.launch(kernel, width, height, *values)
 
     # -- buffers --------------------------------------------------------------------------
     def acquire(self, channels: int, height: int, width: int, dtype: Any = np.float32) -> DeviceImage:

@@ -174,3 +174,20 @@ def test_upload_infers_channels_of_planar_array(rt):
     image = rt.upload(planar)
     assert image.channels == 3
     np.testing.assert_array_equal(rt.download(image), planar)
+
+
+def test_launch_named_orders_checks_and_converts_arguments(rt):
+    """A launch by name: arguments in any order, scalars converted to the declared types, a
+    DeviceImage passed as its buffer; the result equals the positional launch (interleave). A
+    missing or unknown name is refused, naming it, before anything runs."""
+    planar = np.arange(3 * 5 * 7, dtype=np.float32).reshape(3, 5, 7)
+    src = rt.upload(planar)
+    dst = rt.acquire(3, 5, 7)
+    rt.launch_named("layout", "interleave", 7, 5, dict(height=5, width=7.0, dst=dst, src=src), {"NCH": 3},
+                    exact=False)
+    dst.interleaved = True
+    np.testing.assert_array_equal(rt.download(dst), rt.download(rt.interleave(src)))
+    assert [(p.name, p.type_name, p.pointer) for p in rt.signature("layout", "interleave", {"NCH": 3})] == [
+        ("src", "float*", True), ("dst", "float*", True), ("width", "int", False), ("height", "int", False)]
+    with pytest.raises(ClispError, match=r"missing arguments \['height'\], unknown \['hieght'\]"):
+        rt.launch_named("layout", "interleave", 7, 5, dict(src=src, dst=dst, width=7, hieght=5), {"NCH": 3})

@@ -732,11 +732,11 @@ class ChromaDenoise(Stage):
             c, start = up, 2 * m[j]
         (cy, cx), (oh, ow) = plan.crop, plan.out
         dst = rt.acquire(3, oh, ow)
-        merge, gx = vec_kernel("chroma_merge", ow, {"INTERLEAVED": int(self.interleaved)})
-        rt.launch(merge, gx, oh, levels[0].buffer, c.buffer,
-                  dst.buffer, np.int32(nx), np.int32(m[0] + cy), np.int32(m[0] + cx), np.int32(c.width),
-                  np.int32(c.height), np.int32(cy), np.int32(cx), np.int32(ow), np.int32(oh),
-                  rt.constant(as_f32(sp.merge_matrix)))
+        v = vec if ow >= vec else 1
+        rt.launch_named("denoise", "chroma_merge", -(-ow // v), oh, dict(
+            level=levels[0], chroma=c, dst=dst, y_w=nx, y_shift_y=m[0] + cy, y_shift_x=m[0] + cx, c_w=c.width,
+            c_h=c.height, c_shift_y=cy, c_shift_x=cx, width=ow, height=oh, m=rt.constant(as_f32(sp.merge_matrix))),
+            {**defines, "INTERLEAVED": int(self.interleaved), "VEC": v}, exact=False)
         rt.release(c)
         for lvl in levels:
             rt.release(lvl)

@@ -264,9 +264,9 @@ class DemosaicFlat(Stage):
         oh, ow = src.height - 2 * hb, src.width - 2 * hb
         dst = rt.acquire(n, oh, ow)
         a, b = self.residual_tables()
-        launch_exact(rt, rt.kernel("flat", "flat_output", defines), ow, oh, src.buffer, box.buffer,
-                     dst.buffer, i32(src.width), i32(bw), i32(bh), i32(ow), i32(oh), i32(hb), i32(ay),
-                     i32(ax), i32(origin[0]), i32(origin[1]), rt.constant(as_f32(a)), rt.constant(as_f32(b)),
-                     rt.constant(as_f32(self.centroids)))
+        rt.launch_named("flat", "flat_output", ow, oh, dict(
+            src=src, box=box, dst=dst, width=src.width, bw=bw, bh=bh, ow=ow, oh=oh, halo=hb, ay=ay, ax=ax,
+            oy=origin[0], ox=origin[1], a=rt.constant(as_f32(a)), b=rt.constant(as_f32(b)),
+            centroid=rt.constant(as_f32(self.centroids))), defines)
         rt.release(box)
         return dst

@@ -381,6 +381,10 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         kernel = rt.kernel("demosaic_lms", kernel_name, self.defines(), self.generated_source())
         launch_exact(rt, kernel, width, height, *args)
 
+    def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object]) -> None:
+        """Enqueue ``kernel_name`` with its arguments by name (``Runtime.launch_named``)."""
+        rt.launch_named("demosaic_lms", kernel_name, width, height, args, self.defines(), self.generated_source())
+
     def _noise_args(self, channel: int) -> tuple[np.float32, np.float32]:
         """(shot, floor) of ``channel`` as kernel arguments."""
         n = self.pixel_noise
@@ -398,9 +402,11 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         prm = self.params
         h, w = src.height - 2 * A_RADIUS, src.width - 2 * A_RADIUS
         dst = rt.acquire(1, h, w)
-        self._launch(rt, "m_at_s", w, h, src.buffer, dst.buffer, i32(src.width), i32(w), i32(h),
-                     i32(origin[0]), i32(origin[1]), rt.constant(self.cfa.pattern), f32(prm.eps0),
-                     f32(prm.eps_sigma), f32(prm.s_detail), *self._noise_args(self.ch_m))
+        shot, floor = self._noise_args(self.ch_m)
+        self._launch_named(rt, "m_at_s", w, h, dict(
+            p=src, m=dst, in_w=src.width, out_w=w, out_h=h, oy=origin[0], ox=origin[1],
+            pattern=rt.constant(self.cfa.pattern), eps0=prm.eps0, eps_sigma=prm.eps_sigma, s_detail=prm.s_detail,
+            shot_m=shot, floor_m=floor))
         return dst
 
     def enqueue_luma_lowpass(self, rt: Runtime, m: DeviceImage) -> DeviceImage:
@@ -418,10 +424,9 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         """Step B chroma, rows: output (y, x) is the row low-pass centred on lum (y + at[0], x + at[1]);
         lum (0, 0) is image pixel ``lum_origin``; m is lum's window grown by LUM_RADIUS."""
         dst = rt.acquire(1, out_h, out_w)
-        self._launch(rt, "chroma_demodulate_rows", out_w, out_h, m.buffer, lum.buffer, dst.buffer,
-                     i32(m.width), i32(lum.width), i32(out_w), i32(out_h), i32(at[0]), i32(at[1]),
-                     i32(lum_origin[0]), i32(lum_origin[1]), rt.constant(self.cfa.pattern),
-                     rt.constant(as_f32(self.g_c)))
+        self._launch_named(rt, "chroma_demodulate_rows", out_w, out_h, dict(
+            m=m, lum=lum, rows=dst, m_w=m.width, lum_w=lum.width, out_w=out_w, out_h=out_h, at_y=at[0], at_x=at[1],
+            oy=lum_origin[0], ox=lum_origin[1], pattern=rt.constant(self.cfa.pattern), g=rt.constant(as_f32(self.g_c))))
         return dst
 
     def enqueue_lm_combine(self, rt: Runtime, lum: DeviceImage, rows: DeviceImage, dst: DeviceImage,
@@ -449,11 +454,12 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
         gain = float(np.sum(self.h_lum ** 2))                 # lum noise variance / pixel variance
         lum_shot = gain * 0.5 * (noise.shot[self.ch_l] + noise.shot[self.ch_m])
         lum_floor = gain * 0.5 * (noise.floor[self.ch_l] + noise.floor[self.ch_m])
-        self._launch(rt, "s_joint_bilateral", dst.width, dst.height, lum.buffer, src.buffer, dst.buffer,
-                     i32(lum.width), i32(src.width), i32(dst.width), i32(dst.height), i32(at[0]), i32(at[1]),
-                     i32(src_at[0]), i32(src_at[1]), i32(lum_origin[0] + at[0]), i32(lum_origin[1] + at[1]),
-                     *self._sites(rt), f32(1.0 / (2 * prm.bl_sigma_s ** 2)), f32(prm.bl_sigma_r),
-                     f32(prm.bl_sigma_r_min), f32(prm.bl_ratio_floor), f32(lum_shot), f32(lum_floor))
+        site, site_w = self._sites(rt)
+        self._launch_named(rt, "s_joint_bilateral", dst.width, dst.height, dict(
+            lum=lum, p=src, dst=dst, lum_w=lum.width, p_w=src.width, out_w=dst.width, out_h=dst.height, at_y=at[0],
+            at_x=at[1], p_y=src_at[0], p_x=src_at[1], oy=lum_origin[0] + at[0], ox=lum_origin[1] + at[1], site=site,
+            site_w=site_w, inv_2ss=f32(1.0 / (2 * prm.bl_sigma_s ** 2)), sr_k=prm.bl_sigma_r,
+            sr_min=prm.bl_sigma_r_min, ratio_floor=prm.bl_ratio_floor, lum_shot=lum_shot, lum_floor=lum_floor))
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """Steps A, B, C on the device. Each intermediate covers only what the output needs:

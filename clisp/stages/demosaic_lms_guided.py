@@ -622,6 +622,12 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(directional), self.generated_source())
         launch_exact(rt, kernel, width, height, *args)
 
+    def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object],
+                      directional: bool = False) -> None:
+        """Enqueue ``kernel_name`` with its arguments by name (``Runtime.launch_named``)."""
+        rt.launch_named("demosaic_lms_guided", kernel_name, width, height, args, self.defines(directional),
+                        self.generated_source())
+
     def enqueue_l_guide(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """I0 on p's window shrunk by D_RADIUS."""
         h, w = p.height - 2 * D_RADIUS, p.width - 2 * D_RADIUS
@@ -648,14 +654,15 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         else:
             y, c, ylp, o_y, o_l = directional
         self._launch(rt, "m_keep", w, h, p.buffer, dst.buffer, i32(p.width), i32(o_fit + COMBINE_RADIUS), i32(w))
-        self._launch(rt, "m_at_s_combine", (w + 3) // 4, (h + 1) // 2, p.buffer, fits[0].buffer, fits[1].buffer,
-                     y.buffer, c.buffer,
-                     ylp.buffer, dst.buffer, i32(fits[0].width), i32(p.width), i32(o_fit), i32(y.width),
-                     i32(o_fit - o_y), i32(ylp.width), i32(o_fit - o_l), i32(w),
-                     *self._origin((origin[0] + o_fit, origin[1] + o_fit)), f32(noise.shot[self.ch_m]),
-                     f32(noise.floor[self.ch_m]), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]),
-                     f32(prm.dir_kappa), f32(prm.dir_eps), f32(prm.blend_k), *(f32(v) for v in self._lum_noise()),
-                     f32(prm.alias_m), f32(self.m_from_s), i32(h), directional=directional is not None)
+        oy, ox = self._origin((origin[0] + o_fit, origin[1] + o_fit))
+        lum_shot, lum_floor = self._lum_noise()
+        self._launch_named(rt, "m_at_s_combine", (w + 3) // 4, (h + 1) // 2, dict(
+            p=p, mfit=fits[0], sfit=fits[1], yg=y, cg=c, ylpg=ylp, dst=dst, in_w=fits[0].width, p_w=p.width,
+            p_off=o_fit, y_w=y.width, y_off=o_fit - o_y, l_w=ylp.width, l_off=o_fit - o_l, out_w=w, oy=oy, ox=ox,
+            shot_m=noise.shot[self.ch_m], floor_m=noise.floor[self.ch_m], shot_s=noise.shot[self.ch_s],
+            floor_s=noise.floor[self.ch_s], kappa=prm.dir_kappa, dir_eps=prm.dir_eps, blend_k=prm.blend_k,
+            lum_shot=lum_shot, lum_floor=lum_floor, alias_m=prm.alias_m, m_from_s=self.m_from_s, out_h=h),
+            directional=directional is not None)
         for fit in fits:
             rt.release(fit)
         return dst
@@ -711,10 +718,10 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         oy_g, ox_g = self._origin((origin[0] + o_g, origin[1] + o_g))
         self._launch(rt, "s_residual", g.width, g.height, src.buffer, g.buffer, res.buffer, i32(g.width),
                      i32(src.width), i32(o_g), oy_g, ox_g)
-        self._launch(rt, "s_output", out_w, out_h, res.buffer, g.buffer, lm.buffer, lms.buffer,
-                     rt.constant(s_output_lattice(g.width, int(ox_g))), i32(g.width), i32(lm.width),
-                     i32(lm.height), i32(lm_off), i32(out_w), i32(out_h), oy_g,
-                     rt.constant(as_f32(_weights(TENT))), f32(noise.shot[self.ch_s]), f32(noise.floor[self.ch_s]))
+        self._launch_named(rt, "s_output", out_w, out_h, dict(
+            rs=res, g=g, lm=lm, dst=lms, lat=rt.constant(s_output_lattice(g.width, int(ox_g))), in_w=g.width,
+            lm_w=lm.width, lm_h=lm.height, lm_off=lm_off, out_w=out_w, out_h=out_h, oy=oy_g,
+            tent=rt.constant(as_f32(_weights(TENT))), shot_s=noise.shot[self.ch_s], floor_s=noise.floor[self.ch_s]))
         rt.release(res)
         return lms
 
@@ -745,18 +752,20 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         o_c, o_ylp = o_m + k_chroma, o_m + D_RADIUS
         h, w = c.height - 2 * COMBINE_RADIUS, c.width - 2 * COMBINE_RADIUS
         energy = rt.acquire(4, c.height, c.width)
-        self._launch(rt, "lm_energy", c.width, c.height, m.buffer, c.buffer, ylp.buffer, energy.buffer,
-                     i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(c.width), i32(c.height),
-                     *self._origin(at(o_c)), f32(self.chroma_neutral),
-                     rt.constant(as_f32(HALF_NYQUIST_TAPS)))
+        oy_c, ox_c = self._origin(at(o_c))
+        self._launch_named(rt, "lm_energy", c.width, c.height, dict(
+            m=m, c=c, ylp=ylp, dst=energy, m_w=m.width, m_off=o_c - o_m, l_w=ylp.width, l_off=o_c - o_ylp,
+            out_w=c.width, out_h=c.height, oy=oy_c, ox=ox_c, chroma_neutral=self.chroma_neutral,
+            bp_w=rt.constant(as_f32(HALF_NYQUIST_TAPS))))
         rows = enqueue_box_rows(rt, energy, COMBINE_RADIUS)
         rt.release(energy)
         lm = rt.acquire(3, h, w)
         lum_shot, lum_floor = self._lum_noise()
-        self._launch(rt, "lm_output", w, h, m.buffer, c.buffer, ylp.buffer, rows.buffer, lm.buffer, i32(c.width),
-                     i32(m.width), i32(o_c - o_m), i32(ylp.width), i32(o_c - o_ylp), i32(rows.width),
-                     i32(c.height), i32(w), i32(h), *self._origin(at(o_c)), f32(prm.blend_k), f32(lum_shot),
-                     f32(lum_floor), f32(self.chroma_neutral), f32(prm.alias_c), f32(prm.alias_h))
+        self._launch_named(rt, "lm_output", w, h, dict(
+            m=m, c=c, ylp=ylp, rows=rows, dst=lm, in_w=c.width, m_w=m.width, m_off=o_c - o_m, l_w=ylp.width,
+            l_off=o_c - o_ylp, rows_w=rows.width, rows_h=c.height, out_w=w, out_h=h, oy=oy_c, ox=ox_c,
+            blend_k=prm.blend_k, lum_shot=lum_shot, lum_floor=lum_floor, chroma_neutral=self.chroma_neutral,
+            alias_c=prm.alias_c, alias_h=prm.alias_h))
         for image in (m, c, ylp, rows):
             rt.release(image)
         o_lm = o_c + COMBINE_RADIUS
@@ -774,10 +783,10 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         rt.release(tone)
         fin_h, fin_w = out_h - 2 * S_ALIAS_RADIUS, out_w - 2 * S_ALIAS_RADIUS
         dst = rt.acquire(3, fin_h, fin_w)
-        self._launch(rt, "s_alias", fin_w, fin_h, lms.buffer, lm.buffer, rows.buffer, dst.buffer, i32(out_w),
-                     i32(out_h), i32(lm.width), i32(lm.height), i32(2 * rs + RI_RADIUS), i32(rows.width),
-                     i32(out_h - 4), i32(fin_w), i32(fin_h), f32(self.s_from_m), f32(prm.alias_s),
-                     f32(prm.alias_st))
+        self._launch_named(rt, "s_alias", fin_w, fin_h, dict(
+            lms=lms, lm=lm, rows=rows, dst=dst, in_w=out_w, in_h=out_h, lm_w=lm.width, lm_h=lm.height,
+            lm_off=2 * rs + RI_RADIUS, rows_w=rows.width, rows_h=out_h - 4, out_w=fin_w, out_h=fin_h,
+            s_from_m=self.s_from_m, alias_s=prm.alias_s, alias_st=prm.alias_st))
         rt.release(lms)
         rt.release(rows)
         rt.release(lm)

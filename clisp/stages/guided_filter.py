@@ -222,10 +222,10 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     defines = {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
                "GF_STRIP": strip}
     n2 = noises[-1]
-    launch_exact(rt, rt.kernel("guided_filter", "gf_ab_strip", defines), ab_w, -(-ab_h // strip), guide.buffer,
-                 v.buffer, ab.buffer, chi, i32(w), _plane_base(guide, g_plane), i32(guide.width), i32(g_off),
-                 i32(v.width), i32(v_off), i32(ab_w), i32(ab_h), i32(origin[0] + shift[0]), i32(ox), f32(eps0),
-                 f32(noises[0][0]), f32(noises[0][1]), f32(n2[0]), f32(n2[1]))
+    rt.launch_named("guided_filter", "gf_ab_strip", ab_w, -(-ab_h // strip), dict(
+        guide=guide, v=v, ab=ab, chi_rows=chi, chi_w=w, g_base=_plane_base(guide, g_plane), g_w=guide.width,
+        g_off=g_off, v_w=v.width, v_off=v_off, out_w=ab_w, out_h=ab_h, oy=origin[0] + shift[0], ox=ox, eps0=eps0,
+        shot=noises[0][0], floor_=noises[0][1], shot2=n2[0], floor2=n2[1]), defines)
     q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
     dsts = []
     for out in outs:
@@ -238,8 +238,9 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     defines = {**LATTICE, "GF_R": int(r), "GF_MASK": MASK_PAIR if fits == 2 else 0, "GF_LEVEL_GUIDE": 0,
                "GF_STRIP": strip}
     (d1, p1), (d2, p2) = dsts[0], dsts[-1]
-    launch_exact(rt, rt.kernel("guided_filter", "gf_apply_strip", defines), q_w, -(-q_h // strip), ab.buffer,
-                 guide.buffer, d1.buffer, d2.buffer, i32(ab_w), i32(ab_h), _plane_base(guide, g_plane),
-                 i32(guide.width), i32(g_off), i32(q_w), i32(q_h), _plane_base(d1, p1), _plane_base(d2, p2))
+    rt.launch_named("guided_filter", "gf_apply_strip", q_w, -(-q_h // strip), dict(
+        ab=ab, guide=guide, dst=d1, dst2=d2, ab_w=ab_w, ab_h=ab_h, g_base=_plane_base(guide, g_plane),
+        g_w=guide.width, g_off=g_off, out_w=q_w, out_h=q_h, d_base=_plane_base(d1, p1), d_base2=_plane_base(d2, p2)),
+        defines)
     rt.release(ab)
     return [d for d, _ in dsts]

@@ -85,7 +85,7 @@ import numpy as np
 
 from ..errors import ClispError
 from ..noise_estimate import CLIP_FRACTION
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 
 MODES = ("clip", "reconstruct", "clamp", "off")
@@ -231,7 +231,6 @@ class Highlights(Stage):
     # ------------------------------------------------------------------------------- OpenCL
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
-        i32 = np.int32
         n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
         w, h, d = src.width, src.height, self.rim
         r = self.radius if self.mode == "reconstruct" else 0
@@ -243,44 +242,41 @@ class Highlights(Stage):
                    "HL_CELL": CELL, "HL_CELL_R": cell_radius(self.radius)}
         defines["HL_BLOCK"] = BLOCK
         defines.update({f"HL_D_{k.upper()}": v for k, v in reach_levels(d, r).items()})
+        def launch(kernel: str, gx: int, gy: int, /, **args: object) -> None:
+            rt.launch_named("highlights", kernel, gx, gy, args, defines)
+
         flags = rt.acquire(1, h, w)
-        launch_exact(rt, rt.kernel("highlights", "hl_flags", defines), w, h, src.buffer, flags.buffer,
-                     i32(w), i32(h), n, t)
+        launch("hl_flags", w, h, src=src, dst=flags, width=w, height=h, n=n, t=t)
         nbx, nby = -(-w // BLOCK), -(-h // BLOCK)
         blocks = rt.acquire(1, nby, nbx)
-        launch_exact(rt, rt.kernel("highlights", "hl_blocks", defines), nbx, nby, flags.buffer, blocks.buffer,
-                     i32(w), i32(h), i32(nbx))
+        launch("hl_blocks", nbx, nby, flags=flags, blocks=blocks, width=w, height=h, nbx=nbx)
         reach = rt.acquire(4, nby, nbx)
-        launch_exact(rt, rt.kernel("highlights", "hl_reach", defines), nbx, nby, blocks.buffer, reach.buffer,
-                     i32(nbx), i32(nby))
+        launch("hl_reach", nbx, nby, blocks=blocks, reach=reach, nbx=nbx, nby=nby)
         rt.release(blocks)
-        sparse = (reach.buffer, i32(nbx), i32(nby))
+        sparse = dict(reach=reach, nbx=nbx, nby=nby)
         w1, h1 = w - 2 * d, h - 2 * d
         rows = rt.acquire(1, h, w1)
-        launch_exact(rt, rt.kernel("highlights", "hl_near_rows", defines), w1, h, flags.buffer, rows.buffer,
-                     i32(w), i32(w1), *sparse)
+        launch("hl_near_rows", w1, h, src=flags, dst=rows, width=w, out_w=w1, **sparse)
         rt.release(flags)
         near = rt.acquire(1, h1, w1)                    # on the window less the rim
-        launch_exact(rt, rt.kernel("highlights", "hl_near", defines), w1, h1, rows.buffer, near.buffer,
-                     i32(w1), i32(h1), *sparse)
+        launch("hl_near", w1, h1, rows=rows, dst=near, w1=w1, h1=h1, **sparse)
         rt.release(rows)
         ow, oh = w1 - 2 * r, h1 - 2 * r
         oy, ox = ((o + d) % CELL for o in origin)       # the window's first pixel in its cell
         ncw, nch = -(-(w1 + ox) // CELL), -(-(h1 + oy) // CELL)
+        cell_grid = dict(w1=w1, h1=h1, ncw=ncw, nch=nch, oy=oy, ox=ox)
         box = near
         if r:
             cells = rt.acquire(SUMS, nch, ncw)
-            launch_exact(rt, rt.kernel("highlights", "hl_cells", defines), ncw, nch, src.buffer, near.buffer,
-                         cells.buffer, i32(w), i32(h), i32(w1), i32(h1), i32(ncw), i32(nch), i32(oy), i32(ox),
-                         n, t, *sparse)
+            launch("hl_cells", ncw, nch, src=src, near=near, dst=cells, width=w, height=h, n=n, t=t, **cell_grid,
+                   **sparse)
             box = rt.acquire(SUMS, nch, ncw)
-            launch_exact(rt, rt.kernel("highlights", "hl_cell_box", defines), ncw, nch, cells.buffer, box.buffer,
-                         i32(ncw), i32(nch), i32(w1), i32(h1), i32(oy), i32(ox), *sparse)
+            launch("hl_cell_box", ncw, nch, cells=cells, dst=box, **cell_grid, **sparse)
             rt.release(cells)
         dst = rt.acquire(3, oh, ow)
-        launch_exact(rt, rt.kernel("highlights", "hl_apply", defines), ow, oh, src.buffer, near.buffer,
-                     box.buffer, dst.buffer, i32(w), i32(h), i32(w1), i32(ncw), i32(nch), i32(oy), i32(ox),
-                     i32(ow), i32(oh), n, t, rt.constant(as_f32(self.display)), np.float32(self.white), *sparse)
+        launch("hl_apply", ow, oh, src=src, nearby=near, box=box, dst=dst, width=w, height=h, w1=w1, ncw=ncw,
+               nch=nch, oy=oy, ox=ox, out_w=ow, out_h=oh, n=n, t=t, d=rt.constant(as_f32(self.display)),
+               white=self.white, **sparse)
         rt.release(reach)
         rt.release(near)
         if r:
@@ -556,7 +552,7 @@ class HighlightClamp(Stage):
         dst = rt.acquire(3, src.height, src.width)
         cap = self.white * self.neutral
         m = np.eye(3) if self.matrix is None else self.matrix
-        kernel = rt.kernel("highlights", "hl_clamp", {"MATRIX": int(self.matrix is not None)})
-        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
-                     np.int32(src.height), *(np.float32(v) for v in cap), rt.constant(as_f32(m)))
+        rt.launch_named("highlights", "hl_clamp", src.width, src.height,
+                        dict(src=src, dst=dst, width=src.width, height=src.height, cap0=cap[0], cap1=cap[1],
+                             cap2=cap[2], m=rt.constant(as_f32(m))), {"MATRIX": int(self.matrix is not None)})
         return dst
