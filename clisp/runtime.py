@@ -254,10 +254,10 @@ class Runtime:
         that check their bounds) with its arguments by name: ``args`` maps every parameter's name to
         its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
         Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
-        name is a ClispError naming them.
+        name is a ClispError naming them. For example (clisp/stages/highlights.py)::
 
-        >>> rt.launch_named("highlights", "hl_near", w1, h1, dict(rows=rows, dst=near, w1=w1, h1=h1,
-        ...                 reach=reach, nbx=nbx, nby=nby), defines)          # doctest: +SKIP
+            rt.launch_named("highlights", "hl_near", w1, h1, dict(rows=rows, dst=near, w1=w1, h1=h1,
+                            reach=reach, nbx=nbx, nby=nby), defines)
         """
         params = self.signature(name, kernel_name, defines, generated)
         names = [p.name for p in params]

@@ -154,12 +154,14 @@ inline void reference_weights(__global const float *src, const int i, const int 
     w[6] = rim * y1 * inv;
 }
 
-/* cell_active: whether cell (i, j) (rows j HL_CELL - oy .. + HL_CELL - 1 of the window less the
- * rim, w1 x h1, cut at its edges; columns likewise) touches a block with reach[d] set: its corners
- * lie in every block it touches. span: the cell's first and last column and row. */
-inline int cell_active(__global const float *reach, const int d, const int i, const int j, const int ox,
-                       const int oy, const int w1, const int h1, const int nbx, const int nby, int *span)
+/* cell_active: whether this work-item's cell (i, j) = (global id 0, 1), rows j HL_CELL - oy ..
+ * + HL_CELL - 1 of the window less the rim (w1 x h1, cut at its edges), columns likewise, touches a
+ * block with reach[d] set: its corners lie in every block it touches. span: the cell's first and
+ * last column and row. */
+inline int cell_active(__global const float *reach, const int d, const int ox, const int oy, const int w1,
+                       const int h1, const int nbx, const int nby, int *span)
 {
+    const int i = get_global_id(0), j = get_global_id(1);
     const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
     const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
     span[0] = x0;
@@ -183,7 +185,7 @@ __kernel void hl_cells(__global const float *restrict src, __global const float 
     const int i = get_global_id(0);
     const int j = get_global_id(1);
     int span[4];
-    if (!cell_active(reach, HL_D_CELLS, i, j, ox, oy, w1, h1, nbx, nby, span))
+    if (!cell_active(reach, HL_D_CELLS, ox, oy, w1, h1, nbx, nby, span))
         return;
     const int plane = width * height, cplane = ncw * nch;
     const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
@@ -208,12 +210,10 @@ __kernel void hl_cell_box(__global const float *restrict cells, __global float *
                           const int nch, const int w1, const int h1, const int oy, const int ox,
                           __global const float *restrict reach, const int nbx, const int nby)
 {
-    const int i = get_global_id(0);
-    const int j = get_global_id(1);
     int span[4];
-    if (!cell_active(reach, HL_D_APPLY, i, j, ox, oy, w1, h1, nbx, nby, span))
+    if (!cell_active(reach, HL_D_APPLY, ox, oy, w1, h1, nbx, nby, span))
         return;
-    const int cplane = ncw * nch;
+    const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
     const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
     for (int p = 0; p < HL_SUMS; p++) {
