@@ -9,13 +9,12 @@ Array API (rawpy users ask for arrays)::
 """
 from __future__ import annotations
 
-from .version import __version__  # noqa: E402
-
-# Imported eagerly on purpose: the function ``simulate`` shares its name with the module
-# ``clisp.simulate``; binding it here after the submodule loads keeps ``clisp.simulate`` the
-# function however the submodule is imported later. OpenCL itself starts only on first use.
-from .pipeline import process  # noqa: E402
-from .rawfile import read_raw, write_raw  # noqa: E402
-from .simulate import simulate  # noqa: E402
+# The public API, imported eagerly (OpenCL itself starts only on first use). The layers below it:
+# clisp.engine (runtime, tiling, streaming), clisp.io (raw files, EXIF, image writers), clisp.sim
+# (the simulator), clisp.stages (the processing stages), clisp.pipeline (stages into a run).
+from .io.rawfile import read_raw, write_raw
+from .pipeline import process
+from .sim.simulate import simulate
+from .version import __version__
 
 __all__ = ["simulate", "process", "read_raw", "write_raw", "__version__"]

@@ -31,10 +31,10 @@ import numpy as np
 
 from .cfa import CFA
 from .errors import ClispError
-from .noise import ChannelNoise
+from .sim.noise import ChannelNoise
 from . import noise_estimate
 from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD
-from .rawimage import RawImage
+from .io.rawimage import RawImage
 
 BLOCK = 64
 """Side of the analysis blocks (px): a multiple of every CFA period and of the denoiser's 2^J

@@ -9,7 +9,7 @@ joins (:class:`RuntimePlugin`); programs stay cached in that process for the fol
 Every result is appended to ``OUTDIR/manifest.jsonl`` as it arrives (one JSON object per file and
 attempt; written by the client alone, flushed and fsynced line by line), so a killed batch loses
 nothing it finished: outputs are written under a temporary name and renamed when complete
-(clisp.imageio.atomic_path), and a re-run skips every output whose manifest record has the same
+(clisp.io.imageio.atomic_path), and a re-run skips every output whose manifest record has the same
 settings hash, the same input (size, mtime) and whose file still has the recorded size and
 SHA-256 (:func:`is_finished`). A file that fails becomes an ``error`` record with a one-line
 message naming it; the others go on.
@@ -151,7 +151,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
     status 'ok' with the image's width, height and tiles and the output's size, mtime and SHA-256, or 'error' with a one-line message
     naming the file. ``seconds``: wall time of reading, processing, writing and hashing."""
     from .pipeline import DEFAULT_BUDGET, process_file
-    from .rawfile import read_raw
+    from .io.rawfile import read_raw
     start = time.perf_counter()
     record = _record(job, "ok", digest, run)
     record["worker"] = _worker_address()
@@ -198,13 +198,13 @@ def worker_cache(key: Any, factory: Callable[[], Any]) -> Any:
 
 
 class RuntimePlugin:
-    """Dask worker plugin: builds the worker process's OpenCL context (clisp.runtime.get_runtime,
+    """Dask worker plugin: builds the worker process's OpenCL context (clisp.engine.runtime.get_runtime,
     once per process) when the worker starts, not inside the first file's time."""
 
     name = "clisp-runtime"
 
     def setup(self, worker: Any) -> None:
-        from .runtime import get_runtime
+        from .engine.runtime import get_runtime
         worker.clisp_device = get_runtime().describe()
 
     def teardown(self, worker: Any) -> None:
@@ -403,7 +403,7 @@ def _record(job: Job, status: str, digest: str, run: str) -> dict[str, Any]:
 
 
 def _remove_partials(outdir: Path, jobs: Iterable[Job]) -> int:
-    """Remove temporary files a killed run left for these outputs (clisp.imageio.atomic_path's
+    """Remove temporary files a killed run left for these outputs (clisp.io.imageio.atomic_path's
     ``.<stem>.partial-*<suffix>``); the manifest lock says no batch is writing them. Returns the count."""
     count = 0
     for job in jobs:
@@ -447,7 +447,7 @@ def run_batch(inputs: Sequence[str | Path], outdir: str | Path, settings: BatchS
     ``timeout``: seconds to wait for all results (None = no limit); past it the files still
     running are recorded as errors. ``on_record``: called with each manifest record as written.
     """
-    from .imageio import check_compression
+    from .io.imageio import check_compression
     from .pipeline import resolve_options
     resolve_options(settings.preset, settings.demosaic)        # bad names fail before anything runs
     outdir = Path(outdir)

@@ -21,8 +21,8 @@ import numpy as np
 
 from .version import __version__
 from .errors import ClispError, clip, error_line
-from .profile import host_timer
-from .tiling import Tile
+from .engine.profile import host_timer
+from .engine.tiling import Tile
 
 _LOADED = time.perf_counter()
 
@@ -155,9 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .imageio import read_scene, write_image
-    from .rawfile import write_raw
-    from .simulate import simulate
+    from .io.imageio import read_scene, write_image
+    from .io.rawfile import write_raw
+    from .sim.simulate import simulate
     _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
@@ -181,10 +181,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
-    """``simulate --spectral colorchecker``: the spectral path (clisp.spectral)."""
-    from .imageio import write_image
-    from .rawfile import write_raw
-    from .spectral import simulate_spectral
+    """``simulate --spectral colorchecker``: the spectral path (clisp.sim.spectral)."""
+    from .io.imageio import write_image
+    from .io.rawfile import write_raw
+    from .sim.spectral import simulate_spectral
     if args.size:
         raise ClispError("--size repeats a scene file; it does not apply to --spectral")
     source = "isetcam" if args.reflectances else "colour"
@@ -203,10 +203,10 @@ def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
 def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | None) -> int:
     """``simulate --size``: bands computed one after another, each written (raw and truth) on a
     writer thread while the next is computed; two bands in memory at most."""
-    from .imageio import ImageWriter
-    from .rawfile import raw_band_writer
-    from .simulate import simulate_large
-    from .streaming import progress_bar
+    from .io.imageio import ImageWriter
+    from .io.rawfile import raw_band_writer
+    from .sim.simulate import simulate_large
+    from .engine.streaming import progress_bar
     width, height = args.size
     sim = simulate_large(scene, (height, width), cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
     sim.header.metadata["scene"] = Path(args.scene).name
@@ -233,9 +233,9 @@ def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | N
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from .imageio import check_compression, output_kind
+    from .io.imageio import check_compression, output_kind
     from .pipeline import process_file, resolve_options
-    from .rawfile import read_raw
+    from .io.rawfile import read_raw
     output_kind(args.output)
     resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
     if args.compression:
@@ -298,9 +298,9 @@ def _process_seconds() -> float:
 
 
 def _start_profile() -> "object":
-    """Profiling runtime and a fresh clisp.profile.Profile; notes the start-up time so far."""
-    from . import profile
-    from .runtime import get_runtime
+    """Profiling runtime and a fresh clisp.engine.profile.Profile; notes the start-up time so far."""
+    from .engine import profile
+    from .engine.runtime import get_runtime
     get_runtime(profiling=True)
     _STARTUP["s"] = _process_seconds()
     return profile.start()
@@ -328,7 +328,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     if args.device:
         _print_devices()
     if args.raw:
-        from .rawfile import raw_info
+        from .io.rawfile import raw_info
         info = raw_info(args.raw)
         if args.json:
             print(json.dumps(info, indent=2, default=_json_value))
@@ -347,7 +347,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _print_devices() -> None:
-    from .runtime import get_runtime, list_devices
+    from .engine.runtime import get_runtime, list_devices
     for pi, di, platform, device in list_devices():
         print(f"  {pi}:{di}  {platform.name} / {device.name.strip()}")
     print(f"clisp uses: {get_runtime().describe()}  (set CLISP_DEVICE to choose)")

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from .colorimetry import srgb_encode
+from .sim.colorimetry import srgb_encode
 
 Box = tuple[int, int, int, int]
 

@@ -31,9 +31,9 @@ import numpy as np
 
 from .cfa import CFA
 from .errors import ClispError
-from .noise import ChannelNoise, NoiseModel
-from .rawimage import RawImage
-from .streaming import window_source
+from .sim.noise import ChannelNoise, NoiseModel
+from .io.rawimage import RawImage
+from .engine.streaming import window_source
 
 
 class NoiseEstimateError(ClispError):

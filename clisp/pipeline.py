@@ -17,9 +17,9 @@ import numpy as np
 
 from .cfa import CFA
 from .errors import ClispError, clip
-from .rawimage import MAX_GAIN, RawImage, check_levels, check_samples
-from .profile import host_timer, stage_label
-from .runtime import DeviceImage, get_runtime
+from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
+from .engine.profile import host_timer, stage_label
+from .engine.runtime import DeviceImage, get_runtime
 from .stages.base import Stage, fuse_stages
 from .stages.chroma_denoise import ChromaDenoise, ChromaDenoiseParams, chroma_denoise_for
 from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
@@ -31,11 +31,11 @@ from .stages.demosaic_lms_guided import DemosaicLMSGuided
 from .stages.demosaic_malvar import DemosaicMalvar
 from .stages.highlights import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from .stages.raw_scale import normalize, white_balance1
-from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
+from .engine.streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
                         progress_bar, run_tiles, window_source)
 from .noise_estimate import NoiseEstimateError
 from .white_balance2 import estimate_wb2
-from .tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
+from .engine.tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
 DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "bilinear": DemosaicBilinear,
@@ -64,7 +64,7 @@ OUTPUTS = ("linear", "srgb", "srgb16")
 
 DEFAULT_BUDGET = 2**30
 """Memory budget in bytes. ``clisp process --mem`` / :func:`process_file`: the peak resident set
-of the whole process (clisp.memory). :meth:`Pipeline.run` (the in-memory API): the host and device
+of the whole process (clisp.engine.memory). :meth:`Pipeline.run` (the in-memory API): the host and device
 buffers of the tiles in flight, not the interpreter or the output array."""
 
 TILES_IN_FLIGHT = 3
@@ -549,7 +549,7 @@ def orient(image: np.ndarray, flip: int) -> np.ndarray:
 
 def crop_of(raw: RawImage) -> tuple[int, int, int, int] | None:
     """The crop ``raw`` declares, (top, left, height, width) in its mosaic's coordinates
-    (``metadata['crop']``: a DNG's DefaultCrop, see clisp.camera), or None for the whole mosaic
+    (``metadata['crop']``: a DNG's DefaultCrop, see clisp.io.camera), or None for the whole mosaic
     (none declared, or one that does not lie inside the mosaic)."""
     crop = raw.metadata.get("crop")
     try:
@@ -604,7 +604,7 @@ def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = 
     keeps the whole mosaic. Orientation from camera metadata is applied last.
     """
     if not isinstance(raw, RawImage):
-        from .rawfile import read_raw
+        from .io.rawfile import read_raw
         raw = read_raw(raw)
     return process_with_stats(raw, tile, backend, crop, **options)[0]
 
@@ -616,7 +616,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
     written band by band (imageio.ImageWriter). ``budget`` bounds the peak resident memory of the
-    whole process (clisp.memory): what the process holds when planning, plus the tiles' counted
+    whole process (clisp.engine.memory): what the process holds when planning, plus the tiles' counted
     bytes, plus RSS_MARGIN; ClispError when even the smallest tile does not fit, naming the
     minimum. Raws with a camera rotation are oriented in memory (the whole output counts).
     ``progress``: a progress bar on stderr (when it is a terminal). ``compression``: EXR/TIFF
@@ -625,11 +625,11 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     (key 'pipeline'), whose skipper and skip_plan describe the run. ``crop``: write only the crop
     the raw declares (:func:`crop_of`; the whole mosaic is processed, see :func:`cropped_writes`);
     False writes the whole mosaic. The output carries the raw's metadata
-    (clisp.exif.output_attributes). Atomic: on failure no file.
+    (clisp.io.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
-    from .exif import output_attributes
-    from .imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
+    from .io.exif import output_attributes
+    from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image
     compression = compression or DEFAULT_COMPRESSION
     region = crop_of(raw) if crop else None
     attributes = output_attributes(raw)
@@ -660,10 +660,10 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
 
 def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, tile: int | None, budget: int,
                         backend: str, in_memory: bool) -> TilePlan:
-    """The plan of :func:`process_file` for a whole-process ``budget`` (see clisp.memory): the
+    """The plan of :func:`process_file` for a whole-process ``budget`` (see clisp.engine.memory): the
     tiles get what the process does not already hold. ``in_memory``: the whole output is held
     (oriented raws) and counts too. ClispError naming the minimum when nothing fits."""
-    from .memory import RSS_MARGIN, format_bytes, resident_bytes
+    from .engine.memory import RSS_MARGIN, format_bytes, resident_bytes
     shape, dtype = raw.shape, raw.data.dtype
     if backend != "opencl":
         return pipeline.plan(shape, dtype, tile, budget, backend)

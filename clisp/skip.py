@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from .analysis import SceneAnalysis, analyse
-from .tiling import Tile, TilePlan
+from .engine.tiling import Tile, TilePlan
 
 PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT = "full", "light", "none", "flat"
 PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT)
@@ -294,7 +294,7 @@ class Skipper:
 
 def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     """``clisp process --explain``: the analysis, the plan and, after the run, the time per stage
-    (OpenCL event profiling, when ``profile`` is a clisp.profile.Profile) and the time the skips
+    (OpenCL event profiling, when ``profile`` is a clisp.engine.profile.Profile) and the time the skips
     saved, estimated from RELATIVE_COST and the measured denoiser time."""
     lines = []
     skipper = getattr(pipeline, "skipper", None)

@@ -1,7 +1,7 @@
 """Numerical stress cases (issue 15): hostile and extreme raws, and how far each stage's float32
 kernel drifts from its float64 NumPy reference on them.
 
-Every case is a small :class:`~clisp.rawimage.RawImage` built in code and a statement of what the
+Every case is a small :class:`~clisp.io.rawimage.RawImage` built in code and a statement of what the
 correct outcome is: ``"finite"`` (the pipeline runs, every output pixel is finite and each stage's
 kernel equals its reference within :data:`STAGE_TOL`), or ``"error"`` (a ClispError naming the
 raw, raised before anything is computed). :func:`stage_errors` measures the per-stage error the
@@ -19,7 +19,7 @@ import numpy as np
 
 from .cfa import cfa_from_name
 from .errors import ClispError
-from .rawimage import FLOAT_RANGE, RawImage
+from .io.rawimage import FLOAT_RANGE, RawImage
 
 STAGE_TOL: dict[str, float] = {
     "normalize": 1e-5,
@@ -88,8 +88,8 @@ def _raw(kind: str, data: np.ndarray, **kw) -> RawImage:
 
 
 def _chart(kind: str, gain: float | None, shape: tuple[int, int] = (64, 96), seed: int = 0) -> RawImage:
-    from .charts import demo_chart
-    from .simulate import simulate
+    from .sim.charts import demo_chart
+    from .sim.simulate import simulate
     scene = demo_chart().image[:shape[0], :shape[1]]
     raw = simulate(scene, cfa=kind, gain=gain, optics="none", seed=seed).raw
     raw.source = f"stress-{kind}"
@@ -199,7 +199,7 @@ def pipeline_for(raw: RawImage, demosaic: str, output: str = "linear"):
 
 def _window(raw: RawImage, halo: int) -> np.ndarray:
     """The whole mosaic with ``halo`` pixels of the tiler's CFA mirror padding on every side."""
-    from .streaming import window_source
+    from .engine.streaming import window_source
     h, w = raw.shape
     return window_source(raw.data).read(-halo, -halo, h + 2 * halo, w + 2 * halo, raw.cfa.period)
 
@@ -232,7 +232,7 @@ def stage_errors(raw: RawImage, demosaic: str, output: str = "srgb") -> list[tup
     """(stage name, scaled float32-vs-float64 error) for every stage of the pipeline on ``raw``,
     each kernel fed the reference's output of the stage before (as float32); the reference's
     outputs must be finite (AssertionError otherwise)."""
-    from .runtime import get_runtime
+    from .engine.runtime import get_runtime
     rt = get_runtime()
     pipeline = pipeline_for(raw, demosaic, output)
     halo = pipeline.halo

@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from .cfa import CFA
-from .streaming import window_source
+from .engine.streaming import window_source
 from .errors import ClispError
-from .rawimage import RawImage
+from .io.rawimage import RawImage
 
 BT601 = np.array([0.299, 0.587, 0.114])
 METHODS = ("metadata", "gray_world", "gray_pixels")
@@ -47,7 +47,7 @@ def illuminant_gains(matrix: np.ndarray, white_cam: np.ndarray | None = None) ->
     ``w``: the illuminant's white in pass-1-balanced camera units (default (1, 1, 1): pass 1
     equalised the illuminant's white exactly). Not normalised (white stays white).
 
-    >>> from clisp.colorimetry import P_LMS
+    >>> from clisp.sim.colorimetry import P_LMS
     >>> np.round(illuminant_gains(P_LMS), 4).tolist()
     [1.0, 1.0101, 1.0753]
     """

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-import clisp.memory
-from clisp.runtime import get_runtime
+import clisp.engine.memory
+from clisp.engine.runtime import get_runtime
 
 TEST_PROCESS_RSS = 200 * 2**20
 """What the memory planner is told the process holds. ``--mem`` budgets a clisp process; the
@@ -21,4 +21,4 @@ def rt():
 
 @pytest.fixture(autouse=True)
 def fixed_resident_set(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(clisp.memory, "resident_bytes", lambda: TEST_PROCESS_RSS)
+    monkeypatch.setattr(clisp.engine.memory, "resident_bytes", lambda: TEST_PROCESS_RSS)

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from clisp.batch import BatchSettings, read_manifest, run_batch
-from clisp.imageio import read_image
-from clisp.rawfile import write_raw
-from clisp.simulate import simulate
+from clisp.io.imageio import read_image
+from clisp.io.rawfile import write_raw
+from clisp.sim.simulate import simulate
 
 pytest.importorskip("distributed")
 
@@ -159,8 +159,8 @@ def test_paper_sweep_on_cluster_matches_serial(tmp_path: Path, external_cluster)
     sys.path.insert(0, str(ROOT / "tools"))
     import paper_tables as pt
     import reproduce_paper
-    from clisp.charts import demo_chart
-    from clisp.imageio import write_image
+    from clisp.sim.charts import demo_chart
+    from clisp.io.imageio import write_image
     from clisp.stages.chroma_denoise import ChromaDenoiseParams
     scene = tmp_path / "scene.png"
     write_image(scene, demo_chart().image[:64, :96], encoded=False)

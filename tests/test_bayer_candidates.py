@@ -10,8 +10,8 @@ import pytest
 from scipy import ndimage
 
 from clisp.cfa import BAYER_PHASES, bayer_cfa
-from clisp.charts import dead_leaves
-from clisp.colorimetry import srgb_encode
+from clisp.sim.charts import dead_leaves
+from clisp.sim.colorimetry import srgb_encode
 from clisp.errors import ClispError
 from clisp.metrics import psnr
 from research.demosaic import bayer_gbtf, bayer_rcd, bayer_rcd_gbtf

@@ -17,10 +17,10 @@ import pytest
 from scipy import ndimage
 
 from clisp.cfa import BAYER_PHASES, bayer_cfa, lms_cfa
-from clisp.colorimetry import B_BAYER, WB_BAYER
+from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.pipeline import Pipeline
-from clisp.runtime import DeviceImage
+from clisp.engine.runtime import DeviceImage
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_dlmmse import EPSILON, DemosaicDLMMSE
 from clisp.stages.demosaic_malvar import DemosaicMalvar

@@ -15,8 +15,8 @@ import pytest
 from scipy import ndimage
 
 from clisp.cfa import BAYER_PHASES, bayer_cfa
-from clisp.charts import dead_leaves
-from clisp.colorimetry import srgb_encode
+from clisp.sim.charts import dead_leaves
+from clisp.sim.colorimetry import srgb_encode
 from clisp.metrics import psnr
 from clisp.stages import bayer_ri
 

@@ -1,11 +1,12 @@
-"""Tests of the built-in charts (clisp.charts) and the quality metrics (clisp.metrics)."""
+"""Tests of the built-in charts (clisp.sim.charts) and the quality metrics (clisp.metrics)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from clisp import charts, metrics
-from clisp.colorimetry import srgb_decode
+from clisp import metrics
+from clisp.sim import charts
+from clisp.sim.colorimetry import srgb_decode
 
 REC709_Y = np.array([0.2126, 0.7152, 0.0722])
 

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 
 from clisp.cfa import cfa_from_name
-from clisp.charts import colorchecker
-from clisp.colorimetry import B_BAYER, P_LMS
+from clisp.sim.charts import colorchecker
+from clisp.sim.colorimetry import B_BAYER, P_LMS
 from clisp.errors import ClispError
-from clisp.noise import NoiseModel
-from clisp.noise import ChannelNoise
+from clisp.sim.noise import NoiseModel
+from clisp.sim.noise import ChannelNoise
 from clisp.noise_estimate import estimate_raw_noise, raw_noise
 from clisp.pipeline import Pipeline
-from clisp.simulate import simulate
+from clisp.sim.simulate import simulate
 from clisp.stages import chroma_denoise as cd
 from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
                                          chroma_denoise_for, haar_analyze, haar_synthesize, lms_space,
@@ -374,10 +374,10 @@ def test_chroma_range_cap_keeps_colour_edges_at_high_noise() -> None:
     """Bayer (YUV): the cap leaves k_chroma at gain 16 and lowers it at gain 64, where the ring
     just outside a green patch on grey (an edge the luminance hardly marks) keeps its colour better
     (issue 17; tools/bench_bleeding.py measures the whole chart)."""
-    from clisp.charts import colorchecker_linear
+    from clisp.sim.charts import colorchecker_linear
     from clisp.metrics import linear_srgb_to_lab
     from clisp.pipeline import build_pipeline
-    from clisp.simulate import simulate
+    from clisp.sim.simulate import simulate
     scene = np.full((160, 160, 3), 0.18)
     scene[56:104, 56:104] = colorchecker_linear()[13]                 # green
     yy, xx = np.mgrid[0:160, 0:160]
@@ -404,10 +404,10 @@ def test_joint_range_keeps_colour_edges_at_high_noise() -> None:
     """Bayer (YUV, range_joint 'space' = 1): at the coarse levels U and V share one range weight,
     so the blue sky's edge, plain in U, also stops V from being averaged across it: the ring just
     outside the patch keeps its colour better at gain 64 than with a weight per plane (issue 17)."""
-    from clisp.charts import colorchecker_linear
+    from clisp.sim.charts import colorchecker_linear
     from clisp.metrics import linear_srgb_to_lab
     from clisp.pipeline import build_pipeline
-    from clisp.simulate import simulate
+    from clisp.sim.simulate import simulate
     scene = np.full((160, 160, 3), 0.18)
     scene[56:104, 56:104] = colorchecker_linear()[2]                  # blue sky
     yy, xx = np.mgrid[0:160, 0:160]

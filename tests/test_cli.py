@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 import clisp
-from clisp.charts import demo_chart
+from clisp.sim.charts import demo_chart
 from clisp.cli import main
-from clisp.imageio import read_image, write_image
+from clisp.io.imageio import read_image, write_image
 from clisp.metrics import psnr
 from clisp.pipeline import crop_of
-from clisp.rawfile import read_raw
+from clisp.io.rawfile import read_raw
 
 CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 
@@ -54,7 +54,7 @@ def test_simulate_then_process(tmp_path: Path, scene_png: Path, cfa: str, capsys
     assert np.allclose(linear[y0:y1, x0:x1], truth[y0:y1, x0:x1], atol=2e-3)
     assert psnr(linear, truth) > 15.0
     # The 16-bit PNG is the tone-mapped EXR within one 16-bit step (plus float32 rounding).
-    from clisp.colorimetry import srgb_encode
+    from clisp.sim.colorimetry import srgb_encode
     assert np.abs(encoded - srgb_encode(linear)).max() < 2.0 / 65535
 
 
@@ -73,7 +73,7 @@ def test_raw_file_round_trip_through_cli(tmp_path: Path, scene_png: Path, capsys
     raw_path = tmp_path / "r.dng"
     assert run(["simulate", scene_png, "-o", raw_path, "--gain", "8", "--seed", "5"], capsys)[0] == 0
     raw = read_raw(raw_path)
-    direct = clisp.simulate(clisp.imageio.read_scene(scene_png), cfa="lms", gain=8, seed=5).raw
+    direct = clisp.simulate(clisp.io.imageio.read_scene(scene_png), cfa="lms", gain=8, seed=5).raw
     assert np.array_equal(raw.data, direct.data)
     assert raw.metadata["gain"] == 8 and raw.metadata["seed"] == 5
 
@@ -196,8 +196,8 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
 def test_process_explain_and_no_skip(tmp_path: Path, capsys) -> None:
     """``--explain`` prints the analysis, the plan and the time per stage; a flat scene's tiles take
     the flat path, and ``--no-skip`` runs every stage everywhere (issue 13)."""
-    from clisp.rawfile import write_raw
-    from clisp.simulate import simulate
+    from clisp.io.rawfile import write_raw
+    from clisp.sim.simulate import simulate
     yy, xx = np.mgrid[0:256, 0:384] / 384.0
     sky = np.stack([0.25 + 0.3 * yy, 0.4 + 0.2 * yy, 0.8 - 0.1 * xx], -1)
     raw_path = tmp_path / "sky.dng"

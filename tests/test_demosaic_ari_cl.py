@@ -23,7 +23,7 @@ import pytest
 from scipy import ndimage
 
 from clisp.cfa import BAYER_PHASES, bayer_cfa
-from clisp.colorimetry import B_BAYER, WB_BAYER
+from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline
 from clisp.stages.colour import ColourMatrix

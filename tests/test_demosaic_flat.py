@@ -38,7 +38,7 @@ def test_gradient_is_continued_past_the_image_edges(rt) -> None:
     """With the image's shape, a coloured gradient stays exact up to the image's edges, where the
     tiler's mirror padding alone would bias the wide means (R / 2 px times the gradient: a colour
     shift, since the residual cancels it only where every channel has the same gradient)."""
-    from clisp.tiling import gather_window
+    from clisp.engine.tiling import gather_window
     cfa = cfa_from_name("bayer-rggb")
     yy, xx = np.mgrid[0:96, 0:80]
     slope = np.array([0.004, 0.002, 0.001])

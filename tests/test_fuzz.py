@@ -27,9 +27,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clisp.errors import MAX_MESSAGE, ClispError, error_line
-from clisp.imageio import read_scene, write_image
+from clisp.io.imageio import read_scene, write_image
 from clisp.pipeline import build_pipeline
-from clisp.rawfile import PRIVATE_PREFIX, raw_info, read_raw, write_raw
+from clisp.io.rawfile import PRIVATE_PREFIX, raw_info, read_raw, write_raw
 
 CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 
@@ -65,8 +65,8 @@ def _settings(n: int, stress: bool):
 def seeds(tmp_path_factory) -> dict[str, list[bytes]]:
     """Valid files per reader: our raws (LMS/Bayer, uint16/float32), scene PNG 8/16-bit, TIFF,
     EXR, foreign DNGs (our layout without our metadata: they go to rawpy) and camera-raw heads."""
-    from clisp.charts import demo_chart
-    from clisp.simulate import simulate
+    from clisp.sim.charts import demo_chart
+    from clisp.sim.simulate import simulate
     folder = tmp_path_factory.mktemp("seeds")
     scene = demo_chart().image[:32, :48]
     ours, foreign = [], []

@@ -188,7 +188,7 @@ def test_cli_highlights_option(tmp_path):
         out = tmp_path / f"{mode}.exr"
         assert main(["process", str(tmp_path / "lamp.dng"), "-o", str(out), "--highlights", mode,
                      "--preset", "fast"]) == 0
-    from clisp.imageio import read_image
+    from clisp.io.imageio import read_image
     centre = {mode: read_image(tmp_path / f"{mode}.exr")[0][28:36, 28:36].reshape(-1, 3).mean(0)
               for mode in ("clip", "reconstruct", "off")}
     assert block_chroma(centre["off"][None]).max() > 0.3

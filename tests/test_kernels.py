@@ -12,10 +12,10 @@ import pytest
 from scipy import ndimage
 
 from clisp.cfa import CFA, cfa_from_name
-from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
+from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
-from clisp.rawimage import RawImage
-from clisp.runtime import DeviceImage
+from clisp.io.rawimage import RawImage
+from clisp.engine.runtime import DeviceImage
 from clisp.stages.base import fuse_stages
 from clisp.stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
 from clisp.stages.demosaic_bilinear import DemosaicBilinear

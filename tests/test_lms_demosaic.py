@@ -15,13 +15,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clisp import charts, simulate
+from clisp import simulate
+from clisp.sim import charts
 from clisp.cfa import bayer_cfa, lms_cfa
-from clisp.colorimetry import P_LMS, WB_LMS
+from clisp.sim.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
-from clisp.noise import ChannelNoise, NoiseModel
+from clisp.sim.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
-from clisp.runtime import DeviceImage
+from clisp.engine.runtime import DeviceImage
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
                                        LMSHybridParams, chroma_demodulate_rows, diamond_halfband,

@@ -19,11 +19,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clisp import charts, simulate
+from clisp import simulate
+from clisp.sim import charts
 from clisp.cfa import bayer_cfa, lms_cfa
-from clisp.colorimetry import P_LMS, WB_LMS
+from clisp.sim.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
-from clisp.noise import ChannelNoise, NoiseModel
+from clisp.sim.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
 from clisp.stages.colour import ColourMatrix
 from clisp.stages.lms_common import valid
@@ -107,7 +108,7 @@ def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
 
 def test_chroma_guide_fades_with_the_noise():
     """lambda in full at low noise, 0 at high noise (its PSNR cost there), linear in between."""
-    from clisp.noise import ChannelNoise
+    from clisp.sim.noise import ChannelNoise
     cfa = lms_cfa()
     params = LMSGuidedParams(chroma_guide=4.0)
     stage = DemosaicLMSGuided(cfa, params)

@@ -3,10 +3,10 @@ exact, and its one measured strength (saturated colour edges, dead leaves) holds
 import numpy as np
 
 from clisp.cfa import lms_cfa
-from clisp.charts import dead_leaves
-from clisp.colorimetry import P_LMS
+from clisp.sim.charts import dead_leaves
+from clisp.sim.colorimetry import P_LMS
 from clisp.metrics import psnr
-from clisp.simulate import simulate
+from clisp.sim.simulate import simulate
 from research.demosaic.lms_ri import demosaic_lms_ri, guided_reference
 
 

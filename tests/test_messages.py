@@ -18,8 +18,8 @@ import pytest
 
 from clisp.cli import main
 from clisp.errors import MAX_MESSAGE, ClispError
-from clisp.imageio import write_image
-from clisp.rawfile import write_raw
+from clisp.io.imageio import write_image
+from clisp.io.rawfile import write_raw
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "messages.md"
 CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
@@ -28,8 +28,8 @@ CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     """A small valid raw of each kind, a scene PNG, and the damaged variants the messages need."""
-    from clisp.charts import demo_chart
-    from clisp.simulate import simulate
+    from clisp.sim.charts import demo_chart
+    from clisp.sim.simulate import simulate
     d = tmp_path_factory.mktemp("msg")
     scene = demo_chart().image[:32, :48]
     f = {"scene": d / "scene.png"}
@@ -234,7 +234,7 @@ def test_disk_full_raw(files, tmp_path, capfd, monkeypatch):
 def test_interrupted_leaves_no_file(files, tmp_path, capfd, monkeypatch):
     """Ctrl-C while the output is written: 'clisp: interrupted; no output written', exit 130, the
     temporary file removed and a previous output kept."""
-    from clisp import imageio
+    from clisp.io import imageio
 
     def interrupt(self, rows):
         raise KeyboardInterrupt
@@ -250,7 +250,7 @@ def test_interrupted_leaves_no_file(files, tmp_path, capfd, monkeypatch):
 @pytest.mark.stress
 def test_sigint_subprocess(files, tmp_path):
     """A real SIGINT to ``clisp process`` of a raw large enough to be caught mid-run."""
-    from clisp.rawfile import read_raw
+    from clisp.io.rawfile import read_raw
     big = read_raw(files["good"])
     big.data = np.tile(big.data, (40, 40))
     write_raw(tmp_path / "big.dng", big)

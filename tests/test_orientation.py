@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import clisp
-from clisp.charts import demo_chart
+from clisp.sim.charts import demo_chart
 
 
 @pytest.mark.parametrize("flip, expected", [(0, lambda a: a), (3, lambda a: a[::-1, ::-1]),

@@ -14,17 +14,17 @@ import pytest
 import tifffile
 
 import clisp
-from clisp import rawfile
-from clisp.camera import visible_crop
+from clisp.io import rawfile
+from clisp.io.camera import visible_crop
 from clisp.cfa import bayer_cfa
-from clisp.charts import demo_chart
+from clisp.sim.charts import demo_chart
 from clisp.cli import main
-from clisp.colorimetry import B_BAYER, WB_BAYER
-from clisp.exif import read_exif
-from clisp.imageio import SRGB_CHROMATICITIES, read_image
+from clisp.sim.colorimetry import B_BAYER, WB_BAYER
+from clisp.io.exif import read_exif
+from clisp.io.imageio import SRGB_CHROMATICITIES, read_image
 from clisp.pipeline import crop_of, process_file
-from clisp.rawfile import read_raw, write_raw
-from clisp.rawimage import RawImage
+from clisp.io.rawfile import read_raw, write_raw
+from clisp.io.rawimage import RawImage
 
 CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 

@@ -8,13 +8,13 @@ import pytest
 import rawpy
 import tifffile
 
-from clisp import rawfile
-from clisp.camera import channel_values, pick_colour_matrix, pick_wb, rgb_cam_from_cam_xyz, visible_pattern
+from clisp.io import rawfile
+from clisp.io.camera import channel_values, pick_colour_matrix, pick_wb, rgb_cam_from_cam_xyz, visible_pattern
 from clisp.cfa import BAYER_PHASES, CFA, bayer_cfa, cfa_from_pattern, lms_cfa
-from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS, XYZ_TO_SRGB
+from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS, XYZ_TO_SRGB
 from clisp.errors import ClispError
-from clisp.rawfile import raw_info, read_raw, write_raw
-from clisp.rawimage import RawImage
+from clisp.io.rawfile import raw_info, read_raw, write_raw
+from clisp.io.rawimage import RawImage
 
 CAMERA_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "raw"
 

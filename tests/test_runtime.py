@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from clisp.errors import ClispError
-from clisp.runtime import Runtime, choose_device, get_runtime, list_devices
+from clisp.engine.runtime import Runtime, choose_device, get_runtime, list_devices
 
 
 @pytest.fixture(scope="module")

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from clisp.cfa import cfa_from_name
-from clisp.colorimetry import camera_constants
+from clisp.sim.colorimetry import camera_constants
 from clisp.errors import ClispError
-from clisp.noise import NoiseModel
-from clisp.optics import airy_kernel, apply_optics
-from clisp.simulate import inverse_isp_matrix, simulate
+from clisp.sim.noise import NoiseModel
+from clisp.sim.optics import airy_kernel, apply_optics
+from clisp.sim.simulate import inverse_isp_matrix, simulate
 
 BL, WL = 64.0, 1023.0
 RANGE = WL - BL

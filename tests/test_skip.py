@@ -6,9 +6,9 @@ import pytest
 
 from clisp.analysis import analyse
 from clisp.pipeline import build_pipeline
-from clisp.simulate import simulate
+from clisp.sim.simulate import simulate
 from clisp.skip import PATH_FLAT, PATH_FULL, PATH_LIGHT, PATH_NONE, SkipPlan
-from clisp.tiling import Tile, grid
+from clisp.engine.tiling import Tile, grid
 
 
 def smooth_scene(h: int = 256, w: int = 256) -> np.ndarray:
@@ -264,8 +264,8 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     import gc
     import weakref
     import clisp.pipeline as pipeline_module
-    from clisp.runtime import get_runtime
-    from clisp.streaming import ArrayWindows
+    from clisp.engine.runtime import get_runtime
+    from clisp.engine.streaming import ArrayWindows
     rt = get_runtime()
     raw, pipe, sk = _skipper(1, "lms", smooth_scene())
     monkeypatch.setattr(pipeline_module.Pipeline, "_device_source", staticmethod(lambda source: None))

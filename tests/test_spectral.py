@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import clisp
-from clisp.colorimetry import P_LMS
+from clisp.sim.colorimetry import P_LMS
 from clisp.errors import ClispError
-from clisp.spectral import (WAVELENGTHS, camera_responses, fit_colour_matrix, patch_delta_e, reflectances,
+from clisp.sim.spectral import (WAVELENGTHS, camera_responses, fit_colour_matrix, patch_delta_e, reflectances,
                             sensitivities, simulate_spectral, spectral_colorchecker, true_srgb, white_balance)
 
 
@@ -80,7 +80,7 @@ def test_bad_kind_and_source() -> None:
 
 def test_cli_spectral(tmp_path) -> None:
     from clisp.cli import main
-    from clisp.imageio import read_image
+    from clisp.io.imageio import read_image
     raw_path, truth_path = tmp_path / "s.dng", tmp_path / "t.exr"
     assert main(["simulate", "--spectral", "colorchecker", "--cfa", "lms", "--noiseless",
                  "-o", str(raw_path), "--truth", str(truth_path)]) == 0

@@ -18,23 +18,23 @@ import tifffile
 import clisp
 from clisp.cfa import cfa_from_name
 from clisp.cli import image_size, main, memory_size
-from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
+from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.errors import ClispError
-from clisp.imageio import ImageWriter, read_image
-import clisp.memory
-from clisp.memory import RSS_MARGIN
+from clisp.io.imageio import ImageWriter, read_image
+import clisp.engine.memory
+from clisp.engine.memory import RSS_MARGIN
 from clisp.pipeline import PRESETS, Pipeline, build_pipeline, process_file
-from clisp.runtime import get_runtime
-from clisp.rawfile import raw_band_writer, read_raw, write_raw
-from clisp.rawimage import RawImage
-from clisp.simulate import mirror_repeat_index, simulate, simulate_large
+from clisp.engine.runtime import get_runtime
+from clisp.io.rawfile import raw_band_writer, read_raw, write_raw
+from clisp.io.rawimage import RawImage
+from clisp.sim.simulate import mirror_repeat_index, simulate, simulate_large
 from clisp.stages.base import Stage
-import clisp.streaming
-from clisp.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
-from clisp.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
+import clisp.engine.streaming
+from clisp.engine.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
+from clisp.engine.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
 from tolerance import TOL, assert_close
 
-simulate_module = importlib.import_module("clisp.simulate")   # clisp.simulate is the function
+simulate_module = importlib.import_module("clisp.sim.simulate")   # clisp.sim.simulate is the function
 
 SHAPE = (1093, 1157)          # not a multiple of any tile size or CFA period; 2 x 2 tiles of 1024
 
@@ -111,7 +111,7 @@ def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind
     plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
     assert len(plan.tiles) > 2 and plan.tile_w == raw.shape[1] and raw.shape[0] % plan.tile_h != 0
     out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
-    pipeline.stream(ArrayWindows(raw.data), clisp.streaming.ArraySink(out), plan)
+    pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
     assert len(made) == len(plan.tiles) - 1 and all(made) == rt.host_unified
     monkeypatch.setattr(rt, "host_unified", False)                # the download path
     downloaded = pipeline.run(raw.data, tile=0)
@@ -155,7 +155,7 @@ def test_whole_process_budget_plans_counted_bytes(tmp_path: Path, preset: str,
     limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
     cost = pipeline.tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
     assert cost(64, 517) > cost(32, 517) > cost(16, 16) > 0
-    monkeypatch.setattr(clisp.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
+    monkeypatch.setattr(clisp.engine.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
     budget = 100 * 2**20 + RSS_MARGIN + 6 * 2**20
     _, stats = process_file(raw, tmp_path / "o.exr", budget=budget, preset=preset)
     rows, cols = stats.tile_shape
@@ -194,7 +194,7 @@ def test_cli_streams_silently(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                               monkeypatch: pytest.MonkeyPatch) -> None:
     raw = make_raw("lms", shape=(300, 400))
     write_raw(tmp_path / "r.dng", raw)
-    monkeypatch.setattr(clisp.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
+    monkeypatch.setattr(clisp.engine.memory, "resident_bytes", lambda: 100 * 2**20)   # the process holds 100 MiB
     mem = f"{(100 * 2**20 + RSS_MARGIN) // 2**20 + 4}M"    # 4 MiB left for tiles: several bands
     code = main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--mem", mem,
                  "--preset", "fast"])
@@ -343,9 +343,9 @@ def test_run_tiles_releases_a_window_after_its_tile_finished() -> None:
         held.discard(i)
         log.append(("release", i))
 
-    run_tiles(plan, read, compute, clisp.streaming.ArraySink(np.zeros((64, 40, 3))), release=release)
+    run_tiles(plan, read, compute, clisp.engine.streaming.ArraySink(np.zeros((64, 40, 3))), release=release)
     assert [i for kind, i in log if kind == "release"] == list(range(len(plan.tiles)))
-    assert 2 < len(plan.tiles) and most <= clisp.streaming.READ_AHEAD + 2
+    assert 2 < len(plan.tiles) and most <= clisp.engine.streaming.READ_AHEAD + 2
 
 
 def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -361,7 +361,7 @@ def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyP
     monkeypatch.setattr(rt, "host_input", lambda a: (lambda i: in_place.append(i is not None) or i)(host_input(a)))
     plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
     out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
-    pipeline.stream(ArrayWindows(raw.data), clisp.streaming.ArraySink(out), plan)
+    pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
     assert len(in_place) == len(plan.tiles) > 2 and all(in_place) == rt.host_unified
     assert len(uploads) == (0 if rt.host_unified else len(plan.tiles))
     monkeypatch.setattr(rt, "host_unified", False)
@@ -370,7 +370,7 @@ def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyP
 
 def unaligned(data: np.ndarray) -> np.ndarray:
     """A copy of ``data`` starting 2 bytes past a page boundary: never read in place by the device."""
-    out = clisp.streaming.aligned_empty(data.nbytes + 2)[2:].view(data.dtype).reshape(data.shape)
+    out = clisp.engine.streaming.aligned_empty(data.nbytes + 2)[2:].view(data.dtype).reshape(data.shape)
     out[...] = data
     return out
 
@@ -406,10 +406,10 @@ def test_pipeline_gathers_windows_on_the_device(preset: str, budget: int, monkey
     monkeypatch.setattr(rt, "gather_window", lambda *a: gathered.append(a[1:]) or gather(*a))
     plan = pipeline.plan(raw.shape, raw.data.dtype, budget=budget)
     out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
-    pipeline.stream(ArrayWindows(clisp.streaming.aligned_copy(raw.data)), clisp.streaming.ArraySink(out), plan)
+    pipeline.stream(ArrayWindows(clisp.engine.streaming.aligned_copy(raw.data)), clisp.engine.streaming.ArraySink(out), plan)
     assert len(gathered) == (len(plan.tiles) if rt.host_unified else 0) and len(plan.tiles) > 2
     host = np.zeros_like(out)
-    pipeline.stream(ArrayWindows(unaligned(raw.data)), clisp.streaming.ArraySink(host), plan)
+    pipeline.stream(ArrayWindows(unaligned(raw.data)), clisp.engine.streaming.ArraySink(host), plan)
     np.testing.assert_array_equal(out, host)
 
 
@@ -539,7 +539,7 @@ def test_large_simulation_noise_seeded_per_band(monkeypatch: pytest.MonkeyPatch)
 
 
 def test_cli_simulate_size(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from clisp.imageio import write_image
+    from clisp.io.imageio import write_image
     scene = np.random.default_rng(1).random((30, 40, 3))
     write_image(tmp_path / "s.exr", scene)
     args = ["simulate", str(tmp_path / "s.exr"), "--size", "90x70", "-o", str(tmp_path / "r.dng"),

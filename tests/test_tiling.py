@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from clisp.cfa import cfa_from_name
-from clisp.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
+from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
-from clisp.rawimage import RawImage
-from clisp.tiling import Tile, cfa_mirror_index, gather_window, plan_tiles
+from clisp.io.rawimage import RawImage
+from clisp.engine.tiling import Tile, cfa_mirror_index, gather_window, plan_tiles
 from tolerance import TOL, assert_close
 
 """|a - b| <= TOL * max(1, |b|) for every output comparison in this file."""

@@ -12,7 +12,7 @@ import bench_bandwidth  # noqa: E402  (tools/ is not a package)
 
 
 def test_bandwidth_figures_are_finite() -> None:
-    from clisp.runtime import get_runtime
+    from clisp.engine.runtime import get_runtime
     rt = get_runtime()
     assert bench_bandwidth.copy_bandwidth(rt, nbytes=4 * 2**20, repeat=1) > 0
     raw = bench_bandwidth.test_raw((320, 240), None)

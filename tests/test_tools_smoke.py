@@ -21,7 +21,7 @@ def test_pareto_front():
 
 
 def test_bench_small(tmp_path):
-    from clisp.charts import demo_chart
+    from clisp.sim.charts import demo_chart
 
     scene = demo_chart().image[:128, :160]
     wanted = {"clisp lms fast", "clisp bayer fast", "cd bilinear", "rawpy LINEAR"}

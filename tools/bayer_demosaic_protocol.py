@@ -18,7 +18,7 @@ Speed: megapixels per second of each of our demosaics on the OpenCL device on a 
 mosaic, (a) kernels only (stage.enqueue on a padded window already on the device, best of
 --repeat) and (b) end to end (Pipeline.run: host padding, upload, kernels, download), beside
 rawpy's AHD (LibRaw) postprocessing a Bayer DNG of the same size simulated by clisp and written
-with clisp.rawfile.write_raw (demosaic_algorithm=AHD, output_bps=16, no_auto_bright=True; only
+with clisp.io.rawfile.write_raw (demosaic_algorithm=AHD, output_bps=16, no_auto_bright=True; only
 postprocess is timed, best of --repeat).
 
     python tools/bayer_demosaic_protocol.py [--data ../shared/data] [--no-speed] [--per-image]
@@ -39,10 +39,10 @@ from typing import Callable
 import numpy as np
 
 from clisp.cfa import bayer_cfa
-from clisp.imageio import read_image, read_scene
+from clisp.io.imageio import read_image, read_scene
 from clisp.metrics import psnr
 from clisp.pipeline import Pipeline
-from clisp.runtime import get_runtime
+from clisp.engine.runtime import get_runtime
 from clisp.stages.base import Stage
 from clisp.stages.demosaic_bilinear import DemosaicBilinear
 from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE
@@ -129,7 +129,7 @@ def print_quality(scores: dict[str, dict[str, list[float]]]) -> None:
 
 def bayer_raw(data: Path):
     """A 6000 x 4000 Bayer raw simulated by clisp (noisy, uint16) from a tiled Kodak image."""
-    from clisp.simulate import simulate
+    from clisp.sim.simulate import simulate
     tile = read_scene(data / "kodak" / "kodim23.png")
     reps = (-(-SPEED_SHAPE[0] // tile.shape[0]), -(-SPEED_SHAPE[1] // tile.shape[1]), 1)
     scene = np.tile(tile, reps)[:SPEED_SHAPE[0], :SPEED_SHAPE[1]]
@@ -166,7 +166,7 @@ def rawpy_ahd(raw, folder: Path) -> Callable[[], object]:
     """rawpy (LibRaw) AHD postprocess of ``raw`` written as a DNG by clisp; only postprocess runs."""
     import rawpy
 
-    from clisp.rawfile import write_raw
+    from clisp.io.rawfile import write_raw
     path = folder / "bayer.dng"
     write_raw(path, raw)
     handle = rawpy.imread(str(path))

@@ -2,7 +2,7 @@
 
 Quality: for every scene (the demo chart plus the first --subset images of Kodak and McMaster)
 and every gain of --gains (default 1, 8, 64), a Bayer and an LMS raw are simulated once
-(clisp.simulate, Airy optics, seed 0) and every method processes the SAME mosaic; PSNR (dB,
+(clisp.sim.simulate, Airy optics, seed 0) and every method processes the SAME mosaic; PSNR (dB,
 tone-mapped, 10 px border, clisp.metrics.psnr) against the simulation's ground truth, mean over
 the scenes.
 
@@ -15,7 +15,7 @@ Methods
                        and multiplied by OUR pass-1 WB gains, then OUR colour matrix (NumPy)
   rawpy LINEAR / AHD / DCB / DHT / AAHD
                        LibRaw postprocess of the same Bayer raw written as a DNG by
-                       clisp.rawfile.write_raw, with user_wb = our pass-1 gains (relative, as LibRaw
+                       clisp.io.rawfile.write_raw, with user_wb = our pass-1 gains (relative, as LibRaw
                        normalises them), output_color=raw, gamma (1, 1), no_auto_bright,
                        output_bps=16, user_flip=0; the 16-bit camera-RGB result is scaled to
                        our normalisation (per-channel level calibrated once per raw from channel
@@ -52,13 +52,13 @@ from typing import Callable
 
 import numpy as np
 
-from clisp.charts import demo_chart
-from clisp.imageio import read_scene
+from clisp.sim.charts import demo_chart
+from clisp.io.imageio import read_scene
 from clisp.metrics import psnr
 from clisp.pipeline import PRESETS, build_pipeline
-from clisp.rawimage import RawImage
-from clisp.runtime import get_runtime
-from clisp.simulate import simulate
+from clisp.io.rawimage import RawImage
+from clisp.engine.runtime import get_runtime
+from clisp.sim.simulate import simulate
 
 BORDER = 10
 SETS = {"Kodak": ("kodak", ("*.png",)), "McMaster": ("mcmaster", ("*.tif", "*.tiff"))}
@@ -162,7 +162,7 @@ def rawpy_method(algo: str) -> Method:
     def make(raw: RawImage) -> Callable[[], np.ndarray]:
         import rawpy
 
-        from clisp.rawfile import write_raw
+        from clisp.io.rawfile import write_raw
         path = Path(_TMP.name) / f"bench_{next(_COUNTER)}.dng"     # a fresh file for every raw
         write_raw(path, raw)
         options = libraw_options(raw, algo)

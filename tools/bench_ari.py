@@ -8,9 +8,9 @@ noise) of --shape is processed by a one-stage Pipeline (the demosaic alone) thro
 the default memory budget (Pipeline.run: planner tiles, host padding, upload, kernels, download),
 warm (one small run first builds the programs), best of --repeat: MP/s of output. Beside them, when
 rawpy is installed (--no-dht: not), LibRaw's DHT on the same mosaic written as a 16-bit Bayer DNG by
-clisp.rawfile.write_raw: only rawpy's postprocess is timed (DHT plus LibRaw's scaling, colour
+clisp.io.rawfile.write_raw: only rawpy's postprocess is timed (DHT plus LibRaw's scaling, colour
 conversion and 16-bit output; no file read or write), best of --repeat. --profile adds one
-run with OpenCL event profiling and prints the device time per step and kernel (clisp.profile; the
+run with OpenCL event profiling and prints the device time per step and kernel (clisp.engine.profile; the
 ARI stage labels its steps "demosaic_ari 1 green", "... 2 diagonals", "... 3 G sites").
 
 Measured (commit 7027c40; PoCL 3.0 on 2 shared AMD EPYC cores, two other sessions busy; 24 MP,
@@ -55,10 +55,10 @@ from typing import Callable
 
 import numpy as np
 
-from clisp import profile
+from clisp.engine import profile
 from clisp.cfa import bayer_cfa
 from clisp.pipeline import Pipeline
-from clisp.runtime import get_runtime
+from clisp.engine.runtime import get_runtime
 from clisp.stages.demosaic_ari import DemosaicARI
 from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE
 
@@ -82,9 +82,9 @@ def rawpy_dht(mos: np.ndarray, folder: str) -> Callable[[], object]:
     timed call (postprocess only)."""
     import rawpy
 
-    from clisp.colorimetry import B_BAYER
-    from clisp.rawfile import write_raw
-    from clisp.rawimage import RawImage
+    from clisp.sim.colorimetry import B_BAYER
+    from clisp.io.rawfile import write_raw
+    from clisp.io.rawimage import RawImage
     data = np.round(np.clip(mos, 0.0, 1.0) * 65535.0).astype(np.uint16)
     raw = RawImage(data=data, cfa=bayer_cfa("RGGB"), black_level=np.zeros(3), white_level=65535.0,
                    wb=np.ones(3), colour_matrix=B_BAYER)

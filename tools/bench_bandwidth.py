@@ -67,15 +67,15 @@ def test_raw(size: tuple[int, int], path: str | None):
     """A Bayer RawImage of ``size`` (W, H): the file's mosaic tiled, or the chart simulated."""
     from dataclasses import replace
     import clisp
-    from clisp.charts import demo_chart
-    from clisp.rawfile import read_raw
+    from clisp.sim.charts import demo_chart
+    from clisp.io.rawfile import read_raw
     if path:
         raw = read_raw(path)
     else:
         raw = clisp.simulate(demo_chart().image, cfa="bayer", gain=1, seed=0).raw
     h, w = (s - s % 2 for s in raw.shape)
     reps = (-(-size[1] // h), -(-size[0] // w))
-    from clisp.streaming import aligned_copy           # as clisp's camera reader allocates it
+    from clisp.engine.streaming import aligned_copy           # as clisp's camera reader allocates it
     data = aligned_copy(np.tile(raw.data[:h, :w], reps)[:size[1], :size[0]])
     return replace(raw, data=data, metadata={})
 
@@ -135,8 +135,8 @@ def pipeline_bandwidth(raw, output: str, repeat: int, copy: Callable[[], float]
     ``repeat`` runs, each followed by a run of ``copy`` (the device's copy kernel; best taken), so
     that both see the same load on a shared machine."""
     from clisp.pipeline import build_pipeline
-    from clisp.runtime import get_runtime
-    from clisp.streaming import ArrayWindows, BandSink
+    from clisp.engine.runtime import get_runtime
+    from clisp.engine.streaming import ArrayWindows, BandSink
     pipeline = build_pipeline(raw, preset="fast", output=output)
     width = raw.shape[1]
     plan = pipeline.plan(raw.shape, raw.data.dtype, sink_bands=True)
@@ -161,7 +161,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5, help="timed runs, best taken (default 5)")
     parser.add_argument("--raw", default=None, help="a Bayer raw whose mosaic is tiled (default: simulated chart)")
     args = parser.parse_args()
-    from clisp.runtime import get_runtime
+    from clisp.engine.runtime import get_runtime
     size = tuple(int(v) for v in args.size.lower().split("x"))
     rt = get_runtime()
     print(f"machine: {platform.processor() or platform.machine()}, device: {rt.describe()}")

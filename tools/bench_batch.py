@@ -39,8 +39,8 @@ import numpy as np
 from clisp.batch import (BatchSettings, default_workers, local_worker_env, plan_jobs, process_one, read_manifest,
                          run_batch)
 from clisp.cli import image_size
-from clisp.rawfile import write_raw
-from clisp.simulate import simulate
+from clisp.io.rawfile import write_raw
+from clisp.sim.simulate import simulate
 
 
 def make_raws(folder: Path, count: int, width: int, height: int) -> list[Path]:

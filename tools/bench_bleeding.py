@@ -6,7 +6,7 @@
 Scene (made in code): the ColorChecker with 64 px patches and 48 px gaps on mid-grey (linear 0.18:
 several patches are close to it in luminance, so nothing in the luminance stops chroma at their
 edges), and below it a row of discs (radius 8, 16, 32 px) in the six saturated patch colours on
-the same grey. Each is simulated (clisp.simulate: optics, noise at the gain, 10-bit ADC) and
+the same grey. Each is simulated (clisp.sim.simulate: optics, noise at the gain, 10-bit ADC) and
 processed with the preset's pipeline (skipping on, as ``clisp process``).
 
 Ring colour shift: for every patch and disc, the mean linear RGB of the ring 3 to 10 px outside
@@ -48,10 +48,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from clisp.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois  # noqa: E402
+from clisp.sim.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois  # noqa: E402
 from clisp.metrics import gray_panel_snr, linear_srgb_to_lab  # noqa: E402
 from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.simulate import simulate  # noqa: E402
+from clisp.sim.simulate import simulate  # noqa: E402
 
 PATCH, GAP = 64, 48
 DISC_RADII = (8, 16, 32)
@@ -111,7 +111,7 @@ def measure(cfa: str, gain: float, seeds: int, preset: str | None, denoise: bool
         discs.append(ring_shifts(out, sim.truth, disc_rings))
         snr.append(float(np.mean(gray_panel_snr(out, gray))))
         if crops is not None and seed == 0:
-            from clisp.imageio import write_image
+            from clisp.io.imageio import write_image
             crops.mkdir(parents=True, exist_ok=True)
             write_image(crops / f"bleeding_{cfa}_g{gain:g}.png", np.clip(out[:400, :560], 0, 1), encoded=False)
     p, d = np.mean(patches, axis=0), np.mean(discs, axis=0)

@@ -1,7 +1,7 @@
 """Demosaic quality inside the full pipeline: clisp's Bayer and LMS defaults against LibRaw's
 demosaics, on Kodak, McMaster and dead leaves, noiseless and noisy (issue 12, item 3).
 
-For every scene and setting a Bayer raw and an LMS raw are simulated once (clisp.simulate, seed 0)
+For every scene and setting a Bayer raw and an LMS raw are simulated once (clisp.sim.simulate, seed 0)
 and every method of that CFA processes the same raw. Settings: ``noiseless`` (Airy optics),
 ``noiseless-sharp`` (no optics), and gains ``4``, ``16``, ``64`` (Airy optics, shot + read noise).
 
@@ -16,7 +16,7 @@ Each Bayer demosaic turns the same raw into white-balanced camera RGB, and the s
   numpy <func>      a NumPy candidate ``func(mosaic, pattern) -> H x W x 3`` (--numpy MODULE:FUNC)
                     on the normalised, white-balanced mosaic (float64), pattern e.g. 'RGGB'
   LibRaw <ALGO>     rawpy postprocess (AHD, DHT, AAHD, VNG, DCB, ...) of the raw written as a
-                    DNG by clisp.rawfile.write_raw (noiseless raws: DN x 64 rounded to 16 bits),
+                    DNG by clisp.io.rawfile.write_raw (noiseless raws: DN x 64 rounded to 16 bits),
                     output_color raw, linear, user_wb = our pass-1 gains; its level is calibrated
                     per channel to our normalised mosaic (means at the channel's own sites)
 
@@ -36,8 +36,8 @@ Bayer best.
         [--libraw AHD,DHT,AAHD,VNG,DCB] [--numpy MODULE:FUNC,...] [--lms-numpy MODULE:FUNC,...]
         [--csv FILE] [--per-image]
 
-Dead leaves: clisp.charts.dead_leaves (512 x 512, seeds 0..--dead-leaves - 1), generated here.
-Set ``zoneplate``: clisp.charts.zone_plate(256) (the neutral sRGB-cosine plate), one image.
+Dead leaves: clisp.sim.charts.dead_leaves (512 x 512, seeds 0..--dead-leaves - 1), generated here.
+Set ``zoneplate``: clisp.sim.charts.zone_plate(256) (the neutral sRGB-cosine plate), one image.
 Tools-only dependency: rawpy.
 """
 from __future__ import annotations
@@ -55,13 +55,13 @@ from typing import Callable
 import numpy as np
 
 from clisp.cfa import CFA
-from clisp.charts import dead_leaves, zone_plate
-from clisp.imageio import read_scene
+from clisp.sim.charts import dead_leaves, zone_plate
+from clisp.io.imageio import read_scene
 from clisp.metrics import psnr
 from clisp.pipeline import DEMOSAICS, Pipeline, build_pipeline, make_demosaic
-from clisp.rawimage import RawImage
-from clisp.runtime import get_runtime
-from clisp.simulate import simulate
+from clisp.io.rawimage import RawImage
+from clisp.engine.runtime import get_runtime
+from clisp.sim.simulate import simulate
 from clisp.stages.base import Stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -146,7 +146,7 @@ def libraw_camera_rgb(raw: RawImage, algo: str, folder: Path) -> np.ndarray:
     import rawpy
     from dataclasses import replace
 
-    from clisp.rawfile import write_raw
+    from clisp.io.rawfile import write_raw
     if raw.data.dtype != np.uint16:                       # noiseless: float DN -> 16-bit integers
         data = np.clip(np.round(raw.data.astype(np.float64) * NOISELESS_SCALE), 0, 65535).astype(np.uint16)
         raw = replace(raw, data=data, black_level=raw.black_level * NOISELESS_SCALE,

@@ -24,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from clisp import profile  # noqa: E402
-from clisp.runtime import _ProfiledKernel, _define_flags, get_runtime  # noqa: E402
+from clisp.engine import profile  # noqa: E402
+from clisp.engine.runtime import _ProfiledKernel, _define_flags, get_runtime  # noqa: E402
 from clisp.stages import highlights  # noqa: E402
 from toolkit import parse_size  # noqa: E402
 

@@ -45,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import clisp  # noqa: E402
 from clisp.metrics import ciede2000, psnr  # noqa: E402
 from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.simulate import inverse_isp_matrix  # noqa: E402
+from clisp.sim.simulate import inverse_isp_matrix  # noqa: E402
 from clisp.noise_estimate import CLIP_FRACTION  # noqa: E402
 from clisp.stages.highlights import box_max  # noqa: E402
 from toolkit import DEFAULT_DATA  # noqa: E402
@@ -96,7 +96,7 @@ def score(out: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> tuple[float, 
 
 def libraw(raw, mode: str, folder: Path, mask: np.ndarray, reference: np.ndarray) -> np.ndarray:
     import rawpy
-    from clisp.rawfile import write_raw
+    from clisp.io.rawfile import write_raw
     path = folder / "bench.dng"
     write_raw(path, raw)
     g = raw.pass1_gains()
@@ -196,7 +196,7 @@ def own_photos(n: int = 384, seed: int = 7) -> dict[str, np.ndarray]:
 
 def natural_scenes(data: Path, only: str) -> dict[str, np.ndarray]:
     """Kodak images of ``data``/kodak (linear sRGB) and :func:`own_photos`, by name."""
-    from clisp.imageio import read_scene
+    from clisp.io.imageio import read_scene
     scenes_ = {path.stem: read_scene(path) for path in sorted((data / "kodak").glob("kodim*.png"))}
     scenes_.update(own_photos())
     return {k: v for k, v in scenes_.items() if not only or only in k}

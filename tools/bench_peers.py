@@ -113,7 +113,7 @@ class Result:
 
 def tiled_camera_raw(camera: Path, out: Path, width: int, height: int) -> None:
     """Write ``out``: the camera raw's mosaic (even crop) tiled to height x width, as our DNG."""
-    from clisp.rawfile import read_raw, write_raw
+    from clisp.io.rawfile import read_raw, write_raw
     raw = read_raw(camera)
     h, w = raw.shape
     mosaic = raw.data[:h // 2 * 2, :w // 2 * 2]
@@ -131,8 +131,8 @@ def scene_file(data: Path, work: Path) -> Path:
         return kodak
     path = work / "demo_chart.png"
     if not path.is_file():
-        from clisp.charts import demo_chart
-        from clisp.imageio import write_image
+        from clisp.sim.charts import demo_chart
+        from clisp.io.imageio import write_image
         write_image(path, demo_chart().image, encoded=False)
     return path
 

@@ -22,14 +22,14 @@ from typing import Callable
 
 import numpy as np
 
-from clisp.charts import demo_chart
+from clisp.sim.charts import demo_chart
 from clisp.pipeline import DEFAULT_PRESET, PRESETS, build_pipeline, process_file
-from clisp.rawfile import read_raw, write_raw
-from clisp.rawimage import RawImage
-from clisp.runtime import get_runtime
-from clisp.simulate import simulate
-from clisp.streaming import ArraySink, ArrayWindows
-from clisp.tiling import TilePlan, even_split, grid
+from clisp.io.rawfile import read_raw, write_raw
+from clisp.io.rawimage import RawImage
+from clisp.engine.runtime import get_runtime
+from clisp.sim.simulate import simulate
+from clisp.engine.streaming import ArraySink, ArrayWindows
+from clisp.engine.tiling import TilePlan, even_split, grid
 
 SWEEP_MP = (0.5, 1, 2, 4, 8, 16)
 """Band sizes of --sweep, in megapixels."""

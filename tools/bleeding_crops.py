@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_bleeding import scene  # noqa: E402
 import clisp.pipeline as pipeline_module  # noqa: E402
-from clisp.colorimetry import srgb_encode  # noqa: E402
-from clisp.simulate import simulate  # noqa: E402
+from clisp.sim.colorimetry import srgb_encode  # noqa: E402
+from clisp.sim.simulate import simulate  # noqa: E402
 from clisp.stages.chroma_denoise import ChromaDenoiseParams  # noqa: E402
 from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, LMSGuidedParams  # noqa: E402
 

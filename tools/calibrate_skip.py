@@ -9,7 +9,7 @@
         # `--no-skip`), 12 MP scenes: the sky, a 5 x 6 collage of Kodak and a 8 x 6 collage of
         # McMaster images; PSNR is the mean over the collage's images
 
-Per scene, CFA and gain: the raw is simulated (clisp.simulate, seed 1), the 'quality' preset
+Per scene, CFA and gain: the raw is simulated (clisp.sim.simulate, seed 1), the 'quality' preset
 pipeline is built with skip=True (default) and skip=False (--no-skip: analysed, every tile full),
 both run on OpenCL (best of --repeat, analysis time added to the default's), and PSNR
 (tone-mapped, SPEC section 8) is taken against the simulation's truth. Data are read from
@@ -47,10 +47,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from clisp.imageio import read_scene  # noqa: E402
+from clisp.io.imageio import read_scene  # noqa: E402
 from clisp.metrics import psnr  # noqa: E402
 from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.simulate import simulate  # noqa: E402
+from clisp.sim.simulate import simulate  # noqa: E402
 
 DATA = Path("/work/shared/data")
 
@@ -116,8 +116,8 @@ def cli_acceptance(work: Path, scenes: list[str], cfas: list[str], gains: list[s
     """Simulate each scene (cached in ``work``), then time `clisp process` default against
     `--no-skip` (interleaved, median of ``repeat``), score both and print the plan."""
     import subprocess
-    from clisp.imageio import read_image
-    from clisp.rawfile import write_raw
+    from clisp.io.imageio import read_image
+    from clisp.io.rawfile import write_raw
     work.mkdir(parents=True, exist_ok=True)
     clisp = [sys.executable, "-m", "clisp"]
 

@@ -24,7 +24,7 @@ rusage; the floor is checked with ``true`` and a 256 MiB allocation (also agains
 Refusal: for every input x preset x format, ``--mem --refuse-mem`` (default 150M, far below the
 minimum) must exit 2 with one line on stderr naming the output and the minimum, and leave no
 output; that line also gives the planner's figures (what the process holds when planning, with
-clisp.memory.RSS_MARGIN, and the smallest tile), shown per row as "min --mem".
+clisp.engine.memory.RSS_MARGIN, and the smallest tile), shown per row as "min --mem".
 
 Exit status 1 if any run or refusal check failed, 2 if nothing matched ``--only``.
 Peak RSS does not depend on load; wall times do (the machine may be shared).
@@ -142,7 +142,7 @@ def scene_file(data: Path, work: Path, root: Path) -> Path:
         return kodak
     path = work / "demo_chart.png"
     if not path.is_file():
-        code = ("import sys; from clisp.charts import demo_chart; from clisp.imageio import write_image; "
+        code = ("import sys; from clisp.sim.charts import demo_chart; from clisp.io.imageio import write_image; "
                 "write_image(sys.argv[1], demo_chart().image, encoded=False)")
         subprocess.run([sys.executable, "-c", code, str(path)], env=clisp_env(root), cwd=NEUTRAL_CWD, check=True)
     return path
@@ -434,7 +434,7 @@ def section(rows: list[dict[str, object]], header: list[str], refusals: list[str
     body = [MARK_START, SECTION_TITLE, "",
             f"Measured {datetime.date.today().isoformat()} with `{' '.join(shlex.quote(a) for a in argv)}`.",
             "", *header, *refusals, "",
-            "`--mem` bounds the peak resident set of the whole `clisp process` (clisp/memory.py). Headroom is "
+            "`--mem` bounds the peak resident set of the whole `clisp process` (clisp/engine/memory.py). Headroom is "
             "--mem - peak; \"min --mem\" is the minimum clisp names when refusing a too-small --mem (what the "
             "process holds when planning, RSS_MARGIN included, + the smallest tile). Wall times are on a shared "
             "machine.", "",

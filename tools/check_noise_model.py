@@ -1,4 +1,4 @@
-"""Flat fields through clisp.simulate against the noise model (SPEC.md section 3).
+"""Flat fields through clisp.sim.simulate against the noise model (SPEC.md section 3).
 
 For each CFA, gain and grey level, a 512 x 512 flat grey scene (no optics) is simulated; per CFA
 channel the measured DN mean and variance are compared with the model's expectation
@@ -14,8 +14,8 @@ import sys
 import numpy as np
 
 import clisp
-from clisp.noise import NoiseModel
-from clisp.simulate import inverse_isp_matrix
+from clisp.sim.noise import NoiseModel
+from clisp.sim.simulate import inverse_isp_matrix
 
 GAINS = (1, 8, 64)
 LEVELS = (0.05, 0.5)

@@ -14,7 +14,7 @@ Methods:
     clisp bilinear / DLMMSE      our OpenCL stages, Pipeline(CFA, [stage]).run(mosaic as float32),
                                  exactly as bayer_demosaic_protocol.py runs them
     LibRaw LINEAR/AHD/DHT/...    rawpy (LibRaw) on the same mosaic written as a Bayer DNG by
-                                 clisp.rawfile.write_raw (uint16 = round(65535 mosaic), black 0,
+                                 clisp.io.rawfile.write_raw (uint16 = round(65535 mosaic), black 0,
                                  white 65535, wb 1, identity colour matrix); postprocess with
                                  output_color raw, gamma (1, 1), no_auto_bright, output_bps 16,
                                  user_wb ones, user_flip 0, highlight_mode Ignore (tools/bench.py's
@@ -103,8 +103,8 @@ class LibRaw:
         self.path = folder / "mosaic.dng"
 
     def dng(self, m: np.ndarray) -> Path:
-        from clisp.rawfile import write_raw
-        from clisp.rawimage import RawImage
+        from clisp.io.rawfile import write_raw
+        from clisp.io.rawimage import RawImage
         key = hashlib.sha1(np.ascontiguousarray(m).tobytes()).hexdigest()
         if self.key != key:
             data = np.round(np.clip(m, 0.0, 1.0) * 65535.0).astype(np.uint16)

@@ -6,7 +6,7 @@ cfa.png     the LMS CFA's 4 x 4 tile over an 8 x 8 patch, the same CFA at phase 
             (from clisp.cfa: what the simulator mosaics and the pipeline demosaics)
 spectrum.png  where each colour sits in the frequency plane of an LMS and a Bayer mosaic: the
             magnitude of each channel's carrier at the 16 (resp. 4) frequencies of the tile
-noise.png   per-pixel raw SNR against the normalised signal at gains 1 to 64 (clisp.noise's model)
+noise.png   per-pixel raw SNR against the normalised signal at gains 1 to 64 (clisp.sim.noise's model)
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from clisp.cfa import CFA, bayer_cfa, lms_cfa
-from clisp.noise import NoiseModel
+from clisp.sim.noise import NoiseModel
 
 COLOURS = {"L": "#d62728", "M": "#2ca02c", "S": "#1f77b4", "R": "#d62728", "G": "#2ca02c", "B": "#1f77b4"}
 

@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     scenes = {k: v for k, v in own_photos().items() if k in CROPS}
     kodak = args.data / "kodak" / "kodim23.png"
     if args.kodak:
-        from clisp.imageio import read_scene
+        from clisp.io.imageio import read_scene
         scenes = {"kodim23": read_scene(kodak), **scenes}
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,7 @@
 Per image: ``clisp.simulate(scene, cfa, gain=None)`` (optics on: Airy r0 = 1 px) -> ``clisp.process(raw,
 demosaic=NAME)`` (OpenCL) -> ``clisp.metrics.psnr(out, truth)`` (tone-mapped sRGB, 10 px border; truth =
 the optics-blurred clean scene). Scene sizes are cropped to multiples of 4. A set's score is the mean of
-its per-image dB. Zone plate: ``clisp.charts.zone_plate(256)`` (the demo's: a cosine in sRGB-encoded
+its per-image dB. Zone plate: ``clisp.sim.charts.zone_plate(256)`` (the demo's: a cosine in sRGB-encoded
 values up to Nyquist) simulated the same way, scored over the full 256 x 256 with border 10; "linear zp"
 is the same plate with the cosine in linear values (``encoding="linear"``). LMS demosaics: bilinear,
 hybrid and any --demosaic NAME; Bayer (RGGB): bilinear, dlmmse and any --bayer NAME, each only if registered in clisp.pipeline.DEMOSAICS.
@@ -27,9 +27,9 @@ import numpy as np
 
 import clisp
 import clisp.pipeline
-from clisp import charts
+from clisp.sim import charts
 from clisp.cfa import lms_cfa
-from clisp.imageio import read_scene, write_image
+from clisp.io.imageio import read_scene, write_image
 from clisp.metrics import psnr, tone_map
 
 # Until the lead registers the stage in clisp/pipeline.py (remove this line then):
@@ -140,7 +140,7 @@ def bench(names: list[str], height: int = 4000, width: int = 6000, repeats: int 
     not change their speed), padded by the stage's halo; runs alternate between stages and each stage
     keeps its best time, so a busy machine biases no stage.
     """
-    from clisp.runtime import get_runtime
+    from clisp.engine.runtime import get_runtime
     rt = get_runtime()
     cfa = lms_cfa()
     stages = {name: clisp.pipeline.DEMOSAICS[name](cfa) for name in names}

@@ -6,7 +6,7 @@ simulation's noise model) -- or, "without denoise", the plain colour matrix. Sim
 section 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless).
 
 Table 2  gray-panel SNR (dB) of the six ColorChecker neutrals on the demo chart
-         (clisp.charts.demo_chart: 64 px patches, central 32 x 32 ROI), LINEAR output, mean over
+         (clisp.sim.charts.demo_chart: 64 px patches, central 32 x 32 ROI), LINEAR output, mean over
          R, G, B, mean over --seeds noise seeds; LMS - Bayer lead per panel and averaged.
 Table 1  PSNR (dB), tone-mapped (clip, sRGB encode), 10 px border, mean over the images of
          Kodak (24 PNG) and McMaster (18 TIFF, the paper's "IMAX"), cropped to multiples of 4;
@@ -43,16 +43,16 @@ import numpy as np
 
 from clisp.batch import map_ordered, worker_cache
 from clisp.cfa import CFA
-from clisp.charts import demo_chart
-from clisp.imageio import read_scene, write_image
+from clisp.sim.charts import demo_chart
+from clisp.io.imageio import read_scene, write_image
 from clisp.metrics import gray_panel_snr, psnr
-from clisp.noise import ChannelNoise
+from clisp.sim.noise import ChannelNoise
 from clisp.noise_estimate import raw_noise
 import clisp.pipeline as pipeline_module
 from clisp.pipeline import DEMOSAICS, Pipeline
-from clisp.rawimage import RawImage
-from clisp.runtime import get_runtime
-from clisp.simulate import simulate
+from clisp.io.rawimage import RawImage
+from clisp.engine.runtime import get_runtime
+from clisp.sim.simulate import simulate
 from clisp.stages.base import Stage
 from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
                                          space_for)

@@ -3,8 +3,8 @@ ColorChecker colour error, and the speed/quality benchmark (tools/bench.py) with
 
 Every number in the markdown except the paper's (SPEC.md section 9, tools/paper_tables.PAPER_*)
 comes from this run. Table 1 and Table 2 use tools/paper_tables.py's machinery (Runner, table1,
-table2: same pipelines, PSNR and SNR definitions); the "Charts" row (clisp.charts.demo_chart) and
-the spectral row (clisp.spectral.simulate_spectral, compared with the paper's hyperspectral ISET
+table2: same pipelines, PSNR and SNR definitions); the "Charts" row (clisp.sim.charts.demo_chart) and
+the spectral row (clisp.sim.spectral.simulate_spectral, compared with the paper's hyperspectral ISET
 row) are scored here the same way (tone-mapped PSNR, 10 px border, chroma denoise on).
 
     python tools/reproduce_paper.py [--data ../shared/data] [--subset N] [--seeds S]
@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench  # noqa: E402
 import paper_tables as pt  # noqa: E402
 from clisp.metrics import psnr  # noqa: E402
-from clisp.runtime import get_runtime  # noqa: E402
-from clisp.simulate import simulate  # noqa: E402
-from clisp.spectral import patch_delta_e, simulate_spectral, spectral_colorchecker  # noqa: E402
+from clisp.engine.runtime import get_runtime  # noqa: E402
+from clisp.sim.simulate import simulate  # noqa: E402
+from clisp.sim.spectral import patch_delta_e, simulate_spectral, spectral_colorchecker  # noqa: E402
 from clisp.stages.chroma_denoise import ChromaDenoiseParams  # noqa: E402
 
 PAPER_T1_EXTRA = {   # SPEC.md section 9, verbatim (Kodak and IMAX/McMaster are in paper_tables.PAPER_T1)
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     n_all = {s: len({p for pat in pt.SETS[s][1] for p in (data / pt.SETS[s][0]).glob(pat)}) for s in pt.SETS}
     n_set = {s: min(n_all[s], subset or n_all[s]) for s in pt.SETS}
     rows = {
-        "ISET (hyperspectral)": ("spectral ColorChecker, clisp.spectral", spectral, PAPER_T1_EXTRA["ISET (hyperspectral)"]),
+        "ISET (hyperspectral)": ("spectral ColorChecker, clisp.sim.spectral", spectral, PAPER_T1_EXTRA["ISET (hyperspectral)"]),
         "Charts (RGB)": ("clisp demo chart", charts, PAPER_T1_EXTRA["Charts (RGB)"]),
         "Kodak (RGB)": (f"{n_set['Kodak']} of {n_all['Kodak']} Kodak images", ours("Kodak"), pt.PAPER_T1["Kodak"]),
         "IMAX (RGB)": (f"{n_set['McMaster']} of {n_all['McMaster']} McMaster images", ours("McMaster"), pt.PAPER_T1["McMaster"]),
@@ -247,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|---|",
         *[f"| {k.upper() if k == 'lms' else 'Bayer'} | {v[0]:.2f} | {v[1]:.2f} |" for k, v in delta_e.items()],
         "",
-        "clisp.spectral.patch_delta_e: mean colour of the central 32x32 px of each patch, output vs truth, "
+        "clisp.sim.spectral.patch_delta_e: mean colour of the central 32x32 px of each patch, output vs truth, "
         "after the full pipeline (Airy optics, demosaic, chroma denoise, fitted colour matrix).",
         "",
         "## Table 2: gray-panel SNR (dB), linear output, mean of R, G, B; Bayer/LMS",

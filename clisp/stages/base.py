@@ -19,7 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..runtime import DeviceImage, Runtime
+from ..engine.runtime import DeviceImage, Runtime
 
 
 class Stage(ABC):

@@ -70,7 +70,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime
+from ..engine.runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 
 BT601 = np.array([0.299, 0.587, 0.114])
@@ -483,7 +483,7 @@ class ChromaDenoise(Stage):
 
     A flat field comes out as the colour matrix applied to it, whatever the noise table::
 
-        >>> from clisp.colorimetry import P_LMS
+        >>> from clisp.sim.colorimetry import P_LMS
         >>> table = NoiseTable(np.full((4, 4, 2), 1e-3), np.full((4, 4, 3, 2), 1e-3))
         >>> stage = ChromaDenoise(lms_space(P_LMS), table)
         >>> out = stage.reference(np.full((2 * 52 + 2, 2 * 52 + 3, 3), 0.5), (0, 0))
@@ -794,8 +794,8 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, backend: str) -> np.ndarra
     by its NumPy reference (float64) or its OpenCL kernels (float32, returned as float64)."""
     if backend == "reference":
         return demosaic.reference(mosaic, (0, 0))
-    from ..profile import stage_label
-    from ..runtime import get_runtime
+    from ..engine.profile import stage_label
+    from ..engine.runtime import get_runtime
     rt = get_runtime()
     stage_label("noise calibration (pipeline set-up)")
     src = rt.upload(np.ascontiguousarray(mosaic, dtype=np.float32))
@@ -849,7 +849,7 @@ def chroma_denoise_for(raw, demosaic: Stage, params: ChromaDenoiseParams | None 
                        noise=None) -> Stage:
     """The colour stage that follows ``demosaic`` for ``raw`` (a RawImage).
 
-    ``noise``: per-channel noise of the white-balanced raw (:class:`clisp.noise.ChannelNoise`,
+    ``noise``: per-channel noise of the white-balanced raw (:class:`clisp.sim.noise.ChannelNoise`,
     or anything with ``shot``, ``floor`` and ``variance(channel, level)``); None takes it from the raw (its sensor
     model when the metadata has one, else estimated from the mosaic). Returns a
     :class:`ChromaDenoise` in the paper's space for the CFA kind (LMS: Y = (L+M)/2, chroma R-Y,
@@ -873,7 +873,7 @@ def calibration_backend() -> str:
     """'opencl' when an OpenCL device can be had (the calibration then runs the demosaic's
     kernels), else 'reference' (a machine without OpenCL can still build a pipeline)."""
     from ..errors import ClispError
-    from ..runtime import get_runtime
+    from ..engine.runtime import get_runtime
     try:
         get_runtime()
     except ClispError:

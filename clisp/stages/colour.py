@@ -11,8 +11,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 
 

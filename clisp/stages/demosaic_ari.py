@@ -60,8 +60,8 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..profile import stage_label
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.profile import stage_label
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from . import bayer_ri
 from .base import Stage
 from .demosaic_malvar import check_bayer

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cfa import CFA
-from ..runtime import DeviceImage, Runtime
+from ..engine.runtime import DeviceImage, Runtime
 from .base import Stage
 from .linear_filter import LinearPhaseFilter, tap_channels, tap_offsets
 

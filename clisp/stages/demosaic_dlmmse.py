@@ -43,7 +43,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .colour import ColourMatrix
 from .demosaic_malvar import check_bayer

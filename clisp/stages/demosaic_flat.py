@@ -37,7 +37,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 
 PLUS_CENTRE = 4.0

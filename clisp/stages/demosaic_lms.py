@@ -71,8 +71,8 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..noise import NOISELESS, ChannelNoise
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..sim.noise import NOISELESS, ChannelNoise
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .guided_filter import MASK_S, enqueue_guided_filter, guided_filter
 from .lms_common import (NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband,

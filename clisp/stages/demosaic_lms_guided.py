@@ -94,8 +94,8 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..noise import NOISELESS, ChannelNoise
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..sim.noise import NOISELESS, ChannelNoise
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .guided_filter import (MASK_ALL, MASK_S, enqueue_box_rows, enqueue_guided_filter, enqueue_guided_pair,
                             guided_filter)

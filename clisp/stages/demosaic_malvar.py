@@ -32,7 +32,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime
+from ..engine.runtime import DeviceImage, Runtime
 from .base import Stage
 from .linear_filter import LinearPhaseFilter, tap_channels, tap_offsets
 

@@ -26,7 +26,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .lms_common import LATTICE, correlate_valid, valid
 
 MASK_ALL, MASK_M, MASK_S, MASK_PAIR = 0, 1, 2, 3

@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ClispError
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 
 Window = tuple[str, int, int]
 i32, f32 = np.int32, np.float32

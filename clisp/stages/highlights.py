@@ -85,7 +85,7 @@ import numpy as np
 
 from ..errors import ClispError
 from ..noise_estimate import CLIP_FRACTION
-from ..runtime import DeviceImage, Runtime
+from ..engine.runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
 
 MODES = ("clip", "reconstruct", "clamp", "off")

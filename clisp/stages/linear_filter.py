@@ -20,8 +20,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..cfa import CFA
-from ..colorimetry import SRGB_ENCODING, quantize16, srgb_encode
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 from .colour import ColourMatrix, ToneCurve, srgb_source
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
-from ..noise import ChannelNoise
+from ..sim.noise import ChannelNoise
 
 LATTICE = {"L_PAR": 0, "S_Y": 0, "S_D": 1}
 """The kernels' closed form of the base LMS tile (SPEC section 1, phase (0, 0)): L iff x + y + L_PAR is

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..cfa import CFA
-from ..runtime import DeviceImage, Runtime, launch_exact
+from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
 
 

@@ -20,14 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from .version import __version__
-from .cfa import CFA, cfa_from_name
+from ..version import __version__
+from ..cfa import CFA, cfa_from_name
 from .colorimetry import camera_constants
-from .errors import ClispError
+from ..errors import ClispError
 from .noise import NoiseModel, check_gain
 from .optics import airy_kernel, blur_channel
-from .rawimage import RawImage
-from .tiling import Tile, cfa_mirror_index, grid
+from ..io.rawimage import RawImage
+from ..engine.tiling import Tile, cfa_mirror_index, grid
 
 OPTICS_KINDS = ("airy", "none")
 
@@ -215,7 +215,7 @@ class LargeSimulation:
 
     header  the RawImage metadata; ``header.data`` is a zero-stride placeholder with the full
             shape and dtype (write it with ``rawfile.raw_band_writer``).
-    bands   full-width row bands (clisp.tiling.Tile) covering the image, top to bottom.
+    bands   full-width row bands (clisp.engine.tiling.Tile) covering the image, top to bottom.
     Call :meth:`band` for each band's pixels, in any order: the optics read a halo of the
     kernel radius from the repeated scene, so bands join exactly; the noise of band i is drawn
     from ``SeedSequence(seed).spawn(len(bands))[i]``, so a run is reproducible, but it is NOT

@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
-from .errors import ClispError
+from ..errors import ClispError
 from .profile import host_timer
 from .tiling import Tile, TilePlan, gather, gather_window, window_indices
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from .charts import BACKGROUND, colorchecker
 from .colorimetry import XYZ_TO_SRGB
-from .errors import ClispError
+from ..errors import ClispError
 
 WAVELENGTHS = np.arange(400, 701, 10)
 """Integration grid in nm (SPEC.md: the D100 data are given at 400..700 nm, step 10)."""
@@ -171,7 +171,7 @@ class SpectralChart:
 
 def spectral_colorchecker(kind: str, source: str = "colour", data: str | Path | None = None,
                           patch: int = 64, gap: int = 16, border: int = 16) -> SpectralChart:
-    """The ColorChecker (layout of clisp.charts.colorchecker) on a flat 18% grey background."""
+    """The ColorChecker (layout of clisp.sim.charts.colorchecker) on a flat 18% grey background."""
     refl = reflectances(source, data)
     background = np.full((1, WAVELENGTHS.size), BACKGROUND)
     all_refl = np.vstack([refl, background])
@@ -193,13 +193,13 @@ def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str |
                       data: str | Path | None = None, noise=None):
     """Simulate a raw of the spectral ColorChecker (SPEC.md section 3, spectral path).
 
-    Like :func:`clisp.simulate.simulate`, but the scene is camera responses from spectra: no
+    Like :func:`clisp.sim.simulate.simulate`, but the scene is camera responses from spectra: no
     inverse ISP; WB from the simulated white; colour matrix fitted (see module docstring); truth =
     the chart's true linear sRGB through the same optics. Returns a SimResult.
     """
     from .noise import NoiseModel, check_gain
     from .optics import apply_optics
-    from .rawimage import RawImage
+    from ..io.rawimage import RawImage
     from .simulate import SimResult, _check_seed, _metadata, _optics_kernel, optics_and_mosaic, resolve_cfa
 
     cfa_obj = resolve_cfa(cfa)
@@ -228,7 +228,7 @@ def patch_delta_e(output: np.ndarray, truth: np.ndarray, rois: list[tuple[int, i
     """CIEDE2000 per patch between the mean colours of the central ``central`` x ``central`` of each
     ROI in ``output`` and ``truth`` (both H x W x 3 linear sRGB), shape (len(rois),)."""
     from .charts import central_box
-    from .metrics import linear_srgb_to_lab
+    from ..metrics import linear_srgb_to_lab
 
     def means(image: np.ndarray) -> np.ndarray:
         boxes = [central_box(r, central) for r in rois]

@@ -5,7 +5,7 @@ clisp writes its own raws as DNG-style TIFFs (one uncompressed CFA image in cont
 ``read_raw(path, lazy=True)``; :func:`raw_band_writer` writes one band by band). Besides the
 standard DNG tags the file carries clisp's exact metadata as JSON in DNGPrivateData (tag 50740,
 prefixed with ``b"clisp\\0"``), so :func:`read_raw` rebuilds the :class:`RawImage` bit for bit.
-Any other file is handed to :func:`clisp.camera.read_camera_raw` (rawpy / LibRaw).
+Any other file is handed to :func:`clisp.io.camera.read_camera_raw` (rawpy / LibRaw).
 
 Every failure surfaces as a one-line :class:`ClispError` that names the file.
 """
@@ -23,9 +23,9 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import tifffile
 
-from .cfa import CFA, cfa_from_name
-from .colorimetry import XYZ_TO_SRGB
-from .errors import ClispError, clip, library_output
+from ..cfa import CFA, cfa_from_name
+from ..sim.colorimetry import XYZ_TO_SRGB
+from ..errors import ClispError, clip, library_output
 from .exif import camera_make_model, simulated_model_name
 from .rawimage import RawImage, check_levels
 
@@ -317,7 +317,7 @@ def read_raw(path: str | os.PathLike[str], lazy: bool = False) -> RawImage:
 
     ``lazy``: for our (uncompressed, contiguous) files ``data`` is a read-only ``np.memmap``, so
     the pixels stay on disk until read; tile streaming then reads only each tile's rows (see
-    clisp.streaming.window_source). Camera raws are always decoded whole.
+    clisp.engine.streaming.window_source). Camera raws are always decoded whole.
     """
     raw, _ = _load(path, lazy)
     return raw
@@ -358,7 +358,7 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 _INFO_EXIF = {"Exif:LensModel": "lens", "ExposureTime": "exposure_time_s", "FNumber": "f_number",
               "Exif:PhotographicSensitivity": "iso", "Exif:DateTimeOriginal": "captured"}
-"""The shot's EXIF (clisp.exif names) that ``clisp info`` shows, and under which key."""
+"""The shot's EXIF (clisp.io.exif names) that ``clisp info`` shows, and under which key."""
 
 
 def _load(path: str | os.PathLike[str], lazy: bool = False) -> tuple[RawImage, str]:

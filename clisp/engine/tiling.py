@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import ClispError
+from ..errors import ClispError
 
 TARGET_TILE_PIXELS = 2_000_000
 """Automatic tiles stop growing at about this many window pixels even when the memory budget

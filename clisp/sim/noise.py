@@ -19,7 +19,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import ClispError
+from ..errors import ClispError
 
 GAIN_MIN = 1.0
 """Smallest analog gain the simulator accepts."""

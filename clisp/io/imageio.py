@@ -3,7 +3,7 @@
 Outputs are written band by band (:class:`ImageWriter`, scanlines top to bottom), so tile
 streaming never holds a whole output image. Every output says what it holds: TIFF and PNG embed
 an sRGB ICC profile, EXR declares the chromaticities of linear sRGB (Rec. 709 primaries, D65), and
-the caller's attributes (camera EXIF, see clisp.exif) go into the header before the first row.
+the caller's attributes (camera EXIF, see clisp.io.exif) go into the header before the first row.
 Every write goes to a temporary file in the destination folder and is renamed into place only
 after it completed, so a failure never leaves a partial or corrupt output.
 """
@@ -18,9 +18,9 @@ from typing import Iterator
 
 import numpy as np
 
-from .colorimetry import srgb_decode
-from .errors import ClispError, clip, library_output
-from .profile import host_timer
+from ..sim.colorimetry import srgb_decode
+from ..errors import ClispError, clip, library_output
+from ..engine.profile import host_timer
 
 LINEAR_EXTENSIONS = (".exr",)
 ENCODED_EXTENSIONS = (".tif", ".tiff", ".png")
@@ -163,7 +163,7 @@ def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None
     """
     pixels = np.asarray(image)
     if output_kind(path) == "srgb" and encoded is False:
-        from .colorimetry import srgb_encode
+        from ..sim.colorimetry import srgb_encode
         pixels = srgb_encode(np.asarray(pixels, dtype=np.float32))
     with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2], compression, attributes) as out:
         out.write_rows(0, pixels)
@@ -259,7 +259,7 @@ class ImageWriter:
 
     TIFF/PNG embed an sRGB ICC profile, EXR declares linear sRGB's chromaticities.
     ``attributes``: OpenImageIO attribute names and values (strings, and the numbers of
-    ATTRIBUTE_TYPES), e.g. clisp.exif.output_attributes: each format stores what it can (TIFF:
+    ATTRIBUTE_TYPES), e.g. clisp.io.exif.output_attributes: each format stores what it can (TIFF:
     its tags and EXIF directory; PNG: text and eXIf chunks; EXR: header attributes).
     """
 

@@ -13,8 +13,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from .version import __version__
-from .cfa import CFA
+from ..version import __version__
+from ..cfa import CFA
 from .rawimage import RawImage
 
 MAKE, MODEL, LENS = "Make", "Model", "Exif:LensModel"

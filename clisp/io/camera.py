@@ -5,7 +5,7 @@ a DNG's ActiveArea, or the camera's masked margins, removed). The crop the file 
 DefaultCrop, inside the ActiveArea; for other raws the maker's crop as LibRaw reports it) is
 ``metadata["crop"]`` = [top, left, height, width] in the mosaic's coordinates; ``clisp process``
 applies it to its output (``--no-crop`` keeps the whole mosaic). The shot's EXIF (make, model,
-lens, exposure, ISO, date; clisp.exif, read with exiv2) is ``metadata["exif"]``.
+lens, exposure, ISO, date; clisp.io.exif, read with exiv2) is ``metadata["exif"]``.
 
 CFA phase: rawpy's ``raw_pattern`` is indexed from the top-left of the *full* raw
 (``raw_pattern[y, x] = COLOR(y - top_margin, x - left_margin)``), so the pattern of the visible area
@@ -20,12 +20,12 @@ from typing import Any
 
 import numpy as np
 
-from .cfa import CFA, cfa_from_pattern
-from .colorimetry import XYZ_TO_SRGB
-from .errors import ClispError, clip, library_output
+from ..cfa import CFA, cfa_from_pattern
+from ..sim.colorimetry import XYZ_TO_SRGB
+from ..errors import ClispError, clip, library_output
 from .rawimage import RawImage
-from .streaming import aligned_copy
-from .white_balance import gray_world_gains
+from ..engine.streaming import aligned_copy
+from ..white_balance import gray_world_gains
 
 CFA_LETTERS = "RGB"
 """Our CFA channel order for Bayer raws."""
@@ -311,7 +311,7 @@ def visible_crop(default_crop: Any, visible_origin: tuple[int, int],
 
 
 def _exif(raw: Any, p: Path) -> dict[str, Any]:
-    """The shot's EXIF (clisp.exif.read_exif), with LibRaw's ISO where the tags give none (the
+    """The shot's EXIF (clisp.io.exif.read_exif), with LibRaw's ISO where the tags give none (the
     Kodak DC50 keeps it in its maker notes)."""
     from .exif import ISO, read_exif
     exif = read_exif(p)

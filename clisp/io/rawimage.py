@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from .cfa import CFA
-from .errors import ClispError
+from ..cfa import CFA
+from ..errors import ClispError
 
 
 @dataclass

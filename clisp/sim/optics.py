@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ClispError
+from ..errors import ClispError
 
 AIRY_FIRST_ZERO = 3.831706
 """First zero of the Bessel function J1: the first dark ring lies at k r = 3.831706."""

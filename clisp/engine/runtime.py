@@ -21,7 +21,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from . import profile
-from .errors import ClispError
+from ..errors import ClispError
 
 LOCAL_SIZE = (32, 4)
 """Work-group shape (x, y) for 2-D image kernels; global sizes are rounded up to it and kernels
@@ -31,7 +31,7 @@ bounds-check. 32 along x keeps reads coalesced on GPUs and gives PoCL a vectoris
 def kernel_dir() -> Path:
     """Folder holding the ``.cl`` sources: ``kernels/`` of a source checkout (editable install),
     else ``clisp/kernels/`` of an installed wheel (pyproject maps the folder there)."""
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]                 # clisp/ (this file is clisp/engine/)
     for folder in (package.parent / "kernels", package / "kernels"):
         if (folder / "common.h").is_file():
             return folder
@@ -171,7 +171,7 @@ class Runtime:
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
-        kernels are re-wrapped so that their launches are recorded (clisp.profile)."""
+        kernels are re-wrapped so that their launches are recorded (clisp.engine.profile)."""
         if not self.profiling:
             self.queue.finish()
             self.queue = self.cl.CommandQueue(self.context,
@@ -496,7 +496,7 @@ def _skipped_launch(*args: Any, **kwargs: Any) -> None:
 
 
 def _record(what: str, event: Any) -> Any:
-    """Hand ``event`` to the active profile (clisp.profile), if any; returns it."""
+    """Hand ``event`` to the active profile (clisp.engine.profile), if any; returns it."""
     active = profile.active()
     if active is not None:
         active.record(what, event)
