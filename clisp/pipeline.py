@@ -37,7 +37,7 @@ from .noise_estimate import NoiseEstimateError
 from .white_balance2 import estimate_wb2
 from .engine.tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
-DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
+DEMOSAICS: dict[str, type[Stage]] = {
     "bilinear": DemosaicBilinear,
     "malvar": DemosaicMalvar,
     "dlmmse": DemosaicDLMMSE,
@@ -45,8 +45,8 @@ DEMOSAICS: dict[str, Callable[[CFA], Stage]] = {
     "guided": DemosaicLMSGuided,
     "ari": DemosaicARI,
 }
-"""Demosaic stages by CLI name. Each is built from the CFA description, or by its ``for_raw(raw)``
-when it has one (stages that adapt to the raw's noise); ``cfa_kinds`` lists the CFAs it supports."""
+"""Demosaic stages by CLI name, each built by its ``for_raw(raw)`` (Stage: from the raw's CFA;
+stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFAs it supports."""
 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}, "denoise_levels": 0, "highlights": "clamp"},
@@ -344,7 +344,7 @@ class Pipeline:
         """A host image over ``host[y:y + h]`` for ``stage``'s whole h x w output, when the stage
         can write into one, its output is interleaved and as wide as the band, and the rows fit
         (a last ragged tile's extra rows land in the band's spare rows, never past it)."""
-        if not (stage.writes_into and getattr(stage, "interleaved", False)):
+        if not (stage.writes_into and stage.interleaved):
             return None
         h, w = stage.output_shape(src.height, src.width)
         if host.ndim != 3 or host.shape[1] != w or host.shape[2] != stage.out_channels \
@@ -432,7 +432,7 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
     options = {key: value[kind] if isinstance(value, dict) else value for key, value in PRESETS[name].items()}
     if demosaic:
         options["demosaic"] = demosaic
-    kinds = getattr(DEMOSAICS[options["demosaic"]], "cfa_kinds", (kind,))
+    kinds = DEMOSAICS[options["demosaic"]].cfa_kinds or (kind,)
     if kind not in kinds:
         raise ClispError(f"demosaic {options['demosaic']!r} works on {' and '.join(kinds)} CFAs, not {kind}")
     return options
@@ -440,9 +440,7 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
 
 def make_demosaic(name: str, raw: RawImage) -> Stage:
     """The demosaic stage ``name`` configured for ``raw`` (its CFA, and its noise if the stage uses it)."""
-    factory = DEMOSAICS[name]
-    for_raw = getattr(factory, "for_raw", None)
-    return for_raw(raw) if for_raw is not None else factory(raw.cfa)
+    return DEMOSAICS[name].for_raw(raw)
 
 
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,

@@ -15,7 +15,7 @@ never special-cases borders and tiled output equals whole-image output.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -62,6 +62,20 @@ class Stage(ABC):
     writes_into = False
     """Whether :meth:`enqueue` takes ``out=``, an interleaved image of exactly its output shape to
     write (Runtime.host_image: the host's own band buffer), instead of acquiring one."""
+
+    interleaved = False
+    """Whether the stage's output is pixel-interleaved (H x W x C on the device) rather than planar;
+    stages that can do both have it as a field."""
+
+    cfa_kinds: ClassVar[tuple[str, ...] | None] = None
+    """The CFA kinds ('lms', 'bayer') a demosaic serves; None: any."""
+
+    @classmethod
+    def for_raw(cls, raw: Any) -> "Stage":
+        """The stage configured for ``raw`` (a clisp.io.rawimage.RawImage), as the pipeline builds a
+        demosaic: from the raw's CFA. Stages that adapt to the raw (its noise, its colour matrix)
+        override it."""
+        return cls(raw.cfa)  # type: ignore[call-arg]
 
     @abstractmethod
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:

@@ -240,7 +240,7 @@ def demosaic_lms_ri(mosaic: Array, cfa: CFA, iterations: int = 11, kinds: tuple[
 def guided_reference(mosaic: Array, cfa: CFA) -> Array:
     """The default LMS demosaic's NumPy reference (DemosaicLMSGuided, noiseless, neutral of P_LMS) on
     a whole H x W mosaic, mirror-padded by its halo rounded up to the CFA period: H x W x 3."""
-    from clisp.colorimetry import P_LMS
+    from clisp.sim.colorimetry import P_LMS
     from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, neutral_of
     stage = DemosaicLMSGuided(cfa, neutral=neutral_of(P_LMS))
     pad = -(-stage.halo // 4) * 4
