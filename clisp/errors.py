@@ -36,6 +36,17 @@ def clip(text: object, limit: int = FILE_TEXT) -> str:
     return s if len(s) <= limit else s[:max(0, limit - 3)].rstrip() + "..."
 
 
+def one_line(exc: BaseException) -> str:
+    """An exception's message squeezed onto one line (bytes arguments decoded, as rawpy uses them).
+
+    >>> one_line(ValueError(b"bad\\n  header"))
+    'bad header'
+    """
+    args = [a.decode("utf-8", "replace") if isinstance(a, bytes) else str(a) for a in exc.args]
+    text = " ".join(" ".join(args).split()) if args else " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
 def error_line(message: object, prefix: str = "clisp: error: ") -> str:
     """The one line the CLI prints for ``message``: ``prefix`` + the message, at most MAX_MESSAGE
     characters (the middle is cut, so that the file named at the start and the problem's end stay)."""

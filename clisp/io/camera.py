@@ -22,7 +22,7 @@ import numpy as np
 
 from ..cfa import CFA, cfa_from_pattern
 from ..sim.colorimetry import XYZ_TO_SRGB
-from ..errors import ClispError, clip, library_output
+from ..errors import ClispError, clip, library_output, one_line
 from .rawimage import RawImage
 from ..engine.streaming import aligned_copy
 from ..white_balance import gray_world_gains
@@ -56,7 +56,7 @@ def read_camera_raw(path: str | os.PathLike[str]) -> RawImage:
         raise ClispError(f"cannot read raw file '{p}': {_libraw_problem(exc)}{said.note(50, str(p))}") from exc
     except (OSError, RuntimeError, NotImplementedError, ValueError, TypeError, MemoryError,
             IndexError, KeyError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': {type(exc).__name__}: {clip(_one_line(exc))}") from exc
+        raise ClispError(f"cannot read raw file '{p}': {type(exc).__name__}: {clip(one_line(exc))}") from exc
 
 
 MAX_RAW_PIXELS = 2**28
@@ -327,7 +327,7 @@ def _exif(raw: Any, p: Path) -> dict[str, Any]:
 
 def _libraw_problem(exc: BaseException) -> str:
     """A short description of a rawpy exception."""
-    text = _one_line(exc)
+    text = one_line(exc)
     name = type(exc).__name__
     if name == "LibRawFileUnsupportedError":
         return f"not a raw file LibRaw can read ({text})"
@@ -336,8 +336,3 @@ def _libraw_problem(exc: BaseException) -> str:
     return f"{name}: {text}"
 
 
-def _one_line(exc: BaseException) -> str:
-    """An exception's message on one line; rawpy passes bytes messages, which are decoded."""
-    args = [a.decode("utf-8", "replace") if isinstance(a, bytes) else str(a) for a in exc.args]
-    text = " ".join(" ".join(args).split()) if args else " ".join(str(exc).split())
-    return text or type(exc).__name__

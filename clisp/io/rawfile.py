@@ -25,7 +25,7 @@ import tifffile
 
 from ..cfa import CFA, cfa_from_name
 from ..sim.colorimetry import XYZ_TO_SRGB
-from ..errors import ClispError, clip, library_output
+from ..errors import ClispError, clip, library_output, one_line
 from .exif import camera_make_model, simulated_model_name
 from .rawimage import RawImage, check_levels
 
@@ -138,7 +138,7 @@ def _atomic_raw_file(target: Path) -> Iterator[str]:
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
     except OSError as exc:
-        raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
+        raise ClispError(f"cannot write raw file '{target}': {one_line(exc)}") from exc
     os.close(fd)
     try:
         yield tmp_name
@@ -147,7 +147,7 @@ def _atomic_raw_file(target: Path) -> Iterator[str]:
     except BaseException as exc:
         _remove_quietly(tmp_name)
         if isinstance(exc, Exception) and not isinstance(exc, ClispError):
-            raise ClispError(f"cannot write raw file '{target}': {_one_line(exc)}") from exc
+            raise ClispError(f"cannot write raw file '{target}': {one_line(exc)}") from exc
         raise
 
 
@@ -388,7 +388,7 @@ def _check_readable(p: Path) -> None:
     except FileNotFoundError as exc:
         raise ClispError(f"cannot read raw file '{p}': no such file") from exc
     except OSError as exc:
-        raise ClispError(f"cannot read raw file '{p}': {_one_line(exc)}") from exc
+        raise ClispError(f"cannot read raw file '{p}': {one_line(exc)}") from exc
     if p.is_dir():
         raise ClispError(f"cannot read raw file '{p}': it is a folder")
     if st.st_size == 0:
@@ -411,7 +411,7 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
     except ClispError:
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
-        return None, clip(_one_line(exc))
+        return None, clip(one_line(exc))
     return _rebuild(meta, data, p), None
 
 
@@ -427,7 +427,7 @@ def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:
     try:
         meta = json.loads(blob[len(PRIVATE_PREFIX):].rstrip(b"\0").decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(_one_line(exc))})") from exc
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(one_line(exc))})") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
         raise ClispError(f"cannot read raw file '{p}': unrecognised clisp metadata")
     version = meta.get("version", 0)
@@ -463,7 +463,7 @@ def _read_pixels(page: Any, p: Path, meta: dict[str, Any], lazy: bool = False) -
         if data is None:
             data = page.asarray()
     except Exception as exc:  # noqa: BLE001
-        raise ClispError(f"cannot read raw file '{p}': damaged image data ({clip(_one_line(exc))})") from exc
+        raise ClispError(f"cannot read raw file '{p}': damaged image data ({clip(one_line(exc))})") from exc
     if data.shape != want_shape or data.dtype.newbyteorder("=") != want_dtype.newbyteorder("="):
         raise ClispError(f"cannot read raw file '{p}': image is {data.dtype} {data.shape}, "
                          f"metadata says {want_dtype} {want_shape}")
@@ -516,7 +516,7 @@ def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:
     except ClispError:
         raise
     except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as exc:
-        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(_one_line(exc))})") from exc
+        raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({clip(one_line(exc))})") from exc
     problem = check_levels(raw)
     if problem:
         raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata ({problem})")
@@ -577,8 +577,3 @@ def _looks_like_text(head: bytes) -> bool:
     return all(ch.isprintable() or ch in "\t\r\n\f" for ch in text)
 
 
-def _one_line(exc: BaseException) -> str:
-    """An exception's message squeezed onto one line (bytes arguments decoded, as rawpy uses them)."""
-    args = [a.decode("utf-8", "replace") if isinstance(a, bytes) else str(a) for a in exc.args]
-    text = " ".join(" ".join(args).split()) if args else " ".join(str(exc).split())
-    return text or type(exc).__name__

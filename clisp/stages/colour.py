@@ -48,6 +48,21 @@ class WhiteBalance2(ColourMatrix):
         super().__init__(np.diag(np.asarray(gains, dtype=np.float64)))
 
 
+def camera_neutral(colour_matrix: np.ndarray, target: np.ndarray | None = None) -> np.ndarray | None:
+    """The white-balanced camera values (3,) that ``colour_matrix`` (3 x 3, camera to linear sRGB)
+    takes to ``target`` (default (1, 1, 1): grey); None where the matrix is singular or the answer
+    is not positive and finite.
+
+    >>> camera_neutral(np.diag([2.0, 1.0, 0.5])).tolist()
+    [0.5, 1.0, 2.0]
+    """
+    try:
+        n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), np.ones(3) if target is None else target)
+    except np.linalg.LinAlgError:
+        return None
+    return n if np.all(np.isfinite(n)) and np.all(n > 0) else None
+
+
 def srgb_source(rt: Runtime) -> str:
     """Program text that defines ``encode_srgb`` and ``quantize16`` (the polynomial's constants, then
     kernels/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`."""

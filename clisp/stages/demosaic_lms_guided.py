@@ -97,6 +97,7 @@ from ..errors import ClispError
 from ..sim.noise import NOISELESS, ChannelNoise
 from ..engine.runtime import DeviceImage, Runtime, launch_exact
 from .base import Stage, as_f32
+from .colour import camera_neutral
 from .guided_filter import (MASK_ALL, MASK_S, enqueue_box_rows, enqueue_guided_filter, enqueue_guided_pair,
                             guided_filter)
 from .lms_common import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
@@ -276,11 +277,8 @@ def tonal_energy(ylp: np.ndarray) -> np.ndarray:
 def neutral_of(colour_matrix: np.ndarray) -> tuple[float, float, float]:
     """White-balanced L, M, S of a neutral: colour_matrix^-1 (1, 1, 1) (1.0106, 1.0153, 1.0654 for the
     paper's P: P is not white-preserving). (1, 1, 1) if the matrix gives no positive finite answer."""
-    try:
-        n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), np.ones(3))
-    except np.linalg.LinAlgError:
-        return (1.0, 1.0, 1.0)
-    return tuple(float(v) for v in n) if np.all(np.isfinite(n)) and np.all(n > 0) else (1.0, 1.0, 1.0)
+    n = camera_neutral(colour_matrix)
+    return (1.0, 1.0, 1.0) if n is None else tuple(float(v) for v in n)
 
 
 # ---------------------------------------------------------------------------------- reference steps

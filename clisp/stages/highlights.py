@@ -87,6 +87,7 @@ from ..errors import ClispError
 from ..noise_estimate import CLIP_FRACTION
 from ..engine.runtime import DeviceImage, Runtime
 from .base import Stage, as_f32
+from .colour import ColourMatrix, camera_neutral
 
 MODES = ("clip", "reconstruct", "clamp", "off")
 DEFAULT_MODE = "reconstruct"
@@ -485,10 +486,9 @@ def has_clipped(raw) -> bool:
 
 def neutral_of(colour_matrix: np.ndarray, wb2: np.ndarray | None = None) -> np.ndarray:
     """n: the white-balanced camera values that the colour matrix and WB pass 2 take to grey,
-    scaled to a largest entry of 1."""
-    target = np.ones(3) if wb2 is None else 1.0 / np.asarray(wb2, dtype=np.float64)
-    n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), target)
-    if not np.all(n > 0):
+    scaled to a largest entry of 1 (:func:`camera_neutral`)."""
+    n = camera_neutral(colour_matrix, None if wb2 is None else 1.0 / np.asarray(wb2, dtype=np.float64))
+    if n is None:
         raise ClispError("the colour matrix does not map a positive camera value to grey")
     return n / n.max()
 
@@ -510,7 +510,7 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
         return None
     try:
         n = neutral_of(raw.colour_matrix, wb2)
-    except (ClispError, np.linalg.LinAlgError):
+    except ClispError:
         return None
     black = np.asarray(raw.black_level, dtype=np.float64)
     clip = (clip_thresholds_dn(raw) - black) / (float(raw.white_level) - black)   # normalised
@@ -543,7 +543,6 @@ class HighlightClamp(Stage):
         return out if self.matrix is None else out @ np.asarray(self.matrix, dtype=np.float64).T
 
     def fuse(self, following: Stage) -> Stage | None:
-        from .colour import ColourMatrix
         if self.matrix is None and type(following) is ColourMatrix:
             return HighlightClamp(self.neutral, self.white, np.asarray(following.matrix, dtype=np.float64))
         return None
