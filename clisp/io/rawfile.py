@@ -235,6 +235,19 @@ def _checked_dtype(raw: RawImage, target: Path) -> np.dtype:
     return out_dtype
 
 
+def _calibration(raw: RawImage) -> dict[str, Any]:
+    """The raw's levels, white balance, exposure and colour matrices as JSON values (in the order
+    our DNG's private data and ``clisp info`` list them)."""
+    return {
+        "black_level": [float(v) for v in raw.black_level],
+        "white_level": float(raw.white_level),
+        "wb": [float(v) for v in raw.wb],
+        "exposure": float(raw.exposure),
+        "colour_matrix": raw.colour_matrix.tolist(),
+        "wb2": [float(v) for v in raw.wb2],
+    }
+
+
 def _metadata_json(raw: RawImage) -> dict[str, Any]:
     """Everything needed to rebuild ``raw`` exactly (except the pixels and ``source``)."""
     return {
@@ -244,12 +257,7 @@ def _metadata_json(raw: RawImage) -> dict[str, Any]:
         "shape": list(raw.shape),
         "cfa": {"name": raw.cfa.name, "kind": raw.cfa.kind, "channels": list(raw.cfa.channels),
                 "pattern": raw.cfa.pattern.tolist()},
-        "black_level": [float(v) for v in raw.black_level],
-        "white_level": float(raw.white_level),
-        "wb": [float(v) for v in raw.wb],
-        "exposure": float(raw.exposure),
-        "colour_matrix": raw.colour_matrix.tolist(),
-        "wb2": [float(v) for v in raw.wb2],
+        **_calibration(raw),
         "metadata": raw.metadata,
     }
 
@@ -336,12 +344,7 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         "cfa": raw.cfa.name,
         "cfa_kind": raw.cfa.kind,
         "channels": list(raw.cfa.channels),
-        "black_level": [float(v) for v in raw.black_level],
-        "white_level": float(raw.white_level),
-        "wb": [float(v) for v in raw.wb],
-        "exposure": float(raw.exposure),
-        "colour_matrix": raw.colour_matrix.tolist(),
-        "wb2": [float(v) for v in raw.wb2],
+        **_calibration(raw),
         "gain": md.get("gain"),
     }
     make, model = camera_make_model(raw)
