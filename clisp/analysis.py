@@ -158,7 +158,7 @@ class SceneAnalysis:
 
 def _luma_chroma(raw: RawImage) -> tuple[np.ndarray, np.ndarray]:
     """(luma (n_ch,), chroma (k, n_ch)) weights on WB'd camera channels: the chroma denoiser's space."""
-    from .stages.chroma_denoise import space_for
+    from .modules.chroma_denoise.stage import space_for
     try:
         space = space_for(raw.cfa.kind, raw.colour_matrix)
         return space.luma, space.chroma

@@ -20,17 +20,17 @@ from .errors import ClispError, clip
 from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .engine.profile import host_timer, stage_label
 from .engine.runtime import DeviceImage, get_runtime
-from .stages.base import Stage, fuse_stages
-from .stages.chroma_denoise import ChromaDenoise, ChromaDenoiseParams, chroma_denoise_for
-from .stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
-from .stages.demosaic_ari import DemosaicARI
-from .stages.demosaic_bilinear import DemosaicBilinear
-from .stages.demosaic_dlmmse import DemosaicDLMMSE
-from .stages.demosaic_lms import DemosaicLMSHybrid
-from .stages.demosaic_lms_guided import DemosaicLMSGuided
-from .stages.demosaic_malvar import DemosaicMalvar
-from .stages.highlights import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
-from .stages.raw_scale import normalize, white_balance1
+from .modules.base import Stage, fuse_stages
+from .modules.chroma_denoise.stage import ChromaDenoise, ChromaDenoiseParams, chroma_denoise_for
+from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
+from .modules.demosaic_ari.stage import DemosaicARI
+from .modules.demosaic_bilinear.stage import DemosaicBilinear
+from .modules.demosaic_dlmmse.stage import DemosaicDLMMSE
+from .modules.demosaic_lms.stage import DemosaicLMSHybrid
+from .modules.demosaic_lms_guided.stage import DemosaicLMSGuided
+from .modules.demosaic_malvar.stage import DemosaicMalvar
+from .modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
+from .modules.raw_scale.stage import normalize, white_balance1
 from .engine.streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
                         progress_bar, run_tiles, window_source)
 from .noise_estimate import NoiseEstimateError
@@ -55,7 +55,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 """Named parameter sets (``--preset``); an option is one value or a dict per CFA kind.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
-mode (clisp.stages.highlights; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
+mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
 raw with clipping spread over a fifth of it). Explicit options override."""
 
 DEFAULT_PRESET = "quality"
@@ -461,7 +461,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     False = analyse and plan, but every tile takes the full path (``--no-skip --explain``). A
     pipeline without a chroma denoiser (preset fast) has nothing to skip: no analysis (it would
     cost 10-30 ms/MP for nothing). ``highlights``: 'clip', 'reconstruct' or 'off'
-    (clisp.stages.highlights), None = the preset's; the stage is left out of raws without clipped
+    (clisp.modules.highlights.stage), None = the preset's; the stage is left out of raws without clipped
     samples.
     """
     if output not in OUTPUTS:

@@ -34,7 +34,7 @@ the thresholds on both sides of the seam (the margin makes a tile's decision inc
 neighbours' blocks within the halo). tests/test_skip.py measures it.
 
 Highlights: the plan flags every tile with clipped samples (``highlight``), which never takes
-the flat path. The highlight stage (clisp.stages.highlights, right after the demosaic, only in
+the flat path. The highlight stage (clisp.modules.highlights.stage, right after the demosaic, only in
 pipelines of raws with clipped samples) is kept on every path: the flat path replaces the demosaic
 and the denoiser around it.
 """
@@ -180,7 +180,7 @@ def visible_chroma_noise(denoiser: Any, analysis: SceneAnalysis) -> np.ndarray:
 def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
     """``stage`` (a ChromaDenoise) with ``levels`` Haar levels: its noise table's first levels
     (the calibration measures every level on the same fields, so the prefix is exact)."""
-    from .stages.chroma_denoise import ChromaDenoise
+    from .modules.chroma_denoise.stage import ChromaDenoise
     levels = min(levels, stage.params.levels)
     return ChromaDenoise(stage.space, stage.noise.prefix(levels), replace(stage.params, levels=levels),
                          stage.interleaved)
@@ -190,7 +190,7 @@ def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
     """The flat path's DemosaicFlat for ``cfa`` and an image of ``shape`` (H, W), or None where it
     does not apply (not 3 channels)."""
     from .errors import ClispError
-    from .stages.demosaic_flat import DemosaicFlat
+    from .modules.demosaic_flat.stage import DemosaicFlat
     try:
         return DemosaicFlat(cfa, image_shape=(int(shape[0]), int(shape[1])))
     except ClispError:
@@ -199,14 +199,14 @@ def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
 
 def plain_colour(stage: Any) -> Any:
     """The colour matrix the denoiser includes (its output with the chroma untouched)."""
-    from .stages.colour import ColourMatrix
+    from .modules.colour.stage import ColourMatrix
     return ColourMatrix(np.asarray(stage.space.to_rgb))
 
 
 def demosaic_index(stages: list[Any], denoiser_index: int) -> int:
     """Index of the demosaic in ``stages``: the stage before the chroma denoiser, or before the
     highlight stage that sits between them (-1 when there is none)."""
-    from .stages.highlights import HighlightClamp, Highlights
+    from .modules.highlights.stage import HighlightClamp, Highlights
     d = denoiser_index - 1
     if d >= 0 and isinstance(stages[d], (Highlights, HighlightClamp)):
         d -= 1
@@ -234,7 +234,7 @@ class Skipper:
     @classmethod
     def for_pipeline(cls, raw: Any, stages: list[Any], enabled: bool = True,
                      analysis: SceneAnalysis | None = None) -> "Skipper":
-        from .stages.chroma_denoise import ChromaDenoise
+        from .modules.chroma_denoise.stage import ChromaDenoise
         analysis = analysis if analysis is not None else analyse(raw)
         paths = {PATH_FULL: list(stages)}
         denoiser = next((s for s in stages if isinstance(s, ChromaDenoise)), None)

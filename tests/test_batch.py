@@ -161,7 +161,7 @@ def test_paper_sweep_on_cluster_matches_serial(tmp_path: Path, external_cluster)
     import reproduce_paper
     from clisp.sim.charts import demo_chart
     from clisp.io.imageio import write_image
-    from clisp.stages.chroma_denoise import ChromaDenoiseParams
+    from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams
     scene = tmp_path / "scene.png"
     write_image(scene, demo_chart().image[:64, :96], encoded=False)
     runner = pt.Runner(ChromaDenoiseParams(), None)

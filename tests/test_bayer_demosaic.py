@@ -21,10 +21,10 @@ from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import DeviceImage
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.demosaic_dlmmse import EPSILON, DemosaicDLMMSE
-from clisp.stages.demosaic_malvar import DemosaicMalvar
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.demosaic_dlmmse.stage import EPSILON, DemosaicDLMMSE
+from clisp.modules.demosaic_malvar.stage import DemosaicMalvar
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""

@@ -1,4 +1,4 @@
-"""The residual-interpolation Bayer demosaics of clisp/stages/bayer_ri.py (NumPy references).
+"""The residual-interpolation Bayer demosaics of clisp/modules/demosaic_ari/reference.py (NumPy references).
 
 Small synthetic scenes only (no ../shared data): a sRGB-encoded dead-leaves chart and a fine
 luminance texture under smooth chroma. Checked for every method: the CFA samples stay at their own sites, the result is
@@ -18,7 +18,7 @@ from clisp.cfa import BAYER_PHASES, bayer_cfa
 from clisp.sim.charts import dead_leaves
 from clisp.sim.colorimetry import srgb_encode
 from clisp.metrics import psnr
-from clisp.stages import bayer_ri
+from clisp.modules.demosaic_ari import reference as bayer_ri
 
 METHODS = {
     "ri": bayer_ri.demosaic_ri,

@@ -21,14 +21,14 @@ from clisp.sim.noise import ChannelNoise
 from clisp.noise_estimate import estimate_raw_noise, raw_noise
 from clisp.pipeline import Pipeline
 from clisp.sim.simulate import simulate
-from clisp.stages import chroma_denoise as cd
-from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
+from clisp.modules.chroma_denoise import stage as cd
+from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
                                          chroma_denoise_for, haar_analyze, haar_synthesize, lms_space,
                                          make_plan, yuv_space)
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.demosaic_bilinear import DemosaicBilinear
-from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
+from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 from clisp.white_balance2 import estimate_wb2, gray_pixel_gains, illuminant_gains
 from tolerance import TOL, assert_close
 
@@ -149,7 +149,7 @@ def test_fused_white_balance_and_interleaved_output(rt, monkeypatch, vec):
     """A following WB pass 2 folds into the merge; the interleaved last-stage output is the same
     image (chroma_merge's interleaved stores at both vector widths)."""
     monkeypatch.setattr(cd, "vector_width", lambda rt: vec)
-    from clisp.stages.colour import WhiteBalance2
+    from clisp.modules.colour.stage import WhiteBalance2
     space = SPACES["yuv"]
     stage = ChromaDenoise(space, random_table(space, seed=7))
     wb2 = WhiteBalance2(np.array([1.1, 1.0, 0.9]))

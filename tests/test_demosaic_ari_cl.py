@@ -1,4 +1,4 @@
-"""The ARI demosaic on the device (clisp.stages.demosaic_ari, kernels/ari.cl) against its float64 NumPy
+"""The ARI demosaic on the device (clisp.modules.demosaic_ari.stage, clisp/modules/demosaic_ari/demosaic_ari.cl) against its float64 NumPy
 reference bayer_ri.demosaic_ari (clip=None), and the tiling contract.
 
 The device stage is valid-only: an H x W window gives its (H - 2 halo)^2 interior, and the halo is the
@@ -26,9 +26,9 @@ from clisp.cfa import BAYER_PHASES, bayer_cfa
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.demosaic_ari import DemosaicARI, ari_halo
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.demosaic_ari.stage import DemosaicARI, ari_halo
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 
 TOL_MAX = 1e-3
 TOL_MEAN = 1e-5

@@ -1,4 +1,4 @@
-"""The flat-tile demosaic (clisp.stages.demosaic_flat): kernel against reference, what it must
+"""The flat-tile demosaic (clisp.modules.demosaic_flat.stage): kernel against reference, what it must
 reproduce exactly, and tiled-equals-whole.
 
 Tolerance: tolerance.TOL (|opencl - reference| <= 1e-5 max(1, |reference|)), inputs white ~ 1.
@@ -10,7 +10,7 @@ import pytest
 
 from clisp.cfa import cfa_from_name
 from clisp.pipeline import Pipeline
-from clisp.stages.demosaic_flat import CELL_PX, DemosaicFlat, detail_channels
+from clisp.modules.demosaic_flat.stage import CELL_PX, DemosaicFlat, detail_channels
 from test_kernels import run_stage
 from tolerance import assert_close
 

@@ -1,4 +1,4 @@
-"""The RI / ARI masked guided filter on the device (clisp.stages.guided_ri, kernels/guided.cl) against
+"""The RI / ARI masked guided filter on the device (clisp.modules.common.guided_ri, clisp/modules/common/guided_ri.cl) against
 its float64 NumPy reference bayer_ri.guided_filter.
 
 The device filter reads one padded H x W window and returns its (H - 4ry) x (W - 4rx) interior; the
@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clisp.stages import bayer_ri as br
-from clisp.stages.guided_ri import device_guided_filter
+from clisp.modules.demosaic_ari import reference as br
+from clisp.modules.common.guided_ri import device_guided_filter
 
 SCALE = 255.0
 TOL_PLAIN = 2e-6

@@ -8,7 +8,7 @@ import pytest
 import clisp
 from clisp.cli import main
 from clisp.pipeline import build_pipeline
-from clisp.stages.highlights import Highlights, has_clipped, highlight_stage
+from clisp.modules.highlights.stage import Highlights, has_clipped, highlight_stage
 from tolerance import assert_close
 from test_kernels import from_device, to_device
 
@@ -102,7 +102,7 @@ def test_clipped_record_bounds_the_brightness():
     """A clipped channel is a lower bound on the truth: with a neutral reference colour, a pixel
     whose clipped channel reads 1.2 while the free ones read 1.0 comes out at least 1.2 in every
     clipped channel and keeps its free ones; the free channels alone would have said K = 1.0."""
-    from clisp.stages.highlights import reconstruct
+    from clisp.modules.highlights.stage import reconstruct
     y = np.array([[[1.2, 1.25, 1.0]]])
     clipped = np.array([[[True, True, False]]])
     sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
@@ -223,7 +223,7 @@ def test_kernel_matches_reference_where_clipping_is_sparse(rt, mode):
 def test_clamp_mode_kernel_reference_and_fast_preset(rt):
     """``clamp`` (preset fast): each channel capped at the common white, per pixel; a blown white
     comes out neutral. Kernel = reference; the fast preset picks it, quality reconstructs."""
-    from clisp.stages.highlights import HighlightClamp
+    from clisp.modules.highlights.stage import HighlightClamp
     stage = HighlightClamp(STAGE.neutral, STAGE.white)
     x = stage_input(2, STAGE)
     assert stage.halo == 0

@@ -16,12 +16,12 @@ from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import DeviceImage
-from clisp.stages.base import fuse_stages
-from clisp.stages.colour import ColourMatrix, ToneCurve, WhiteBalance2
-from clisp.stages.demosaic_bilinear import DemosaicBilinear
-from clisp.stages import linear_filter
-from clisp.stages.linear_filter import LinearPhaseFilter
-from clisp.stages.raw_scale import CfaAffine, normalize, white_balance1
+from clisp.modules.base import fuse_stages
+from clisp.modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
+from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
+from clisp.modules.linear_filter import stage as linear_filter
+from clisp.modules.linear_filter.stage import LinearPhaseFilter
+from clisp.modules.raw_scale.stage import CfaAffine, normalize, white_balance1
 from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
@@ -366,7 +366,7 @@ def test_colour_kernels(rt, stage):
 
 
 def test_srgb_polynomial_within_three_hundredths_of_a_code(rt):
-    """kernels/srgb.h's polynomial sRGB curve against the exact transfer function, on every 7th
+    """clisp/modules/colour/srgb.h's polynomial sRGB curve against the exact transfer function, on every 7th
     float in [2^-9, 1] (4.5 M values: every exponent, many mantissas) and on the linear segment
     below: within 0.03 of a 16-bit code (measured worst 0.019 over every float)."""
     bits = np.arange(np.float32(2.0 ** -9).view(np.uint32), np.float32(1.0).view(np.uint32) + 1, 7,

@@ -1,4 +1,4 @@
-"""The hybrid LMS demosaic (clisp.stages.demosaic_lms): every kernel against its NumPy reference,
+"""The hybrid LMS demosaic (clisp.modules.demosaic_lms.stage): every kernel against its NumPy reference,
 flat fields, filter properties, and tiled against untiled through a full pipeline.
 
 Tolerance, used by every OpenCL-vs-reference comparison in this file (float32 kernels against float64
@@ -23,14 +23,14 @@ from clisp.errors import ClispError
 from clisp.sim.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import DeviceImage
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.demosaic_lms import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.demosaic_lms.stage import (A_RADIUS, CHROMA_RADIUS, LUM_RADIUS, DemosaicLMSHybrid,
                                        LMSHybridParams, chroma_demodulate_rows, diamond_halfband,
                                        frequency_response, lm_combine, luma_filter, luma_lowpass, m_at_s,
                                        s_joint_bilateral)
-from clisp.stages.guided_filter import (box_rows, enqueue_box_rows, gf_apply, gf_coefficients, gf_row_moments,
+from clisp.modules.common.guided_filter import (box_rows, enqueue_box_rows, gf_apply, gf_coefficients, gf_row_moments,
                                         guided_filter_spec)
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|) unless a test states otherwise."""

@@ -1,4 +1,4 @@
-"""The guided LMS demosaic (clisp.stages.demosaic_lms_guided): every kernel against its NumPy reference,
+"""The guided LMS demosaic (clisp.modules.demosaic_lms_guided.stage): every kernel against its NumPy reference,
 the whole stage at several origins and both tested CFA phases, flat fields, the noise-driven blend,
 and tiled against untiled through a full pipeline.
 
@@ -26,16 +26,16 @@ from clisp.sim.colorimetry import P_LMS, WB_LMS
 from clisp.errors import ClispError
 from clisp.sim.noise import ChannelNoise, NoiseModel
 from clisp.pipeline import Pipeline
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.lms_common import valid
-from clisp.stages.demosaic_lms_guided import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.common.lms import valid
+from clisp.modules.demosaic_lms_guided.stage import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
                                               RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
                                               chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
                                               neutral_of, s_alias, s_output, tonal_energy,
                                               S_ALIAS_RADIUS, axial_tonal_energy)
-from clisp.stages.guided_filter import (MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
+from clisp.modules.common.guided_filter import (MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
                                        guided_filter)
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|) everywhere in this file."""

@@ -88,15 +88,15 @@ def test_build_failure_names_file_and_log():
     defines = {"CFA_PERIOD": 2, "NOUT": 3, "RADIUS": 1, "RAW_T": "float", "PHASE_Y": 0, "PHASE_X": 0,
                "ENCODE_SRGB": 0, "INTERLEAVED": 0}
     with pytest.raises(ClispError) as info:
-        fresh.program("demosaic_linear", defines, generated="this is not C;")
+        fresh.program("linear_filter", defines, generated="this is not C;")
     message = str(info.value)
-    assert "demosaic_linear.cl" in message
+    assert "linear_filter.cl" in message
     assert "error" in message.lower()
     assert "'this'" in message                       # the compiler's own diagnostic about our text
     assert len(message.splitlines()) > 2
     # a failed build is not cached: the same key fails again, not with a stale program
     with pytest.raises(ClispError):
-        fresh.program("demosaic_linear", defines, generated="this is not C;")
+        fresh.program("linear_filter", defines, generated="this is not C;")
 
 
 def test_missing_kernel_file():
@@ -105,16 +105,16 @@ def test_missing_kernel_file():
 
 
 def test_program_cache(rt):
-    a = rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4})
-    b = rt.program("raw", {"CFA_PERIOD": 4, "RAW_T": "float"})      # same defines, other order
+    a = rt.program("raw_scale", {"RAW_T": "float", "CFA_PERIOD": 4})
+    b = rt.program("raw_scale", {"CFA_PERIOD": 4, "RAW_T": "float"})      # same defines, other order
     assert a is b
-    c = rt.program("raw", {"RAW_T": "ushort", "CFA_PERIOD": 4})
+    c = rt.program("raw_scale", {"RAW_T": "ushort", "CFA_PERIOD": 4})
     assert c is not a
-    d = rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4}, generated="/* other */")
+    d = rt.program("raw_scale", {"RAW_T": "float", "CFA_PERIOD": 4}, generated="/* other */")
     assert d is not a
-    assert rt.program("raw", {"RAW_T": "float", "CFA_PERIOD": 4}) is a
-    k1 = rt.kernel("raw", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4})
-    assert rt.kernel("raw", "cfa_affine", {"CFA_PERIOD": 4, "RAW_T": "float"}) is k1
+    assert rt.program("raw_scale", {"RAW_T": "float", "CFA_PERIOD": 4}) is a
+    k1 = rt.kernel("raw_scale", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4})
+    assert rt.kernel("raw_scale", "cfa_affine", {"CFA_PERIOD": 4, "RAW_T": "float"}) is k1
 
 
 # ------------------------------------------------------------------------------------------

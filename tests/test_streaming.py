@@ -28,7 +28,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.io.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.io.rawimage import RawImage
 from clisp.sim.simulate import mirror_repeat_index, simulate, simulate_large
-from clisp.stages.base import Stage
+from clisp.modules.base import Stage
 import clisp.engine.streaming
 from clisp.engine.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
 from clisp.engine.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
@@ -378,7 +378,7 @@ def unaligned(data: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("kind", ["bayer", "lms"])
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32])
 def test_device_gather_equals_host_gather(kind: str, dtype: type) -> None:
-    """Runtime.gather_window (kernels/raw.cl) equals tiling.gather_window, the CFA mirror included:
+    """Runtime.gather_window (clisp/modules/raw_scale/raw_scale.cl) equals tiling.gather_window, the CFA mirror included:
     windows inside, across every edge, wider and taller than the image."""
     rt = get_runtime()
     data = make_raw(kind, shape=(37, 45), dtype=dtype).data

@@ -43,10 +43,10 @@ from clisp.io.imageio import read_image, read_scene
 from clisp.metrics import psnr
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
-from clisp.stages.base import Stage
-from clisp.stages.demosaic_bilinear import DemosaicBilinear
-from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE
-from clisp.stages.demosaic_malvar import DemosaicMalvar
+from clisp.modules.base import Stage
+from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
+from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
+from clisp.modules.demosaic_malvar.stage import DemosaicMalvar
 
 CFA = bayer_cfa("RGGB")
 BORDER = 10

@@ -62,7 +62,7 @@ from clisp.pipeline import DEMOSAICS, Pipeline, build_pipeline, make_demosaic
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
-from clisp.stages.base import Stage
+from clisp.modules.base import Stage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: the demosaic studies

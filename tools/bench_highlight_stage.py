@@ -7,8 +7,8 @@ t = (0.9, 1.1, 2.7) in units of n) of uniform noise in 0.1..0.7 of t with ``--li
 coloured lights (seeded) past the clip point; the script prints the share of 32 px blocks holding
 a clipped pixel (60 lights at 24 MP: about a fifth, as on the D30 DNG). The stage runs on the
 whole image as one window, after one untimed run; rounds interleave this tree's stage and the
-baseline's (``--baseline DIR``: a clisp source tree; its stages/highlights.py and
-kernels/highlights.cl, built in this process), so drift hits both alike. Per kernel: device
+baseline's (``--baseline DIR``: a clisp source tree; its modules/highlights/stage.py and
+clisp/modules/highlights/highlights.cl, built in this process), so drift hits both alike. Per kernel: device
 seconds from OpenCL events (the last round); per stage: median wall seconds and MP/s.
 Choose the device with CLISP_DEVICE (e.g. ``gpu``).
 """
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from clisp.engine import profile  # noqa: E402
 from clisp.engine.runtime import _ProfiledKernel, _define_flags, get_runtime  # noqa: E402
-from clisp.stages import highlights  # noqa: E402
+from clisp.modules.highlights import stage as highlights  # noqa: E402
 from toolkit import parse_size  # noqa: E402
 
 NEUTRAL = np.array([0.95, 0.96, 1.0])
@@ -36,7 +36,8 @@ DISPLAY = np.array([[4.73, -3.87, 0.14], [-0.9, 1.9, 0.0], [0.0, -0.2, 1.2]])
 
 
 class BaselineRuntime:
-    """The runtime, with ``kernel`` building the baseline tree's kernels/<name>.cl instead."""
+    """The runtime, with ``kernel`` building the baseline tree's <name>.cl instead (kernels/ before
+    issue 26's layout, clisp/modules/<name>/ after)."""
 
     def __init__(self, rt, root: Path) -> None:
         self._rt, self._root, self._kernels = rt, root, {}
@@ -48,17 +49,26 @@ class BaselineRuntime:
         flags = tuple(_define_flags(defines or {}))
         key = (name, flags, kernel_name)
         if key not in self._kernels:
-            folder = self._root / "kernels"
-            source = "\n".join([(folder / "common.h").read_text(), generated, (folder / f"{name}.cl").read_text()])
+            source = "\n".join([source_file(self._root, "common.h").read_text(), generated,
+                                source_file(self._root, f"{name}.cl").read_text()])
             prg = self._rt.cl.Program(self._rt.context, source).build(options=list(flags) + ["-cl-std=CL1.2"])
             self._kernels[key] = _ProfiledKernel(self._rt.cl.Kernel(prg, kernel_name), kernel_name)
         return self._kernels[key]
 
 
+def source_file(root: Path, file_name: str) -> Path:
+    """An OpenCL source of the tree at root, in either layout."""
+    old = root / "kernels" / file_name
+    return old if old.is_file() else next((root / "clisp" / "modules").glob(f"*/{file_name}"))
+
+
 def baseline_module(root: Path):
-    """The baseline tree's stages/highlights.py, imported beside ours."""
-    name = "clisp.stages.highlights_baseline"
-    spec = importlib.util.spec_from_file_location(name, root / "clisp" / "stages" / "highlights.py")
+    """The baseline tree's highlights stage, imported beside ours."""
+    name = "clisp.modules.highlights.baseline"
+    path = root / "clisp" / "modules" / "highlights" / "stage.py"
+    if not path.is_file():
+        raise SystemExit(f"{root}: no clisp/modules/highlights/stage.py (a tree before issue 26's layout?)")
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)

@@ -47,7 +47,7 @@ from clisp.metrics import ciede2000, psnr  # noqa: E402
 from clisp.pipeline import build_pipeline  # noqa: E402
 from clisp.sim.simulate import inverse_isp_matrix  # noqa: E402
 from clisp.noise_estimate import CLIP_FRACTION  # noqa: E402
-from clisp.stages.highlights import box_max  # noqa: E402
+from clisp.modules.highlights.stage import box_max  # noqa: E402
 from toolkit import DEFAULT_DATA  # noqa: E402
 
 PEAK = 4.0

@@ -31,8 +31,8 @@ from bench_bleeding import scene  # noqa: E402
 import clisp.pipeline as pipeline_module  # noqa: E402
 from clisp.sim.colorimetry import srgb_encode  # noqa: E402
 from clisp.sim.simulate import simulate  # noqa: E402
-from clisp.stages.chroma_denoise import ChromaDenoiseParams  # noqa: E402
-from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, LMSGuidedParams  # noqa: E402
+from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams  # noqa: E402
+from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided, LMSGuidedParams  # noqa: E402
 
 ROWS = slice(248, 360)
 

@@ -9,7 +9,7 @@ Methods:
 
     RCD, GBTF, RCD-GBTF, ...     research.demosaic.bayer_rcd / bayer_gbtf / bayer_rcd_gbtf and their
                                  variants, NumPy float64, on the mosaic
-    RI, MLRI, ARI, ...           clisp.stages.bayer_ri (residual interpolation) and its variants;
+    RI, MLRI, ARI, ...           clisp.modules.demosaic_ari.reference (residual interpolation) and its variants;
                                  ARI takes about 9 s per Kodak image: select with --methods
     clisp bilinear / DLMMSE      our OpenCL stages, Pipeline(CFA, [stage]).run(mosaic as float32),
                                  exactly as bayer_demosaic_protocol.py runs them
@@ -55,12 +55,12 @@ sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: th
 from bayer_demosaic_protocol import CFA, SETS, cpsnr, load_8bit, mosaic  # noqa: E402
 
 from clisp.pipeline import Pipeline  # noqa: E402
-from clisp.stages import bayer_ri  # noqa: E402
+from clisp.modules.demosaic_ari import reference as bayer_ri  # noqa: E402
 from research.demosaic.bayer_gbtf import SLOW_TAPS, demosaic_gbtf  # noqa: E402
 from research.demosaic.bayer_rcd import demosaic_rcd  # noqa: E402
 from research.demosaic.bayer_rcd_gbtf import demosaic_rcd_gbtf  # noqa: E402
-from clisp.stages.demosaic_bilinear import DemosaicBilinear  # noqa: E402
-from clisp.stages.demosaic_dlmmse import DemosaicDLMMSE  # noqa: E402
+from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear  # noqa: E402
+from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE  # noqa: E402
 
 Method = Callable[[np.ndarray], np.ndarray]
 

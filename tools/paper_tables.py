@@ -1,6 +1,6 @@
 """The paper's Table 1 and Table 2 from clisp, beside the paper's numbers (SPEC sections 8 and 9).
 
-Pipelines (OpenCL): normalise, WB pass 1, demosaic, chroma denoise (clisp.stages.chroma_denoise:
+Pipelines (OpenCL): normalise, WB pass 1, demosaic, chroma denoise (clisp.modules.chroma_denoise.stage:
 LMS in the paper's Y = (L+M)/2 / R-Y, G-Y, B-Y space, Bayer in BT.601 YUV, noise levels from the
 simulation's noise model) -- or, "without denoise", the plain colour matrix. Simulation: SPEC
 section 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless).
@@ -53,11 +53,11 @@ from clisp.pipeline import DEMOSAICS, Pipeline
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
-from clisp.stages.base import Stage
-from clisp.stages.chroma_denoise import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
+from clisp.modules.base import Stage
+from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
                                          space_for)
-from clisp.stages.colour import ColourMatrix
-from clisp.stages.raw_scale import normalize, white_balance1
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.raw_scale.stage import normalize, white_balance1
 
 GAINS = (4, 8, 16, 32, 64)
 BORDER = 10
@@ -79,8 +79,8 @@ PAPER_T2 = {   # (Bayer P1..P6, LMS P1..P6)
 }
 LMS_PREFERENCE = ("guided", "hybrid", "bilinear")
 """Default LMS demosaic: the first of these registered in DEMOSAICS."""
-KNOWN = {"hybrid": ("clisp.stages.demosaic_lms", "DemosaicLMSHybrid"),
-         "dlmmse": ("clisp.stages.demosaic_dlmmse", "DemosaicDLMMSE")}
+KNOWN = {"hybrid": ("clisp.modules.demosaic_lms.stage", "DemosaicLMSHybrid"),
+         "dlmmse": ("clisp.modules.demosaic_dlmmse.stage", "DemosaicDLMMSE")}
 """Demosaics being written beside this tool: used from their modules until registered."""
 
 

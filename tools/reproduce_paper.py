@@ -35,7 +35,7 @@ from clisp.metrics import psnr  # noqa: E402
 from clisp.engine.runtime import get_runtime  # noqa: E402
 from clisp.sim.simulate import simulate  # noqa: E402
 from clisp.sim.spectral import patch_delta_e, simulate_spectral, spectral_colorchecker  # noqa: E402
-from clisp.stages.chroma_denoise import ChromaDenoiseParams  # noqa: E402
+from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams  # noqa: E402
 
 PAPER_T1_EXTRA = {   # SPEC.md section 9, verbatim (Kodak and IMAX/McMaster are in paper_tables.PAPER_T1)
     "ISET (hyperspectral)": {None: (47.10, 48.93), 4: (39.02, 41.23), 8: (37.48, 39.44), 16: (35.03, 37.28),

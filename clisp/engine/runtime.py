@@ -28,14 +28,30 @@ LOCAL_SIZE = (32, 4)
 bounds-check. 32 along x keeps reads coalesced on GPUs and gives PoCL a vectorisable inner loop."""
 
 
-def kernel_dir() -> Path:
-    """Folder holding the ``.cl`` sources: ``kernels/`` of a source checkout (editable install),
-    else ``clisp/kernels/`` of an installed wheel (pyproject maps the folder there)."""
-    package = Path(__file__).resolve().parents[1]                 # clisp/ (this file is clisp/engine/)
-    for folder in (package.parent / "kernels", package / "kernels"):
-        if (folder / "common.h").is_file():
-            return folder
-    raise ClispError(f"OpenCL kernel sources not found beside {package}; reinstall clisp")
+def kernel_sources() -> dict[str, Path]:
+    """Every OpenCL source file of the package by file name: the programs ``<name>.cl`` and the
+    headers ``*.h`` of the stage folders ``clisp/modules/<module>/`` and of ``clisp/engine/``
+    (``common.h`` is in ``clisp/modules/common/``). A program is named by its file's stem, which is
+    its module's name, e.g. ``highlights`` -> ``clisp/modules/highlights/highlights.cl``."""
+    global _SOURCES
+    if _SOURCES is None:
+        package = Path(__file__).resolve().parents[1]             # clisp/ (this file is clisp/engine/)
+        found = [*package.glob("modules/*/*.cl"), *package.glob("modules/*/*.h"), *package.glob("engine/*.cl")]
+        _SOURCES = {path.name: path for path in sorted(found)}
+        if "common.h" not in _SOURCES:
+            raise ClispError(f"OpenCL kernel sources not found in {package}; reinstall clisp")
+    return _SOURCES
+
+
+_SOURCES: dict[str, Path] | None = None
+
+
+def kernel_path(file_name: str) -> Path:
+    """Path of the OpenCL source ``file_name`` (``highlights.cl``, ``srgb.h``); ClispError if none."""
+    sources = kernel_sources()
+    if file_name not in sources:
+        raise ClispError(f"kernel source {file_name} not found in clisp/modules/*/ or clisp/engine/")
+    return sources[file_name]
 
 
 def _import_cl() -> Any:
@@ -187,7 +203,7 @@ class Runtime:
 
     # -- programs -------------------------------------------------------------------------
     def program(self, name: str, defines: Mapping[str, Any] | None = None, generated: str = "") -> Any:
-        """Build ``kernels/<name>.cl`` with ``-D`` defines once per process and cache it.
+        """Build the program ``<name>.cl`` (:func:`kernel_path`) with ``-D`` defines once per process and cache it.
 
         ``generated``: host-generated source (e.g. a filter's weights as literals) placed before
         the file's text; part of the cache key.
@@ -195,9 +211,9 @@ class Runtime:
         flags = tuple(_define_flags(defines or {}))
         key = (name, flags + (generated,))
         if key not in self._programs:
-            path = kernel_dir() / f"{name}.cl"
+            path = kernel_path(f"{name}.cl")
             try:
-                source = "\n".join([(kernel_dir() / "common.h").read_text(), generated, path.read_text()])
+                source = "\n".join([kernel_path("common.h").read_text(), generated, path.read_text()])
             except OSError as exc:
                 raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
             try:
@@ -210,8 +226,8 @@ class Runtime:
         return self._programs[key]
 
     def header(self, name: str) -> str:
-        """Text of ``kernels/<name>`` (a header for host-generated program text)."""
-        path = kernel_dir() / name
+        """Text of the header ``name`` (e.g. ``srgb.h``, for host-generated program text)."""
+        path = kernel_path(name)
         try:
             return path.read_text()
         except OSError as exc:
@@ -219,7 +235,7 @@ class Runtime:
 
     def kernel(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
                generated: str = "") -> Any:
-        """A cached kernel object from ``kernels/<name>.cl`` (see :meth:`program`)."""
+        """A cached kernel object of the program ``<name>.cl`` (see :meth:`program`)."""
         flags = tuple(_define_flags(defines or {}))
         key = (name, flags + (generated,), kernel_name)
         if key not in self._kernels:
@@ -233,7 +249,7 @@ class Runtime:
 
     def signature(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
                   generated: str = "") -> tuple["Parameter", ...]:
-        """The parameters of ``kernel_name`` in ``kernels/<name>.cl`` as the compiler reads them
+        """The parameters of ``kernel_name`` in the program ``<name>.cl`` as the compiler reads them
         (macros expanded): name, type and whether it is a pointer; cached per build."""
         flags = tuple(_define_flags(defines or {}))
         key = (name, flags + (generated,), kernel_name)
@@ -249,12 +265,12 @@ class Runtime:
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
                      defines: Mapping[str, Any] | None = None, generated: str = "",
                      group: tuple[int, int] | None = None, x0: int = 0, exact: bool = True) -> None:
-        """Enqueue ``kernel_name`` of ``kernels/<name>.cl`` over exactly width x height outputs
+        """Enqueue ``kernel_name`` of the program ``<name>.cl`` over exactly width x height outputs
         (:func:`launch_exact`; ``exact`` False: rounded up to LOCAL_SIZE, :meth:`launch`, for kernels
         that check their bounds) with its arguments by name: ``args`` maps every parameter's name to
         its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
         Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
-        name is a ClispError naming them. For example (clisp/stages/highlights.py)::
+        name is a ClispError naming them. For example (clisp/modules/highlights/stage.py)::
 
             rt.launch_named("highlights", "hl_near", w1, h1, dict(rows=rows, dst=near, w1=w1, h1=h1,
                             reach=reach, nbx=nbx, nby=nby), defines)
@@ -388,7 +404,7 @@ class Runtime:
 
     def gather_window(self, whole: DeviceImage, y0: int, x0: int, h: int, w: int, period: int) -> DeviceImage:
         """The h x w window at (y0, x0) of the one-plane image ``whole``, CFA-mirror padded outside it,
-        as a pooled device image: tiling.gather_window done by the device (kernels/raw.cl), so a
+        as a pooled device image: tiling.gather_window done by the device (clisp/modules/raw_scale/raw_scale.cl), so a
         mosaic already in memory that the device reads in place (host_source) needs no host copy per
         tile. The columns inside the mosaic are one vectorised launch, those outside it (at most the
         halo on each side) their own small launches."""
@@ -400,9 +416,9 @@ class Runtime:
         args = (whole.buffer, dst.buffer, np.int32(src_h), np.int32(src_w), np.int32(y0), np.int32(x0), np.int32(w))
         inside = (min(max(-x0, 0), w), min(max(src_w - x0, 0), w))      # window columns inside the mosaic
         if inside[1] > inside[0]:
-            kernel = self.kernel("raw", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 0})
+            kernel = self.kernel("gather", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 0})
             launch_exact(self, kernel, inside[1] - inside[0], h, *args, x0=inside[0])
-        edge = self.kernel("raw", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 1})
+        edge = self.kernel("gather", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 1})
         for start, stop in ((0, inside[0]), (max(inside[1], inside[0]), w)):
             if stop > start:
                 edge(self.queue, (stop - start, h), None, *args, global_offset=(start, 0))
@@ -529,7 +545,7 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     right/bottom strips as one group-wide launch shifted inward to end at the edge (it recomputes some
     outputs with identical values). A side shorter than the group gets the largest power of two that
     fits (few distinct shapes, so few work-group compilations on PoCL). Kernels thus carry no bounds
-    check and PoCL vectorises them (6-15x, measured; see kernels/demosaic_lms.cl).
+    check and PoCL vectorises them (6-15x, measured; see clisp/modules/demosaic_lms/demosaic_lms.cl).
     """
     lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(group, (width, height)))
     full_w, full_h = width // lx * lx, height // ly * ly

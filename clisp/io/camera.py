@@ -119,7 +119,7 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
 def _linear_max(raw: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> list[float] | None:
     """Per CFA channel clip level in DN (LibRaw's ``color.linear_max``: the camera's per-channel
     saturation, rawpy's camera_white_level_per_channel), or None when the file gives none. The
-    highlight stage clips each channel at its own level (clisp.stages.highlights)."""
+    highlight stage clips each channel at its own level (clisp.modules.highlights.stage)."""
     levels = getattr(raw, "camera_white_level_per_channel", None)
     if levels is None:
         return None

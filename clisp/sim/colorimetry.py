@@ -45,7 +45,7 @@ SRGB_ENCODING = {"SRGB_THRESHOLD": 0.0031308, "SRGB_SLOPE": 12.92, "SRGB_SCALE":
 
 
 SRGB_POLY_DEGREES = (6, 5)
-"""Degrees of the two polynomials of kernels/srgb.h: m^(5/12) on [1, 2) and 2^f on [0, 1).
+"""Degrees of the two polynomials of clisp/modules/colour/srgb.h: m^(5/12) on [1, 2) and 2^f on [0, 1).
 Evaluated in float32 they put the curve within 0.02 of a 16-bit code (5 and 5: 0.09; 4 and 5: 0.6)."""
 
 
@@ -63,7 +63,7 @@ def _chebyshev_fit(fn, lo: float, hi: float, degree: int, prefix: str) -> dict[s
 
 @lru_cache(maxsize=1)
 def srgb_poly_defines() -> dict[str, float]:
-    """Defines for kernels/srgb.h: the fits SRGB_M* of SRGB_SCALE * m^SRGB_INV_GAMMA on [1, 2)
+    """Defines for clisp/modules/colour/srgb.h: the fits SRGB_M* of SRGB_SCALE * m^SRGB_INV_GAMMA on [1, 2)
     and SRGB_F* of 2^f on [0, 1) (see SRGB_POLY_DEGREES)."""
     k = SRGB_ENCODING
     gamma = k["SRGB_INV_GAMMA"]
@@ -81,7 +81,7 @@ def srgb_encode(x: np.ndarray) -> np.ndarray:
 
 
 def quantize16(encoded: np.ndarray) -> np.ndarray:
-    """Encoded values in [0, 1] (clipped) to the nearest 16-bit code, uint16 (as kernels/srgb.h)."""
+    """Encoded values in [0, 1] (clipped) to the nearest 16-bit code, uint16 (as clisp/modules/colour/srgb.h)."""
     return np.floor(np.clip(encoded, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
 
 

@@ -7,12 +7,12 @@ the mosaic's units (measured samples kept at their own sites), for paper eq. (1)
 
 Why residual interpolation. Every row and column of the LMS CFA alternates L and M (or S in place of
 M): the L/M problem is Bayer's G / chroma problem along the lines, with both colours dense. RI
-(Kiku et al. 2013), MLRI (2014) and ARI (Monno et al. 2015/2017; clisp.stages.bayer_ri) estimate a
+(Kiku et al. 2013), MLRI (2014) and ARI (Monno et al. 2015/2017; clisp.modules.demosaic_ari.reference) estimate a
 colour difference far better than colour-difference interpolation because they interpolate the
 residual of a local linear fit (smooth) instead of the difference itself; on the LMS CFA the
 difference L - M reaches red amplified 8.6x (R = 0.86 Y + 8.6 C + 0.14 S, C = (L - M) / 2).
 
-Method (all filters from clisp.stages.bayer_ri, 8-bit working units: data x 255 inside). Default
+Method (all filters from clisp.modules.demosaic_ari.reference, 8-bit working units: data x 255 inside). Default
 ``lm="2d"``; ``lm="ari"`` is the directional alternative, measured worse (below):
 
 1. L and M, ``lm="2d"`` (default; ``_lm_2d``): guide Y0 = 9 x 9 diamond half-band of the mosaic (M at
@@ -61,9 +61,9 @@ from __future__ import annotations
 import numpy as np
 
 from clisp.cfa import CFA
-from clisp.stages.bayer_ri import (LAPLACIAN, MLRI_MERGE, NEIGHBOUR_MEAN, RESIDUAL_LINEAR, _adaptive, _along,
+from clisp.modules.demosaic_ari.reference import (LAPLACIAN, MLRI_MERGE, NEIGHBOUR_MEAN, RESIDUAL_LINEAR, _adaptive, _along,
                        _criterion, _gbtf_merge, _taps, guided_filter, guided_pair)
-from clisp.stages.lms_common import check_lms_structure
+from clisp.modules.common.lms import check_lms_structure
 
 SCALE = 255.0
 """Working scale (8-bit code values, the units of bayer_ri's constants)."""
@@ -136,7 +136,7 @@ DIAGONAL = {(1, 1): 0.25, (1, -1): 0.25, (-1, 1): 0.25, (-1, -1): 0.25}
 def _criterion_2d(err: list[Array]) -> Array:
     """ARI's criterion c^2 g in 2-D: c = sum |err|, g = sum of |[-1, 0, 1]| gradients of err along x
     and y, both 5 x 5 Gaussian-smoothed (sigma 2)."""
-    from clisp.stages.bayer_ri import GRADIENT, _gauss
+    from clisp.modules.demosaic_ari.reference import GRADIENT, _gauss
     c = sum(np.abs(e) for e in err)
     g = sum(np.abs(_taps(e, _along(d, GRADIENT))) for e in err for d in ("h", "v"))
     return _gauss(c, 2, 2.0) ** 2 * _gauss(g, 2, 2.0)
@@ -149,7 +149,7 @@ def _lm_2d(raw: Array, l: Array, m: Array, s: Array, iterations: int, radius: in
     filter over their own sites, box radius ``radius`` growing by 1, residual interpolated over the
     four axial neighbours, at S sites over the four diagonal M), guide = (L + M) / 2 of the result."""
     from scipy.ndimage import correlate
-    from clisp.stages.lms_common import diamond_halfband
+    from clisp.modules.common.lms import diamond_halfband
     filled = np.where(s, _taps(raw, DIAGONAL), raw)
     guide = correlate(filled, diamond_halfband(4), mode="mirror")
     lp, mp = guide, guide
@@ -241,7 +241,7 @@ def guided_reference(mosaic: Array, cfa: CFA) -> Array:
     """The default LMS demosaic's NumPy reference (DemosaicLMSGuided, noiseless, neutral of P_LMS) on
     a whole H x W mosaic, mirror-padded by its halo rounded up to the CFA period: H x W x 3."""
     from clisp.sim.colorimetry import P_LMS
-    from clisp.stages.demosaic_lms_guided import DemosaicLMSGuided, neutral_of
+    from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided, neutral_of
     stage = DemosaicLMSGuided(cfa, neutral=neutral_of(P_LMS))
     pad = -(-stage.halo // 4) * 4
     out = stage.reference(np.pad(np.asarray(mosaic, np.float64), pad, mode="reflect"), (-pad, -pad))

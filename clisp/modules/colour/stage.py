@@ -1,0 +1,105 @@
+"""Per-pixel colour steps on 3-channel images (kernels in ``colour.cl``, halo 0).
+
+ColourMatrix: white-balanced camera channels -> linear sRGB. WhiteBalance2: von Kries gains on
+linear sRGB (colour constancy, SPEC.md section 7), a diagonal matrix through the same kernel.
+ToneCurve: clip to [0, 1] and sRGB-encode (by polynomial, clisp/modules/colour/srgb.h), optionally to 16-bit codes,
+for integer outputs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ...sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
+from ...engine.runtime import DeviceImage, Runtime, launch_exact
+from ..base import Stage, as_f32
+
+
+@dataclass
+class ColourMatrix(Stage):
+    """out[..., i] = sum_j matrix[i, j] * in[..., j]; H x W x 3 -> H x W x 3, linear."""
+
+    matrix: np.ndarray
+    name = "colour_matrix"
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), x.astype(np.float64))
+
+    def fuse(self, following: Stage) -> Stage | None:
+        if isinstance(following, ColourMatrix):
+            return ColourMatrix(np.asarray(following.matrix) @ np.asarray(self.matrix))
+        return None
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        kernel = rt.kernel("colour", "apply_matrix3", SRGB_ENCODING)
+        dst = rt.acquire(3, src.height, src.width)
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, np.int32(src.width),
+                  np.int32(src.height), rt.constant(as_f32(self.matrix)))
+        return dst
+
+
+class WhiteBalance2(ColourMatrix):
+    """White balance pass 2: diagonal gains on linear sRGB."""
+
+    name = "white_balance2"
+
+    def __init__(self, gains: np.ndarray) -> None:
+        super().__init__(np.diag(np.asarray(gains, dtype=np.float64)))
+
+
+def camera_neutral(colour_matrix: np.ndarray, target: np.ndarray | None = None) -> np.ndarray | None:
+    """The white-balanced camera values (3,) that ``colour_matrix`` (3 x 3, camera to linear sRGB)
+    takes to ``target`` (default (1, 1, 1): grey); None where the matrix is singular or the answer
+    is not positive and finite.
+
+    >>> camera_neutral(np.diag([2.0, 1.0, 0.5])).tolist()
+    [0.5, 1.0, 2.0]
+    """
+    try:
+        n = np.linalg.solve(np.asarray(colour_matrix, dtype=np.float64), np.ones(3) if target is None else target)
+    except np.linalg.LinAlgError:
+        return None
+    return n if np.all(np.isfinite(n)) and np.all(n > 0) else None
+
+
+def srgb_source(rt: Runtime) -> str:
+    """Program text that defines ``encode_srgb`` and ``quantize16`` (the polynomial's constants, then
+    clisp/modules/colour/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`."""
+    constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
+    return "\n".join(constants + [rt.header("srgb.h")])
+
+
+@dataclass
+class ToneCurve(Stage):
+    """Linear sRGB -> sRGB-encoded in [0, 1] (clip, then IEC 61966-2-1); H x W x 3.
+
+    ``quantize``: output 16-bit codes (uint16, for TIFF/PNG) instead of float32, so the device
+    downloads half the bytes and the writer converts nothing. ``interleaved``: write H x W x 3
+    (the host layout; set by the pipeline when this is the last stage)."""
+
+    quantize: bool = False
+    interleaved: bool = False
+    name = "tone_curve"
+    writes_into = True
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        return np.dtype(np.uint16 if self.quantize else np.float32)
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        encoded = srgb_encode(x.astype(np.float64))
+        return quantize16(encoded) if self.quantize else encoded
+
+    def with_interleaved_output(self) -> "ToneCurve":
+        return replace(self, interleaved=True)
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
+                out: DeviceImage | None = None) -> DeviceImage:
+        defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
+        kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
+        dst = out if out is not None else rt.acquire(3, src.height, src.width, self.out_dtype)
+        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
+                  np.int32(src.width), np.int32(src.height))
+        dst.interleaved = self.interleaved
+        return dst

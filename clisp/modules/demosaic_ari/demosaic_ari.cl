@@ -1,0 +1,720 @@
+/* ARI Bayer demosaic (adaptive residual interpolation, Monno et al. 2015/2017) on the device. NumPy
+ * float64 reference: clisp/modules/demosaic_ari/reference.py (demosaic_ari, _ari_green, _merge_green, _ari_chroma,
+ * guided_pair, guided_filter, _criterion, _adaptive); host side and schedule: clisp/modules/demosaic_ari/stage.py.
+ *
+ * Conventions (the project's tiling contract: valid-only windows, no borders, no bounds checks):
+ *  - Data are in 8-bit units (the host scales the mosaic by 255 once, ari_scale), so the reference's
+ *    constants apply unchanged: eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion +1e-10.
+ *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h) and reads its
+ *    inputs through "views": (buffer, base, pitch), base being the element of the input that lies at
+ *    output pixel (0, 0), so input pixel (y + dy, x + dx) is buf[base + (y + dy) pitch + x + dx]. The host
+ *    tracks each image's margin (its offset inside the stage's input window) and checks every read
+ *    stays inside its input; a kernel's "halo" below is how far it reads around the output pixel.
+ *  - CFA sites from the parities (py, px) of the output grid: R rows are those with y + py even, R
+ *    columns x + px even; R = R row & R column, B = neither, G = one of them (x + y + px + py odd).
+ *  - Directions are steps (sy, sx): h (0, 1), v (1, 0), d1 (1, 1), d2 (1, -1).
+ *
+ * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
+ * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
+ * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
+ * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
+ * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
+ * window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the diagonal kernels' lattice
+ * radii, direction and Laplacian sites). The radii are compile-time so that
+ * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
+ * straight-line code (a loop of runtime trip count inside it keeps it scalar), and so are the modes.
+ * Check with POCL_KERNEL_CACHE=0 POCL_VECTORIZER_REMARKS=1 ("vectorized loop (vectorization width: 8"
+ * after the kernel's "_workgroup" inlining remark); "instruction return type cannot be vectorized"
+ * means LLVM's SLP vectoriser packed two alike computations of one work-item into a <2 x float> first
+ * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
+ * make them unalike or split them into separate programs. */
+
+#ifndef ARI_DIR
+#define ARI_DIR 0
+#endif
+#ifndef ARI_MLRI
+#define ARI_MLRI 0
+#endif
+#ifndef ARI_PAIR
+#define ARI_PAIR 0
+#endif
+#ifndef ARI_R
+#define ARI_R 1
+#endif
+#ifndef ARI_SET
+#define ARI_SET 0
+#endif
+#ifndef ARI_FIT
+#define ARI_FIT 0
+#endif
+#ifndef ARI_SY
+#define ARI_SY 0
+#endif
+#ifndef ARI_SX
+#define ARI_SX 1
+#endif
+#ifndef ARI_REGION
+#define ARI_REGION 0
+#endif
+#ifndef ARI_TARGET
+#define ARI_TARGET SITE_B
+#endif
+#ifndef ARI_P
+#define ARI_P 1
+#endif
+#ifndef ARI_Q
+#define ARI_Q 1
+#endif
+#ifndef ARI_LS
+#define ARI_LS 1
+#endif
+#ifndef ARI_KNOWN
+#define ARI_KNOWN SITE_R
+#endif
+#ifndef ARI_EPS
+#define ARI_EPS 1e-10f
+#endif
+#ifndef ARI_RMSE_FLOOR
+#define ARI_RMSE_FLOOR 1e-3f
+#endif
+#ifndef ARI_WEIGHT_REG
+#define ARI_WEIGHT_REG 1e-4f
+#endif
+#ifndef ARI_CRIT_REG
+#define ARI_CRIT_REG 1e-10f
+#endif
+
+#define SITE_R 0
+#define SITE_B 1
+#define SITE_C 2
+#define SITE_G 3
+
+/* 1.0f where pixel (y, x) of a grid with parities (py, px) is a site of kind ``code``, else 0.0f. */
+__attribute__((always_inline)) inline float ari_site(const int code, const int y, const int x, const int py, const int px)
+{
+    const int ry = ((y + py) & 1) == 0, rx = ((x + px) & 1) == 0;
+    const int r = code == SITE_R ? (ry & rx) : code == SITE_B ? (!ry & !rx)
+                : code == SITE_C ? (ry == rx) : (ry != rx);
+    return r ? 1.0f : 0.0f;
+}
+
+__attribute__((always_inline)) inline int ari_is_green(const int y, const int x, const int py, const int px)
+{
+    return ((y + py + x + px) & 1) != 0;
+}
+
+/* Weighted fit y ~ a x + b from centred window statistics (ARI's guided filter, weighted form):
+ * mse = a^2 var_x - 2 a cov + var_y, w = 1 / max(sqrt(max(mse, 0)), floor); r[0..2] = a w, b w, w. */
+__attribute__((always_inline)) inline void ari_fit_values(const float a, const float mean_x, const float mean_y, const float var_x,
+                           const float var_y, const float cov, float *r)
+{
+    const float b = mean_y - a * mean_x;
+    const float mse = a * a * var_x - 2.0f * a * cov + var_y;
+    const float rmse = __builtin_sqrtf(mse > 0.0f ? mse : 0.0f);
+    const float wt = 1.0f / (rmse > ARI_RMSE_FLOOR ? rmse : ARI_RMSE_FLOOR);
+    r[0] = a * wt;
+    r[1] = b * wt;
+    r[2] = wt;
+}
+
+/* ari_scale: dst = src * scale (the mosaic in 8-bit units). Halo 0. */
+__kernel void ari_scale(__global const float *restrict src, const int sb, const int sp,
+                        __global float *restrict dst, const int w, const float scale)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    dst[y * w + x] = src[sb + y * sp + x] * scale;
+}
+
+/* ari_green_start: the lines of ARI step 1 before the iterations, along d = (sy, sx): m = mean of the
+ * two neighbours along d; planes g0 = G sites ? raw : m, c0 = G sites ? m : raw. Halo 1 along d. */
+__kernel void ari_green_start(__global const float *restrict raw, const int rb, const int rp,
+                              __global float *restrict out, const int w, const int h, const int sy,
+                              const int sx, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const int at = rb + y * rp + x, s = sy * rp + sx;
+    const float v = raw[at], m = 0.5f * raw[at - s] + 0.5f * raw[at + s];
+    const int g = ari_is_green(y, x, py, px);
+    out[y * w + x] = g ? v : m;
+    out[w * h + y * w + x] = g ? m : v;
+}
+
+/* ari_along_moments: first (separable) pass of the window statistics of guide x and target y, along
+ * the lines (ARI_DIR 0: x axis, 1: y axis), radius r = ARI_R: for output (y, x) the sums over k = -r..r of
+ * 1, d, e, d^2, e^2, d e with d = x(k) - x(0), e = y(k) - y(0) (centred on the output pixel; the
+ * across pass moves them to the window's centre). ARI_MLRI adds the Laplacian moments over a site set
+ * (L = [-1, 0, 2, 0, -1] along the line): ARI_PAIR (step 1; x = chroma line c, y = G line g): over G
+ * sites sum L(x) L(y), sum L(x)^2, count, then over chroma sites sum L(x) L(y), sum L(y)^2, count
+ * (12 planes); else (step 3) over chroma sites sum L(x) L(y), sum L(x)^2, count (9 planes); plain: 6
+ * planes. Halo r along the line (r + 2 with ARI_MLRI). */
+__kernel void ari_along_moments(__global const float *restrict xs, const int xb, const int xp,
+                                __global const float *restrict ys, const int yb, const int yp,
+                                __global float *restrict out, const int w, const int h,
+                                const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+#if ARI_DIR == 0
+    const int xs_step = 1, ys_step = 1;
+#else
+    const int xs_step = xp, ys_step = yp;
+#endif
+    __global const float *xc = xs + xb + y * xp + x;
+    __global const float *yc = ys + yb + y * yp + x;
+    const float cx = xc[0], cy = yc[0];
+    float n = 0.0f, sd = 0.0f, se = 0.0f, sdd = 0.0f, see = 0.0f, sde = 0.0f;
+#if ARI_MLRI
+    float g_xy = 0.0f, g_xx = 0.0f, g_n = 0.0f, c_xy = 0.0f, c_yy = 0.0f, c_xx = 0.0f, c_n = 0.0f;
+#endif
+#pragma unroll
+    for (int k = -ARI_R; k <= ARI_R; ++k) {
+        const float xv = xc[k * xs_step], yv = yc[k * ys_step];
+        const float d = xv - cx, e = yv - cy;
+        n += 1.0f;
+        sd += d;
+        se += e;
+        sdd += d * d;
+        see += e * e;
+        sde += d * e;
+#if ARI_MLRI
+        const float lx = 2.0f * xv - xc[(k - 2) * xs_step] - xc[(k + 2) * xs_step];
+        const float ly = 2.0f * yv - yc[(k - 2) * ys_step] - yc[(k + 2) * ys_step];
+#if ARI_DIR == 0
+        const int green = ari_is_green(y, x + k, py, px);
+#else
+        const int green = ari_is_green(y + k, x, py, px);
+#endif
+        const float gm = green ? 1.0f : 0.0f, cm = 1.0f - gm;
+        c_xy += cm * lx * ly;
+        c_n += cm;
+#if ARI_PAIR
+        g_xy += gm * lx * ly;
+        g_xx += gm * lx * lx;
+        g_n += gm;
+        c_yy += cm * ly * ly;
+#else
+        c_xx += cm * lx * lx;
+#endif
+#endif
+    }
+    const int i = y * w + x, plane = w * h;
+    out[i] = n;
+    out[plane + i] = sd;
+    out[2 * plane + i] = se;
+    out[3 * plane + i] = sdd;
+    out[4 * plane + i] = see;
+    out[5 * plane + i] = sde;
+#if ARI_MLRI && ARI_PAIR
+    out[6 * plane + i] = g_xy;
+    out[7 * plane + i] = g_xx;
+    out[8 * plane + i] = g_n;
+    out[9 * plane + i] = c_xy;
+    out[10 * plane + i] = c_yy;
+    out[11 * plane + i] = c_n;
+#elif ARI_MLRI
+    out[6 * plane + i] = c_xy;
+    out[7 * plane + i] = c_xx;
+    out[8 * plane + i] = c_n;
+#endif
+}
+
+/* Accumulator of centred window moments. */
+typedef struct { float n, s1x, s1y, s2x, s2y, sxy; } ari_moments;
+
+/* Add the along-pass moments of one line (planes at index i, stride rp), centred on (cxj, cyj), to m,
+ * moved to the centre (cx, cy): with dx = cxj - cx, dy = cyj - cy (exact algebra of gf_col_coefficients). */
+__attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
+                         const float dx, const float dy, const float wt)
+{
+    const float nj = wt * rows[i], sd = wt * rows[rp + i], se = wt * rows[2 * rp + i];
+    m->n += nj;
+    m->s1x += sd + nj * dx;
+    m->s1y += se + nj * dy;
+    m->s2x += wt * rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
+    m->s2y += wt * rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
+    m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
+}
+
+/* Means, variances and covariance of accumulated moments centred on (cx, cy), given inv = 1 / max(N, 1). */
+__attribute__((always_inline)) inline void ari_stats_inv(const ari_moments *m, const float inv, const float cx, const float cy,
+                          float *mean_x, float *mean_y, float *var_x, float *var_y, float *cov)
+{
+    const float md = m->s1x * inv, me = m->s1y * inv;
+    *mean_x = cx * (m->n * inv) + md;
+    *mean_y = cy * (m->n * inv) + me;
+    *var_x = m->s2x * inv - md * md;
+    *var_y = m->s2y * inv - me * me;
+    *cov = m->sxy * inv - md * me;
+}
+
+/* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
+__attribute__((always_inline)) inline void ari_stats(const ari_moments *m, const float cx, const float cy, float *mean_x, float *mean_y,
+                      float *var_x, float *var_y, float *cov)
+{
+    ari_stats_inv(m, 1.0f / (m->n > 1.0f ? m->n : 1.0f), cx, cy, mean_x, mean_y, var_x, var_y, cov);
+}
+
+/* MLRI slope: (s_xy / n) / (s_xx / n + eps), n = max(count, 1) (the floor of the mean squared
+ * Laplacian is 0 in ARI). */
+__attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, const float s_xx, const float count)
+{
+    const float inv = 1.0f / (count > 1.0f ? count : 1.0f);
+    return (s_xy * inv) / (s_xx * inv + ARI_EPS);
+}
+
+/* ari_across_coefficients: second pass of the window statistics, across the lines, radius r = ARI_R, then
+ * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
+ * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
+ * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
+ * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
+ * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity): the lines
+ * at even and at odd offsets j are summed apart (no branch: j is compile-time), then each pixel takes
+ * the sums of its set's parity; ARI_FIT 0: the fit of y (G line) from x (chroma line), planes a_g w,
+ * b_g w, w_g; 1: of x from y, a_c w, b_c w, w_c (one fit per program: two alike fits in one body are
+ * SLP-packed into <2 x float> operations, which keeps PoCL from vectorising across work-items; the
+ * host launches the 4 (set, fit) programs into planes 0-2, 3-5, 6-8, 9-11). Else (step 3): every
+ * line, the fit of y from x, 3 planes. Halo r across the lines. */
+__kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
+                                      __global const float *restrict xs, const int xb, const int xp,
+                                      __global const float *restrict ys, const int yb, const int yp,
+                                      __global float *restrict out, const int ob, const int w, const int h,
+                                      const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const float cx = xs[xb + y * xp + x], cy = ys[yb + y * yp + x];
+#if ARI_DIR == 0
+    const int line_step = rw, xstep = xp, ystep = yp;
+    const int at0 = (y + ARI_R) * rw + x;
+#else
+    const int line_step = 1, xstep = 1, ystep = 1;
+    const int at0 = y * rw + x + ARI_R;
+#endif
+    const int xa = xb + y * xp + x, ya = yb + y * yp + x;
+#if ARI_PAIR
+#if ARI_DIR == 0
+    const int line0 = y + py;
+#else
+    const int line0 = x + px;
+#endif
+    /* the lines j = -r, -r + 2, ... (a) and j = -r + 1, ... (b), then those of set ARI_SET */
+    ari_moments ma = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, mb = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float la[3] = {0.0f, 0.0f, 0.0f}, lb[3] = {0.0f, 0.0f, 0.0f};
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
+        const int i = at0 + j * line_step;
+        const int in_a = ((j + ARI_R) & 1) == 0;
+        const float dx = xs[xa + j * xstep] - cx, dy = ys[ya + j * ystep] - cy;
+        if (in_a)
+            ari_add_line(&ma, rows, i, rp, dx, dy, 1.0f);
+        else
+            ari_add_line(&mb, rows, i, rp, dx, dy, 1.0f);
+#if ARI_MLRI
+#pragma unroll
+        for (int t = 0; t < 3; ++t) {
+            if (in_a)
+                la[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+            else
+                lb[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+        }
+#endif
+    }
+    const int use_a = ((line0 + ARI_R) & 1) == ARI_SET;
+    ari_moments m;
+    m.n = use_a ? ma.n : mb.n;
+    m.s1x = use_a ? ma.s1x : mb.s1x;
+    m.s1y = use_a ? ma.s1y : mb.s1y;
+    m.s2x = use_a ? ma.s2x : mb.s2x;
+    m.s2y = use_a ? ma.s2y : mb.s2y;
+    m.sxy = use_a ? ma.sxy : mb.sxy;
+    float l[3];
+#pragma unroll
+    for (int t = 0; t < 3; ++t)
+        l[t] = use_a ? la[t] : lb[t];
+    float mean_x, mean_y, var_x, var_y, cov;
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    float f[3];
+#if ARI_MLRI
+    const float a = ari_lap_slope(l[0], l[1], l[2]);
+#elif ARI_FIT == 0
+    const float a = cov / (var_x + ARI_EPS);
+#else
+    const float a = cov / (var_y + ARI_EPS);
+#endif
+#if ARI_FIT == 0
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+#else
+    ari_fit_values(a, mean_y, mean_x, var_y, var_x, cov, f);
+#endif
+    const int i = y * w + x, plane = w * h;
+#pragma unroll
+    for (int t = 0; t < 3; ++t)
+        out[ob + t * plane + i] = f[t];
+#else
+    ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float l[3] = {0.0f, 0.0f, 0.0f};
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
+        const int i = at0 + j * line_step;
+        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
+#if ARI_MLRI
+#pragma unroll
+        for (int t = 0; t < 3; ++t)
+            l[t] += rows[(6 + t) * rp + i];
+#endif
+    }
+    float mean_x, mean_y, var_x, var_y, cov;
+#if ARI_MLRI
+    /* one division for 1 / max(n, 1) and the slope, as in ari_diag_coefficients (two are SLP-packed) */
+    const float nn = m.n > 1.0f ? m.n : 1.0f, ln = l[2] > 1.0f ? l[2] : 1.0f;
+    const float den = l[1] + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&m, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l[0] * nn * r;
+#else
+    ari_stats(&m, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = cov / (var_x + ARI_EPS);
+#endif
+    float f[3];
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+    const int i = y * w + x, plane = w * h;
+    out[ob + i] = f[0];
+    out[ob + plane + i] = f[1];
+    out[ob + 2 * plane + i] = f[2];
+#endif
+}
+
+/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the sums along them are done: box_x
+ * for ARI_DIR 0, box_y for 1) and the tentative estimates. coef: view (cb, pitch cp, plane stride cs)
+ * of the along-summed coefficient planes. ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
+ * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
+ * (ys view); out planes t_g, t_c. Else (3 planes): t = (A x + B) / (W + reg), out 1 plane.
+ * Halo r across the lines. */
+__kernel void ari_box_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
+                            __global const float *restrict xs, const int xb, const int xp,
+                            __global const float *restrict ys, const int yb, const int yp,
+                            __global float *restrict out, const int w, const int h,
+                            const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+#if ARI_DIR == 0
+    const int step = cp;
+#else
+    const int step = 1;
+#endif
+    __global const float *k = coef + cb + y * cp + x;
+    const float xv = xs[xb + y * xp + x];
+#if ARI_PAIR
+    float acc[12] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j)
+#pragma unroll
+        for (int t = 0; t < 12; ++t)
+            acc[t] += k[t * cs + j * step];
+#if ARI_DIR == 0
+    const int set = (y + py) & 1;
+#else
+    const int set = (x + px) & 1;
+#endif
+    const float yv = ys[yb + y * yp + x];
+    const float ag = set ? acc[6] : acc[0], bg = set ? acc[7] : acc[1], wg = set ? acc[8] : acc[2];
+    const float ac = set ? acc[9] : acc[3], bc = set ? acc[10] : acc[4], wc = set ? acc[11] : acc[5];
+    out[y * w + x] = (ag * xv + bg) / (wg + ARI_WEIGHT_REG);
+    out[w * h + y * w + x] = (ac * yv + bc) / (wc + ARI_WEIGHT_REG);
+#else
+    float a = 0.0f, b = 0.0f, wt = 0.0f;
+#pragma unroll
+    for (int j = -ARI_R; j <= ARI_R; ++j) {
+        a += k[j * step];
+        b += k[cs + j * step];
+        wt += k[2 * cs + j * step];
+    }
+    out[y * w + x] = (a * xv + b) / (wt + ARI_WEIGHT_REG);
+#endif
+}
+
+/* ari_green_residual: the new lines of one step-1 iteration along d = (sy, sx): residuals
+ * raw - t at the G (chroma) sites interpolated with [1/2, 1, 1/2] along d and added to the tentative
+ * estimate; out planes g = G sites ? raw : t_g + r_g, c = G sites ? t_c + r_c : raw. Halo 1 along d. */
+__kernel void ari_green_residual(__global const float *restrict raw, const int rb, const int rp,
+                                 __global const float *restrict tg, const int gb, const int gp,
+                                 __global const float *restrict tc, const int cb, const int cp,
+                                 __global float *restrict out, const int w, const int h, const int sy,
+                                 const int sx, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const int ra = rb + y * rp + x, ga = gb + y * gp + x, ca = cb + y * cp + x;
+    const int rs = sy * rp + sx, gs = sy * gp + sx, cs = sy * cp + sx;
+    const int green = ari_is_green(y, x, py, px);
+    const float mg = green ? 1.0f : 0.0f;             /* G at the centre; the two neighbours are the other */
+    const float e0g = raw[ra] - tg[ga], e0c = raw[ra] - tc[ca];
+    const float emg = raw[ra - rs] - tg[ga - gs], epg = raw[ra + rs] - tg[ga + gs];
+    const float emc = raw[ra - rs] - tc[ca - cs], epc = raw[ra + rs] - tc[ca + cs];
+    const float r_g = mg * e0g + (1.0f - mg) * (0.5f * emg + 0.5f * epg);
+    const float r_c = (1.0f - mg) * e0c + mg * (0.5f * emc + 0.5f * epc);
+    out[y * w + x] = green ? raw[ra] : tg[ga] + r_g;
+    out[w * h + y * w + x] = green ? tc[ca] + r_c : raw[ra];
+}
+
+/* ari_err_terms: the unsmoothed criterion terms of two fits, errors e_k = u_k - t_k (times the chroma
+ * site mask with ARI_REGION: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
+ * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (ARI_SY, ARI_SX)). Halo 1 along d. */
+__kernel void ari_err_terms(__global const float *restrict u1, const int u1b, const int u1p,
+                            __global const float *restrict t1, const int t1b, const int t1p,
+                            __global const float *restrict u2, const int u2b, const int u2p,
+                            __global const float *restrict t2, const int t2b, const int t2p,
+                            __global float *restrict out, const int w, const int h, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    float e1[3], e2[3];
+#pragma unroll
+    for (int k = -1; k <= 1; ++k) {
+        const int yy = y + k * ARI_SY, xx = x + k * ARI_SX;
+#if ARI_REGION
+        const float m = ari_site(SITE_C, yy, xx, py, px);
+#else
+        const float m = 1.0f;
+#endif
+        e1[k + 1] = (u1[u1b + yy * u1p + xx] - t1[t1b + yy * t1p + xx]) * m;
+        e2[k + 1] = (u2[u2b + yy * u2p + xx] - t2[t2b + yy * t2p + xx]) * m;
+    }
+    out[y * w + x] = __builtin_fabsf(e1[1]) + __builtin_fabsf(e2[1]);
+    out[w * h + y * w + x] = __builtin_fabsf(e1[2] - e1[0]) + __builtin_fabsf(e2[2] - e2[0]);
+}
+
+/* ari_gauss_x: the criterion's 5-tap Gaussian (weights k0 centre, k1, k2) along x of the 2 planes of
+ * src (view sb, pitch sp, plane stride ss). ARI_REGION (step 2): a third plane, the same smoothing of
+ * the chroma site mask. Halo 2 along x. */
+__kernel void ari_gauss_x(__global const float *restrict src, const int sb, const int sp, const int ss,
+                          __global float *restrict out, const int w, const int h, const float k0,
+                          const float k1, const float k2, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    out[y * w + x] = k2 * (s0[-2] + s0[2]) + k1 * (s0[-1] + s0[1]) + k0 * s0[0];
+    out[w * h + y * w + x] = k2 * (s1[-2] + s1[2]) + k1 * (s1[-1] + s1[1]) + k0 * s1[0];
+#if ARI_REGION
+    /* the chroma sites alternate along every row: taps at even offsets share the centre's kind, odd
+     * ones that of x + 1 */
+    const float mc = ari_site(SITE_C, y, x, py, px), mo = ari_site(SITE_C, y, x + 1, py, px);
+    out[2 * w * h + y * w + x] = 2.0f * k2 * mc + 2.0f * k1 * mo + k0 * mc;
+#endif
+}
+
+/* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
+ * multiplied by the mask (bayer_ri._criterion's normalisation). Out planes: smoothed c, smoothed g.
+ * Halo 2 along y. */
+__kernel void ari_gauss_y(__global const float *restrict src, const int sb, const int sp, const int ss,
+                          __global float *restrict out, const int w, const int h, const float k0,
+                          const float k1, const float k2, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    float a0 = k2 * (s0[-2 * sp] + s0[2 * sp]) + k1 * (s0[-sp] + s0[sp]) + k0 * s0[0];
+    float a1 = k2 * (s1[-2 * sp] + s1[2 * sp]) + k1 * (s1[-sp] + s1[sp]) + k0 * s1[0];
+#if ARI_REGION
+    __global const float *s2 = s1 + ss;
+    const float a2 = k2 * (s2[-2 * sp] + s2[2 * sp]) + k1 * (s2[-sp] + s2[sp]) + k0 * s2[0];
+    const float m = ari_site(SITE_C, y, x, py, px);
+    a0 = a0 / a2 * m;
+    a1 = a1 / a2 * m;
+#endif
+    out[y * w + x] = a0;
+    out[w * h + y * w + x] = a1;
+}
+
+/* ari_select: one iteration's selection: crit = c^2 g from the smoothed terms (view cb, plane stride
+ * cs); where crit < best (always on the ``first`` iteration) the estimates become the new values n1, n2
+ * (views), else the previous ones (planes of prev: est1, est2, best; view pb, plane stride ps). Out
+ * planes est1, est2, best. Halo 0. */
+__kernel void ari_select(__global const float *restrict crit, const int cb, const int cp, const int cs,
+                         __global const float *restrict n1, const int n1b, const int n1p,
+                         __global const float *restrict n2, const int n2b, const int n2p,
+                         __global const float *restrict prev, const int pb, const int pp, const int ps,
+                         __global float *restrict out, const int w, const int h, const int first)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const int ci = cb + y * cp + x;
+    const float c = crit[ci], g = crit[cs + ci];
+    const float cr = c * c * g;
+    const float v1 = n1[n1b + y * n1p + x], v2 = n2[n2b + y * n2p + x];
+    const int i = y * w + x, plane = w * h;
+    if (first) {
+        out[i] = v1;
+        out[plane + i] = v2;
+        out[2 * plane + i] = cr;
+    } else {
+        const int pi = pb + y * pp + x;
+        const float best = prev[2 * ps + pi];
+        const int better = cr < best;
+        out[i] = better ? v1 : prev[pi];
+        out[plane + i] = better ? v2 : prev[ps + pi];
+        out[2 * plane + i] = better ? cr : best;
+    }
+}
+
+/* Criterion-weighted mean of plane ``p`` of the four estimates e0..e3 (planes est1, est2, best; view
+ * base, pitch, plane stride): sum w e / sum w, w = 1 / (best + ARI_CRIT_REG) (bayer_ri._adaptive). */
+#define ARI_EST_ARGS(k) __global const float *restrict e##k, const int e##k##b, const int e##k##p, const int e##k##s
+#define ARI_ADAPT(k, pl) { const int at = e##k##b + y * e##k##p + x; \
+                          const float wt = 1.0f / (e##k[2 * e##k##s + at] + ARI_CRIT_REG); \
+                          num += wt * e##k[(pl) * e##k##s + at]; den += wt; }
+/* ARI_MEAN4(var, pl): float var = the criterion-weighted mean of plane pl of the four estimates e0..e3. */
+#define ARI_MEAN4(var, pl) float var; { float num = 0.0f, den = 0.0f; \
+                           ARI_ADAPT(0, pl) ARI_ADAPT(1, pl) ARI_ADAPT(2, pl) ARI_ADAPT(3, pl) var = num / den; }
+
+/* ari_green_merge: G = raw at G sites, else the criterion-weighted mean of the four (direction, kind)
+ * G estimates (plane 0 of e0..e3). Halo 0. */
+__kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
+                              __global const float *restrict raw, const int rb, const int rp,
+                              __global float *restrict out, const int w, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    ARI_MEAN4(g, 0)
+    out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : g;
+}
+
+/* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
+ * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
+__kernel void ari_chroma_start(__global const float *restrict src, const int sb, const int sp,
+                               __global float *restrict out, const int w, const int sy, const int sx,
+                               const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const int at = sb + y * sp + x, s = sy * sp + sx;
+    const float vm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * src[at - s];
+    const float vp = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * src[at + s];
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
+}
+
+/* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the ARI_KNOWN
+ * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = ARI_TARGET ? t + residual : v.
+ * Halo 1 along d. */
+__kernel void ari_chroma_residual(__global const float *restrict src, const int sb, const int sp,
+                                  __global const float *restrict ts, const int tb, const int tp,
+                                  __global float *restrict out, const int w, const int sy, const int sx,
+                                  const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    const int at = sb + y * sp + x, s = sy * sp + sx, ta = tb + y * tp + x, st = sy * tp + sx;
+    const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
+    const float rpl = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
+    const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
+}
+
+/* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
+ * sites of the diagonal window {(i + j, i - j): |i| <= p = ARI_P, |j| <= q = ARI_Q} (step 2): centred moments summed
+ * directly (the window's sites are all chroma sites or all G sites, the latter giving the empty fit
+ * a = b = 0, w = 1 / floor), ARI_MLRI: slope from the Laplacians along d = (1, ARI_LS) ([-1, 0, 2, 0, -1])
+ * over the ARI_KNOWN sites. Out planes a w, b w, w. Halo p + q (+ 2 with ARI_MLRI). */
+__kernel void ari_diag_coefficients(__global const float *restrict xs, const int xb, const int xp,
+                                    __global const float *restrict ys, const int yb, const int yp,
+                                    __global float *restrict out, const int w, const int h,
+                                    const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    __global const float *xc = xs + xb + y * xp + x, *yc = ys + yb + y * yp + x;
+    const float cx = xc[0], cy = yc[0];
+    const float m = ari_site(SITE_C, y, x, py, px);
+    float n = 0.0f, sd = 0.0f, se = 0.0f, sdd = 0.0f, see = 0.0f, sde = 0.0f;
+#if ARI_MLRI
+    float l_xy = 0.0f, l_xx = 0.0f, l_n = 0.0f;
+    const int lxs = 2 * (xp + ARI_LS), lys = 2 * (yp + ARI_LS);
+#endif
+#pragma unroll
+    for (int i = -ARI_P; i <= ARI_P; ++i)
+#pragma unroll
+        for (int j = -ARI_Q; j <= ARI_Q; ++j) {
+            const int dy = i + j, dx = i - j;
+            const float xv = xc[dy * xp + dx], yv = yc[dy * yp + dx];
+            const float d = m * (xv - cx), e = m * (yv - cy);
+            sd += d;
+            se += e;
+            sdd += d * d;
+            see += e * e;
+            sde += d * e;
+#if ARI_MLRI
+            const float lm = ari_site(ARI_KNOWN, y + dy, x + dx, py, px);
+            const float lx = 2.0f * xv - xc[dy * xp + dx - lxs] - xc[dy * xp + dx + lxs];
+            const float ly = 2.0f * yv - yc[dy * yp + dx - lys] - yc[dy * yp + dx + lys];
+            l_xy += lm * lx * ly;
+            l_xx += lm * lx * lx;
+            l_n += lm;
+#endif
+        }
+    n = m * (float)((2 * ARI_P + 1) * (2 * ARI_Q + 1));        /* not summed in the loop: see below */
+    ari_moments mo = {n, sd, se, sdd, see, sde};
+    float mean_x, mean_y, var_x, var_y, cov;
+#if ARI_MLRI
+    /* one division for 1 / max(n, 1) and the slope (l_xy / ln) / (l_xx / ln + eps) = l_xy / (l_xx + eps ln),
+     * ln = max(l_n, 1): two would be SLP-packed into a <2 x float> division, which keeps PoCL from
+     * vectorising the kernel across work-items */
+    const float nn = n > 1.0f ? n : 1.0f, ln = l_n > 1.0f ? l_n : 1.0f;
+    const float den = l_xx + ARI_EPS * ln, r = 1.0f / (nn * den);
+    ari_stats_inv(&mo, den * r, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = l_xy * nn * r;
+#else
+    ari_stats(&mo, cx, cy, &mean_x, &mean_y, &var_x, &var_y, &cov);
+    const float a = cov / (var_x + ARI_EPS);
+#endif
+    float f[3];
+    ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
+    out[y * w + x] = f[0];
+    out[w * h + y * w + x] = f[1];
+    out[2 * w * h + y * w + x] = f[2];
+}
+
+/* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (view cb,
+ * pitch cp, plane stride cs) over the diagonal window (ARI_P, ARI_Q); x the guide (view). Halo p + q. */
+__kernel void ari_diag_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
+                             __global const float *restrict xs, const int xb, const int xp,
+                             __global float *restrict out, const int w)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    __global const float *k = coef + cb + y * cp + x;
+    float a = 0.0f, b = 0.0f, wt = 0.0f;
+#pragma unroll
+    for (int i = -ARI_P; i <= ARI_P; ++i)
+#pragma unroll
+        for (int j = -ARI_Q; j <= ARI_Q; ++j) {
+            const int o = (i + j) * cp + (i - j);
+            a += k[o];
+            b += k[cs + o];
+            wt += k[2 * cs + o];
+        }
+    out[y * w + x] = (a * xs[xb + y * xp + x] + b) / (wt + ARI_WEIGHT_REG);
+}
+
+/* ari_rb_merge: R and B after step 2: red = R sites ? raw : B sites ? the criterion-weighted mean of
+ * the four R estimates (plane 0 of e0..e3) : 0; blue likewise (plane 1, R and B swapped). Out planes
+ * red, blue. Halo 0. */
+__kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
+                           __global const float *restrict raw, const int rb, const int rp,
+                           __global float *restrict out, const int w, const int h, const int py, const int px)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    ARI_MEAN4(r_at_b, 0)
+    ARI_MEAN4(b_at_r, 1)
+    const float v = raw[rb + y * rp + x];
+    const float is_r = ari_site(SITE_R, y, x, py, px), is_b = ari_site(SITE_B, y, x, py, px);
+    out[y * w + x] = is_r != 0.0f ? v : is_b != 0.0f ? r_at_b : 0.0f;
+    out[w * h + y * w + x] = is_b != 0.0f ? v : is_r != 0.0f ? b_at_r : 0.0f;
+}
+
+/* ari_final: the stage's output planes R, G, B (times ``scale``, back to the mosaic's units): at G
+ * sites R and B are the criterion-weighted means of the four step-3 estimates (planes 0, 1 of
+ * e0..e3), elsewhere the step-2 planes (rb view, plane stride rbs); G from the green view. Halo 0. */
+__kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
+                        __global const float *restrict rbp, const int rbb, const int rbpp, const int rbs,
+                        __global const float *restrict gs, const int gb, const int gp,
+                        __global float *restrict out, const int w, const int h, const int py, const int px,
+                        const float scale)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    ARI_MEAN4(r_at_g, 0)
+    ARI_MEAN4(b_at_g, 1)
+    const int green = ari_is_green(y, x, py, px);
+    const int at = rbb + y * rbpp + x;
+    out[y * w + x] = (green ? r_at_g : rbp[at]) * scale;
+    out[w * h + y * w + x] = gs[gb + y * gp + x] * scale;
+    out[2 * w * h + y * w + x] = (green ? b_at_g : rbp[rbs + at]) * scale;
+}

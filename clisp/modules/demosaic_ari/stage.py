@@ -1,0 +1,493 @@
+"""ARI Bayer demosaic (adaptive residual interpolation; Monno, Kiku, Tanaka, Okutomi, ICIP 2015 /
+Sensors 2017) as a Stage: the OpenCL port of ``bayer_ri.demosaic_ari`` (float64 NumPy, the definition
+of correct; its module doc describes the algorithm). Kernels: ``clisp/modules/demosaic_ari/demosaic_ari.cl`` (and ``box_x``,
+``box_y`` of ``clisp/modules/common/guided_ri.cl``).
+
+Input: a white-balanced Bayer mosaic window (linear, nominally [0, 1]; nothing is clipped, so values
+above 1 and below 0 pass through the algebra), any of the four phases. Output: the window less
+``halo`` on every side, R, G, B (planar on the device). ``reference()`` is
+``bayer_ri.demosaic_ari(window, phase, green_iterations, chroma_iterations, clip=None)`` cropped by the
+halo (the reference mirrors at the window's border; the device never does: it is valid-only, and the
+halo is the formal support of the chain, so the two agree on the whole output).
+
+Units: the device scales the mosaic by 255 once (``ari_scale``) and the output back by 1/255, so the
+reference's constants (eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion + 1e-10, all
+in 8-bit units) are used unchanged, in float32.
+
+Schedule (one chain of short kernels; every image is valid-only and carries its margin, i.e. its
+offset inside the input window; the host checks every read stays inside its input):
+
+  step 1, per direction d in (h, v) and kind k in (RI, MLRI), ``green_iterations`` iterations, window
+  (along, across) radii growing by 1 from (2, 1) (RI) / (4, 0) (MLRI):
+    ari_along_moments       centred moments along the line (+ MLRI's Laplacian moments)  r_along (+2)
+    ari_across_coefficients per line set (R lines, B lines) and fit (G from chroma,      r_across
+                            chroma from G) the weighted fit: 4 launches
+    box_x (h) / box_y (v)   sums of the 12 coefficient planes along the lines            r_along
+    ari_box_apply           their sums across the lines, the tentative G line t_g and    r_across
+                            chroma line t_c (each pixel's own line set)
+    ari_green_residual      residuals at the samples, [1/2, 1, 1/2] along d -> new lines  1 along d
+    ari_err_terms           |err| and |gradient of err| of the two fits                  1 along d
+    ari_gauss_x, _y         the criterion's 5 x 5 Gaussian (sigma 2)                     2
+    ari_select              per pixel the iteration with the smallest criterion c^2 g    0
+  ari_green_merge: G at the chroma sites, the four estimates weighted by 1 / (criterion + 1e-10)
+  step 2 (R at B, B at R; diagonals d1, d2; statistics over the chroma sites) and step 3 (R, B at the
+  G sites; h, v; every pixel), ``chroma_iterations`` iterations each, both planes sharing one
+  criterion: ari_chroma_start, then per iteration and plane the fit (step 2: ari_diag_coefficients +
+  ari_diag_apply, direct sums over the diagonal window; step 3: ari_along_moments +
+  ari_across_coefficients + box along + ari_box_apply), ari_chroma_residual, then ari_err_terms, ari_gauss_x/y
+  (normalised over the chroma sites in step 2), ari_select; ari_rb_merge after step 2, ari_final
+  after step 3 (R, G, B, scaled back).
+
+Halo: the sum of the chained radii, computed by :func:`ari_halo` from the same margin arithmetic that
+the enqueue runs (and checked against it there):
+  step 1: 3 + N (N + 10) (MLRI along the lines: 1 (start) + sum over iterations of 2 r + 2 + 1
+          (window sums and coefficient sums, Laplacian, residual) + 2 (criterion: gradient 1 and
+          Gaussian 2, less the residual's 1)); the RI kind and the across axis need less;
+  step 2: 2 M^2 + 7 M + 2 (RI, diagonal windows of pixel radius 4 + 2t);
+  step 3: M^2 + 6 M + 3 (MLRI along the lines; its start reads step 2's planes 1 px along d);
+  N = green_iterations, M = chroma_iterations: 121 px for (5, 2), 277 for (11, 2).
+Measured tolerance against the reference (tests/test_demosaic_ari_cl.py, 16 scene x phase cases, output
+in the mosaic's units): max |error| 5e-7..4e-6 on smooth ramps and white noise, up to 2.1e-4 (0.05
+8-bit levels) beside sharp colour edges and discs, mean <= 1.9e-6, PSNR vs the reference >= 104 dB;
+the test bounds are max 1e-3, mean 1e-5, PSNR 95 dB. The larger errors are float32 rounding amplified
+by ARI's 1 / RMSE weights of nearly exact fits and its per-pixel argmin where criteria nearly tie.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...cfa import CFA
+from ...errors import ClispError
+from ...engine.profile import stage_label
+from ...engine.runtime import DeviceImage, Runtime, launch_exact
+from . import reference as bayer_ri
+from ..base import Stage
+from ..demosaic_malvar.stage import check_bayer
+from ..common.guided_ri import enqueue_box
+
+i32, f32 = np.int32, np.float32
+
+STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
+"""Direction -> (dy, dx) step, as bayer_ri._along."""
+SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
+"""Site codes of clisp/modules/demosaic_ari/demosaic_ari.cl."""
+LAPLACIAN_RADIUS = 2
+"""MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction."""
+CRITERION_SIGMA, CRITERION_RADIUS = 2.0, 2
+"""bayer_ri._criterion's Gaussian (5 x 5, sigma 2)."""
+DEFINES = {"ARI_EPS": 1e-10, "ARI_RMSE_FLOOR": 1e-3, "ARI_WEIGHT_REG": 1e-4, "ARI_CRIT_REG": 1e-10}
+"""The reference's constants in 8-bit units (bayer_ri: guided_pair eps, _fit floor and regulariser,
+_adaptive)."""
+
+
+def _gauss_weights() -> tuple[float, float, float]:
+    k = np.exp(-np.arange(-CRITERION_RADIUS, CRITERION_RADIUS + 1) ** 2 / (2.0 * CRITERION_SIGMA ** 2))
+    k = k / k.sum()
+    return float(k[2]), float(k[3]), float(k[4])
+
+
+# ------------------------------------------------------------------------------------ margins
+
+def _window(kind: str, d: str, along: int, across: int) -> tuple[int, int]:
+    """Pixel radii (ry, rx) of a box window (h, v) or the (p, q) lattice radii of a diagonal one."""
+    _, a, b = bayer_ri._ari_window(kind, d, along, across)
+    return a, b
+
+
+def _fit_radius(kind: str, d: str, along: int, across: int) -> tuple[int, int]:
+    """(y, x) read radius of one guided filter (window sums + coefficient sums, + the Laplacian)."""
+    lap = LAPLACIAN_RADIUS if kind == "mlri" else 0
+    if d in ("d1", "d2"):
+        p, q = _window(kind, d, along, across)
+        r = 2 * (p + q) + lap
+        return r, r
+    ry, rx = _window(kind, d, along, across)
+    return (2 * ry + lap, 2 * rx) if d == "v" else (2 * ry, 2 * rx + lap)
+
+
+def _chain_margin(source: int, guide: int, kind: str, d: str, radii: tuple[int, int], iterations: int
+                  ) -> tuple[int, int]:
+    """Margin (y, x) of the selected estimate of one (direction, kind) chain: its lines start one
+    step along d inside ``source`` (the margin of the samples), each iteration's fit reads its radius
+    around max(guide, lines), the new lines and the criterion terms read 1 along d around the fit,
+    the criterion's Gaussian 2 more (the rules the enqueue follows, checked there)."""
+    sy, sx = (abs(v) for v in STEPS[d])
+    (along, across) = radii
+    my, mx = source + sy, source + sx
+    est = (0, 0)
+    for _ in range(iterations):
+        fy, fx = _fit_radius(kind, d, along, across)
+        ty, tx = max(my, guide) + fy, max(mx, guide) + fx
+        est = (max(est[0], ty + sy + CRITERION_RADIUS), max(est[1], tx + sx + CRITERION_RADIUS))
+        my, mx = ty + sy, tx + sx
+        along, across = along + 1, across + 1
+    return est
+
+
+def ari_halo(green_iterations: int, chroma_iterations: int) -> int:
+    """The stage's halo: the formal support of the ARI chain (module doc), from the margin rules."""
+    green = max(max(_chain_margin(0, 0, kind, d, bayer_ri.KINDS[kind], green_iterations))
+                for d in ("h", "v") for kind in bayer_ri.KINDS)
+    step2 = max(max(_chain_margin(0, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
+                for d in ("d1", "d2") for kind in bayer_ri.KINDS)
+    return max(max(_chain_margin(step2, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
+               for d in ("h", "v") for kind in bayer_ri.KINDS)
+
+
+# ------------------------------------------------------------------------------------ device views
+
+@dataclass(frozen=True)
+class _View:
+    """Plane ``plane`` of ``image``, whose pixel (0, 0) is pixel (my, mx) of the stage's input window
+    (the margin; an image spans the window less its margin on every side)."""
+
+    image: DeviceImage
+    my: int
+    mx: int
+    plane: int = 0
+
+    def at(self, my: int, mx: int, hy: int = 0, hx: int = 0) -> tuple[object, np.int32, np.int32]:
+        """Kernel arguments (buffer, base, pitch) for an output at margin (my, mx) reading up to
+        (hy, hx) pixels around each output pixel; checks the reads stay inside the image."""
+        if my - hy < self.my or mx - hx < self.mx:
+            raise ClispError(f"ARI: a read at margin ({my}, {mx}) +- ({hy}, {hx}) leaves an image of "
+                             f"margin ({self.my}, {self.mx})")
+        img = self.image
+        base = self.plane * img.height * img.width + (my - self.my) * img.width + (mx - self.mx)
+        return img.buffer, i32(base), i32(img.width)
+
+    def stride(self) -> np.int32:
+        return i32(self.image.height * self.image.width)
+
+
+class _Chain:
+    """One enqueue: the runtime, the input window size and the CFA parity."""
+
+    def __init__(self, rt: Runtime, height: int, width: int, r_site: tuple[int, int]):
+        self.rt, self.h, self.w, self.r_site = rt, height, width, r_site
+
+    def new(self, channels: int, my: int, mx: int) -> DeviceImage:
+        h, w = self.h - 2 * my, self.w - 2 * mx
+        if h < 1 or w < 1:
+            raise ClispError(f"ARI: a {self.h} x {self.w} window is too small for margin ({my}, {mx})")
+        return self.rt.acquire(channels, h, w)
+
+    def parity(self, my: int, mx: int) -> tuple[np.int32, np.int32]:
+        return i32((my + self.r_site[0]) & 1), i32((mx + self.r_site[1]) & 1)
+
+    def kernel(self, name: str, **defines: int) -> object:
+        return self.rt.kernel("demosaic_ari", name, {**DEFINES, **defines})
+
+    def launch(self, kernel: object, out: DeviceImage, *args: object) -> None:
+        launch_exact(self.rt, kernel, out.width, out.height, *args)
+
+    def release(self, *images: DeviceImage | None) -> None:
+        for image in images:
+            if image is not None:
+                self.rt.release(image)
+
+
+def _margin(views: list[_View], hy: int, hx: int) -> tuple[int, int]:
+    """Smallest output margin at which a kernel reading (hy, hx) around each pixel can read ``views``."""
+    return max(v.my for v in views) + hy, max(v.mx for v in views) + hx
+
+
+# ------------------------------------------------------------------------------------ the stage
+
+@dataclass
+class DemosaicARI(Stage):
+    """H x W white-balanced Bayer mosaic -> (H - 2 halo) x (W - 2 halo) x 3 camera RGB (ARI; module doc).
+
+    green_iterations   ARI step 1 iterations per direction and kind (the reference's default is 11;
+                       5 keeps most of the gain at less than half the halo and time)
+    chroma_iterations  steps 2 and 3 iterations
+    """
+
+    cfa: CFA
+    green_iterations: int = 5
+    chroma_iterations: int = 2
+    name = "demosaic_ari"
+    cfa_kinds = ("bayer",)
+    in_channels = 1
+    out_channels = 3
+
+    def __post_init__(self) -> None:
+        check_bayer(self.cfa, "the ARI demosaic")
+        if self.green_iterations < 1 or self.chroma_iterations < 1:
+            raise ClispError(f"ARI needs at least one iteration per step, got green {self.green_iterations}, "
+                             f"chroma {self.chroma_iterations}")
+
+    @property
+    def halo(self) -> int:
+        return ari_halo(self.green_iterations, self.chroma_iterations)
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """Pooled float32 planes per input pixel: what one enqueue creates from an empty pool
+        (Runtime.metering, tests/test_demosaic_ari_cl.py: 55 planes on a 300 x 300 window, 90-92 on
+        442 x 6242, 742 x 1742 and 1000 x 1000):
+        at the peak of step 1 the mosaic, the start lines, the estimates of finished chains, the
+        current lines and estimate and 12 coefficient planes with their two box passes are alive, and
+        the pool's buffers of the other (margin-dependent) sizes stay allocated beside them."""
+        return 4.0 * 96
+
+    def phase(self, origin: tuple[int, int]) -> str:
+        """The Bayer phase name of a window whose pixel (0, 0) is image pixel ``origin``."""
+        block = self.cfa.channel_map(2, 2, origin)
+        return "".join(self.cfa.channels[c] for c in block.ravel())
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        out = bayer_ri.demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
+                                    self.chroma_iterations, clip=None)
+        h = self.halo
+        return out[h:out.shape[0] - h, h:out.shape[1] - h]
+
+    # -- OpenCL ------------------------------------------------------------------------------
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        if src.channels != 1 or np.dtype(src.dtype) != np.float32:
+            raise ClispError(f"the ARI demosaic takes a 1-plane float32 mosaic, got {src.channels} x {src.dtype}")
+        phase = self.phase(origin)
+        r_site = bayer_ri.PHASES[phase]
+        c = _Chain(rt, src.height, src.width, r_site)
+        raw_img = c.new(1, 0, 0)
+        buf, base, pitch = _View(src, 0, 0).at(0, 0)
+        c.launch(c.kernel("ari_scale"), raw_img, buf, base, pitch, raw_img.buffer, i32(raw_img.width),
+                 f32(bayer_ri.SCALE))
+        raw = _View(raw_img, 0, 0)
+
+        stage_label(f"{self.name} 1 green")
+        ests = {}
+        for d in ("h", "v"):
+            sy, sx = STEPS[d]
+            my, mx = _margin([raw], sy, sx)
+            start = c.new(2, my, mx)
+            c.launch(c.kernel("ari_green_start"), start, *raw.at(my, mx, sy, sx), start.buffer, i32(start.width),
+                     i32(start.height), i32(sy), i32(sx), *c.parity(my, mx))
+            for kind in bayer_ri.KINDS:
+                ests[d, kind] = self._green_chain(c, raw, _View(start, my, mx), d, kind)
+            c.release(start)
+        green = self._green_merge(c, raw, list(ests.values()))
+        for est in ests.values():
+            c.release(est.image)
+
+        # step 2: R at B, B at R along the diagonals, statistics over the chroma sites
+        stage_label(f"{self.name} 2 diagonals")
+        ests = [self._chroma_chain(c, green, [(raw, SITE_R, SITE_B), (raw, SITE_B, SITE_R)], d, kind, True)
+                for d in ("d1", "d2") for kind in bayer_ri.KINDS]
+        rb = self._merge(c, "ari_rb_merge", ests, [raw], 2)
+        # step 3: R and B at the G sites along rows and columns, statistics over every pixel
+        stage_label(f"{self.name} 3 G sites")
+        rb_r, rb_b = _View(rb.image, rb.my, rb.mx, 0), _View(rb.image, rb.my, rb.mx, 1)
+        ests = [self._chroma_chain(c, green, [(rb_r, SITE_C, SITE_G), (rb_b, SITE_C, SITE_G)], d, kind, False)
+                for d in ("h", "v") for kind in bayer_ri.KINDS]
+        out = self._merge(c, "ari_final", ests, [rb, green], 3)
+        c.release(raw_img, rb.image, green.image)
+        stage_label(self.name)
+        if (out.my, out.mx) != (self.halo, self.halo):
+            raise AssertionError(f"ARI: the chain ends at margin ({out.my}, {out.mx}), halo {self.halo}")
+        return out.image
+
+    # -- step 1 ------------------------------------------------------------------------------
+    def _green_chain(self, c: _Chain, raw: _View, start: _View, d: str, kind: str) -> _View:
+        """One (direction, kind) chain of step 1; returns the estimate image (planes G line, chroma
+        line, criterion) of the selected iterations."""
+        mlri = kind == "mlri"
+        dirn = 0 if d == "h" else 1
+        sy, sx = STEPS[d]
+        lap = LAPLACIAN_RADIUS if mlri else 0
+        along, across = bayer_ri.KINDS[kind]
+        g, cl = _View(start.image, start.my, start.mx, 0), _View(start.image, start.my, start.mx, 1)
+        lines_img: DeviceImage | None = None
+        est: _View | None = None
+        k0, k1, k2 = _gauss_weights()
+        for _ in range(self.green_iterations):
+            # window statistics: along the lines, then across them per line set
+            ay, ax = (0, along + lap) if d == "h" else (along + lap, 0)
+            my, mx = _margin([g, cl], ay, ax)
+            mom = c.new(12 if mlri else 6, my, mx)
+            c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=along),
+                     mom, *cl.at(my, mx, ay, ax), *g.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
+                     *c.parity(my, mx))
+            cy, cx = (across, 0) if d == "h" else (0, across)
+            coef = c.new(12, my + cy, mx + cx)
+            for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
+                for fit in (0, 1):                                  # G from chroma, chroma from G
+                    c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
+                                      ARI_R=across, ARI_SET=line_set, ARI_FIT=fit), coef,
+                             mom.buffer, i32(mom.width), i32(mom.width * mom.height),
+                             *cl.at(my + cy, mx + cx, cy, cx), *g.at(my + cy, mx + cx, cy, cx), coef.buffer,
+                             i32((6 * line_set + 3 * fit) * coef.width * coef.height), i32(coef.width),
+                             i32(coef.height), *c.parity(my + cy, mx + cx))
+            c.release(mom)
+            t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
+            tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
+            # the new lines, and the criterion of this iteration
+            ny, nx = ty + abs(sy), tx + abs(sx)
+            new = c.new(2, ny, nx)
+            c.launch(c.kernel("ari_green_residual"), new, *raw.at(ny, nx, sy, sx), *tg.at(ny, nx, sy, sx),
+                     *tc.at(ny, nx, sy, sx), new.buffer, i32(new.width), i32(new.height), i32(sy), i32(sx),
+                     *c.parity(ny, nx))
+            crit = self._criterion(c, [(g, tg), (cl, tc)], d, False, (k0, k1, k2))
+            c.release(t)
+            est = self._select(c, crit, _View(new, ny, nx, 0), _View(new, ny, nx, 1), est)
+            c.release(lines_img)
+            lines_img = new
+            g, cl = _View(new, ny, nx, 0), _View(new, ny, nx, 1)
+            along, across = along + 1, across + 1
+        c.release(lines_img)
+        return est
+
+    def _criterion(self, c: _Chain, errs: list[tuple[_View, _View]], d: str, region: bool,
+                   gauss: tuple[float, float, float]) -> _View:
+        """Smoothed criterion terms (planes c, g) of two fits (u - t) along d (ari_err_terms, ari_gauss_x/y)."""
+        sy, sx = STEPS[d]
+        views = [v for pair in errs for v in pair]
+        ey, ex = _margin(views, abs(sy), abs(sx))
+        terms = c.new(2, ey, ex)
+        (u1, t1), (u2, t2) = errs
+        c.launch(c.kernel("ari_err_terms", ARI_SY=sy, ARI_SX=sx, ARI_REGION=int(region)), terms, *u1.at(ey, ex, abs(sy), abs(sx)), *t1.at(ey, ex, abs(sy), abs(sx)),
+                 *u2.at(ey, ex, abs(sy), abs(sx)), *t2.at(ey, ex, abs(sy), abs(sx)), terms.buffer,
+                 i32(terms.width), i32(terms.height), *c.parity(ey, ex))
+        r = CRITERION_RADIUS
+        gx = c.new(3 if region else 2, ey, ex + r)
+        tv = _View(terms, ey, ex)
+        c.launch(c.kernel("ari_gauss_x", ARI_REGION=int(region)), gx, *tv.at(ey, ex + r, 0, r), tv.stride(), gx.buffer, i32(gx.width),
+                 i32(gx.height), *map(f32, gauss), *c.parity(ey, ex + r))
+        c.release(terms)
+        gy = c.new(2, ey + r, ex + r)
+        xv = _View(gx, ey, ex + r)
+        c.launch(c.kernel("ari_gauss_y", ARI_REGION=int(region)), gy, *xv.at(ey + r, ex + r, r, 0), xv.stride(), gy.buffer, i32(gy.width),
+                 i32(gy.height), *map(f32, gauss), *c.parity(ey + r, ex + r))
+        c.release(gx)
+        return _View(gy, ey + r, ex + r)
+
+    def _select(self, c: _Chain, crit: _View, n1: _View, n2: _View, prev: _View | None) -> _View:
+        """ari_select: the running per-pixel best of (n1, n2) by criterion; releases crit and prev."""
+        my, mx = _margin([crit, n1, n2] + ([prev] if prev else []), 0, 0)
+        out = c.new(3, my, mx)
+        p = prev if prev is not None else crit
+        c.launch(c.kernel("ari_select"), out, *crit.at(my, mx), crit.stride(), *n1.at(my, mx), *n2.at(my, mx),
+                 *p.at(my, mx), p.stride(), out.buffer, i32(out.width), i32(out.height), i32(prev is None))
+        c.release(crit.image, prev.image if prev else None)
+        return _View(out, my, mx)
+
+    def _green_merge(self, c: _Chain, raw: _View, ests: list[_View]) -> _View:
+        my, mx = _margin(ests + [raw], 0, 0)
+        m = max(my, mx)
+        out = c.new(1, m, m)
+        args = [a for e in ests for a in (*e.at(m, m), e.stride())]
+        c.launch(c.kernel("ari_green_merge"), out, *args, *raw.at(m, m), out.buffer, i32(out.width), *c.parity(m, m))
+        return _View(out, m, m)
+
+    # -- steps 2 and 3 -----------------------------------------------------------------------
+    def _chroma_chain(self, c: _Chain, guide: _View, planes: list[tuple[_View, int, int]], d: str, kind: str,
+                      diagonal: bool) -> _View:
+        """One (direction, kind) chain of step 2 (``diagonal``) or 3 for the two planes (source,
+        known sites, target sites); returns the estimate image (planes R, B, criterion)."""
+        sy, sx = STEPS[d]
+        along, across = bayer_ri.RB_KINDS[kind]
+        k = _gauss_weights()
+        cur = []
+        for src, known, target in planes:
+            my, mx = _margin([src], abs(sy), abs(sx))
+            img = c.new(1, my, mx)
+            c.launch(c.kernel("ari_chroma_start", ARI_KNOWN=known, ARI_TARGET=target), img, *src.at(my, mx, abs(sy), abs(sx)), img.buffer,
+                     i32(img.width), i32(sy), i32(sx), *c.parity(my, mx))
+            cur.append(_View(img, my, mx))
+        est: _View | None = None
+        for _ in range(self.chroma_iterations):
+            ts, news = [], []
+            for (src, known, target), x in zip(planes, cur):
+                t = (self._diag_fit if diagonal else self._box_fit)(c, guide, x, d, kind, along, across, known)
+                ts.append(t)
+                ny, nx = _margin([t, src], abs(sy), abs(sx))
+                new = c.new(1, ny, nx)
+                c.launch(c.kernel("ari_chroma_residual", ARI_KNOWN=known, ARI_TARGET=target), new, *src.at(ny, nx, abs(sy), abs(sx)),
+                         *t.at(ny, nx, abs(sy), abs(sx)), new.buffer, i32(new.width), i32(sy), i32(sx),
+                         *c.parity(ny, nx))
+                news.append(_View(new, ny, nx))
+            crit = self._criterion(c, [(cur[0], ts[0]), (cur[1], ts[1])], d, diagonal, k)
+            c.release(*(t.image for t in ts), *(x.image for x in cur))
+            est = self._select(c, crit, news[0], news[1], est)
+            cur = news
+            along, across = along + 1, across + 1
+        c.release(*(x.image for x in cur))
+        return est
+
+    def _diag_fit(self, c: _Chain, guide: _View, x: _View, d: str, kind: str, along: int, across: int,
+                  known: int) -> _View:
+        """Step 2's weighted guided filter of x against the guide over a diagonal window."""
+        mlri = kind == "mlri"
+        p, q = _window(kind, d, along, across)
+        h = p + q + (LAPLACIAN_RADIUS if mlri else 0)
+        my, mx = _margin([guide, x], h, h)
+        coef = c.new(3, my, mx)
+        c.launch(c.kernel("ari_diag_coefficients", ARI_MLRI=int(mlri), ARI_P=p, ARI_Q=q, ARI_LS=STEPS[d][1],
+                                    ARI_KNOWN=known), coef, *guide.at(my, mx, h, h),
+                 *x.at(my, mx, h, h), coef.buffer, i32(coef.width), i32(coef.height), *c.parity(my, mx))
+        r = p + q
+        t = c.new(1, my + r, mx + r)
+        cv = _View(coef, my, mx)
+        c.launch(c.kernel("ari_diag_apply", ARI_P=p, ARI_Q=q), t, *cv.at(my + r, mx + r, r, r), cv.stride(),
+                 *guide.at(my + r, mx + r), t.buffer, i32(t.width))
+        c.release(coef)
+        return _View(t, my + r, mx + r)
+
+    def _box_fit(self, c: _Chain, guide: _View, x: _View, d: str, kind: str, along: int, across: int,
+                 known: int) -> _View:
+        """Step 3's weighted guided filter of x against the guide over a box window (statistics over
+        every pixel, MLRI's Laplacian moments over the chroma sites)."""
+        mlri = kind == "mlri"
+        dirn = 0 if d == "h" else 1
+        lap = LAPLACIAN_RADIUS if mlri else 0
+        ra, rc = along, across
+        ay, ax = (0, ra + lap) if d == "h" else (ra + lap, 0)
+        my, mx = _margin([guide, x], ay, ax)
+        mom = c.new(9 if mlri else 6, my, mx)
+        c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=ra), mom,
+                 *guide.at(my, mx, ay, ax), *x.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
+                 *c.parity(my, mx))
+        cy, cx = (rc, 0) if d == "h" else (0, rc)
+        coef = c.new(3, my + cy, mx + cx)
+        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc),
+                 coef, mom.buffer, i32(mom.width), i32(mom.width * mom.height), *guide.at(my + cy, mx + cx, cy, cx),
+                 *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(0), i32(coef.width), i32(coef.height),
+                 *c.parity(my + cy, mx + cx))
+        c.release(mom)
+        t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, ra, rc, guide, x, False)
+        return _View(t, ty, tx)
+
+    def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
+                   across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
+        """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
+        fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
+        dirn = 0 if d == "h" else 1
+        sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
+            enqueue_box(c.rt, coef, along, 0, release_src=True, per_radius=True)
+        sy, sx = (margin[0], margin[1] + along) if d == "h" else (margin[0] + along, margin[1])
+        ty, tx = (sy + across, sx) if d == "h" else (sy, sx + across)
+        t = c.new(2 if pair else 1, ty, tx)
+        sv = _View(sums, sy, sx)
+        hy, hx = (across, 0) if d == "h" else (0, across)
+        c.launch(c.kernel("ari_box_apply", ARI_DIR=dirn, ARI_PAIR=int(pair), ARI_R=across), t, *sv.at(ty, tx, hy, hx),
+                 sv.stride(), *x.at(ty, tx), *y.at(ty, tx), t.buffer, i32(t.width), i32(t.height), *c.parity(ty, tx))
+        c.release(sums)
+        return t, ty, tx
+
+    def _merge(self, c: _Chain, name: str, ests: list[_View], extra: list[_View], channels: int) -> _View:
+        """ari_rb_merge (extra: the mosaic) or ari_final (extra: step 2's R, B and the G plane);
+        releases the estimates."""
+        my, mx = _margin(ests + extra, 0, 0)
+        out = c.new(channels, my, mx)
+        args = [a for e in ests for a in (*e.at(my, mx), e.stride())]
+        if name == "ari_rb_merge":
+            args += [*extra[0].at(my, mx), out.buffer, i32(out.width), i32(out.height), *c.parity(my, mx)]
+        else:
+            rb, green = extra
+            args += [*rb.at(my, mx), rb.stride(), *green.at(my, mx), out.buffer, i32(out.width), i32(out.height),
+                     *c.parity(my, mx), f32(1.0 / bayer_ri.SCALE)]
+        c.launch(c.kernel(name), out, *args)
+        c.release(*(e.image for e in ests))
+        return _View(out, my, mx)

@@ -1,0 +1,96 @@
+/* Per-phase linear filters on the raw mosaic: the fast demosaic family.
+ * Defines from the host: CFA_PERIOD (P), NOUT (output planes), RADIUS (halo R), RAW_T (input type),
+ * PHASE_Y/PHASE_X (CFA phase of output pixel (0, 0)), ENCODE_SRGB (0/1), QUANTIZE (0/1: 16-bit out),
+ * INTERLEAVED (0: NOUT planes; 1: H x W x NOUT, the host's layout, when this is the last stage).
+ * The host also prepends generated code: phase_apply(k, v, o, w, bias) sets o[c] for CFA phase k
+ * from the window v[(2R+1)^2], summing only the taps the filter can use (its support, fixed by the
+ * CFA and demosaic), so structural zeros cost nothing and per-image weights stay arguments; and
+ * row_apply(ky, px, v, o, w, bias), the same for CFA row ky with the column phase px a run-time
+ * value (every column phase computed, the right one selected). */
+#define SIDE (2 * RADIUS + 1)
+#define TAPS (SIDE * SIDE)
+
+/* With ENCODE_SRGB the host prepends clisp/modules/colour/srgb.h (encode_srgb, quantize16) and its table;
+ * QUANTIZE (define) then writes 16-bit codes instead of float. */
+#if ENCODE_SRGB && QUANTIZE
+typedef ushort out_t;
+#define STORE(v) quantize16(encode_srgb(v))
+#elif ENCODE_SRGB
+typedef float out_t;
+#define STORE(v) encode_srgb(v)
+#else
+typedef float out_t;
+#define STORE(v) (v)
+#endif
+
+/* phase_filter: out_c(y, x) = bias[k][c] + sum_t w[k][c][t] * src(y + dy_t, x + dx_t), k the CFA
+ * phase of output pixel (y, x), taps t over the (2R+1)^2 window in row order. Halo RADIUS.
+ * One work-item computes one P x P block; both block loops unroll and k is a compile-time
+ * constant in each, so phase_apply folds to straight-line code and every weight load is uniform
+ * across work-items. w: [P*P][NOUT][TAPS], bias: [P*P][NOUT]. */
+__kernel void phase_filter(__global const RAW_T *restrict src, __global out_t *restrict dst,
+                           const int in_w, const int out_w, const int out_h,
+                           __constant const float *restrict w, __constant const float *restrict bias)
+{
+    const int bx = get_global_id(0) * CFA_PERIOD;
+    const int by = get_global_id(1) * CFA_PERIOD;
+#if !EXACT
+    if (bx >= out_w || by >= out_h) return;
+#endif
+    const int plane = out_w * out_h;
+    #pragma unroll
+    for (int i = 0; i < CFA_PERIOD; ++i) {
+        #pragma unroll
+        for (int j = 0; j < CFA_PERIOD; ++j) {
+            const int y = by + i;
+            const int x = bx + j;
+#if !EXACT
+            if (y < out_h && x < out_w)
+#endif
+            {
+                float v[TAPS];
+                float o[NOUT];
+                #pragma unroll
+                for (int t = 0; t < TAPS; ++t)
+                    v[t] = (float)src[(y + t / SIDE) * in_w + x + t % SIDE];
+                phase_apply(((i + PHASE_Y) % CFA_PERIOD) * CFA_PERIOD + (j + PHASE_X) % CFA_PERIOD, v, o, w, bias);
+                #pragma unroll
+                for (int c = 0; c < NOUT; ++c) {
+                    const int index = INTERLEAVED ? (y * out_w + x) * NOUT + c : c * plane + y * out_w + x;
+                    dst[index] = STORE(o[c]);
+                }
+            }
+        }
+    }
+}
+
+/* phase_filter_px: the same filter, one work-item per output column x and CFA_PERIOD rows (the
+ * kernel for PoCL: neighbouring work-items read neighbouring raw samples and write neighbouring
+ * pixels, so the work-item loop vectorises; the block kernel above strides by P and does not).
+ * The row phase is a compile-time constant in each unrolled row, the column phase px a run-time
+ * select. Halo RADIUS. Needs out_h a multiple of CFA_PERIOD and no bounds checks (launch_exact).
+ * w, bias: as the host's generated row_apply reads them. */
+__kernel void phase_filter_px(__global const RAW_T *restrict src, __global out_t *restrict dst,
+                              const int in_w, const int out_w, const int out_h,
+                              __constant const float *restrict w, __constant const float *restrict bias)
+{
+    const int x = get_global_id(0);
+    const int by = get_global_id(1) * CFA_PERIOD;
+    const int px = (x + PHASE_X) & (CFA_PERIOD - 1);      /* CFA_PERIOD a power of two here */
+    const int plane = out_w * out_h;
+    #pragma unroll
+    for (int i = 0; i < CFA_PERIOD; ++i) {
+        const int y = by + i;
+        float v[TAPS];
+        float o[NOUT];
+        #pragma unroll
+        for (int t = 0; t < TAPS; ++t)
+            v[t] = (float)src[(y + t / SIDE) * in_w + x + t % SIDE];
+        row_apply((i + PHASE_Y) % CFA_PERIOD, px, v, o, w, bias);
+        #pragma unroll
+        for (int c = 0; c < NOUT; ++c) {
+            const int index = INTERLEAVED ? (y * out_w + x) * NOUT + c : c * plane + y * out_w + x;
+            dst[index] = STORE(o[c]);
+        }
+    }
+}

@@ -1,0 +1,270 @@
+"""Per-phase linear filters on the raw mosaic (kernel ``demosaic_linear.cl: phase_filter``).
+
+Output channel c at a pixel of CFA phase k is ``bias[k, c] + sum_t weights[k, c, t] * raw(tap t)``
+over the (2R+1)^2 window; ``support`` marks the taps that can be non-zero (structure of the
+demosaic, fixed by the CFA), and only those are computed. Any linear demosaic is such a filter, and so is any chain of linear
+per-pixel steps around it: black/white normalisation and WB pass 1 before, the colour matrix and
+WB pass 2 after fold into the weights (``fuse``). The fast path runs that whole chain as one kernel.
+
+A filter may also carry its factors: ``basis`` (K, Cd, T), the demosaic's own weights (fixed by the
+CFA, so compiled in as literals), and ``mix`` (C, Cd), the per-image matrix applied after it, with
+``weights[k] == mix @ basis[k]``. While the basis is channel-pure (demosaic channel d reads only
+CFA channel d, as bilinear does) the per-channel normalisation folds into ``mix`` too, and the
+kernel computes the demosaic in a few shared sums and the matrix in C*Cd multiplies, instead of
+C dense sums over the window (about half the arithmetic for bilinear Bayer).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ...cfa import CFA
+from ...sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode
+from ...engine.runtime import DeviceImage, Runtime, launch_exact
+from ..base import Stage, as_f32
+from ..colour.stage import ColourMatrix, ToneCurve, srgb_source
+
+
+FUSE_TONE_CURVE = False
+"""Whether the tone curve folds into the phase filter. Measured on PoCL (24 MP Bayer, fast preset
+to 16-bit codes): fused, the filter's block loop with the curve inside ran at about 105 MP/s; the
+filter alone (linear, planar) and the separate tone-curve kernel run at about 800 and 270 MP/s."""
+
+
+def tap_offsets(radius: int) -> np.ndarray:
+    """(T, 2) int array of (dy, dx) for the (2R+1)^2 taps in row order (kernel order)."""
+    d = np.arange(-radius, radius + 1)
+    return np.stack(np.meshgrid(d, d, indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def tap_channels(cfa: CFA, radius: int) -> np.ndarray:
+    """(P*P, T) CFA channel of each tap around a pixel of each phase k = py * P + px."""
+    p = cfa.period
+    offsets = tap_offsets(radius)
+    ky, kx = np.divmod(np.arange(p * p), p)
+    return cfa.pattern[(ky[:, None] + offsets[None, :, 0]) % p, (kx[:, None] + offsets[None, :, 1]) % p]
+
+
+PER_COLUMN_PERIOD = 2
+"""CFA period for which whole-row tiles take kernel ``phase_filter_px`` (one work-item per column)
+instead of the block kernel. Measured on PoCL, bilinear Bayer to interleaved float, 24 MP in
+6000x308 bands: block kernel 50-64 ms, per column 20 ms (dense) and 13 ms (factored). The LMS
+period 4 would compute four column phases per pixel; it keeps the block kernel."""
+
+
+PER_COLUMN_GROUP = (128, 1)
+"""Work-group of kernel ``phase_filter_px``: one row of 128 columns. Measured on PoCL, 24 MP Bayer
+to float RGB in 13 bands of 6000 x 308: the kernel alone 12.5-12.8 ms with (128, 1) or (128, 4),
+15.8-17.0 ms with (64, 1) or WORK_GROUP (64, 4); the tile loop 25-27 ms against 34 ms. A group one
+row high also never leaves a ragged strip of rows, so a band is two launches instead of four."""
+
+
+def channel_pure(basis: np.ndarray, channels: np.ndarray) -> bool:
+    """Whether basis (K, Cd, T) row d reads only taps of CFA channel d (``channels``: (K, T))."""
+    d = np.arange(basis.shape[1])
+    return bool(np.all((basis == 0) | (channels[:, None, :] == d[None, :, None])))
+
+
+def literal(value: float) -> str:
+    """An OpenCL float literal for ``value`` (float32-rounded, round-trips)."""
+    text = repr(float(np.float32(value)))
+    return text + "f" if ("." in text or "e" in text) else text + ".0f"
+
+
+def basis_sum(weights: np.ndarray) -> str:
+    """OpenCL expression of sum_t weights[t] * v[t] over the non-zero taps, taps of equal weight
+    summed first (bilinear: 0.25f * (v[1] + v[3] + v[5] + v[7]))."""
+    groups: dict[float, list[int]] = {}
+    for t in np.flatnonzero(weights):
+        groups.setdefault(float(np.float32(weights[t])), []).append(int(t))
+    terms = []
+    for value, taps in groups.items():
+        total = " + ".join(f"v[{t}]" for t in taps)
+        total = f"({total})" if len(taps) > 1 else total
+        terms.append(total if value == 1.0 else f"{literal(value)} * {total}")
+    return " + ".join(terms) if terms else "0.0f"
+
+
+@dataclass
+class LinearPhaseFilter(Stage):
+    """H x W mosaic -> H x W x n_out; weights (P*P, n_out, T), bias (P*P, n_out); optional sRGB encode
+    (``encode``), to 16-bit codes (``quantize``)."""
+
+    cfa: CFA
+    radius: int
+    weights: np.ndarray
+    bias: np.ndarray
+    encode: bool = False
+    quantize: bool = False
+    interleaved: bool = False
+    support: np.ndarray | None = None
+    basis: np.ndarray | None = None
+    mix: np.ndarray | None = None
+    name = "phase_filter"
+    in_channels = 1
+    out_channels = 3
+    writes_into = True
+
+    def __post_init__(self) -> None:
+        if self.support is None:
+            self.support = self.weights != 0
+        if (self.basis is None) != (self.mix is None):
+            raise ValueError("basis and mix come together")
+
+    @property
+    def factored(self) -> bool:
+        """Whether the kernel may compute ``mix @ basis`` instead of the dense weights."""
+        return self.basis is not None
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        return np.dtype(np.uint16 if self.quantize else np.float32)
+
+    @property
+    def halo(self) -> int:
+        return self.radius
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        h, w = x.shape
+        r = self.radius
+        oh, ow = h - 2 * r, w - 2 * r
+        p = self.cfa.period
+        ys = (np.arange(oh) + origin[0] + r) % p
+        xs = (np.arange(ow) + origin[1] + r) % p
+        phase = ys[:, None] * p + xs[None, :]
+        out = self.bias[phase].astype(np.float64)
+        x = x.astype(np.float64)
+        for t, (dy, dx) in enumerate(tap_offsets(r)):
+            out += self.weights[phase, :, t] * x[r + dy:r + dy + oh, r + dx:r + dx + ow, None]
+        if not self.encode:
+            return out
+        return quantize16(srgb_encode(out)) if self.quantize else srgb_encode(out)
+
+    def generated_source(self) -> str:
+        """OpenCL source of ``phase_apply(k, v, o, w, bias)``: one inline function per CFA phase
+        summing only the taps in ``support`` (weights read from the constant buffer at literal
+        indices). The support depends on the CFA and the demosaic, not on per-image values
+        (black level, white balance, matrix), so one compiled program serves every image."""
+        n_out, taps = self.weights.shape[1:]
+        lines = [f"/* generated by clisp: support of {self.name}, {self.weights.shape[0]} phases */"]
+        for k in range(self.weights.shape[0]):
+            body = []
+            for c in range(n_out):
+                base = (k * n_out + c) * taps
+                terms = [f"bias[{k * n_out + c}]"] + [f"w[{base + t}] * v[{t}]"
+                                                    for t in np.flatnonzero(self.support[k, c])]
+                body.append(f"    o[{c}] = " + " + ".join(terms) + ";")
+            lines.append(f"inline void phase_{k}(const float *v, float *o, __constant const float *w, "
+                         f"__constant const float *bias)\n{{\n" + "\n".join(body) + "\n}")
+        cases = " ".join(f"case {k}: phase_{k}(v, o, w, bias); break;" for k in range(self.weights.shape[0]))
+        lines.append("inline void phase_apply(const int k, const float *v, float *o, __constant const float *w, "
+                     f"__constant const float *bias)\n{{\n    switch (k) {{ {cases} }}\n}}")
+        lines.append(self.row_source())
+        return "\n".join(lines)
+
+    def row_source(self) -> str:
+        """OpenCL source of ``row_apply(ky, px, v, o, w, bias)`` for kernel ``phase_filter_px``:
+        for CFA row ky every column phase j is computed and the one of ``px`` selected. Dense form:
+        ``w`` holds the weights as for ``phase_apply``. Factored form: per column phase the basis
+        sums (literal weights, taps of equal weight added first), then ``o[c] = bias[k][c] + sum_d
+        w[c * Cd + d] * s_d`` with ``w`` holding ``mix``."""
+        p = self.cfa.period
+        n_out, taps = self.weights.shape[1:]
+        lines = [f"/* generated by clisp: row_apply of {self.name}, "
+                 f"{'factored (mix @ basis)' if self.factored else 'dense weights'} */"]
+
+        def select(values: list[str]) -> str:
+            expr = values[0]
+            for j in range(1, p):
+                expr = f"(px == {j} ? {values[j]} : {expr})"
+            return expr
+
+        for ky in range(p):
+            body = []
+            phases = [ky * p + j for j in range(p)]
+            if self.factored:
+                n_d = self.basis.shape[1]
+                for j, k in enumerate(phases):
+                    for d in range(n_d):
+                        body.append(f"    const float s{j}_{d} = {basis_sum(self.basis[k, d])};")
+                for d in range(n_d):
+                    body.append(f"    const float s{d} = " + select([f"s{j}_{d}" for j in range(p)]) + ";")
+                for c in range(n_out):
+                    terms = [select([f"bias[{k * n_out + c}]" for k in phases])]
+                    terms += [f"w[{c * n_d + d}] * s{d}" for d in range(n_d)]
+                    body.append(f"    o[{c}] = " + " + ".join(terms) + ";")
+            else:
+                for j, k in enumerate(phases):
+                    for c in range(n_out):
+                        base = (k * n_out + c) * taps
+                        terms = [f"bias[{k * n_out + c}]"] + [f"w[{base + t}] * v[{t}]"
+                                                            for t in np.flatnonzero(self.support[k, c])]
+                        body.append(f"    const float e{j}_{c} = " + " + ".join(terms) + ";")
+                for c in range(n_out):
+                    body.append(f"    o[{c}] = " + select([f"e{j}_{c}" for j in range(p)]) + ";")
+            lines.append(f"inline void row_{ky}(const int px, const float *v, float *o, "
+                         "__constant const float *w, __constant const float *bias)\n{\n"
+                         + "\n".join(body) + "\n}")
+        cases = " ".join(f"case {ky}: row_{ky}(px, v, o, w, bias); break;" for ky in range(p))
+        lines.append("inline void row_apply(const int ky, const int px, const float *v, float *o, "
+                     f"__constant const float *w, __constant const float *bias)\n{{\n"
+                     f"    switch (ky) {{ {cases} }}\n}}")
+        return "\n".join(lines)
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
+                out: DeviceImage | None = None) -> DeviceImage:
+        p, r = self.cfa.period, self.radius
+        defines = {"CFA_PERIOD": p, "NOUT": self.weights.shape[1], "RADIUS": r,
+                   "RAW_T": "ushort" if src.dtype == np.uint16 else "float",
+                   "PHASE_Y": (origin[0] + r) % p, "PHASE_X": (origin[1] + r) % p,
+                   "ENCODE_SRGB": int(self.encode), "QUANTIZE": int(self.quantize),
+                   "INTERLEAVED": int(self.interleaved), **SRGB_ENCODING}
+        out_h, out_w = self.output_shape(src.height, src.width)
+        per_column = p == PER_COLUMN_PERIOD and out_h % p == 0
+        exact = per_column or (out_h % p == 0 and out_w % p == 0)   # no bounds checks: PoCL vectorises
+        defines["EXACT"] = int(exact)
+        if not hasattr(self, "_source"):
+            self._source = (srgb_source(rt) + "\n" if self.encode else "") + self.generated_source()
+        name = "phase_filter_px" if per_column else "phase_filter"
+        kernel = rt.kernel("linear_filter", name, defines, self._source)
+        dst = out if out is not None else rt.acquire(self.weights.shape[1], out_h, out_w, self.out_dtype)
+        w = self.mix if per_column and self.factored else self.weights
+        args = (src.buffer, dst.buffer, np.int32(src.width), np.int32(out_w), np.int32(out_h),
+                rt.constant(as_f32(w)), rt.constant(as_f32(self.bias)))
+        if per_column:
+            launch_exact(rt, kernel, out_w, out_h // p, *args, group=PER_COLUMN_GROUP)
+        elif exact:
+            launch_exact(rt, kernel, out_w // p, out_h // p, *args)
+        else:
+            rt.launch(kernel, -(-out_w // p), -(-out_h // p), *args)
+        dst.interleaved = self.interleaved
+        return dst
+
+    def with_interleaved_output(self) -> "LinearPhaseFilter":
+        return replace(self, interleaved=True)
+
+    def after_affine(self, offset: np.ndarray, scale: np.ndarray) -> "LinearPhaseFilter":
+        """This filter applied to ``(raw - offset[c]) * scale[c]``, as one filter on raw."""
+        ch = tap_channels(self.cfa, self.radius)                       # (K, T)
+        w = self.weights * np.asarray(scale)[ch][:, None, :]           # (K, C, T)
+        bias = self.bias - np.einsum("kct,kt->kc", w, np.asarray(offset)[ch])
+        basis, mix = self.basis, self.mix
+        if basis is not None and channel_pure(basis, ch):               # scale[d] is basis row d's
+            mix = self.mix * np.asarray(scale, dtype=np.float64)[None, :basis.shape[1]]
+        else:
+            basis, mix = None, None
+        return replace(self, weights=w, bias=bias, basis=basis, mix=mix)
+
+    def fuse(self, following: Stage) -> Stage | None:
+        if self.encode:
+            return None
+        if isinstance(following, ColourMatrix):
+            m = np.asarray(following.matrix, dtype=np.float64)
+            mixed = np.repeat(self.support.any(axis=1, keepdims=True), m.shape[0], axis=1)
+            return replace(self, weights=np.einsum("ij,kjt->kit", m, self.weights),
+                           bias=self.bias @ m.T, support=mixed,
+                           mix=None if self.mix is None else m @ self.mix)
+        if isinstance(following, ToneCurve) and FUSE_TONE_CURVE:
+            return replace(self, encode=True, quantize=following.quantize)
+        return None
