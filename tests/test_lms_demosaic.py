@@ -28,7 +28,8 @@ from clisp.modules.demosaic_lms.stage import (A_RADIUS, CHROMA_RADIUS, LUM_RADIU
                                        LMSHybridParams, chroma_demodulate_rows, diamond_halfband,
                                        frequency_response, lm_combine, luma_filter, luma_lowpass, m_at_s,
                                        s_joint_bilateral)
-from clisp.modules.common.guided_filter import (box_rows, enqueue_box_rows, gf_apply, gf_coefficients, gf_row_moments,
+from clisp.modules.common.box import enqueue_box
+from clisp.modules.common.guided_filter import (box_rows, gf_apply, gf_coefficients, gf_row_moments,
                                         guided_filter_spec)
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 from tolerance import TOL, assert_close
@@ -166,12 +167,12 @@ def test_luma_and_chroma_kernels(rt, phase, origin) -> None:
 
 
 def test_box_rows_kernel(rt) -> None:
-    """box_rows (the guided demosaic's box sums along x) against its NumPy twin, two planes. The
-    guided filter itself runs as fused strip kernels, tested in test_lms_guided.py."""
+    """The shared box filter along x (the guided demosaic's box sums) against its NumPy twin, two
+    planes. The guided filter itself runs as fused strip kernels, tested in test_lms_guided.py."""
     lum, p = smooth_pair(4)
     r = DemosaicLMSHybrid(lms_cfa(PHASES[0])).params.gf_radius
     src = rt.upload(np.stack([lum, p]).astype(np.float32))                      # two planes
-    rows = enqueue_box_rows(rt, src, r)
+    rows = enqueue_box(rt, src, 0, r)
     assert_close(download(rt, rows), box_rows(f64(np.stack([lum, p], axis=-1)), r), "box_rows")
     for image in (src, rows):
         rt.release(image)

@@ -2,7 +2,7 @@
  * radius r, statistics over the pixels of one CFA channel); NumPy twins of the same names and the host
  * side in clisp/modules/common/guided_filter.py. Two kernels, run in this order:
  *   gf_ab_strip (the NumPy gf_row_moments, then gf_coefficients) -> gf_apply_strip (box_rows of a, b,
- *   then gf_apply). box_rows also serves the guided demosaic's other box sums.
+ *   then gf_apply).
  *
  * Defines from the host: GF_R (the radius r); GF_MASK (the pixels of the statistics: 0 every pixel,
  * 1 the M sites, 2 the S sites); GF_LEVEL_GUIDE (1: the noise term of eps at the level mu_I, 0: at
@@ -22,20 +22,6 @@
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 
-/* box_rows: dst(y, x) = sum of src(y, x .. x + 2r), r = GF_R, every plane (planes stacked: out_h =
- * planes * height); width shrinks by 2r. Halo: reads +2r along x. */
-__kernel void box_rows(__global const float *restrict src, __global float *restrict dst, const int in_w, const int out_w)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    __global const float *c = src + y * in_w + x;
-    float acc = 0.0f;
-    #pragma unroll
-    for (int k = 0; k <= 2 * GF_R; ++k)
-        acc += c[k];
-    dst[y * out_w + x] = acc;
-}
-
 /* ---- Fused strip kernels (what enqueue_guided_filter runs): the same sums in the same order as the
  * NumPy steps gf_row_moments, gf_coefficients, box_rows, gf_apply, without a 5-plane row-moment image
  * and 2-plane row sums of a, b going through global memory (with four step kernels, since removed,
@@ -48,7 +34,6 @@ __kernel void box_rows(__global const float *restrict src, __global float *restr
  * phases (the lattice repeats every 4 px along x and y), built once per work-item: no integer work
  * per tap. */
 
-#ifdef GF_STRIP
 #define GF_T (2 * GF_R + 1)
 #define GF_NR (GF_STRIP + 2 * GF_R)
 
@@ -183,4 +168,3 @@ __kernel void gf_apply_strip(__global const float *restrict ab, __global const f
         }
     }
 }
-#endif

@@ -137,15 +137,6 @@ def _plane_base(image: DeviceImage, plane: int) -> np.int32:
     return i32(plane * image.height * image.width)
 
 
-def enqueue_box_rows(rt: Runtime, src: DeviceImage, r: int) -> DeviceImage:
-    """box_rows: sums over 2r+1 neighbours along x of every plane; width shrinks by 2r."""
-    w = src.width - 2 * r
-    dst = rt.acquire(src.channels, src.height, w)
-    launch_exact(rt, _kernel(rt, "box_rows", r), w, src.channels * src.height, src.buffer, dst.buffer,
-                 i32(src.width), i32(w))
-    return dst
-
-
 GF_STRIP = 8
 """Output rows per work-item of the fused strip kernels (gf_ab_strip, gf_apply_strip): each strip
 recomputes 2r rows of sums along x, so longer strips save work but cost registers."""

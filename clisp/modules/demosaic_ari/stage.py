@@ -65,7 +65,7 @@ from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from . import reference as bayer_ri
 from ..base import Stage
 from ..demosaic_malvar.stage import check_bayer
-from ..common.guided_ri import enqueue_box
+from ..common.box import enqueue_box
 
 i32, f32 = np.int32, np.float32
 
@@ -461,11 +461,11 @@ class DemosaicARI(Stage):
 
     def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
                    across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
-        """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
+        """Coefficient sums along the lines (the shared box filter, every plane), then across them
         fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
         dirn = 0 if d == "h" else 1
-        sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
-            enqueue_box(c.rt, coef, along, 0, release_src=True, per_radius=True)
+        sums = enqueue_box(c.rt, coef, 0, along, release_src=True) if d == "h" else \
+            enqueue_box(c.rt, coef, along, 0, release_src=True)
         sy, sx = (margin[0], margin[1] + along) if d == "h" else (margin[0] + along, margin[1])
         ty, tx = (sy + across, sx) if d == "h" else (sy, sx + across)
         t = c.new(2 if pair else 1, ty, tx)

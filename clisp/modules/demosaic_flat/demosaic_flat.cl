@@ -1,9 +1,9 @@
 /* Flat-tile demosaic (clisp/modules/demosaic_flat/stage.py): per-channel box means on a grid of cells,
  * interpolated bilinearly, plus the neutral luminance residual of a 3 x 3 kernel.
  * Defines from the host: CFA_PERIOD (P), CELL (cell side, a multiple of P), CELLS (Rc, box radius
- * in cells), NCH (channels). Cell grids are planar (NCH planes). */
-
-#define BOX (2 * CELLS + 1)
+ * in cells), NCH (channels). Cell grids are planar (NCH planes). Steps: flat_cells -> flat_reflect (tiles
+ * at the image's edge) -> the box means of the cells (the shared box filter, clisp/modules/common/box.cl,
+ * radius Rc cells, scale 1 / (2 Rc + 1)^2) -> flat_output. */
 
 /* flat_cells: cells (NCH planes of cy x cx) = mean of each channel's samples in the CELL x CELL
  * cell whose first pixel is window pixel (ay + CELL i, ax + CELL j); (ay, ax) is a multiple of CELL
@@ -74,39 +74,6 @@ __kernel void flat_reflect(__global const float *restrict cells, __global float 
             }
         }
         dst[(c * cy + i) * cx + j] = v;
-    }
-}
-
-/* flat_box_rows: rows (NCH planes of cy x bw, bw = cx - 2 Rc) = sum of cells j .. j + 2 Rc of each
- * row. Halo Rc cells along x. Launched over exactly bw x cy. */
-__kernel void flat_box_rows(__global const float *restrict cells, __global float *restrict rows,
-                            const int cx, const int cy, const int bw)
-{
-    const int j = get_global_id(0);
-    const int i = get_global_id(1);
-    for (int c = 0; c < NCH; c++) {
-        const __global float *p = cells + (c * cy + i) * cx + j;
-        float s = 0.0f;
-        for (int k = 0; k < BOX; k++)
-            s += p[k];
-        rows[(c * cy + i) * bw + j] = s;
-    }
-}
-
-/* flat_box_cols: box (NCH planes of bh x bw, bh = cy - 2 Rc) = mean over rows i .. i + 2 Rc of
- * rows, divided by BOX^2: the box mean of the cells centred on cell (i + Rc, j + Rc). Halo Rc cells
- * along y. Launched over exactly bw x bh. */
-__kernel void flat_box_cols(__global const float *restrict rows, __global float *restrict box,
-                            const int bw, const int cy, const int bh)
-{
-    const int j = get_global_id(0);
-    const int i = get_global_id(1);
-    for (int c = 0; c < NCH; c++) {
-        const __global float *p = rows + (c * cy + i) * bw + j;
-        float s = 0.0f;
-        for (int k = 0; k < BOX; k++)
-            s += p[k * bw];
-        box[(c * bh + i) * bw + j] = s * (1.0f / (BOX * BOX));
     }
 }
 

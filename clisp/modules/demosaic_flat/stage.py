@@ -39,6 +39,7 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from ..base import Stage, as_f32
+from ..common.box import enqueue_box
 
 PLUS_CENTRE = 4.0
 """Centre weight of the 3 x 3 luminance-residual kernel."""
@@ -253,14 +254,8 @@ class DemosaicFlat(Stage):
             rt.release(cells)
             cells = mirrored
         bw, bh = cx - 2 * rc, cy - 2 * rc
-        rows = rt.acquire(n, cy, bw)
-        launch_exact(rt, rt.kernel("demosaic_flat", "flat_box_rows", defines), bw, cy, cells.buffer, rows.buffer,
-                     i32(cx), i32(cy), i32(bw))
-        box = rt.acquire(n, bh, bw)
-        launch_exact(rt, rt.kernel("demosaic_flat", "flat_box_cols", defines), bw, bh, rows.buffer, box.buffer,
-                     i32(bw), i32(cy), i32(bh))
-        rt.release(cells)
-        rt.release(rows)
+        box_count = np.float32(2 * rc + 1) ** 2
+        box = enqueue_box(rt, cells, rc, rc, scale=np.float32(1.0) / box_count, release_src=True)
         oh, ow = src.height - 2 * hb, src.width - 2 * hb
         dst = rt.acquire(n, oh, ow)
         a, b = self.residual_tables()

@@ -97,8 +97,9 @@ from ...errors import ClispError
 from ...sim.noise import NOISELESS, ChannelNoise
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from ..base import Stage, as_f32
+from ..common.box import enqueue_box
 from ..colour.stage import camera_neutral
-from ..common.guided_filter import (MASK_ALL, MASK_S, enqueue_box_rows, enqueue_guided_filter, enqueue_guided_pair,
+from ..common.guided_filter import (MASK_ALL, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
                             guided_filter)
 from ..common.lms import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
                          diamond_halfband, lattice_shift, valid)
@@ -755,8 +756,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
             m=m, c=c, ylp=ylp, dst=energy, m_w=m.width, m_off=o_c - o_m, l_w=ylp.width, l_off=o_c - o_ylp,
             out_w=c.width, out_h=c.height, oy=oy_c, ox=ox_c, chroma_neutral=self.chroma_neutral,
             bp_w=rt.constant(as_f32(HALF_NYQUIST_TAPS))))
-        rows = enqueue_box_rows(rt, energy, COMBINE_RADIUS)
-        rt.release(energy)
+        rows = enqueue_box(rt, energy, 0, COMBINE_RADIUS, release_src=True)    # sums along x
         lm = rt.acquire(3, h, w)
         lum_shot, lum_floor = self._lum_noise()
         self._launch_named(rt, "lm_output", w, h, dict(
@@ -777,8 +777,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         tone = rt.acquire(2, out_h - 4, out_w - 4)
         self._launch(rt, "s_tone_energy", out_w - 4, out_h - 4, lms.buffer, tone.buffer, i32(out_w), i32(out_h),
                      i32(out_w - 4), i32(out_h - 4), rt.constant(as_f32(AXIAL_HP.ravel())))
-        rows = enqueue_box_rows(rt, tone, 2)
-        rt.release(tone)
+        rows = enqueue_box(rt, tone, 0, 2, release_src=True)                 # sums along x
         fin_h, fin_w = out_h - 2 * S_ALIAS_RADIUS, out_w - 2 * S_ALIAS_RADIUS
         dst = rt.acquire(3, fin_h, fin_w)
         self._launch_named(rt, "s_alias", fin_w, fin_h, dict(
