@@ -21,7 +21,8 @@ from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .engine.profile import host_timer, stage_label
 from .engine.runtime import DeviceImage, get_runtime
 from .modules.base import Stage, fuse_stages
-from .modules.chroma_denoise.stage import ChromaDenoise, ChromaDenoiseParams, chroma_denoise_for
+from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
+                                           space_for)
 from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_bilinear.stage import DemosaicBilinear
@@ -33,7 +34,7 @@ from .modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highli
 from .modules.raw_scale.stage import normalize, white_balance1
 from .engine.streaming import (READ_AHEAD, ArraySink, ArrayWindows, BandSink, TileSink, WindowPool, WindowSource,
                         progress_bar, run_tiles, window_source)
-from .noise_estimate import NoiseEstimateError
+from .noise_estimate import NoiseEstimateError, raw_noise
 from .white_balance2 import estimate_wb2
 from .engine.tiling import DEVICE_SHARE, MIN_TILE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
 
@@ -474,9 +475,11 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     colour: Stage = ColourMatrix(raw.colour_matrix)
     if params is not None:
         try:
-            colour = chroma_denoise_for(raw, demosaic_stage, params)
+            noise = raw_noise(raw)
         except NoiseEstimateError:
-            pass        # a raw too small to estimate its noise is processed without chroma denoise
+            noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+        if noise is not None:
+            colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
                            white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
@@ -493,6 +496,39 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         from .skip import Skipper                  # nothing to skip without a chroma denoiser
         pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
     return pipeline
+
+
+def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoiseParams | None = None,
+                       noise: Any = None, rt: Any = None) -> Stage:
+    """The colour stage that follows ``demosaic`` for ``raw``, with the noise calibration step of
+    building a pipeline: the chroma denoiser's noise table measured through ``demosaic``.
+
+    ``noise``: per-channel noise of the white-balanced raw (:class:`clisp.sim.noise.ChannelNoise`,
+    or anything with ``shot``, ``floor`` and ``variance(channel, level)``); None takes it from the
+    raw (its sensor model when the metadata has one, else estimated from the mosaic). ``rt``: the
+    runtime whose device runs the calibration's demosaic (:func:`calibration_runtime`), None for
+    the NumPy reference. Returns a :class:`ChromaDenoise` in the paper's space for the CFA kind
+    (LMS: Y = (L+M)/2, chroma R-Y, G-Y, B-Y; Bayer: BT.601 YUV) with that table; when the raw has
+    no noise (noiseless simulation) the plain ``ColourMatrix``, which the denoiser would equal
+    anyway (so noiseless output is unchanged, and linear demosaics still fuse with it).
+    """
+    params = params or ChromaDenoiseParams()
+    noise = raw_noise(raw) if noise is None else noise
+    if is_noiseless(noise) or params.noise_scale == 0:
+        return ColourMatrix(raw.colour_matrix)
+    space = space_for(raw.cfa.kind, raw.colour_matrix, params.strengths)
+    table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, rt=rt)
+    return ChromaDenoise(space, table, params)
+
+
+def calibration_runtime() -> Any:
+    """The runtime for the noise calibration when an OpenCL device can be had (the calibration
+    then runs the demosaic's kernels), else None: the NumPy reference, so that a machine without
+    OpenCL can still build a pipeline (and run it with the reference backend)."""
+    try:
+        return get_runtime()
+    except ClispError:
+        return None
 
 
 def check_raw(raw: RawImage) -> None:

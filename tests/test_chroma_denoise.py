@@ -19,12 +19,12 @@ from clisp.errors import ClispError
 from clisp.sim.noise import NoiseModel
 from clisp.sim.noise import ChannelNoise
 from clisp.noise_estimate import estimate_raw_noise, raw_noise
-from clisp.pipeline import Pipeline
+from clisp.engine.runtime import get_runtime
+from clisp.pipeline import Pipeline, chroma_denoise_for
 from clisp.sim.simulate import simulate
 from clisp.modules.chroma_denoise import stage as cd
 from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
-                                         chroma_denoise_for, haar_analyze, haar_synthesize, lms_space,
-                                         make_plan, yuv_space)
+                                                haar_analyze, haar_synthesize, lms_space, make_plan, yuv_space)
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided
@@ -277,8 +277,8 @@ def test_calibration_on_opencl_equals_reference():
     sp = SPACES["lms"]
     noise = ChannelNoise.from_model(NoiseModel(), 8.0, np.array([1.0, 1.2191, 3.1397]) / 0.98951)
     for dem in (DemosaicBilinear(cfa), DemosaicLMSGuided(cfa, noise=noise)):
-        ref = calibrate_noise(dem, cfa, sp, noise, size=128, backend="reference")
-        cl = calibrate_noise(dem, cfa, sp, noise, size=128, backend="opencl")
+        ref = calibrate_noise(dem, cfa, sp, noise, size=128)
+        cl = calibrate_noise(dem, cfa, sp, noise, size=128, rt=get_runtime())
         np.testing.assert_allclose(cl.approx, ref.approx, rtol=1e-4, atol=1e-12)
         np.testing.assert_allclose(cl.detail, ref.detail, rtol=1e-4, atol=1e-12)
 

@@ -13,9 +13,6 @@
  * CPUs does not vectorise the scalar kernels across work items; explicit float8 made them 8x and
  * 2x cheaper there (a 1.5 MP single-plane 7x7 bilateral 0.54 -> 0.064 CPU-s; the whole stage's
  * bayes_shrink 0.15 -> 0.07 CPU-s). GPUs use VEC = 1 (one pixel per lane, coalesced). */
-#ifndef VEC
-#define VEC 1
-#endif
 /* PoCL 3.0 (this build) calls vload8 / vstore8 / fmax / select / min as out-of-line functions,
  * also inside the hot loops (three calls per joint_bilateral tap); loads and stores through an
  * under-aligned vector type and ?: compile inline (24 MP Bayer: joint_bilateral 1.15 -> 0.93 s,
@@ -190,15 +187,22 @@ __kernel void bayes_shrink(__global const float *restrict detail, __global const
     }
 }
 
-#ifndef JOINT_RANGE
-#define JOINT_RANGE 0
-#endif
+/* The constants of one joint_bilateral launch (one pyramid level), field by field as the host's record
+ * (ChromaDenoise.bilateral_constants, dtype BILATERAL_CONSTANTS): range variances
+ * luma[0] max(Y, 0) + luma[1] and chroma[2k] max(Y, 0) + chroma[2k + 1] (already times k^2 and
+ * s_k^2), floored at floor2; metric M (n x n, row-major) of the joint range term. */
+typedef struct {
+    float inv_2sd2;                    /* 1 / (2 sigma_d^2), sigma_d the spatial sigma in pixels */
+    float floor2;                      /* the range variances' floor, sigma_floor^2 */
+    float luma[2];                     /* aY, bY */
+    float chroma[2 * NCHROMA];         /* a_1, b_1, ..., a_n, b_n */
+    float metric[NCHROMA * NCHROMA];   /* M (JOINT_RANGE) */
+} bilateral_constants;
 
 /* joint_bilateral: luminance-guided bilateral of NCHROMA chroma planes. Halo RADIUS: output (u, v)
  * is centred on chroma pixel (u + R, v + R) (planes at src + c_offset, c_w x c_h) and on luminance
- * pixel (u + R + y_shift, v + R + y_shift) of the level image (plane 0, y_w wide). prm:
- * [1/(2 sd^2), floor^2, aY, bY, a_1, b_1, ..., a_n, b_n, M (n x n)]: range variances aY max(Y,0) + bY
- * and a_k max(Y,0) + b_k (already times k^2 and s_k^2), floored at floor^2. guide = 0 drops the Y
+ * pixel (u + R + y_shift, v + R + y_shift) of the level image (plane 0, y_w wide). prm: the
+ * level's bilateral_constants. guide = 0 drops the Y
  * term. w = exp(-(|q-p|^2/(2 sd^2) + (Y_q - Y_p)^2/(2 sY^2) + (c_q - c_p)^2/(2 sc^2))), per plane;
  * with JOINT_RANGE one w for every plane, its chroma term z^T M z, z_k = (c_q,k - c_p,k)/(sqrt2 sc_k)
  * (ChromaDenoise.range_metric).
@@ -208,7 +212,7 @@ __kernel void bayes_shrink(__global const float *restrict detail, __global const
 __kernel void joint_bilateral(__global const float *restrict src, const int c_offset, __global const float *restrict level,
                               __global float *restrict dst, const int c_w, const int c_h, const int y_w,
                               const int y_shift, const int width, const int height, const int guide,
-                              __constant const float *restrict prm)
+                              __constant const bilateral_constants *restrict prm)
 {
     const int gx = (int)get_global_id(0) * VEC;
     const int x = gx < width - VEC ? gx : width - VEC;
@@ -220,11 +224,11 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
     const int yi = (y + RADIUS + y_shift) * y_w + x + RADIUS + y_shift;
     __global const float *c = src + c_offset + ci;
     __global const float *g = level + yi;
-    const float inv2sd2 = prm[0], floor2 = prm[1];
-    __constant const float *metric = prm + 4 + 2 * NCHROMA;     /* M, n x n (JOINT_RANGE) */
+    const float inv2sd2 = prm->inv_2sd2, floor2 = prm->floor2;
+    __constant const float *metric = prm->metric;                /* M, n x n (JOINT_RANGE) */
     const floatv yp = LOADV(g);
     const floatv s = MAXV(yp, 0.0f);
-    const floatv inv_y = guide ? 0.5f / MAXV(prm[2] * s + prm[3], floor2) : (floatv)0.0f;
+    const floatv inv_y = guide ? 0.5f / MAXV(prm->luma[0] * s + prm->luma[1], floor2) : (floatv)0.0f;
     floatv cp[NCHROMA], inv_c[NCHROMA], num[NCHROMA], den[NCHROMA];
 #if JOINT_RANGE
     floatv sq_c[NCHROMA];
@@ -232,7 +236,7 @@ __kernel void joint_bilateral(__global const float *restrict src, const int c_of
     #pragma unroll
     for (int k = 0; k < NCHROMA; ++k) {
         cp[k] = LOADV(c + k * c_plane);
-        inv_c[k] = 0.5f / MAXV(prm[4 + 2 * k] * s + prm[5 + 2 * k], floor2);
+        inv_c[k] = 0.5f / MAXV(prm->chroma[2 * k] * s + prm->chroma[2 * k + 1], floor2);
 #if JOINT_RANGE
         sq_c[k] = sqrt(inv_c[k]);
 #endif
@@ -331,9 +335,6 @@ __kernel void haar_synthesize(__global const float *restrict approx, __global co
  * level-0 image (y_w wide). Halo 0. INTERLEAVED (define): write H x W x 3 (the host layout, when
  * this is the pipeline's last stage) instead of 3 planes. VEC consecutive pixels per work item
  * (width >= VEC; the last one of a row starts at width - VEC). */
-#ifndef INTERLEAVED
-#define INTERLEAVED 0
-#endif
 __kernel void chroma_merge(__global const float *restrict level, __global const float *restrict chroma, __global float *restrict dst,
                            const int y_w, const int y_shift_y, const int y_shift_x,
                            const int c_w, const int c_h, const int c_shift_y, const int c_shift_x,

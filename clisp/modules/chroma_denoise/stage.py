@@ -70,6 +70,7 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import ClispError
+from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from ..base import Stage, as_f32
 
@@ -592,9 +593,11 @@ class ChromaDenoise(Stage):
         return ChromaDenoise(self.space, self.noise, self.params, interleaved=True)
 
     def defines(self) -> dict[str, int]:
+        """Compile-time constants of chroma_denoise.cl; JOINT_RANGE (joint_bilateral) and INTERLEAVED
+        (chroma_merge) are 0 here and set per launch, VEC per launch."""
         return {"NCHROMA": self.space.n_chroma, "RADIUS": self.params.radius,
                 "SHRINK_RADIUS": self.params.shrink_radius,
-                "SHRINK_RULE": SHRINK_RULES.index(self.params.shrink)}
+                "SHRINK_RULE": SHRINK_RULES.index(self.params.shrink), "JOINT_RANGE": 0, "INTERLEAVED": 0}
 
     def range_metric(self, level: int) -> np.ndarray | None:
         """(n, n) M of the joint range term at ``level`` (None where range_joint is 0): the term is
@@ -654,16 +657,19 @@ class ChromaDenoise(Stage):
         return float(np.sqrt(max(np.mean(var), 0.0)))
 
     def bilateral_constants(self, level: int) -> np.ndarray:
-        """prm of ``joint_bilateral`` at ``level``: [1/(2 sd^2), floor^2, aY, bY, a_k, b_k ..., M (n x n,
-        row-major; zeros without a joint range term)]."""
-        prm = self.params
+        """The ``bilateral_constants`` struct of ``joint_bilateral`` at ``level``: one record of
+        :func:`bilateral_constants_dtype` (the metric is zeros without a joint range term)."""
+        prm, n = self.params, self.space.n_chroma
         approx_var, _ = self._scaled_noise()
         k_c2 = self.k_chroma(level) ** 2
-        chroma = approx_var[level, 1:] * k_c2[:, None]
         metric = self.range_metric(level)
-        metric = np.zeros((self.space.n_chroma,) * 2) if metric is None else metric
-        return np.concatenate([[0.5 / prm.sigma_d ** 2, prm.sigma_floor ** 2],
-                               approx_var[level, 0] * prm.k_luma ** 2, chroma.ravel(), metric.ravel()])
+        record = np.zeros((), dtype=bilateral_constants_dtype(n))
+        record["inv_2sd2"] = 0.5 / prm.sigma_d ** 2
+        record["floor2"] = prm.sigma_floor ** 2
+        record["luma"] = approx_var[level, 0] * prm.k_luma ** 2
+        record["chroma"] = (approx_var[level, 1:] * k_c2[:, None]).ravel()
+        record["metric"] = np.zeros(n * n) if metric is None else metric.ravel()
+        return record
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         prm, sp, n = self.params, self.space, self.space.n_chroma
@@ -713,7 +719,7 @@ class ChromaDenoise(Stage):
             rt.launch(bilateral, gx, out.height, c.buffer, np.int32(c_offset), lvl.buffer,
                       out.buffer, np.int32(c.width), np.int32(c.height), np.int32(lvl.width),
                       np.int32(start), np.int32(out.width), np.int32(out.height),
-                      np.int32(prm.k_luma > 0), rt.constant(as_f32(self.bilateral_constants(j))))
+                      np.int32(prm.k_luma > 0), rt.constant(self.bilateral_constants(j)))
             if c is not top:
                 rt.release(c)
             c, c_offset = out, 0
@@ -784,19 +790,29 @@ def _correlation(planes: np.ndarray) -> np.ndarray:
     return cov / np.outer(sd, sd)
 
 
+def bilateral_constants_dtype(n_chroma: int) -> np.dtype:
+    """The record of chroma_denoise.cl's ``bilateral_constants`` struct for ``n_chroma`` planes: its
+    fields by name, float32, in the struct's order (all floats: no padding).
+
+    >>> bilateral_constants_dtype(2).itemsize // 4       # 1 + 1 + 2 + 2 * 2 + 2 * 2
+    12
+    """
+    f4 = np.float32
+    return np.dtype([("inv_2sd2", f4), ("floor2", f4), ("luma", f4, (2,)), ("chroma", f4, (2 * n_chroma,)),
+                     ("metric", f4, (n_chroma * n_chroma,))])
+
+
 def is_noiseless(noise) -> bool:
     """True when every shot and floor term of a per-channel noise (ChannelNoise) is 0."""
     return not any(noise.shot) and not any(noise.floor)
 
 
-def run_demosaic(demosaic: Stage, mosaic: np.ndarray, backend: str) -> np.ndarray:
+def run_demosaic(demosaic: Stage, mosaic: np.ndarray, rt: Runtime | None = None) -> np.ndarray:
     """``demosaic`` on an H x W mosaic whose pixel (0, 0) is at image (0, 0): (H-2r) x (W-2r) x 3,
-    by its NumPy reference (float64) or its OpenCL kernels (float32, returned as float64)."""
-    if backend == "reference":
+    by its NumPy reference (float64; ``rt`` None) or its OpenCL kernels on ``rt`` (float32, returned
+    as float64)."""
+    if rt is None:
         return demosaic.reference(mosaic, (0, 0))
-    from ...engine.profile import stage_label
-    from ...engine.runtime import get_runtime
-    rt = get_runtime()
     stage_label("noise calibration (pipeline set-up)")
     src = rt.upload(np.ascontiguousarray(mosaic, dtype=np.float32))
     dst = demosaic.enqueue(rt, src, (0, 0))
@@ -808,15 +824,15 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, backend: str) -> np.ndarra
 
 def calibrate_noise(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels: int = 3,
                     size: int = CALIBRATION_SIZE, gray: Sequence[float] = CALIBRATION_LEVELS,
-                    seed: int = CALIBRATION_SEED, backend: str = "reference") -> NoiseTable:
+                    seed: int = CALIBRATION_SEED, rt: Runtime | None = None) -> NoiseTable:
     """Noise table of ``space`` after ``demosaic`` for the raw noise ``raw_noise`` (a ChannelNoise).
 
     ``raw_noise``: per-channel noise with ``shot``, ``floor`` and ``variance(channel, level)``
     (ChannelNoise). Two flat neutral fields (linear gray ``gray``; WB'd camera value
     gray * inv(to_rgb) [1,1,1]) get
-    Gaussian noise of the raw's variance per CFA channel, go through the demosaic (``backend``:
-    its NumPy reference, or its OpenCL kernels: the same within float32 rounding, and 30x faster
-    for the guided LMS demosaic, whose reference took 0.9 s of every run's start-up), and
+    Gaussian noise of the raw's variance per CFA channel, go through the demosaic (``rt`` None: its
+    NumPy reference; else its OpenCL kernels on ``rt``: the same within float32 rounding, and 30x
+    faster for the guided LMS demosaic, whose reference took 0.9 s of every run's start-up), and
     the variances of every subband are measured; a line through the two gives (shot, floor) per
     subband as a function of the mean Y. Deterministic for a given seed; zero noise -> zero table.
     """
@@ -833,7 +849,7 @@ def calibrate_noise(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels:
         level = g * white_cam[channel]
         var = np.choose(channel, [raw_noise.variance(c, g * white_cam[c]) for c in range(cfa.n_channels)])
         mosaic = level + rng.standard_normal(level.shape) * np.sqrt(var)
-        cam = run_demosaic(demosaic, mosaic, backend)
+        cam = run_demosaic(demosaic, mosaic, rt)
         points.append(measure_noise(cam, space, levels))
     (s0, a0, d0, r0), (s1, a1, d1, r1) = points
     def fit(v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
@@ -841,41 +857,3 @@ def calibrate_noise(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels:
         floor = np.maximum(v0 - shot * s0, 0.0)
         return np.stack([shot, floor], axis=-1)
     return NoiseTable(fit(a0, a1), fit(d0, d1), (r0 + r1) / 2.0)
-
-
-# ---------------------------------------------------------------------------------- pipeline helper
-
-def chroma_denoise_for(raw, demosaic: Stage, params: ChromaDenoiseParams | None = None,
-                       noise=None) -> Stage:
-    """The colour stage that follows ``demosaic`` for ``raw`` (a RawImage).
-
-    ``noise``: per-channel noise of the white-balanced raw (:class:`clisp.sim.noise.ChannelNoise`,
-    or anything with ``shot``, ``floor`` and ``variance(channel, level)``); None takes it from the raw (its sensor
-    model when the metadata has one, else estimated from the mosaic). Returns a
-    :class:`ChromaDenoise` in the paper's space for the CFA kind (LMS: Y = (L+M)/2, chroma R-Y,
-    G-Y, B-Y; Bayer: BT.601 YUV) with the noise table calibrated through ``demosaic``; when the
-    raw has no noise (noiseless simulation) the plain ``ColourMatrix``, which the denoiser would
-    equal anyway (so noiseless output is unchanged, and linear demosaics still fuse with it).
-    """
-    from ...noise_estimate import raw_noise
-    from ..colour.stage import ColourMatrix
-
-    params = params or ChromaDenoiseParams()
-    noise = raw_noise(raw) if noise is None else noise
-    if is_noiseless(noise) or params.noise_scale == 0:
-        return ColourMatrix(raw.colour_matrix)
-    space = space_for(raw.cfa.kind, raw.colour_matrix, params.strengths)
-    table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, backend=calibration_backend())
-    return ChromaDenoise(space, table, params)
-
-
-def calibration_backend() -> str:
-    """'opencl' when an OpenCL device can be had (the calibration then runs the demosaic's
-    kernels), else 'reference' (a machine without OpenCL can still build a pipeline)."""
-    from ...errors import ClispError
-    from ...engine.runtime import get_runtime
-    try:
-        get_runtime()
-    except ClispError:
-        return "reference"
-    return "opencl"
