@@ -1,10 +1,9 @@
 /* Helpers shared by every kernel file; the runtime prepends this text to each program.
  * Images are planar float32: plane c of an H x W image starts at c * H * W.
- * CFA_PERIOD (define from the host) is the side of the CFA's repeating tile. */
-#ifndef CFA_PERIOD
-#define CFA_PERIOD 2
-#endif
+ * CFA_PERIOD (define from the host, in the programs that read a CFA pattern) is the side of the
+ * CFA's repeating tile. */
 
+#ifdef CFA_PERIOD
 /* CFA channel of image pixel (y, x); y and x may be negative (padded borders). */
 inline int cfa_channel(__constant const char *pattern, const int y, const int x)
 {
@@ -12,6 +11,7 @@ inline int cfa_channel(__constant const char *pattern, const int y, const int x)
     const int px = ((x % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
     return pattern[py * CFA_PERIOD + px];
 }
+#endif
 
 #ifdef L_PAR
 /* LMS CFA membership of image pixel (y, x) in closed form, for programs built with the defines

@@ -9,6 +9,10 @@
  *   NOISY            0: noiseless, every LMMSE gain is 1 and no noise term is computed
  *   DIRECTIONAL      1 in the program of the pass-2 m_at_s_combine (edge-directed estimate mixed in)
  *   TONE_POWER       exponent of the tonality in tonal() (clisp TONE_POWER)
+ *   D_RADIUS, PRE_RADIUS, COMBINE_RADIUS, RI_RADIUS, BP_RADIUS, HP_RADIUS, S_ALIAS_RADIUS
+ *                    the radii of the steps (stage.py's constants of the same names): the diamond D,
+ *                    the chroma pre-filter B5, the 5 x 5 means of the combine steps, the S tent, the
+ *                    half-Nyquist band-pass (taps at even offsets), the axial high-pass, s_alias
  * Host-generated: D_TAPS, the off-centre support of the 9 x 9 diamond half-band D, and TENT_TAPS, the
  * support of the 7 x 7 residual-interpolation tent, as X(dy, dx, t) (weights in constant buffers).
  *
@@ -21,6 +25,12 @@
  * bottom edge by shifting the last launch inward (those work-items recompute identical values), see
  * runtime.launch_exact. Bodies are branch-free (selects) with compile-time loop bounds, which
  * PoCL unrolls and vectorises across work-items. */
+
+#if BP_RADIUS != 2 * COMBINE_RADIUS || S_ALIAS_RADIUS != 2 * COMBINE_RADIUS
+#error "lm_energy and s_alias share loops: BP_RADIUS and S_ALIAS_RADIUS must be 2 COMBINE_RADIUS"
+#endif
+#define COMBINE_SIDE (2 * COMBINE_RADIUS + 1)
+#define COMBINE_AREA (COMBINE_SIDE * COMBINE_SIDE)
 
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 inline float min_f(const float a, const float b) { return a < b ? a : b; }
@@ -54,11 +64,11 @@ __kernel void l_guide(__global const float *restrict p, __global float *restrict
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    __global const float *c = p + (y + 4) * in_w + (x + 4);
+    __global const float *c = p + (y + D_RADIUS) * in_w + (x + D_RADIUS);
 #define P(dy, dx) c[(dy) * in_w + (dx)]
     const float acc = D_SUM(P);
 #undef P
-    dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? c[0] : 2.0f * acc;
+    dst[y * out_w + x] = at_l(y + D_RADIUS + oy, x + D_RADIUS + ox) ? c[0] : 2.0f * acc;
 }
 
 /* m_keep: dst = p on the kernel's window (p on a window larger by p_off): the L/M quincunx m outside
@@ -100,20 +110,20 @@ __kernel void m_at_s_combine(__global const float *restrict p, __global const fl
                              const float m_from_s, const int out_h)
 {
     /* the S site of this work-item's 2 x 4 cell, in output coordinates (image row yc + oy) */
-    const int y = 2 * get_global_id(1) + ((2 + oy + S_Y) & 1);
-    const int x = 4 * get_global_id(0) + ((y + 2 + oy - S_D - 2 - ox) & 3);
+    const int y = 2 * get_global_id(1) + ((COMBINE_RADIUS + oy + S_Y) & 1);
+    const int x = 4 * get_global_id(0) + ((y + COMBINE_RADIUS + oy - S_D - COMBINE_RADIUS - ox) & 3);
     if (y >= out_h || x >= out_w)
         return;
-    const int yc = y + 2, xc = x + 2;
+    const int yc = y + COMBINE_RADIUS, xc = x + COMBINE_RADIUS;
     const int ic = yc * in_w + xc;
     const float pc = p[(yc + p_off) * p_w + xc + p_off];
     const float mf = mfit[ic], sf = sfit[ic];
 #if NOISY
     float e = 0.0f, cnt = 0.0f;
     #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
+    for (int dy = -COMBINE_RADIUS; dy <= COMBINE_RADIUS; ++dy) {
         #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
+        for (int dx = -COMBINE_RADIUS; dx <= COMBINE_RADIUS; ++dx) {
             if (!s_rel(dy, dx) && !l_rel(dy, dx)) {        /* the M sites; compile time (adding 0 * x: no-op) */
                 const float rm = p[(yc + dy + p_off) * p_w + xc + dx + p_off] - mfit[ic + dy * in_w + dx];
                 e += rm * rm;
@@ -156,14 +166,14 @@ __kernel void m_at_s_combine(__global const float *restrict p, __global const fl
     }
     float hf = 0.0f;
     #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
+    for (int dy = -COMBINE_RADIUS; dy <= COMBINE_RADIUS; ++dy) {
         #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
+        for (int dx = -COMBINE_RADIUS; dx <= COMBINE_RADIUS; ++dx) {
             const float dd = yg[iy0 + dy * y_w + dx] - ylpg[il0 + dy * l_w + dx];
             hf += dd * dd;
         }
     }
-    const float e5 = hf * (1.0f / 25.0f);
+    const float e5 = hf * (1.0f / COMBINE_AREA);
     hf = kappa * e5;
     const float total = hf + err_min;
     const float w = total > 0.0f ? hf / total : 0.0f;
@@ -182,13 +192,13 @@ __kernel void lum_lowpass(__global const float *restrict m, __global float *rest
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    __global const float *c = m + (y + 4) * in_w + (x + 4);
+    __global const float *c = m + (y + D_RADIUS) * in_w + (x + D_RADIUS);
 #define P(dy, dx) c[(dy) * in_w + (dx)]
     const float acc = D_SUM(P);
 #undef P
     /* two bitwise-equal forms (scaling by 2 is exact) selected by the lattice: PoCL then vectorises
      * 8 wide, not 4 (measured 3x faster; a lone acc + c / 2 gets 4) */
-    dst[y * out_w + x] = at_l(y + 4 + oy, x + 4 + ox) ? acc + 0.5f * c[0] : (2.0f * acc + c[0]) * 0.5f;
+    dst[y * out_w + x] = at_l(y + D_RADIUS + oy, x + D_RADIUS + ox) ? acc + 0.5f * c[0] : (2.0f * acc + c[0]) * 0.5f;
 }
 
 /* chroma_input: cin = B5 * ((m - ylp) mod), mod = +1 at L sites, -1 elsewhere (the (pi, pi) carrier);
@@ -202,12 +212,12 @@ __kernel void chroma_input(__global const float *restrict m, __global const floa
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    __global const float *mc = m + (y + 6) * m_w + x + 6;
-    __global const float *lc = ylp + (y + 2) * in_w + x + 2;
+    __global const float *mc = m + (y + D_RADIUS + PRE_RADIUS) * m_w + x + D_RADIUS + PRE_RADIUS;
+    __global const float *lc = ylp + (y + PRE_RADIUS) * in_w + x + PRE_RADIUS;
 #define P(dy, dx) (mc[(dy) * m_w + (dx)] - lc[(dy) * in_w + (dx)])
     const float acc = B5_SUM(P);
 #undef P
-    dst[y * out_w + x] = acc * mod_f(y + 2 + oy, x + 2 + ox);
+    dst[y * out_w + x] = acc * mod_f(y + PRE_RADIUS + oy, x + PRE_RADIUS + ox);
 }
 
 /* chroma_guide: dst = ylp + lambda cin on cin's window (ylp's larger by PRE = 2): the chroma
@@ -217,7 +227,7 @@ __kernel void chroma_guide(__global const float *restrict ylp, __global const fl
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    dst[y * out_w + x] = ylp[(y + 2) * ylp_w + x + 2] + lambda * cin[y * out_w + x];
+    dst[y * out_w + x] = ylp[(y + PRE_RADIUS) * ylp_w + x + PRE_RADIUS] + lambda * cin[y * out_w + x];
 }
 
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
@@ -250,14 +260,14 @@ __kernel void lm_energy(__global const float *restrict m, __global const float *
     const float dev = c[i] - chroma_neutral * lk;
     float bp = 0.0f, mean = 0.0f;
     #pragma unroll
-    for (int u = -2; u <= 2; ++u) {
+    for (int u = -COMBINE_RADIUS; u <= COMBINE_RADIUS; ++u) {        /* band-pass taps at 2u: BP_RADIUS */
         #pragma unroll
-        for (int v = -2; v <= 2; ++v) {
-            bp += bp_w[u + 2] * bp_w[v + 2] * lc[2 * u * l_w + 2 * v];
+        for (int v = -COMBINE_RADIUS; v <= COMBINE_RADIUS; ++v) {
+            bp += bp_w[u + COMBINE_RADIUS] * bp_w[v + COMBINE_RADIUS] * lc[2 * u * l_w + 2 * v];
             mean += lc[u * l_w + v];
         }
     }
-    const float ac = lk - mean * (1.0f / 25.0f);
+    const float ac = lk - mean * (1.0f / COMBINE_AREA);
     const int plane = out_w * out_h;
     dst[i] = d * d;
     dst[plane + i] = dev * dev;
@@ -283,23 +293,23 @@ __kernel void lm_output(__global const float *restrict m, __global const float *
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int yc = y + 2, xc = x + 2, ic = yc * in_w + xc;
+    const int yc = y + COMBINE_RADIUS, xc = x + COMBINE_RADIUS, ic = yc * in_w + xc;
     const int il = (yc + l_off) * l_w + xc + l_off;
     const int im = (yc + m_off) * m_w + xc + m_off;
     const int rplane = rows_w * rows_h;
     float e = 0.0f, c2 = 0.0f, e_h = 0.0f, e_ac = 0.0f;
     #pragma unroll
-    for (int j = 0; j < 5; ++j) {
+    for (int j = 0; j < COMBINE_SIDE; ++j) {
         const int k = (y + j) * rows_w + x;
         e += rows[k];
         c2 += rows[rplane + k];
         e_h += rows[2 * rplane + k];
         e_ac += rows[3 * rplane + k];
     }
-    e *= 1.0f / 25.0f;
-    c2 *= 1.0f / 25.0f;
-    e_h *= 1.0f / 25.0f;
-    e_ac *= 1.0f / 25.0f;
+    e *= 1.0f / COMBINE_AREA;
+    c2 *= 1.0f / COMBINE_AREA;
+    e_h *= 1.0f / COMBINE_AREA;
+    e_ac *= 1.0f / COMBINE_AREA;
     const float tone = tonal(e_h, e_ac);
     const float lc = ylp[il];
     const float e_sig = max_f(e - blend_k * (lum_shot * max_f(lc, 0.0f) + lum_floor), 0.0f);
@@ -345,7 +355,7 @@ __kernel void s_output(__global const float *restrict rs, __global const float *
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int yc = y + 3, xc = x + 3;
+    const int yc = y + RI_RADIUS, xc = x + RI_RADIUS;
     __global const float *rc = rs + yc * in_w + xc;
     __global const float *lr = lat + ((yc + oy) & 3) * in_w + xc;
     float num = 0.0f;
@@ -357,9 +367,9 @@ __kernel void s_output(__global const float *restrict rs, __global const float *
 #if NOISY
     float e = 0.0f;
     #pragma unroll
-    for (int dy = -3; dy <= 3; ++dy) {
+    for (int dy = -RI_RADIUS; dy <= RI_RADIUS; ++dy) {
         #pragma unroll
-        for (int dx = -3; dx <= 3; ++dx) {
+        for (int dx = -RI_RADIUS; dx <= RI_RADIUS; ++dx) {
             const float res = rc[dy * in_w + dx];
             e += res * res;
         }
@@ -385,22 +395,22 @@ __kernel void s_tone_energy(__global const float *restrict lms, __global float *
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int plane = in_w * in_h, ic = (y + 2) * in_w + x + 2;
+    const int plane = in_w * in_h, ic = (y + COMBINE_RADIUS) * in_w + x + COMBINE_RADIUS;
     float hx = 0.0f, hy = 0.0f, mean = 0.0f;
     #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
+    for (int dy = -COMBINE_RADIUS; dy <= COMBINE_RADIUS; ++dy) {
         #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
+        for (int dx = -COMBINE_RADIUS; dx <= COMBINE_RADIUS; ++dx) {
             const int k = ic + dy * in_w + dx;
             const float lum = 0.5f * (lms[k] + lms[plane + k]);
             mean += lum;
-            if (dy >= -1 && dy <= 1 && dx >= -1 && dx <= 1) {       /* resolved at compile time */
-                hx += hp[(dy + 1) * 3 + dx + 1] * lum;
-                hy += hp[(dx + 1) * 3 + dy + 1] * lum;
+            if (dy >= -HP_RADIUS && dy <= HP_RADIUS && dx >= -HP_RADIUS && dx <= HP_RADIUS) {   /* compile time */
+                hx += hp[(dy + HP_RADIUS) * (2 * HP_RADIUS + 1) + dx + HP_RADIUS] * lum;
+                hy += hp[(dx + HP_RADIUS) * (2 * HP_RADIUS + 1) + dy + HP_RADIUS] * lum;
             }
         }
     }
-    const float ac = 0.5f * (lms[ic] + lms[plane + ic]) - mean * (1.0f / 25.0f);
+    const float ac = 0.5f * (lms[ic] + lms[plane + ic]) - mean * (1.0f / COMBINE_AREA);
     const int i = y * out_w + x;
     dst[i] = hx * hx + hy * hy;
     dst[out_w * out_h + i] = ac * ac;
@@ -418,27 +428,27 @@ __kernel void s_alias(__global const float *restrict lms, __global const float *
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int plane = in_w * in_h, ic = (y + 4) * in_w + x + 4;
+    const int plane = in_w * in_h, ic = (y + S_ALIAS_RADIUS) * in_w + x + S_ALIAS_RADIUS;
     float s2 = 0.0f;
     #pragma unroll
-    for (int dy = -2; dy <= 2; ++dy) {
+    for (int dy = -COMBINE_RADIUS; dy <= COMBINE_RADIUS; ++dy) {
         #pragma unroll
-        for (int dx = -2; dx <= 2; ++dx) {
+        for (int dx = -COMBINE_RADIUS; dx <= COMBINE_RADIUS; ++dx) {
             const int k = ic + dy * in_w + dx;
             const float sd = lms[2 * plane + k] - s_from_m * lms[plane + k];
             s2 += sd * sd;
         }
     }
-    s2 *= 1.0f / 25.0f;
+    s2 *= 1.0f / COMBINE_AREA;
     float e_ax = 0.0f, e_ac = 0.0f;
     #pragma unroll
-    for (int j = 0; j < 5; ++j) {
+    for (int j = 0; j < COMBINE_SIDE; ++j) {
         e_ax += rows[(y + j) * rows_w + x];
         e_ac += rows[rows_w * rows_h + (y + j) * rows_w + x];
     }
-    e_ax *= 1.0f / 25.0f;
-    e_ac *= 1.0f / 25.0f;
-    const float e_sig = lm[2 * lm_w * lm_h + (y + 4 + lm_off) * lm_w + x + 4 + lm_off];
+    e_ax *= 1.0f / COMBINE_AREA;
+    e_ac *= 1.0f / COMBINE_AREA;
+    const float e_sig = lm[2 * lm_w * lm_h + (y + S_ALIAS_RADIUS + lm_off) * lm_w + x + S_ALIAS_RADIUS + lm_off];
     const float alias = alias_s * e_sig + alias_st * tonal(e_ax, e_ac);
     const float mn = s_from_m * lms[plane + ic];
     const int i = y * out_w + x, out_plane = out_w * out_h;

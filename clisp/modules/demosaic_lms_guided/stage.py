@@ -585,7 +585,9 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         them: it is folded into the origin (``_origin``), so all phases share the programs. The guided
         filters' kernels (clisp/modules/common/guided_filter.cl) get LATTICE and their radius instead."""
         return {**LATTICE, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional),
-                "TONE_POWER": TONE_POWER}
+                "TONE_POWER": TONE_POWER, "D_RADIUS": D_RADIUS, "PRE_RADIUS": PRE_RADIUS,
+                "COMBINE_RADIUS": COMBINE_RADIUS, "RI_RADIUS": RI_RADIUS, "BP_RADIUS": BP_RADIUS,
+                "HP_RADIUS": AXIAL_HP.shape[0] // 2, "S_ALIAS_RADIUS": S_ALIAS_RADIUS}
 
     def _origin(self, origin: tuple[int, int]) -> tuple[np.int32, np.int32]:
         """Kernel arguments (oy, ox) for image ``origin``: shifted by the translation that maps this CFA
@@ -774,15 +776,16 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         lms = self.enqueue_s_output(rt, src, origin, g, o_g, lm, 2 * rs + RI_RADIUS)
         out_h, out_w = lms.height, lms.width
         rt.release(g)
-        tone = rt.acquire(2, out_h - 4, out_w - 4)
-        self._launch(rt, "s_tone_energy", out_w - 4, out_h - 4, lms.buffer, tone.buffer, i32(out_w), i32(out_h),
-                     i32(out_w - 4), i32(out_h - 4), rt.constant(as_f32(AXIAL_HP.ravel())))
-        rows = enqueue_box(rt, tone, 0, 2, release_src=True)                 # sums along x
+        tone_h, tone_w = out_h - 2 * COMBINE_RADIUS, out_w - 2 * COMBINE_RADIUS
+        tone = rt.acquire(2, tone_h, tone_w)
+        self._launch(rt, "s_tone_energy", tone_w, tone_h, lms.buffer, tone.buffer, i32(out_w), i32(out_h),
+                     i32(tone_w), i32(tone_h), rt.constant(as_f32(AXIAL_HP.ravel())))
+        rows = enqueue_box(rt, tone, 0, COMBINE_RADIUS, release_src=True)    # sums along x
         fin_h, fin_w = out_h - 2 * S_ALIAS_RADIUS, out_w - 2 * S_ALIAS_RADIUS
         dst = rt.acquire(3, fin_h, fin_w)
         self._launch_named(rt, "s_alias", fin_w, fin_h, dict(
             lms=lms, lm=lm, rows=rows, dst=dst, in_w=out_w, in_h=out_h, lm_w=lm.width, lm_h=lm.height,
-            lm_off=2 * rs + RI_RADIUS, rows_w=rows.width, rows_h=out_h - 4, out_w=fin_w, out_h=fin_h,
+            lm_off=2 * rs + RI_RADIUS, rows_w=rows.width, rows_h=tone_h, out_w=fin_w, out_h=fin_h,
             s_from_m=self.s_from_m, alias_s=prm.alias_s, alias_st=prm.alias_st))
         rt.release(lms)
         rt.release(rows)

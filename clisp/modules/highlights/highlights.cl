@@ -355,9 +355,6 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
 
 /* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast); MATRIX 1 then
  * applies the 3 x 3 matrix m (the colour matrix that follows, fused). Halo 0. */
-#ifndef MATRIX
-#define MATRIX 0
-#endif
 __kernel void hl_clamp(__global const float *restrict src, __global float *restrict dst, const int width,
                        const int height, const float cap0, const float cap1, const float cap2,
                        __constant const float *restrict m)

@@ -1,9 +1,6 @@
 /* Per-pixel steps on the raw mosaic (before demosaic). */
 
 /* RAW_T (define from the host): the input sample type, ushort for quantised raws, float otherwise. */
-#ifndef RAW_T
-#define RAW_T float
-#endif
 
 /* cfa_affine: dst = (src - offset[c]) * scale[c], c the CFA channel of the pixel. Halo 0.
  * Black/white normalisation (offset = black, scale = 1/(white - black)) and white balance
