@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import os
+import re
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -44,6 +45,15 @@ def kernel_sources() -> dict[str, Path]:
 
 
 _SOURCES: dict[str, Path] | None = None
+
+
+def with_headers(text: str) -> str:
+    """``text`` with each line ``#include "name.h"`` replaced by that header's text (kernel_path), so
+    that the program cache and PoCL's own cache see every source they compile (no -I path)."""
+    return _INCLUDE.sub(lambda m: kernel_path(m.group(1)).read_text(), text)
+
+
+_INCLUDE = re.compile(r'^#include "([\w.]+\.h)"[ \t]*$', re.MULTILINE)
 
 
 def kernel_path(file_name: str) -> Path:
@@ -213,7 +223,7 @@ class Runtime:
         if key not in self._programs:
             path = kernel_path(f"{name}.cl")
             try:
-                source = "\n".join([kernel_path("common.h").read_text(), generated, path.read_text()])
+                source = "\n".join([kernel_path("common.h").read_text(), generated, with_headers(path.read_text())])
             except OSError as exc:
                 raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
             try:

@@ -10,7 +10,10 @@ side. It has two faces with the same meaning:
 
 ``origin`` is the image coordinate of the input window's pixel (0, 0). It may be negative near the
 image edge: the tiler pads the raw input once (CFA-preserving mirror, see tiling.py), so a stage
-never special-cases borders and tiled output equals whole-image output.
+never special-cases borders and tiled output equals whole-image output. The image's extent belongs
+to the planners: a stage sees windows and origins only. The one stage with its own edge rule, the
+skip path's flat demosaic (point-reflected cells instead of mirrored pixels), is built by the skip
+planner (clisp/skip.py, which holds the raw) with the image's shape as a parameter.
 """
 from __future__ import annotations
 

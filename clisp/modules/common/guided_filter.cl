@@ -20,6 +20,8 @@
  * No kernel checks bounds: the host launches whole work-groups only and covers a ragged right or
  * bottom edge by shifting the last launch inward (runtime.launch_exact); bodies are branch-free. */
 
+#include "guided.h"
+
 inline float max_f(const float a, const float b) { return a > b ? a : b; }
 
 /* ---- Fused strip kernels (what enqueue_guided_filter runs): the same sums in the same order as the
@@ -94,20 +96,13 @@ __kernel void gf_ab_strip(__global const float *restrict guide, __global const f
             const int idx = (y0 + o) * out_w + x;
             #pragma unroll
             for (int f = 0; f < GF_FITS; ++f) {
-                float tn = 0.0f, t1 = 0.0f, t2 = 0.0f, tv = 0.0f, tdv = 0.0f;
+                /* the rows' sums moved to the centre row's guide value; v stays uncentred (dy = 0) */
+                gf_moments t = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
                 #pragma unroll
-                for (int j = o; j <= i; ++j) {
-                    const float delta = rc[j] - cc;
-                    tn += rn[f][j];
-                    t1 += r1[f][j] + rn[f][j] * delta;
-                    t2 += r2[f][j] + delta * (2.0f * r1[f][j] + rn[f][j] * delta);
-                    tv += rv[f][j];
-                    tdv += rdv[f][j] + delta * rv[f][j];
-                }
-                const float inv_n = 1.0f / tn;
-                const float mean_d = t1 * inv_n, mu_v = tv * inv_n;
-                const float var = t2 * inv_n - mean_d * mean_d;
-                const float cov = tdv * inv_n - mean_d * mu_v;
+                for (int j = o; j <= i; ++j)
+                    gf_add_moved(&t, rn[f][j], r1[f][j], rv[f][j], r2[f][j], 0.0f, rdv[f][j], rc[j] - cc, 0.0f);
+                float mean_d, mu_v, var, var_v, cov;
+                gf_centred_stats(&t, 1.0f / t.n, &mean_d, &mu_v, &var, &var_v, &cov);
                 const float mu_i = cc + mean_d;
                 const float level = GF_LEVEL_GUIDE ? mu_i : mu_v;
                 const float a = cov / (var + eps0 + (f == 0 ? shot : shot2) * max_f(level, 0.0f)

@@ -57,6 +57,15 @@ inline float alias_gain(const float energy, const float alias)
 /* The (pi, pi) carrier: +1 at L sites, -1 elsewhere (at_l: common.h, from the defines L_PAR, S_Y, S_D). */
 inline float mod_f(const int y, const int x) { return at_l(y, x) ? 1.0f : -1.0f; }
 
+/* The off-centre taps of the diamond D (D_SUM's literal weights) around c, a pointer to the centre
+ * pixel of an image of row pitch in_w. */
+__attribute__((always_inline)) inline float d_offcentre(__global const float *restrict c, const int in_w)
+{
+#define P(dy, dx) c[(dy) * in_w + (dx)]
+    return D_SUM(P);
+#undef P
+}
+
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
  * on L sites only: the L quincunx interpolated); D's weights are D_SUM's literals (d is unread). R = 4. */
 __kernel void l_guide(__global const float *restrict p, __global float *restrict dst, const int in_w, const int out_w,
@@ -65,9 +74,7 @@ __kernel void l_guide(__global const float *restrict p, __global float *restrict
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = p + (y + D_RADIUS) * in_w + (x + D_RADIUS);
-#define P(dy, dx) c[(dy) * in_w + (dx)]
-    const float acc = D_SUM(P);
-#undef P
+    const float acc = d_offcentre(c, in_w);
     dst[y * out_w + x] = at_l(y + D_RADIUS + oy, x + D_RADIUS + ox) ? c[0] : 2.0f * acc;
 }
 
@@ -193,9 +200,7 @@ __kernel void lum_lowpass(__global const float *restrict m, __global float *rest
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     __global const float *c = m + (y + D_RADIUS) * in_w + (x + D_RADIUS);
-#define P(dy, dx) c[(dy) * in_w + (dx)]
-    const float acc = D_SUM(P);
-#undef P
+    const float acc = d_offcentre(c, in_w);
     /* two bitwise-equal forms (scaling by 2 is exact) selected by the lattice: PoCL then vectorises
      * 8 wide, not 4 (measured 3x faster; a lone acc + c / 2 gets 4) */
     dst[y * out_w + x] = at_l(y + D_RADIUS + oy, x + D_RADIUS + ox) ? acc + 0.5f * c[0] : (2.0f * acc + c[0]) * 0.5f;
