@@ -56,7 +56,7 @@ def kernel_path(file_name: str) -> Path:
 
 def _import_cl() -> Any:
     try:
-        import pyopencl as cl
+        import pyopencl as cl    # deferred: OpenCL starts on first use, not at `import clisp`
     except ImportError as exc:  # pragma: no cover - dependency missing
         raise ClispError("pyopencl is not installed; run: pip install pyopencl pocl-binary-distribution") from exc
     return cl

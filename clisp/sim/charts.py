@@ -29,7 +29,7 @@ def _colour():
     """Import colour-science lazily (about 0.6 s) and without its matplotlib warning."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
+        import colour            # deferred: colour-science costs about 0.6 s of start-up
     return colour
 
 

@@ -14,15 +14,21 @@ white-preserving least squares from white-balanced responses to true sRGB over t
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .charts import BACKGROUND, colorchecker
+from .charts import BACKGROUND, central_box, colorchecker
 from .colorimetry import XYZ_TO_SRGB
+from .noise import NoiseModel, check_gain
+from .optics import apply_optics
+from .simulate import SimResult, _check_seed, _metadata, _optics_kernel, optics_and_mosaic, resolve_cfa
 from ..errors import ClispError
+from ..io.rawimage import RawImage
+from ..metrics import linear_srgb_to_lab
 
 WAVELENGTHS = np.arange(400, 701, 10)
 """Integration grid in nm (SPEC.md: the D100 data are given at 400..700 nm, step 10)."""
@@ -42,10 +48,9 @@ REFLECTANCE_SOURCES = ("colour", "isetcam")
 
 
 def _colour():
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
+        import colour            # deferred: colour-science costs about 0.6 s of start-up
     return colour
 
 
@@ -99,7 +104,7 @@ ISETCAM_ORDER = [col * 4 + row for row in range(4) for col in range(6)]
 def _isetcam_reflectances(path: Path) -> np.ndarray:
     """ISETCam's macbethChart.mat (wavelength column + 24 reflectances, column-major chart order)
     resampled to WAVELENGTHS, in reading order."""
-    from scipy.io import loadmat
+    from scipy.io import loadmat       # deferred: scipy costs 0.15 s of start-up
     if not path.is_file():
         raise ClispError(f"{path}: no such file (ISETCam Macbeth reflectances)")
     mat = loadmat(str(path))
@@ -197,11 +202,6 @@ def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str |
     inverse ISP; WB from the simulated white; colour matrix fitted (see module docstring); truth =
     the chart's true linear sRGB through the same optics. Returns a SimResult.
     """
-    from .noise import NoiseModel, check_gain
-    from .optics import apply_optics
-    from ..io.rawimage import RawImage
-    from .simulate import SimResult, _check_seed, _metadata, _optics_kernel, optics_and_mosaic, resolve_cfa
-
     cfa_obj = resolve_cfa(cfa)
     noise = noise or NoiseModel()
     chart = spectral_colorchecker(cfa_obj.kind, source, data)
@@ -227,9 +227,6 @@ def patch_delta_e(output: np.ndarray, truth: np.ndarray, rois: list[tuple[int, i
                   central: int = 32) -> np.ndarray:
     """CIEDE2000 per patch between the mean colours of the central ``central`` x ``central`` of each
     ROI in ``output`` and ``truth`` (both H x W x 3 linear sRGB), shape (len(rois),)."""
-    from .charts import central_box
-    from ..metrics import linear_srgb_to_lab
-
     def means(image: np.ndarray) -> np.ndarray:
         boxes = [central_box(r, central) for r in rois]
         return np.stack([image[y0:y1, x0:x1].reshape(-1, 3).mean(axis=0) for y0, y1, x0, x1 in boxes])

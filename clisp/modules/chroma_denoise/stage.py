@@ -70,8 +70,11 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import ClispError
-from ...engine.runtime import DeviceImage, Runtime
+from ...engine.profile import stage_label
+from ...engine.runtime import DeviceImage, Runtime, get_runtime
+from ...noise_estimate import raw_noise
 from ..base import Stage, as_f32
+from ..colour.stage import ColourMatrix
 
 BT601 = np.array([0.299, 0.587, 0.114])
 """BT.601 luma weights of R, G, B."""
@@ -579,7 +582,6 @@ class ChromaDenoise(Stage):
         """A following colour matrix M (e.g. white balance pass 2) folds into the merge:
         M (from_luma Y + from_chroma c) = (M from_luma) Y + (M from_chroma) c. Y, c and the
         denoising are unchanged."""
-        from ..colour.stage import ColourMatrix
         if not isinstance(following, ColourMatrix) or self.interleaved:
             return None
         m = np.asarray(following.matrix, dtype=np.float64)
@@ -794,8 +796,6 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, backend: str) -> np.ndarra
     by its NumPy reference (float64) or its OpenCL kernels (float32, returned as float64)."""
     if backend == "reference":
         return demosaic.reference(mosaic, (0, 0))
-    from ...engine.profile import stage_label
-    from ...engine.runtime import get_runtime
     rt = get_runtime()
     stage_label("noise calibration (pipeline set-up)")
     src = rt.upload(np.ascontiguousarray(mosaic, dtype=np.float32))
@@ -857,9 +857,6 @@ def chroma_denoise_for(raw, demosaic: Stage, params: ChromaDenoiseParams | None 
     raw has no noise (noiseless simulation) the plain ``ColourMatrix``, which the denoiser would
     equal anyway (so noiseless output is unchanged, and linear demosaics still fuse with it).
     """
-    from ...noise_estimate import raw_noise
-    from ..colour.stage import ColourMatrix
-
     params = params or ChromaDenoiseParams()
     noise = raw_noise(raw) if noise is None else noise
     if is_noiseless(noise) or params.noise_scale == 0:
@@ -872,8 +869,6 @@ def chroma_denoise_for(raw, demosaic: Stage, params: ChromaDenoiseParams | None 
 def calibration_backend() -> str:
     """'opencl' when an OpenCL device can be had (the calibration then runs the demosaic's
     kernels), else 'reference' (a machine without OpenCL can still build a pipeline)."""
-    from ...errors import ClispError
-    from ...engine.runtime import get_runtime
     try:
         get_runtime()
     except ClispError:
