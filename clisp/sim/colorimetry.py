@@ -1,4 +1,4 @@
-"""Colour constants of the paper and the sRGB transfer functions (SPEC.md sections 0 and 2).
+"""Colour constants of the paper and the sRGB transfer functions (docs/model.md: conventions and section 4).
 
 All matrices map white-balanced camera values to linear sRGB (D65), column vectors.
 """

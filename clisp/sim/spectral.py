@@ -1,11 +1,11 @@
-"""Spectral scenes: raws simulated from reflectance spectra, not from sRGB (SPEC.md sections 2, 3).
+"""Spectral scenes: raws simulated from reflectance spectra, not from sRGB (docs/model.md sections 2 and 5).
 
 A spectral ColorChecker under D65 is seen by a camera with spectral sensitivities s_c:
 ``r_c = sum_lambda R(lambda) E(lambda) (lambda / 555) s_c(lambda)`` (photon counting), normalised so
 the brightest channel of a perfect white is 1. LMS = Stockman & Sharpe 2-degree cone fundamentals
-(energy-based, hence the lambda factor); Bayer = the Nikon D100 quantum efficiencies of SPEC.md
-section 2(c), the same way. Ground truth is the scene's true colour: CIE 1931 XYZ under D65 (Y of
-a perfect white = 1) in linear sRGB.
+(energy-based, hence the lambda factor); Bayer = the Nikon D100 quantum efficiencies (``D100_QE``,
+from ISETCam's sensor data, per photon), the same way. Ground truth is the scene's true colour:
+CIE 1931 XYZ under D65 (Y of a perfect white = 1) in linear sRGB.
 
 Because a chart is flat patches and every colour step is linear per pixel, the scene is carried as
 an image of camera responses; the optics blur it exactly as they would blur the raw channels.
@@ -31,7 +31,7 @@ from ..io.rawimage import RawImage
 from ..metrics import linear_srgb_to_lab
 
 WAVELENGTHS = np.arange(400, 701, 10)
-"""Integration grid in nm (SPEC.md: the D100 data are given at 400..700 nm, step 10)."""
+"""Integration grid in nm (the D100 data are given at 400..700 nm, step 10)."""
 
 D100_QE = np.array([
     [.013, .018, .116], [.011, .023, .229], [.009, .025, .307], [.005, .038, .373], [.007, .057, .483],
@@ -41,7 +41,7 @@ D100_QE = np.array([
     [.645, .149, .000], [.531, .048, .001], [.424, .016, .002], [.293, .010, .000], [.215, .000, .000],
     [.142, .004, .000], [.093, .001, .000], [.062, .000, .000], [.033, .006, .000], [.026, .000, .000],
     [.013, .003, .000]])
-"""Nikon D100 relative quantum efficiency (per photon), R, G, B at WAVELENGTHS (SPEC.md 2(c))."""
+"""Nikon D100 relative quantum efficiency (per photon), R, G, B at WAVELENGTHS (ISETCam's D100 data)."""
 
 SPECTRAL_KINDS = ("lms", "bayer")
 REFLECTANCE_SOURCES = ("colour", "isetcam")
@@ -196,7 +196,7 @@ def spectral_colorchecker(kind: str, source: str = "colour", data: str | Path | 
 def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str | None = "airy",
                       seed: int | None = 0, r0: float = 1.0, source: str = "colour",
                       data: str | Path | None = None, noise=None):
-    """Simulate a raw of the spectral ColorChecker (SPEC.md section 3, spectral path).
+    """Simulate a raw of the spectral ColorChecker (the spectral path).
 
     Like :func:`clisp.sim.simulate.simulate`, but the scene is camera responses from spectra: no
     inverse ISP; WB from the simulated white; colour matrix fitted (see module docstring); truth =

@@ -1,4 +1,4 @@
-"""Luminance-guided multiresolution chroma denoising (SPEC.md section 6), replacing the colour matrix.
+"""Luminance-guided multiresolution chroma denoising, replacing the colour matrix.
 
 The paper (section "Chrominance Denoising") converts white-balanced camera channels to a
 luminance and chrominance space, denoises only the chrominance, and converts to sRGB::
@@ -187,7 +187,7 @@ def space_for(kind: str, matrix: np.ndarray, strengths: Sequence[float] | None =
 
 @dataclass(frozen=True)
 class ChromaDenoiseParams:
-    """Parameters of :class:`ChromaDenoise`; defaults are SPEC section 6's decisions.
+    """Parameters of :class:`ChromaDenoise`; defaults are our choices where the paper is silent (README.md).
 
     Units: signal values are linear (white ~ 1); radii and sigma_d in pixels of the level.
     """

@@ -1,7 +1,7 @@
 """Guided LMS demosaic: guided-filter residuals for M at S sites, guided chroma, and a noise-driven
 LMMSE luminance blend (issue 3; default candidate for LMS raws).
 
-Why: with paper eq. (1), R = 0.86 Y + 8.6 C + 0.14 S (Y = (L+M)/2, C = (L-M)/2, SPEC.md section 2a),
+Why: with paper eq. (1), R = 4.73 L - 3.87 M + 0.14 S = 0.86 Y + 8.6 C + 0.14 S (Y = (L+M)/2, C = (L-M)/2),
 so every L/M separation error reaches red amplified 8.6x. The hybrid of Fig. 5 (``demosaic_lms``)
 low-passes the luminance and keeps the chroma within a 9 x 9 binomial; this stage instead keeps every
 measured L/M sample, estimates the chroma by a guided filter (edges of the chroma follow edges of the
