@@ -362,8 +362,8 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
 
     # -- OpenCL ---------------------------------------------------------------------------------
     def defines(self) -> dict[str, int | float]:
-        select = SELECTS.index(self.params.select)
         """Compile-time constants of clisp/modules/demosaic_lms/demosaic_lms.cl (see its header)."""
+        select = SELECTS.index(self.params.select)
         return {"CFA_PERIOD": self.cfa.period, "CH_L": self.ch_l, "CH_M": self.ch_m, "CH_S": self.ch_s,
                 "SELECT": select, "NOISY": int(self.noise is not None), "LUM_R": LUM_RADIUS,
                 "CHROMA_R": CHROMA_RADIUS, "BL_R": self.params.bl_radius,
