@@ -11,7 +11,7 @@ from __future__ import annotations
 
 # The public API, imported eagerly (OpenCL itself starts only on first use). The layers below it:
 # clisp.engine (runtime, tiling, streaming), clisp.io (raw files, EXIF, image writers), clisp.sim
-# (the simulator), clisp.stages (the processing stages), clisp.pipeline (stages into a run).
+# (the simulator), clisp.modules (the processing stages), clisp.pipeline (stages into a run).
 from .io.rawfile import read_raw, write_raw
 from .pipeline import process
 from .sim.simulate import simulate

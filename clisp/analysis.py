@@ -35,6 +35,7 @@ from .sim.noise import ChannelNoise
 from . import noise_estimate
 from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD
 from .io.rawimage import RawImage
+from .modules.chroma_denoise.stage import space_for
 
 BLOCK = 64
 """Side of the analysis blocks (px): a multiple of every CFA period and of the denoiser's 2^J
@@ -158,7 +159,6 @@ class SceneAnalysis:
 
 def _luma_chroma(raw: RawImage) -> tuple[np.ndarray, np.ndarray]:
     """(luma (n_ch,), chroma (k, n_ch)) weights on WB'd camera channels: the chroma denoiser's space."""
-    from .modules.chroma_denoise.stage import space_for
     try:
         space = space_for(raw.cfa.kind, raw.colour_matrix)
         return space.luma, space.chroma

@@ -5,7 +5,7 @@ stage is written against this description, never against a hard-coded layout:
 the channel of pixel (y, x) is ``pattern[y % p, x % p]`` (row ``y`` down,
 column ``x`` right, (0, 0) top-left).
 
-The paper's LMS pattern (SPEC.md section 1), phase (0, 0)::
+The paper's LMS pattern (docs/model.md section 1), phase (0, 0)::
 
     y\\x 0 1 2 3
     0    L M L S

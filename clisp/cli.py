@@ -14,6 +14,7 @@ import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -21,8 +22,17 @@ import numpy as np
 
 from .version import __version__
 from .errors import ClispError, clip, error_line
+from .engine import profile as engine_profile
 from .engine.profile import host_timer
+from .engine.runtime import get_runtime, list_devices
+from .engine.streaming import progress_bar
 from .engine.tiling import Tile
+from .io.rawfile import raw_band_writer, raw_info, read_raw, write_raw
+from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS, denoise_params,
+                       process_file, resolve_options)
+from .sim.simulate import simulate, simulate_large
+# The modules above are loaded by `import clisp` anyway; the commands import the others where
+# they use them, to keep `import clisp.cli` light (issue 11).
 
 _LOADED = time.perf_counter()
 
@@ -55,7 +65,6 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    from .pipeline import DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS
     p = sub.add_parser("process", help="process a raw (ours or a camera's) into an image",
                        description="OUT by extension: .exr linear sRGB float; .tif/.tiff/.png 16-bit sRGB-encoded.")
     p.add_argument("raw", help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy)")
@@ -103,8 +112,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_batch(sub: argparse._SubParsersAction) -> None:
-    from .batch import FORMATS
-    from .pipeline import DEFAULT_PRESET, DEMOSAICS, PRESETS
+    from .batch import FORMATS                  # deferred: clisp.batch (hashlib, uuid) costs 9 ms of start-up
     p = sub.add_parser("batch", help="process many raws (files or folders) in parallel on Dask, resumably",
                        description="Writes OUTDIR/<input stem>.<format> and OUTDIR/manifest.jsonl (one record per "
                                    "file and attempt). A re-run skips outputs finished with the same settings. "
@@ -155,9 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .io.imageio import read_scene, write_image
-    from .io.rawfile import write_raw
-    from .sim.simulate import simulate
+    from .io.imageio import read_scene, write_image     # deferred: clisp.io.imageio costs 2 ms of start-up
     _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
@@ -182,9 +188,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
     """``simulate --spectral colorchecker``: the spectral path (clisp.sim.spectral)."""
-    from .io.imageio import write_image
-    from .io.rawfile import write_raw
-    from .sim.spectral import simulate_spectral
+    from .io.imageio import write_image                 # deferred: 2 ms of start-up
+    from .sim.spectral import simulate_spectral         # deferred: with sim.charts 4 ms of start-up
     if args.size:
         raise ClispError("--size repeats a scene file; it does not apply to --spectral")
     source = "isetcam" if args.reflectances else "colour"
@@ -203,10 +208,7 @@ def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
 def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | None) -> int:
     """``simulate --size``: bands computed one after another, each written (raw and truth) on a
     writer thread while the next is computed; two bands in memory at most."""
-    from .io.imageio import ImageWriter
-    from .io.rawfile import raw_band_writer
-    from .sim.simulate import simulate_large
-    from .engine.streaming import progress_bar
+    from .io.imageio import ImageWriter                 # deferred: 2 ms of start-up
     width, height = args.size
     sim = simulate_large(scene, (height, width), cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
     sim.header.metadata["scene"] = Path(args.scene).name
@@ -233,9 +235,7 @@ def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | N
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from .io.imageio import check_compression, output_kind
-    from .pipeline import process_file, resolve_options
-    from .io.rawfile import read_raw
+    from .io.imageio import check_compression, output_kind      # deferred: 2 ms of start-up
     output_kind(args.output)
     resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
     if args.compression:
@@ -257,7 +257,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
     if args.explain:
-        from .skip import explain_run
+        from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         print(explain_run(explained.get("pipeline"), stats, profile))
     if profile is not None and args.profile:
         wall = _process_seconds()
@@ -267,7 +267,7 @@ def cmd_process(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    from .batch import BatchSettings, run_batch, summary_line
+    from .batch import BatchSettings, run_batch, summary_line   # deferred: 9 ms of start-up
     if args.workers is not None and args.workers < 1:
         raise ClispError(f"--workers {args.workers}: at least 1")
     if args.workers is not None and args.scheduler:
@@ -299,11 +299,9 @@ def _process_seconds() -> float:
 
 def _start_profile() -> "object":
     """Profiling runtime and a fresh clisp.engine.profile.Profile; notes the start-up time so far."""
-    from .engine import profile
-    from .engine.runtime import get_runtime
     get_runtime(profiling=True)
     _STARTUP["s"] = _process_seconds()
-    return profile.start()
+    return engine_profile.start()
 
 
 def _denoise_option(args: argparse.Namespace) -> "bool | None | object":
@@ -312,8 +310,6 @@ def _denoise_option(args: argparse.Namespace) -> "bool | None | object":
         return False
     if args.denoise_scale == 1.0 and args.chroma_strengths is None:
         return None                                   # the preset decides
-    from dataclasses import replace
-    from .pipeline import PRESETS, DEFAULT_PRESET, denoise_params
     if args.denoise_scale < 0:
         raise ClispError(f"--denoise-scale {args.denoise_scale:g}: must be >= 0")
     try:
@@ -328,7 +324,6 @@ def cmd_info(args: argparse.Namespace) -> int:
     if args.device:
         _print_devices()
     if args.raw:
-        from .io.rawfile import raw_info
         info = raw_info(args.raw)
         if args.json:
             print(json.dumps(info, indent=2, default=_json_value))
@@ -341,13 +336,12 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .demo import run_demo
+    from .demo import run_demo                          # deferred: demo loads imageio, metrics, charts (6 ms)
     run_demo(Path(args.out))
     return 0
 
 
 def _print_devices() -> None:
-    from .engine.runtime import get_runtime, list_devices
     for pi, di, platform, device in list_devices():
         print(f"  {pi}:{di}  {platform.name} / {device.name.strip()}")
     print(f"clisp uses: {get_runtime().describe()}  (set CLISP_DEVICE to choose)")

@@ -1,4 +1,4 @@
-"""Quality metrics (SPEC.md section 8): PSNR, gray-panel SNR and CIEDE2000.
+"""Quality metrics (docs/model.md section 5): PSNR, gray-panel SNR and CIEDE2000.
 
 Inputs are H x W x 3 LINEAR sRGB (D65) arrays, white = 1.0. Boxes are ``(y0, y1, x0, x1)``.
 """
@@ -34,13 +34,13 @@ def _crop(image: np.ndarray, border: int, region: Box | None) -> np.ndarray:
 
 
 def tone_map(image: np.ndarray) -> np.ndarray:
-    """SPEC §0 tone map: clip to [0, 1], then sRGB-encode. Same shape."""
+    """The tone map (docs/model.md, conventions): clip to [0, 1], then sRGB-encode. Same shape."""
     return srgb_encode(np.clip(image, 0.0, 1.0))
 
 
 def psnr(output: np.ndarray, truth: np.ndarray, border: int = 10, tone_mapped: bool = True,
          region: Box | None = None) -> float:
-    """PSNR in dB = 10 log10(1 / MSE), MSE over all pixels and the 3 channels (SPEC §8).
+    """PSNR in dB = 10 log10(1 / MSE), MSE over all pixels and the 3 channels (docs/model.md section 5).
 
     Both images are clipped to [0, 1]; with ``tone_mapped`` they are then sRGB-encoded, otherwise the
     score is in the linear domain. ``border`` px are cropped on every side of the full image; a
@@ -74,7 +74,8 @@ def panel_snr(output: np.ndarray, rois: list[Box]) -> np.ndarray:
 
 
 def gray_panel_snr(output: np.ndarray, gray_rois: list[Box]) -> np.ndarray:
-    """(len(gray_rois),) gray-panel SNR in dB: panel_snr averaged over R, G, B (SPEC §8, Table 2)."""
+    """(len(gray_rois),) gray-panel SNR in dB: panel_snr averaged over R, G, B (docs/model.md
+    section 5; the paper's Table 2)."""
     return panel_snr(output, gray_rois).mean(axis=1)
 
 
@@ -82,7 +83,7 @@ def _colour():
     """Import colour-science lazily and without its matplotlib warning."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
+        import colour            # deferred: colour-science costs about 0.6 s of start-up
     return colour
 
 

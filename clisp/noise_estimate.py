@@ -1,7 +1,7 @@
 """Per-channel noise of the white-balanced raw: from the sensor model, or estimated from the raw.
 
 Both give a :class:`ChannelNoise`, the affine variance of one white-balanced, normalised sample of
-CFA channel c at expected level s (SPEC.md section 3)::
+CFA channel c at expected level s (docs/model.md section 3)::
 
     var_c(s) = shot[c] * max(s, 0) + floor[c]          units: (white-balanced normalised raw)^2
 

@@ -48,6 +48,11 @@ import numpy as np
 
 from .analysis import SceneAnalysis, analyse
 from .engine.tiling import Tile, TilePlan
+from .errors import ClispError
+from .modules.chroma_denoise.stage import ChromaDenoise
+from .modules.colour.stage import ColourMatrix
+from .modules.demosaic_flat.stage import DemosaicFlat
+from .modules.highlights.stage import HighlightClamp, Highlights
 
 PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT = "full", "light", "none", "flat"
 PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT)
@@ -180,7 +185,6 @@ def visible_chroma_noise(denoiser: Any, analysis: SceneAnalysis) -> np.ndarray:
 def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
     """``stage`` (a ChromaDenoise) with ``levels`` Haar levels: its noise table's first levels
     (the calibration measures every level on the same fields, so the prefix is exact)."""
-    from .modules.chroma_denoise.stage import ChromaDenoise
     levels = min(levels, stage.params.levels)
     return ChromaDenoise(stage.space, stage.noise.prefix(levels), replace(stage.params, levels=levels),
                          stage.interleaved)
@@ -189,8 +193,6 @@ def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
 def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
     """The flat path's DemosaicFlat for ``cfa`` and an image of ``shape`` (H, W), or None where it
     does not apply (not 3 channels)."""
-    from .errors import ClispError
-    from .modules.demosaic_flat.stage import DemosaicFlat
     try:
         return DemosaicFlat(cfa, image_shape=(int(shape[0]), int(shape[1])))
     except ClispError:
@@ -199,14 +201,12 @@ def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
 
 def plain_colour(stage: Any) -> Any:
     """The colour matrix the denoiser includes (its output with the chroma untouched)."""
-    from .modules.colour.stage import ColourMatrix
     return ColourMatrix(np.asarray(stage.space.to_rgb))
 
 
 def demosaic_index(stages: list[Any], denoiser_index: int) -> int:
     """Index of the demosaic in ``stages``: the stage before the chroma denoiser, or before the
     highlight stage that sits between them (-1 when there is none)."""
-    from .modules.highlights.stage import HighlightClamp, Highlights
     d = denoiser_index - 1
     if d >= 0 and isinstance(stages[d], (Highlights, HighlightClamp)):
         d -= 1
@@ -234,7 +234,6 @@ class Skipper:
     @classmethod
     def for_pipeline(cls, raw: Any, stages: list[Any], enabled: bool = True,
                      analysis: SceneAnalysis | None = None) -> "Skipper":
-        from .modules.chroma_denoise.stage import ChromaDenoise
         analysis = analysis if analysis is not None else analyse(raw)
         paths = {PATH_FULL: list(stages)}
         denoiser = next((s for s in stages if isinstance(s, ChromaDenoise)), None)

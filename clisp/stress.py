@@ -19,7 +19,12 @@ import numpy as np
 
 from .cfa import cfa_from_name
 from .errors import ClispError
+from .engine.runtime import get_runtime
+from .engine.streaming import window_source
 from .io.rawimage import FLOAT_RANGE, RawImage
+from .pipeline import build_pipeline, process
+from .sim.charts import demo_chart
+from .sim.simulate import simulate
 
 STAGE_TOL: dict[str, float] = {
     "normalize": 1e-5,
@@ -88,8 +93,6 @@ def _raw(kind: str, data: np.ndarray, **kw) -> RawImage:
 
 
 def _chart(kind: str, gain: float | None, shape: tuple[int, int] = (64, 96), seed: int = 0) -> RawImage:
-    from .sim.charts import demo_chart
-    from .sim.simulate import simulate
     scene = demo_chart().image[:shape[0], :shape[1]]
     raw = simulate(scene, cfa=kind, gain=gain, optics="none", seed=seed).raw
     raw.source = f"stress-{kind}"
@@ -192,14 +195,12 @@ def expected(case: Case, kind: str) -> str:
 def pipeline_for(raw: RawImage, demosaic: str, output: str = "linear"):
     """The pipeline a stress case runs: ``demosaic``, chroma denoise unless bilinear (3 levels,
     preset quality), WB pass 2 from the metadata."""
-    from .pipeline import build_pipeline
     return build_pipeline(raw, preset="fast" if demosaic == "bilinear" else "quality", demosaic=demosaic,
                           output=output)
 
 
 def _window(raw: RawImage, halo: int) -> np.ndarray:
     """The whole mosaic with ``halo`` pixels of the tiler's CFA mirror padding on every side."""
-    from .engine.streaming import window_source
     h, w = raw.shape
     return window_source(raw.data).read(-halo, -halo, h + 2 * halo, w + 2 * halo, raw.cfa.period)
 
@@ -232,7 +233,6 @@ def stage_errors(raw: RawImage, demosaic: str, output: str = "srgb") -> list[tup
     """(stage name, scaled float32-vs-float64 error) for every stage of the pipeline on ``raw``,
     each kernel fed the reference's output of the stage before (as float32); the reference's
     outputs must be finite (AssertionError otherwise)."""
-    from .engine.runtime import get_runtime
     rt = get_runtime()
     pipeline = pipeline_for(raw, demosaic, output)
     halo = pipeline.halo
@@ -261,7 +261,6 @@ def pipeline_error(raw: RawImage, demosaic: str, tile: int | None = 0) -> tuple[
 def outcome(case: Case, kind: str, demosaic: str) -> tuple[str, str]:
     """('error', message) or ('finite', '') of processing the case through the public API
     (clisp.process); ('NON-FINITE', ...) would be a bug."""
-    from .pipeline import process
     try:
         raw = case.build(kind)
         image = process(raw, preset="fast" if demosaic == "bilinear" else "quality", demosaic=demosaic)

@@ -1,4 +1,4 @@
-"""White-balance estimation on the raw mosaic (pass 1, SPEC.md section 7).
+"""White-balance estimation on the raw mosaic (pass 1, docs/model.md section 4).
 
 Gray world: gain_c = mean(reference channel) / mean(channel c), over the CFA blocks that hold no
 clipped pixel (a clipped pixel's block is dropped with it, so clipping cannot bias a channel).

@@ -1,4 +1,4 @@
-"""White balance pass 2: estimating the von Kries gains on linear sRGB (SPEC.md section 7).
+"""White balance pass 2: estimating the von Kries gains on linear sRGB (docs/model.md section 4).
 
 Pass 1 (``raw_scale.white_balance1``, before demosaicking) equalises the raw channels so the
 demosaic sees similar signal strengths; pass 2 (``colour.WhiteBalance2``, after the colour matrix)

@@ -1,4 +1,4 @@
-"""The Bayer baseline demosaics: Malvar-He-Cutler 2004 and DLMMSE (Zhang & Wu 2005, SPEC.md section 5).
+"""The Bayer baseline demosaics: Malvar-He-Cutler 2004 and DLMMSE (Zhang & Wu 2005, as Getreuer documents it).
 
 Tolerance, used by every OpenCL-vs-reference comparison in this file (float32 kernels against
 float64 references, inputs in [0, 1]-ish):
@@ -33,7 +33,7 @@ ORIGINS = [(0, 0), (1, 3), (-2, -5), (5, -2)]
 SHAPE = (47, 61)                      # odd on purpose
 R, G, B = 0, 1, 2
 
-# SPEC.md section 5, written out here (not imported from the stage).
+# DLMMSE's constants (Getreuer, IPOL 2011), written out here (not imported from the stage).
 SPEC_INTERPOLATION = np.array([-0.25, 0.5, 0.5, 0.5, -0.25])
 SPEC_SMOOTHING = np.array([4, 9, 15, 23, 26, 23, 15, 9, 4]) / 128.0
 SPEC_M = 4
@@ -83,7 +83,7 @@ def test_non_bayer_cfa_rejected(stage_class):
 
 def test_dlmmse_options():
     cfa = bayer_cfa("RGGB")
-    assert DemosaicDLMMSE(cfa).local_mean == "centre"           # SPEC: mu = centre value by default
+    assert DemosaicDLMMSE(cfa).local_mean == "centre"           # mu = centre value by default
     assert DemosaicDLMMSE(cfa, local_mean="window").local_mean == "window"
     with pytest.raises(ClispError, match="local_mean"):
         DemosaicDLMMSE(cfa, local_mean="median")
@@ -167,14 +167,15 @@ def test_dlmmse_kernel_uint16_input(rt):
 
 
 def spec_difference(line: np.ndarray, green: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """SPEC 5 steps 1-3 along one full row or column: (d, s), valid 6 samples in from the ends."""
+    """DLMMSE steps 1-3 (interpolation, differences, smoothing) along one full row or column: (d, s),
+    valid 6 samples in from the ends."""
     f = np.convolve(line, SPEC_INTERPOLATION[::-1], mode="same")
     d = np.where(green, line - f, f - line)
     return d, np.convolve(d, SPEC_SMOOTHING[::-1], mode="same")
 
 
 def spec_green_minus_x(x: np.ndarray, green: np.ndarray, y: int, c: int, window_mean: bool) -> float:
-    """SPEC 5 steps 1-5 at the R/B site (y, c), written from the SPEC's formulas with scalar sums."""
+    """DLMMSE steps 1-5 at the R/B site (y, c), written from the published formulas with scalar sums."""
     estimates = []
     for line, g, i in ((x[y, :], green[y, :], c), (x[:, c], green[:, c], y)):
         d, s = spec_difference(line, g)
@@ -192,7 +193,7 @@ def spec_green_minus_x(x: np.ndarray, green: np.ndarray, y: int, c: int, window_
 
 @pytest.mark.parametrize("window_mean", [False, True])
 def test_dlmmse_reference_follows_spec(window_mean):
-    """The vectorised reference against the SPEC written out pixel by pixel: G at R/B sites
+    """The vectorised reference against the formulas written out pixel by pixel: G at R/B sites
     (steps 1-5) and R/B at every kind of site (step 6: diagonal, then axial fill)."""
     cfa = bayer_cfa("GRBG")
     x = sample_mosaic(11, shape=(40, 44)).astype(np.float64)
@@ -230,7 +231,7 @@ def test_dlmmse_reference_follows_spec(window_mean):
 
 @pytest.mark.parametrize("phase", BAYER_PHASES)
 def test_dlmmse_keeps_measured_samples(rt, phase):
-    """SPEC 5: G = X + Delta only at R/B sites, so G sites keep G; R = G - (G - R) is R at R sites
+    """DLMMSE: G = X + Delta only at R/B sites, so G sites keep G; R = G - (G - R) is R at R sites
     and B likewise: every measured sample comes out as it went in (kernel: bit for bit)."""
     cfa = bayer_cfa(phase)
     stage = DemosaicDLMMSE(cfa)

@@ -1,7 +1,7 @@
-"""The colour filter arrays: the paper's LMS pattern (SPEC.md section 1) and the Bayer baseline.
+"""The colour filter arrays: the paper's LMS pattern (docs/model.md section 1) and the Bayer baseline.
 
-Expected values come from SPEC.md itself (the rule, the 4x4 table, the densities, the S-site
-neighbourhood, the carrier table of the spectrum check), not from clisp.cfa's own tables.
+Expected values are written out here from the pattern's description (the rule, the 4x4 table, the
+densities, the S-site neighbourhood, the carrier table of the spectrum), not from clisp.cfa's own tables.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from clisp.errors import ClispError
 
 L, M, S = 0, 1, 2
 
-# SPEC.md section 1, the table at phase (0, 0), tile[y % 4][x % 4].
+# docs/model.md section 1 as a table, phase (0, 0): tile[y % 4][x % 4].
 SPEC_TABLE = [
     "LMLS",
     "MLML",
@@ -23,8 +23,9 @@ SPEC_TABLE = [
     "MLML",
 ]
 
-# SPEC.md section 1, spectrum check: 16 * a_c(w) for (w_y, w_x) in units of pi/2 (index mod 4,
-# so -pi/2 is 3 and pi is 2). Channels (L, M, S). The other 8 frequencies are zero.
+# The carriers (docs/model.md section 1, "Where the colours sit in frequency"): 16 * a_c(w) for
+# (w_y, w_x) in units of pi/2 (index mod 4, so -pi/2 is 3 and pi is 2). Channels (L, M, S). The
+# other 8 frequencies are zero.
 SPEC_CARRIERS = {
     (0, 0): (8, 6, 2),
     (2, 2): (8, -6, -2),
@@ -48,7 +49,7 @@ XTRANS = np.array([[1, 1, 0, 1, 1, 2],
 
 
 def spec_rule(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """SPEC's rule: L iff (x + y) even; S iff y even and (x - y) mod 4 == 3; else M."""
+    """The rule of docs/model.md section 1: L iff (x + y) even; S iff y even and (x - y) mod 4 == 3; else M."""
     y, x = np.asarray(y), np.asarray(x)
     out = np.full(np.broadcast(y, x).shape, M, dtype=np.int64)
     out[(y % 2 == 0) & ((x - y) % 4 == 3)] = S
@@ -58,7 +59,7 @@ def spec_rule(y: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def rule_map(height: int, width: int, origin: tuple[int, int] = (0, 0),
              phase: tuple[int, int] = (0, 0)) -> np.ndarray:
-    """Channel of every pixel of a window from SPEC's rule; ``phase`` shifts as lms_cfa documents."""
+    """Channel of every pixel of a window from that rule; ``phase`` shifts as lms_cfa documents."""
     y = np.arange(height)[:, None] + origin[0] + phase[0]
     x = np.arange(width)[None, :] + origin[1] + phase[1]
     return spec_rule(y, x)
@@ -69,7 +70,7 @@ def rule_map(height: int, width: int, origin: tuple[int, int] = (0, 0),
 # ------------------------------------------------------------------------------------------
 
 def test_spec_rule_matches_spec_table():
-    """The SPEC's rule and its table describe the same tile (guards the helpers below)."""
+    """The rule and the table describe the same tile (guards the helpers below)."""
     letters = "LMS"
     for y, x in itertools.product(range(4), range(4)):
         assert letters[int(spec_rule(y, x))] == SPEC_TABLE[y][x], (y, x)
@@ -117,7 +118,7 @@ def test_s_site_neighbourhood(phase):
 
 
 def test_s_sites_form_the_rotated_lattice():
-    """S sites are exactly (0, 3) + {a (2, 2) + b (2, -2)} (SPEC: the lattice Lambda)."""
+    """S sites are exactly (0, 3) + {a (2, 2) + b (2, -2)} (the 45-degree S lattice of docs/model.md section 1)."""
     ch = lms_cfa().channel_map(32, 32)
     sites = {tuple(v) for v in np.argwhere(ch == S)}
     lattice = {(2 * a + 2 * b, 3 + 2 * a - 2 * b) for a in range(-20, 20) for b in range(-20, 20)}
@@ -126,7 +127,7 @@ def test_s_sites_form_the_rotated_lattice():
 
 
 def test_spectrum_matches_spec_carrier_table():
-    """a_c(w) = (1/16) sum_tile m_c(y, x) exp(-i (w_y y + w_x x)); SPEC lists 16 a_c (8 non-zero)."""
+    """a_c(w) = (1/16) sum_tile m_c(y, x) exp(-i (w_y y + w_x x)); 8 of the 16 a_c are non-zero."""
     tile = lms_cfa().pattern
     y, x = np.mgrid[0:4, 0:4]
     checked = 0
@@ -141,7 +142,7 @@ def test_spectrum_matches_spec_carrier_table():
 
 
 def test_closed_form_and_inverse():
-    """SPEC: 8 f = Lum + C1 (-1)^(x+y) + C2 [(-1)^x - (-1)^y] + 2 C2 [sin(pi(x+y)/2) - sin(pi(y-x)/2)]
+    """The closed form 8 f = Lum + C1 (-1)^(x+y) + C2 [(-1)^x - (-1)^y] + 2 C2 [sin(pi(x+y)/2) - sin(pi(y-x)/2)]
     reproduces the mosaic of constant planes L, M, S; and L, M, S follow from Lum, C1, C2."""
     rng = np.random.default_rng(3)
     lms = rng.uniform(0.1, 2.0, size=3)

@@ -58,10 +58,10 @@ def test_demo_chart_layout(demo: charts.Chart) -> None:
 
 
 def test_gray_panels_match_spec(demo: charts.Chart) -> None:
-    """Panels 1..6 (black -> white) are flat; their luminance Y matches SPEC §8's values to 0.002.
+    """Panels 1..6 (black -> white) are flat; their luminance Y matches charts.SPEC_NEUTRAL_LUMINANCE to 0.002.
 
     Per channel the colour-science data give (R, G, B) = (0.0314, 0.0315, 0.0323) ...
-    (0.8792, 0.8848, 0.8350): within 0.01 of SPEC except the white patch's blue (0.835 vs 0.8807).
+    (0.8792, 0.8848, 0.8350): within 0.01 of those except the white patch's blue (0.835 vs 0.8807).
     """
     means = np.array([demo.image[y0:y1, x0:x1].mean(axis=(0, 1)) for y0, y1, x0, x1 in demo.gray_rois])
     stds = np.array([demo.image[y0:y1, x0:x1].std(axis=(0, 1)) for y0, y1, x0, x1 in demo.gray_rois])

@@ -1,4 +1,4 @@
-"""Chroma denoise (SPEC section 6): kernels against references, tiling, behaviour on flat fields;
+"""Chroma denoise (clisp/modules/chroma_denoise): kernels against references, tiling, behaviour on flat fields;
 noise from the raw (model and estimate); white balance pass 2 estimation.
 
 Tolerance for every OpenCL-vs-reference and tiled-vs-whole comparison (float32 kernels against

@@ -95,7 +95,7 @@ def test_luma_filter_properties() -> None:
     assert abs(frequency_response(h, np.pi, np.pi)) < 1e-12
     assert abs(frequency_response(h, 0, np.pi) - 0.625) < 1e-12
     assert abs(np.sum(h ** 2) - 0.46296) < 1e-5                   # noise gain -3.34 dB
-    literal = luma_filter(0.75, exact_halfband=False)              # SPEC's "normalised to sum 1"
+    literal = luma_filter(0.75, exact_halfband=False)              # every tap of D scaled to sum 1
     assert abs(frequency_response(literal, np.pi, np.pi) - 0.003817) < 1e-6
 
 
@@ -179,8 +179,8 @@ def test_box_rows_kernel(rt) -> None:
 
 
 def test_guided_steps_equal_the_spec_formula() -> None:
-    """Row moments (centred per row), re-centred column sums and the box of a, b reproduce SPEC
-    section 4's masked guided filter written with window means."""
+    """Row moments (centred per row), re-centred column sums and the box of a, b reproduce the
+    masked guided filter written with window means (guided_filter_spec)."""
     stage = DemosaicLMSHybrid(lms_cfa((1, 2)), noise=NOISE)
     r = stage.params.gf_radius
     lum, p = f64(random_window(12, lo=0.1, hi=0.9)), f64(random_window(13))

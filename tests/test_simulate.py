@@ -1,4 +1,4 @@
-"""Tests of the raw simulator: optics kernel, noise model, mosaic layout (SPEC.md section 3)."""
+"""Tests of the raw simulator: optics kernel, noise model, mosaic layout (docs/model.md sections 1-3)."""
 from __future__ import annotations
 
 import json
@@ -25,7 +25,7 @@ N_SIGMA = 5.0
 # ----------------------------------------------------------------------------- helpers
 
 def expected_raw(colour: np.ndarray, kind: str) -> np.ndarray:
-    """Exposed raw channel values of a linear sRGB colour, computed straight from SPEC section 3."""
+    """Exposed raw channel values of a linear sRGB colour, computed straight from docs/model.md section 2."""
     matrix, wb = camera_constants(kind)
     inv = np.linalg.inv(matrix)
     k_exp = 1.0 / np.max(inv @ np.ones(3) / wb)
@@ -33,7 +33,7 @@ def expected_raw(colour: np.ndarray, kind: str) -> np.ndarray:
 
 
 def spec_channel(name: str, y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Channel index at (y, x) from the SPEC's rules, independent of clisp.cfa's tables."""
+    """Channel index at (y, x) from the rules of docs/model.md section 1, independent of clisp.cfa's tables."""
     if name.startswith("lms"):
         dy, dx = (0, 0) if name == "lms" else (int(v) for v in name[4:].split(","))
         yy, xx = y + dy, x + dx

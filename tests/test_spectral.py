@@ -22,7 +22,7 @@ def test_shapes_and_white() -> None:
 
 
 def test_lms_white_balance_matches_photon_counting() -> None:
-    # SPEC section 2(b): SS2000 photon counting gives M 1.216-1.224 (paper 1.2191), S about 2.3
+    # Stockman-Sharpe cones with photon counting give M 1.216-1.224 (paper 1.2191), S about 2.3 (paper 3.14)
     wb = white_balance("lms")
     assert wb[0] == 1.0 and wb[1] == pytest.approx(1.2191, abs=0.01) and wb[2] == pytest.approx(2.3, abs=0.1)
     assert white_balance("bayer")[1] == 1.0

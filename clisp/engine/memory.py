@@ -15,10 +15,8 @@ import sys
 RSS_MARGIN = 128 * 2**20
 """Resident bytes the planner cannot count tile by tile: PoCL compiling a kernel for a new
 work-group size on first launch (LLVM's arenas when its cache is cold), the allocator's
-fragmentation, small constant tables and Python temporaries. Measured by tools/check_mem.py
-(peak RSS against --mem, every preset, LMS and Bayer, 24 and 400 MP): with 96 MiB the largest
-excess over the planned bytes was 65 MiB (LMS 400 MP quality at --mem 1G, first run of its
-work-group sizes: 993 MiB peak), so 96 left 31 MiB; 128 leaves about 60."""
+fragmentation, small constant tables and Python temporaries. The largest excess over the planned
+bytes measured by tools/check_mem.py was 65 MiB, so 128 leaves about 60 (README.md)."""
 
 
 def resident_bytes() -> int:

@@ -66,7 +66,7 @@ def kernel_path(file_name: str) -> Path:
 
 def _import_cl() -> Any:
     try:
-        import pyopencl as cl
+        import pyopencl as cl    # deferred: OpenCL starts on first use, not at `import clisp`
     except ImportError as exc:  # pragma: no cover - dependency missing
         raise ClispError("pyopencl is not installed; run: pip install pyopencl pocl-binary-distribution") from exc
     return cl
@@ -541,10 +541,8 @@ class _ProfiledKernel:
 
 WORK_GROUP = (64, 4)
 """Work-group shape (x, y) of :func:`launch_exact`, the launch of every kernel without bounds checks.
-Measured with the LMS demosaic kernels. On PoCL (2 cores, shared machine, best of 5,
-interleaved), whole hybrid stage at 6 and 24 MP: (32, 4) 22 / 31 MP/s, (64, 2) 27 / 37, (128, 1) 27 / 36,
-(64, 4) 29 / 39. Wider along x gives each vectorised work-group longer rows; 4 rows share the
-vertical taps."""
+Wider along x gives each vectorised work-group longer rows; 4 rows share the vertical taps (the LMS
+hybrid at 24 MP on PoCL: 39 MP/s against 31-37 for (32, 4), (64, 2), (128, 1); README.md)."""
 
 def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
                  group: tuple[int, int] = WORK_GROUP, x0: int = 0) -> None:

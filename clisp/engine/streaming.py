@@ -5,9 +5,7 @@ Sources give a tile's padded input window:
 * :class:`ArrayWindows`: a mosaic in memory (camera raws, the array API);
 * :class:`FileWindows`: rows read with ``pread`` from a raw file's contiguous pixel block, so
   memory does not grow with the image. (Reading through a memory map adds every touched page to
-  the resident set: file-backed mapped pages count in RSS, the page cache behind ``pread`` does
-  not. Reading all 168-row bands of a 400 MP raw: peak RSS 828 MiB through the map, 77 MiB with
-  pread, which took 1.2 s instead of 0.4 s on a reader thread, hidden behind the device.)
+  the resident set: 828 MiB peak RSS against 77 MiB with pread for a 400 MP raw; README.md.)
 
 Sinks take tile results: :class:`ArraySink` (the whole output in memory) or :class:`BandSink`
 (complete full-width bands handed to a writer thread, e.g. ``ImageWriter.write_rows``).
@@ -225,9 +223,8 @@ def aligned_copy(data: np.ndarray, dtype: Any = None) -> np.ndarray:
 READ_AHEAD = 2
 """Tiles whose windows the reader thread reads ahead of the one being enqueued. Two rather than
 one: on 2 cores PoCL's worker threads starve the reader while a kernel runs, so one window ahead
-often was not ready when the device finished. Measured (tools/bench_bandwidth.py setting, 24 MP
-Bayer, fast preset to float RGB, 13 bands, three runs each): tile loop 29-36 ms reading one ahead,
-27-29 ms two ahead, 26-28 ms three ahead."""
+often was not ready when the device finished (tile loop 29-36 ms one ahead, 27-29 ms two ahead;
+README.md)."""
 
 
 class WindowPool:
@@ -320,7 +317,7 @@ def _finish(tile: Tile, event: Any, window: np.ndarray, sink: TileSink,
 def progress_bar(tiles: Sequence[Tile], what: str) -> Iterator[Callable[[Tile], None]]:
     """A tqdm bar on stderr (tiles done, Mpx/s, time left); silent when stderr is not a terminal.
     Yields the per-tile callback (e.g. for :func:`run_tiles`)."""
-    from tqdm import tqdm
+    from tqdm import tqdm        # deferred: tqdm costs 20 ms of start-up
     count, done = len(tiles), 0
     fmt = "{desc} {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}, {rate_noinv_fmt}]"
     with tqdm(total=sum(t.h * t.w for t in tiles), unit="px", unit_scale=True, desc=what, file=sys.stderr,

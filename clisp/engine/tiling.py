@@ -21,10 +21,8 @@ from ..errors import ClispError
 
 TARGET_TILE_PIXELS = 2_000_000
 """Automatic tiles stop growing at about this many window pixels even when the memory budget
-allows more. Measured with tools/bench_tiling.py --sweep (PoCL, 2 shared cores, 25 MP LMS raw,
-preallocated output), three runs: 2 MP bands ran at 1.08-1.46x the whole image's throughput,
-4-16 MP bands at 0.85-1.15x. ``clisp process`` of a 400 MP raw to EXR: 2 MP tiles 91-97 s and
-274 MiB peak RSS, 4 MP tiles 99 s and 359 MiB. Measured on a CPU device only: a GPU may want
+allows more: 2 MP bands ran at 1.08-1.46x the whole image's throughput, 4-16 MP bands at
+0.85-1.15x (PoCL, 25 MP LMS; README.md). Measured on a CPU device only: a GPU may want
 larger launches."""
 
 MIN_BAND_ROWS = 32
@@ -192,9 +190,8 @@ def largest_fitting(fits: Callable[[int], bool], most: int) -> int:
 
 HALO_ROWS_FACTOR = 8
 """Bands aim for at least this many output rows per halo row on each side, so recomputed halo rows
-stay under (2 / 8 =) 25% of a band: stages with large halos (the guided LMS demosaic plus the
-chroma denoiser, 107 px) got 120-row bands in 334-row windows at TARGET_TILE_PIXELS and ran at
-66% of whole-image speed on 25 MP."""
+stay under (2 / 8 =) 25% of a band (a 107 px halo in 120-row bands ran at 66% of whole-image
+speed; README.md)."""
 
 
 def halo_target_pixels(width: int, halo: int) -> int:

@@ -23,6 +23,7 @@ import numpy as np
 from ..cfa import CFA, cfa_from_pattern
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
+from .exif import ISO, read_exif
 from .rawimage import RawImage
 from ..engine.streaming import aligned_copy
 from ..white_balance import gray_world_gains
@@ -38,7 +39,7 @@ def read_camera_raw(path: str | os.PathLike[str]) -> RawImage:
     and white level in DN, WB pass-1 multipliers normalised to G = 1, exposure 1 and a colour matrix
     mapping WB-balanced camera RGB to linear sRGB. Raises ClispError naming the file on failure.
     """
-    import rawpy
+    import rawpy                 # deferred: rawpy is only for camera raws (not at `import clisp`)
 
     p = Path(path)
     said = None
@@ -233,7 +234,7 @@ def probe_libraw_matrix(path: Path) -> np.ndarray | None:
     mosaic and the same grey with a step in one CFA channel (unit WB, linear output) gives that
     channel's column. Returns None if LibRaw cannot process the file or the result is not finite.
     """
-    import rawpy
+    import rawpy                 # deferred: rawpy is only for camera raws (not at `import clisp`)
     try:
         with rawpy.imread(str(path)) as raw:
             colours = np.where(raw.raw_colors == 3, 1, raw.raw_colors)
@@ -313,7 +314,6 @@ def visible_crop(default_crop: Any, visible_origin: tuple[int, int],
 def _exif(raw: Any, p: Path) -> dict[str, Any]:
     """The shot's EXIF (clisp.io.exif.read_exif), with LibRaw's ISO where the tags give none (the
     Kodak DC50 keeps it in its maker notes)."""
-    from .exif import ISO, read_exif
     exif = read_exif(p)
     if ISO not in exif:
         try:

@@ -34,7 +34,7 @@ def read_exif(path: str | Path) -> dict[str, Any]:
     states with a usable value (zero exposure times, empty dates are left out); {} when exiv2 cannot
     read the file. Strings for make, model, lens and dates ('YYYY:MM:DD HH:MM:SS'), floats for the
     exposure time (s) and f-number, an int for the ISO."""
-    import exiv2
+    import exiv2                 # deferred: exiv2 is only for camera raws (not at `import clisp`)
     exiv2.LogMsg.setLevel(exiv2.LogMsg.Level.mute)
     try:
         image = exiv2.ImageFactory.open(str(path))
@@ -74,7 +74,7 @@ def read_exif(path: str | Path) -> dict[str, Any]:
 
 def _value(exif: Any, key: str) -> str:
     """The text of ``key`` in exiv2's ExifData, '' when absent (findKey: indexing would add it)."""
-    import exiv2
+    import exiv2                 # deferred, as in read_exif
     found = exif.findKey(exiv2.ExifKey(key))
     return found.toString() if found != exif.end() else ""
 

@@ -18,7 +18,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..sim.colorimetry import srgb_decode
+from ..sim.colorimetry import srgb_decode, srgb_encode
 from ..errors import ClispError, clip, library_output
 from ..engine.profile import host_timer
 
@@ -163,7 +163,6 @@ def write_image(path: str | Path, image: np.ndarray, encoded: bool | None = None
     """
     pixels = np.asarray(image)
     if output_kind(path) == "srgb" and encoded is False:
-        from ..sim.colorimetry import srgb_encode
         pixels = srgb_encode(np.asarray(pixels, dtype=np.float32))
     with ImageWriter(path, pixels.shape[1], pixels.shape[0], pixels.shape[2], compression, attributes) as out:
         out.write_rows(0, pixels)
@@ -203,7 +202,7 @@ ATTRIBUTE_TYPES = {"Orientation": "int", "Exif:PhotographicSensitivity": "int", 
 @lru_cache(maxsize=1)
 def srgb_icc_profile() -> bytes:
     """An sRGB ICC profile (LittleCMS's built-in sRGB, through Pillow's ImageCms), for TIFF/PNG."""
-    from PIL import ImageCms
+    from PIL import ImageCms     # deferred: Pillow only for TIFF/PNG outputs (not at `import clisp.cli`)
     return ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
 
 

@@ -371,7 +371,7 @@ def _load(path: str | os.PathLike[str], lazy: bool = False) -> tuple[RawImage, s
     ours, tiff_error = _try_read_clisp(p, lazy)
     if ours is not None:
         return ours, SOURCE_CLISP
-    from .camera import read_camera_raw
+    from .camera import read_camera_raw        # deferred: io.camera costs 3 ms of start-up (rawpy on use)
     try:
         return read_camera_raw(p), SOURCE_CAMERA
     except ClispError as exc:

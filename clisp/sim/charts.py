@@ -1,4 +1,4 @@
-"""Built-in test scenes generated in code (SPEC.md sections 0 and 8).
+"""Built-in test scenes generated in code (docs/model.md section 5).
 
 Every scene is an H x W x 3 float64 array of LINEAR sRGB (D65), white = 1.0, values in [0, 1],
 with H and W multiples of 4. Boxes are ``(y0, y1, x0, x1)`` half-open pixel ranges.
@@ -22,14 +22,15 @@ BACKGROUND = 0.18
 NEUTRAL_INDICES = (23, 22, 21, 20, 19, 18)
 """ColorChecker patch indices of the neutrals, darkest -> brightest (black 2 ... white 9.5)."""
 SPEC_NEUTRAL_LUMINANCE = (0.0315, 0.0882, 0.1906, 0.3649, 0.5900, 0.8807)
-"""SPEC §8 linear neutral values (= the patches' CIE Y; per-channel RGB differs slightly)."""
+"""Linear values of the six neutrals, black 2 .. white 9.5 (docs/model.md section 5; = the patches'
+CIE Y; per-channel RGB differs slightly)."""
 
 
 def _colour():
     """Import colour-science lazily (about 0.6 s) and without its matplotlib warning."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
+        import colour            # deferred: colour-science costs about 0.6 s of start-up
     return colour
 
 
@@ -79,7 +80,7 @@ def central_box(box: Box, central: int = 32) -> Box:
 
 
 def gray_panel_rois(rois: list[Box], central: int = 32) -> list[Box]:
-    """Central ROIs of the six neutral patches, ordered panel 1..6 = darkest -> brightest (SPEC §8)."""
+    """Central ROIs of the six neutral patches, ordered panel 1..6 = darkest -> brightest (docs/model.md section 5)."""
     return [central_box(rois[i], central) for i in NEUTRAL_INDICES]
 
 

@@ -1,4 +1,4 @@
-"""Colour constants of the paper and the sRGB transfer functions (SPEC.md sections 0 and 2).
+"""Colour constants of the paper and the sRGB transfer functions (docs/model.md: conventions and section 4).
 
 All matrices map white-balanced camera values to linear sRGB (D65), column vectors.
 """
@@ -52,7 +52,7 @@ Evaluated in float32 they put the curve within 0.02 of a 16-bit code (5 and 5: 0
 def _chebyshev_fit(fn, lo: float, hi: float, degree: int, prefix: str) -> dict[str, float]:
     """Defines ``{prefix}_SCALE``, ``{prefix}_OFFSET`` (u = t * scale + offset maps [lo, hi] to
     [-1, 1]) and ``{prefix}0..`` (power-basis coefficients in u) of the Chebyshev fit of fn."""
-    from numpy.polynomial import chebyshev
+    from numpy.polynomial import chebyshev     # deferred: 3 ms of start-up; used when the sRGB kernels build
     t = np.cos(np.linspace(0.0, np.pi, 20001)) * (hi - lo) / 2 + (hi + lo) / 2
     scale, offset = 2.0 / (hi - lo), -(hi + lo) / (hi - lo)
     coefficients = chebyshev.cheb2poly(chebyshev.chebfit(t * scale + offset, fn(t), degree))

@@ -1,4 +1,4 @@
-"""Sensor noise model of the simulated camera (SPEC.md section 3, "Noise model").
+"""Sensor noise model of the simulated camera (docs/model.md section 3).
 
 Paper: 1 um pixel CMOS, read noise 1.5 e-, 0.14 counts/e-, 10-bit ADC. Interpretation [decision]:
 0.14 DN/e- is the conversion gain at unity analog gain and gain g multiplies it; exposure is
@@ -182,7 +182,7 @@ class ChannelNoise:
 
         var_c(s) = shot[c] * max(s, 0) + floor[c]        (units: white-balanced signal^2, white ~ 1)
 
-    SPEC section 3: shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2, w the pass-1
+    From docs/model.md section 3: shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2, w the pass-1
     multiplier of the channel (white balance times exposure). ``source``: 'model' (from the sensor
     model), 'estimate' (measured on the raw, clisp.noise_estimate) or 'none' (noiseless).
     """

@@ -1,4 +1,4 @@
-"""Raw simulation ("inverse ISP", SPEC.md section 3): linear sRGB scene -> CFA mosaic in DN.
+"""Raw simulation ("inverse ISP", docs/model.md section 2): linear sRGB scene -> CFA mosaic in DN.
 
 Steps, per image::
 
@@ -141,7 +141,7 @@ def _metadata(cfa: CFA, gain: float | None, noise: NoiseModel, kernel: np.ndarra
 def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = None,
              optics: str | None = "airy", seed: int | None = 0, r0: float = 1.0,
              noise: NoiseModel = NoiseModel()) -> SimResult:
-    """Simulate a raw capture of a linear sRGB scene (SPEC.md section 3).
+    """Simulate a raw capture of a linear sRGB scene (docs/model.md sections 2 and 3).
 
     scene  H x W x 3 linear sRGB, white = 1.0 (any real dtype; values above 1 are allowed).
     cfa    a CFA or a name ('lms', 'lms@dy,dx', 'bayer', 'bayer-grbg', ...).

@@ -1,11 +1,11 @@
-"""Spectral scenes: raws simulated from reflectance spectra, not from sRGB (SPEC.md sections 2, 3).
+"""Spectral scenes: raws simulated from reflectance spectra, not from sRGB (docs/model.md sections 2 and 5).
 
 A spectral ColorChecker under D65 is seen by a camera with spectral sensitivities s_c:
 ``r_c = sum_lambda R(lambda) E(lambda) (lambda / 555) s_c(lambda)`` (photon counting), normalised so
 the brightest channel of a perfect white is 1. LMS = Stockman & Sharpe 2-degree cone fundamentals
-(energy-based, hence the lambda factor); Bayer = the Nikon D100 quantum efficiencies of SPEC.md
-section 2(c), the same way. Ground truth is the scene's true colour: CIE 1931 XYZ under D65 (Y of
-a perfect white = 1) in linear sRGB.
+(energy-based, hence the lambda factor); Bayer = the Nikon D100 quantum efficiencies (``D100_QE``,
+from ISETCam's sensor data, per photon), the same way. Ground truth is the scene's true colour:
+CIE 1931 XYZ under D65 (Y of a perfect white = 1) in linear sRGB.
 
 Because a chart is flat patches and every colour step is linear per pixel, the scene is carried as
 an image of camera responses; the optics blur it exactly as they would blur the raw channels.
@@ -14,18 +14,24 @@ white-preserving least squares from white-balanced responses to true sRGB over t
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .charts import BACKGROUND, colorchecker
+from .charts import BACKGROUND, central_box, colorchecker
 from .colorimetry import XYZ_TO_SRGB
+from .noise import NoiseModel, check_gain
+from .optics import apply_optics
+from .simulate import SimResult, _check_seed, _metadata, _optics_kernel, optics_and_mosaic, resolve_cfa
 from ..errors import ClispError
+from ..io.rawimage import RawImage
+from ..metrics import linear_srgb_to_lab
 
 WAVELENGTHS = np.arange(400, 701, 10)
-"""Integration grid in nm (SPEC.md: the D100 data are given at 400..700 nm, step 10)."""
+"""Integration grid in nm (the D100 data are given at 400..700 nm, step 10)."""
 
 D100_QE = np.array([
     [.013, .018, .116], [.011, .023, .229], [.009, .025, .307], [.005, .038, .373], [.007, .057, .483],
@@ -35,17 +41,16 @@ D100_QE = np.array([
     [.645, .149, .000], [.531, .048, .001], [.424, .016, .002], [.293, .010, .000], [.215, .000, .000],
     [.142, .004, .000], [.093, .001, .000], [.062, .000, .000], [.033, .006, .000], [.026, .000, .000],
     [.013, .003, .000]])
-"""Nikon D100 relative quantum efficiency (per photon), R, G, B at WAVELENGTHS (SPEC.md 2(c))."""
+"""Nikon D100 relative quantum efficiency (per photon), R, G, B at WAVELENGTHS (ISETCam's D100 data)."""
 
 SPECTRAL_KINDS = ("lms", "bayer")
 REFLECTANCE_SOURCES = ("colour", "isetcam")
 
 
 def _colour():
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
+        import colour            # deferred: colour-science costs about 0.6 s of start-up
     return colour
 
 
@@ -99,7 +104,7 @@ ISETCAM_ORDER = [col * 4 + row for row in range(4) for col in range(6)]
 def _isetcam_reflectances(path: Path) -> np.ndarray:
     """ISETCam's macbethChart.mat (wavelength column + 24 reflectances, column-major chart order)
     resampled to WAVELENGTHS, in reading order."""
-    from scipy.io import loadmat
+    from scipy.io import loadmat       # deferred: scipy costs 0.15 s of start-up
     if not path.is_file():
         raise ClispError(f"{path}: no such file (ISETCam Macbeth reflectances)")
     mat = loadmat(str(path))
@@ -191,17 +196,12 @@ def spectral_colorchecker(kind: str, source: str = "colour", data: str | Path | 
 def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str | None = "airy",
                       seed: int | None = 0, r0: float = 1.0, source: str = "colour",
                       data: str | Path | None = None, noise=None):
-    """Simulate a raw of the spectral ColorChecker (SPEC.md section 3, spectral path).
+    """Simulate a raw of the spectral ColorChecker (the spectral path).
 
     Like :func:`clisp.sim.simulate.simulate`, but the scene is camera responses from spectra: no
     inverse ISP; WB from the simulated white; colour matrix fitted (see module docstring); truth =
     the chart's true linear sRGB through the same optics. Returns a SimResult.
     """
-    from .noise import NoiseModel, check_gain
-    from .optics import apply_optics
-    from ..io.rawimage import RawImage
-    from .simulate import SimResult, _check_seed, _metadata, _optics_kernel, optics_and_mosaic, resolve_cfa
-
     cfa_obj = resolve_cfa(cfa)
     noise = noise or NoiseModel()
     chart = spectral_colorchecker(cfa_obj.kind, source, data)
@@ -227,9 +227,6 @@ def patch_delta_e(output: np.ndarray, truth: np.ndarray, rois: list[tuple[int, i
                   central: int = 32) -> np.ndarray:
     """CIEDE2000 per patch between the mean colours of the central ``central`` x ``central`` of each
     ROI in ``output`` and ``truth`` (both H x W x 3 linear sRGB), shape (len(rois),)."""
-    from .charts import central_box
-    from ..metrics import linear_srgb_to_lab
-
     def means(image: np.ndarray) -> np.ndarray:
         boxes = [central_box(r, central) for r in rois]
         return np.stack([image[y0:y1, x0:x1].reshape(-1, 3).mean(axis=0) for y0, y1, x0, x1 in boxes])

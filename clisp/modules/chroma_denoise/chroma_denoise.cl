@@ -1,4 +1,4 @@
-/* Luminance-guided multiresolution chroma denoising (clisp/modules/chroma_denoise/stage.py, SPEC section 6).
+/* Luminance-guided multiresolution chroma denoising (clisp/modules/chroma_denoise/stage.py).
  * One kernel per step, named after the reference function it mirrors. Planar float32 images;
  * a "level" image holds NPLANES = 1 + NCHROMA planes (Y, then the chroma planes); a "detail" image
  * holds 3 x NPLANES planes from haar_analyze, 3 x NCHROMA after bayes_shrink, orientation-major

@@ -1,4 +1,4 @@
-"""Luminance-guided multiresolution chroma denoising (SPEC.md section 6), replacing the colour matrix.
+"""Luminance-guided multiresolution chroma denoising, replacing the colour matrix.
 
 The paper (section "Chrominance Denoising") converts white-balanced camera channels to a
 luminance and chrominance space, denoises only the chrominance, and converts to sRGB::
@@ -34,15 +34,9 @@ Per chroma channel k and level j = J .. 1, from the coarsest::
       g_Y = var_xY / (var_xY + var_nY), the local Wiener gain of the Y detail of the same subband:
       chroma detail is kept where the luminance has structure (edges), shrunk where it is flat.
 
-Measured choices (4 Kodak + 4 McMaster images, gains 4/16/64, LMS hybrid and bilinear demosaics,
-Bayer DLMMSE; tools/paper_tables.py has the full sets): the Y guide in the bilateral is worth
-+0.3..1.5 dB PSNR over the plain bilateral (k_luma = 0); guiding the shrink +0.1..0.4 dB over
-plain BayesShrink with DLMMSE and the hybrid (-0.5..+0.05 dB with bilinear LMS, whose chroma
-noise is white); sigma_d, k_chroma, k_luma, J, r_w at +-50 % of the defaults move PSNR by
-< 0.15 dB with DLMMSE and the hybrid (bilinear LMS prefers k_chroma = 3, +0.2..0.7 dB). The decimated Haar pyramid of the spec is kept: the stage costs about 1.3 full-
-resolution bilateral passes (an undecimated a-trous pyramid would cost J + 1), it tiles exactly
-(below), and it comes within 0.1-0.3 dB of the ideal chroma denoiser (chroma replaced by its
-patch mean) on the gray panels.
+The Y guide in the bilateral is worth +0.3..1.5 dB PSNR over the plain bilateral (k_luma = 0). The
+pyramid is a decimated Haar one: about 1.3 full-resolution bilateral passes (an undecimated a-trous
+pyramid would cost J + 1), and it tiles exactly (below). Measured choices and history: README.md.
 
 Haar, normalised so approximations are block means (orthogonal up to a factor 2 per level)::
 
@@ -73,6 +67,7 @@ from ...errors import ClispError
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from ..base import Stage, as_f32
+from ..colour.stage import ColourMatrix
 
 BT601 = np.array([0.299, 0.587, 0.114])
 """BT.601 luma weights of R, G, B."""
@@ -82,11 +77,9 @@ ORIENTATIONS = ("dx", "dy", "dd")
 
 CHROMA_RANGE_CAP: dict[str, float | None] = {"yuv": 0.027, "lms": None}
 """Default ``chroma_range_cap`` per chroma space (ChromaDenoiseParams). Bayer (YUV): 0.027 keeps
-k_chroma = 2 up to gain 16 (sigma_0 = 0.013 at mid-grey on the simulated sensor) and lowers it to
-1.45 at gain 32 and 0.98 at gain 64, where the chroma range sigma otherwise reached 0.055 and
-averaged across isoluminant colour edges: ring colour shift at gain 64 1.45/5.81 -> ~1.0/2.3
-(mean/worst a*b*, tools/bench_bleeding.py) at -0.05 dB PSNR (k_chroma = 1 at every gain cost up
-to 0.24 dB at gains 1-16). LMS: none yet (its shift comes from the guided demosaic)."""
+k_chroma = 2 up to gain 16 and lowers it to 0.98 at gain 64, where it averaged across isoluminant
+colour edges (ring colour shift 1.45/5.81 -> ~1.0/2.3 at -0.05 dB PSNR; README.md). LMS: none yet
+(its shift comes from the guided demosaic)."""
 CORR_CUT = 1e-2
 """Eigenvalues of a noise correlation matrix below this share of the largest are left out of the
 range metric's pseudo-inverse: LMS's R-Y, G-Y, B-Y have 2 noise sources, and the third
@@ -94,22 +87,14 @@ eigenvalue (about 1e-4, from the colour matrix not being exactly white-preservin
 otherwise weigh its direction 100x."""
 RANGE_JOINT_SIGMA: dict[str, tuple[float, float]] = {"yuv": (0.0, 0.0), "lms": (0.015, 0.03)}
 """Default ``range_joint_sigma`` per chroma space. LMS: off up to sigma_0 0.015 (gain ~12 on the
-simulated sensor; sigma_0 0.013 at gain 8, 0.039 at 64), in full from 0.03 (gain ~45): where the
-noise is low the planes' own range terms already keep colour edges, and the joint term held back
-the smoothing (gain 8: ring shift 0.61 / 1.43 -> 0.63 / 1.49). Bayer: in full at every gain (its
-gain-8 discs 0.92 -> 0.70 worst with it)."""
+simulated sensor), in full from 0.03 (gain ~45): where the noise is low the planes' own range terms
+already keep colour edges, and the joint term held back the smoothing (README.md). Bayer: in full
+at every gain."""
 RANGE_JOINT: dict[str, float] = {"yuv": 1.0, "lms": 2.0}
 """Default ``range_joint`` per chroma space (ChromaDenoiseParams): the coarse levels' joint range
 term, a Mahalanobis distance of the chroma planes in k_chroma noise sigmas (range_metric).
-Measured with tools/bench_bleeding.py (ring colour shift, patches mean / worst a*b*, 2 seeds) and
-8 Kodak + 6 McMaster images (PSNR), 2026-11-25:
-Bayer (YUV), 1: gain 64 0.99 / 2.27 -> 0.86 / 1.81 (discs 1.17 / 2.43 -> 0.94 / 1.78), PSNR of all
-24 Kodak images at 64x +0.03 dB against no joint term; 2 gave 0.98 / 2.06 and -0.04 dB (Table 1's
-Kodak 64x fell 0.12 dB below the last reproduction with it and the range cap together).
-LMS, 2 (faded in by RANGE_JOINT_SIGMA): gain 64 1.60 / 4.46 -> 1.20 / 2.57 at -0.04..-0.05 dB
-PSNR from gain 4 (before the fade), gray-panel SNR 18.05 -> 18.04 dB. The plain sum of LMS's
-three planes (3) gave 1.30 / 3.51 at -0.11..-0.14 dB: R-Y, G-Y and B-Y share two noise sources,
-and the sum counted their common noise three times."""
+Bayer 1, LMS 2 (faded in by RANGE_JOINT_SIGMA): worst ring colour shift at gain 64 2.27 -> 1.81
+and 4.46 -> 2.57 (README.md, with the values not taken)."""
 SHRINK_RULES = ("soft", "wiener", "none")
 
 
@@ -185,7 +170,7 @@ def space_for(kind: str, matrix: np.ndarray, strengths: Sequence[float] | None =
 
 @dataclass(frozen=True)
 class ChromaDenoiseParams:
-    """Parameters of :class:`ChromaDenoise`; defaults are SPEC section 6's decisions.
+    """Parameters of :class:`ChromaDenoise`; defaults are our choices where the paper is silent (README.md).
 
     Units: signal values are linear (white ~ 1); radii and sigma_d in pixels of the level.
     """
@@ -580,7 +565,6 @@ class ChromaDenoise(Stage):
         """A following colour matrix M (e.g. white balance pass 2) folds into the merge:
         M (from_luma Y + from_chroma c) = (M from_luma) Y + (M from_chroma) c. Y, c and the
         denoising are unchanged."""
-        from ..colour.stage import ColourMatrix
         if not isinstance(following, ColourMatrix) or self.interleaved:
             return None
         m = np.asarray(following.matrix, dtype=np.float64)

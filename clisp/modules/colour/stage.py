@@ -1,7 +1,7 @@
 """Per-pixel colour steps on 3-channel images (kernels in ``colour.cl``, halo 0).
 
 ColourMatrix: white-balanced camera channels -> linear sRGB. WhiteBalance2: von Kries gains on
-linear sRGB (colour constancy, SPEC.md section 7), a diagonal matrix through the same kernel.
+linear sRGB (colour constancy, docs/model.md section 4), a diagonal matrix through the same kernel.
 ToneCurve: clip to [0, 1] and sRGB-encode (by polynomial, clisp/modules/colour/srgb.h), optionally to 16-bit codes,
 for integer outputs.
 """

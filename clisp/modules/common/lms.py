@@ -9,7 +9,7 @@ from ...errors import ClispError
 from ...sim.noise import ChannelNoise
 
 LATTICE = {"L_PAR": 0, "S_Y": 0, "S_D": 1}
-"""The kernels' closed form of the base LMS tile (SPEC section 1, phase (0, 0)): L iff x + y + L_PAR is
+"""The kernels' closed form of the base LMS tile (docs/model.md section 1, phase (0, 0)): L iff x + y + L_PAR is
 even; S iff y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (``at_l``, ``at_s`` in
 clisp/modules/common/common.h)."""
 
@@ -23,7 +23,7 @@ def binomial(n: int) -> np.ndarray:
 
 
 def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray:
-    """(2R+1)^2 windowed diamond half-band filter (SPEC section 4).
+    """(2R+1)^2 windowed diamond half-band filter (D of the hybrid demosaic's step B).
 
     D[n1, n2] ~ (2/pi^2) s(n1+n2) s(n1-n2) w(n1) w(n2), s(t) = sin(pi t/2)/t, s(0) = pi/2,
     w = numpy.hamming(2R+3)[1:-1]. Ideal response: 1 inside the diamond |w_x| + |w_y| < pi, 0 outside.
@@ -31,8 +31,8 @@ def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray
 
     Normalisation: the windowed taps sum to 0.99494, not 1. ``exact_halfband`` (default) keeps the
     centre at 1/2 and scales the off-centre taps to sum 1/2: DC gain 1 and exactly 0 at (pi, pi), the
-    two properties SPEC section 4 states for h_lum (a flat L/M field then demosaics exactly).
-    False: SPEC's literal "normalised to sum 1" (centre 0.50254, response 0.00509 at (pi, pi)).
+    two properties h_lum needs (a flat L/M field then demosaics exactly).
+    False: every tap scaled to sum 1 (centre 0.50254, response 0.00509 at (pi, pi)).
     """
     t = np.arange(-radius, radius + 1)
     n1, n2 = np.meshgrid(t, t, indexing="ij")
@@ -53,7 +53,7 @@ def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray
 
 
 def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int, int]:
-    """(L, M, S) channel indices after checking the neighbourhood step A relies on (SPEC section 1):
+    """(L, M, S) channel indices after checking the neighbourhood step A relies on (docs/model.md section 1):
     around every S site the 4-neighbours are L, the diagonals and (0, +-2), (+-2, 0) are M, the
     (+-2, +-2) are S; L and M+S fill the two quincunxes."""
     if cfa.kind != "lms" or set(cfa.channels) != {"L", "M", "S"}:
@@ -77,7 +77,7 @@ def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int,
 
 def lattice_shift(cfa: CFA, ch_l: int, ch_s: int) -> tuple[int, int]:
     """(ty, tx) with channel(y, x) = base tile at (y + ty, x + tx) for every pixel, where the base tile
-    is LATTICE's; every CFA that passes check_lms_structure is such a translate (SPEC section 1)."""
+    is LATTICE's; every CFA that passes check_lms_structure is such a translate (docs/model.md section 1, "Phase")."""
     yy, xx = np.mgrid[0:cfa.period, 0:cfa.period]
     for ty in range(4):
         for tx in range(4):

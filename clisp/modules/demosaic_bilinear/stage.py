@@ -6,7 +6,7 @@ radius from the CFA description (Bayer: 1 for R, G, B, which reproduces classic 
 LMS: 1 for L and M, 2 for the 1-in-8 S). Halo = max r_c.
 
 The reference below is the normalised convolution itself. On OpenCL the same operator runs as a
-per-phase linear filter (``linear_filter.py``), whose weights are derived here from the CFA.
+per-phase linear filter (clisp/modules/linear_filter), whose weights are derived here from the CFA.
 """
 from __future__ import annotations
 

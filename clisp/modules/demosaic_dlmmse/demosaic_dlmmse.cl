@@ -1,4 +1,4 @@
-/* DLMMSE demosaic (Zhang & Wu 2005, SPEC.md section 5); NumPy reference and step list in
+/* DLMMSE demosaic (Zhang & Wu 2005, as Getreuer documents it); NumPy reference and step list in
  * clisp/modules/demosaic_dlmmse/stage.py, one kernel per step with the same names.
  *
  * Defines from the host:

@@ -3,7 +3,7 @@
 L. Zhang and X. Wu, "Color demosaicking via directional linear minimum mean square-error
 estimation", IEEE Trans. Image Processing 14(12), 2167-2178, 2005; as documented by P. Getreuer,
 "Zhang-Wu directional LMMSE image demosaicking", IPOL 1 (2011) 117-126, doi:10.5201/ipol.2011.g_zwld
-(reference C code ``dmzhangwu.c``). SPEC.md section 5. Input: white-balanced Bayer mosaic in [0, 1].
+(reference C code ``dmzhangwu.c``). Input: white-balanced Bayer mosaic in [0, 1].
 
 Steps, each a function below and a kernel ``dlmmse_<step>`` in ``clisp/modules/demosaic_dlmmse/demosaic_dlmmse.cl``
 (radius = the halo the step reads, along its direction)::
@@ -51,17 +51,17 @@ from ..demosaic_malvar.stage import check_bayer
 R, G, B = 0, 1, 2
 
 INTERPOLATION = np.array([-1, 2, 2, 2, -1]) / 4.0
-"""Hamilton-Adams 1-D interpolation along a row or column (SPEC 5 step 1): neighbour mean plus half
+"""Hamilton-Adams 1-D interpolation along a row or column (step ``directional_differences``): neighbour mean plus half
 the second difference of the centre channel."""
 
 SMOOTHING = np.array([4, 9, 15, 23, 26, 23, 15, 9, 4]) / 128.0
-"""Smoothing of the difference signals along their direction (SPEC 5 step 3), about Gaussian sigma 2."""
+"""Smoothing of the difference signals along their direction (step ``smooth``), about Gaussian sigma 2."""
 
 WINDOW_RADIUS = 4
-"""M: the LMMSE statistics use the 2M+1 = 9 smoothed samples along the direction (SPEC 5 step 4)."""
+"""M: the LMMSE statistics use the 2M+1 = 9 smoothed samples along the direction (step ``lmmse_fuse``)."""
 
 EPSILON = 0.1 / 255.0 ** 2
-"""eps added to the noise variance and the error variance (SPEC 5 step 4): avoids 0/0 on flat areas."""
+"""eps added to the noise variance and the error variance (step ``lmmse_fuse``): avoids 0/0 on flat areas."""
 
 LOCAL_MEANS = ("centre", "window")
 
@@ -169,7 +169,7 @@ class DemosaicDLMMSE(Stage):
     """H x W white-balanced Bayer mosaic -> (H-24) x (W-24) x 3 camera RGB (Zhang-Wu DLMMSE).
 
     local_mean  mu of the LMMSE estimate: 'centre' (the smoothed difference at the pixel, Zhang's
-                MATLAB code and Getreuer's default; SPEC default) or 'window' (its mean over the
+                MATLAB code and Getreuer's default; ours) or 'window' (its mean over the
                 9-sample window, as in the paper).
     matrix      3 x 3 applied to the output (identity unless a following ColourMatrix was fused in;
                 a schedule choice for the OpenCL path that saves one pass over the image).

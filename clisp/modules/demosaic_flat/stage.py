@@ -20,9 +20,8 @@ exactly (box means and bilinear interpolation are both exact on linear functions
 centre, ``axial`` on the 4 axial and ``diagonal`` on the 4 diagonal neighbours; ``detail`` = the
 channels that carry luminance (LMS: L and M, not the sparse S, as the guided demosaic's Y; Bayer:
 all three). d is added to every channel, so the fine texture is neutral. The weights are chosen
-per CFA so that the grain matches the full path's on flat fields (AXIAL: measured on the 12 MP
-sky of tools/calibrate_skip.py, luminance error variance of the flat path / the full path's: LMS
-0.89-0.91 with axial 2, Bayer 0.68-0.70 with axial 0.5, against 1.2 and 0.46 with axial 1).
+per CFA so that the grain matches the full path's on flat fields (AXIAL; flat / full luminance
+error variance on a 12 MP sky: LMS 0.89-0.91 with axial 2, Bayer 0.68-0.70 with 0.5; README.md).
 
 Input: the white-balanced mosaic window (H x W, float32); output: the camera channels
 (H - 2 halo) x (W - 2 halo) x n_channels, halo = (Rc + 2) S. Chroma noise left: the mean of about

@@ -1,4 +1,4 @@
-/* LMS hybrid demosaic (paper Fig. 5, SPEC section 4): one kernel per algorithm step, in run order;
+/* LMS hybrid demosaic (paper Fig. 5): one kernel per algorithm step, in run order;
  * NumPy twins of the same names in clisp/modules/demosaic_lms/stage.py.
  * Defines from the host: CFA_PERIOD; CH_L, CH_M, CH_S (channel indices of the CFA description);
  * SELECT (0 soft, 1 hard, 2 iso: step A direction choice); NOISY (0: noiseless, eps constant);

@@ -1,9 +1,9 @@
 """The paper's hybrid spatial/frequency LMS demosaic (Fig. 5) with S by a masked guided filter.
 
 T. Singh & M. Singh, *The Case for an LMS Camera*, section "Demosaicking", Fig. 5; our reading of
-it is SPEC.md section 4. Input: the white-balanced LMS mosaic p (H x W); output: L, M, S at every
-pixel ((H - 2 halo) x (W - 2 halo) x 3). With ``mod = +1 at L sites, -1 elsewhere`` (the (pi, pi)
-carrier, ``(-1)^(x+y)`` up to the CFA phase):
+it is written out below (the choices the paper leaves open: README.md). Input: the white-balanced
+LMS mosaic p (H x W); output: L, M, S at every pixel ((H - 2 halo) x (W - 2 halo) x 3). With
+``mod = +1 at L sites, -1 elsewhere`` (the (pi, pi) carrier, ``(-1)^(x+y)`` up to the CFA phase):
 
 Step A, M at S sites (``m_at_s``, radius 2). Four directional estimates E_d (h, v and the two
 diagonals, each the mean of the two nearest M samples on that line) and gradients G_d (h/v: |M pair|
@@ -21,8 +21,8 @@ Step B, luminance/chrominance split (``luma_lowpass`` radius 4, ``chroma_demodul
 
 g5: 5x5 binomial, g_c: 9x9 binomial (run separably: rows with the demodulation, columns with the
 combination), D: 9x9 Hamming-windowed diamond half-band filter (``diamond_halfband``; centre 1/2 and
-the other taps scaled to sum 1/2, so that h_lum has the DC gain 1 and the zero at (pi, pi) that SPEC
-states; SPEC's literal "normalised to sum 1" is ``exact_halfband=False``, which changes the noiseless
+the other taps scaled to sum 1/2, so that h_lum has the DC gain 1 and the zero at (pi, pi) it
+needs; every tap scaled to sum 1 is ``exact_halfband=False``, which changes the noiseless
 PSNR by <= 0.05 dB but leaves 0.0038 at (pi, pi), so a flat L != M field comes back 0.2% wrong).
 At the default alpha = 0.75, h_lum is (rows y = -4..4, columns x = -4..4; 8-fold symmetric, 53 non-zero
 taps, weights to 6 decimals)::
@@ -34,8 +34,8 @@ taps, weights to 6 decimals)::
     [ 0        .006787 -.005859  .163486  .589844  .163486 -.005859  .006787  0      ]
     (rows 1..4 mirror rows -1..-4)
 
-Frequency response: 1 at DC; 0 at the (pi, pi) chroma carrier (|H| < 1e-15; with SPEC's literal
-normalisation 0.00382 = alpha * 0.00509, the windowed diamond's leak); 0.625 at (0, pi) and (pi, 0);
+Frequency response: 1 at DC; 0 at the (pi, pi) chroma carrier (|H| < 1e-15; with every tap scaled to
+sum 1, 0.00382 = alpha * 0.00509, the windowed diamond's leak); 0.625 at (0, pi) and (pi, 0);
 0.609 at (pi/2, pi/2). Flat-field noise gain sum(h^2) = 0.463 (-3.34 dB of pixel noise).
 
 Step C, S: He et al.'s guided filter with guide I = lum and statistics over the S sites only (chi = S
@@ -94,7 +94,7 @@ i32, f32 = np.int32, np.float32
 # ---------------------------------------------------------------------------------- filters
 
 def luma_filter(alpha: float = 0.75, exact_halfband: bool = True) -> np.ndarray:
-    """h_lum = (1 - alpha)(delta - g5 . mod) + alpha D, 9 x 9 (SPEC section 4 step B)."""
+    """h_lum = (1 - alpha)(delta - g5 . mod) + alpha D, 9 x 9 (step B)."""
     r = LUM_RADIUS
     t = np.arange(-r, r + 1)
     mod = (-1.0) ** (t[:, None] + t[None, :])
@@ -118,7 +118,7 @@ def frequency_response(h: np.ndarray, wy: float, wx: float) -> float:
 
 @dataclass(frozen=True)
 class LMSHybridParams:
-    """Parameters of :class:`DemosaicLMSHybrid`; defaults are SPEC section 4's decisions.
+    """Parameters of :class:`DemosaicLMSHybrid`; defaults are our choices where the paper is silent (README.md).
 
     Units: signal values are white-balanced normalised raw (white ~ 1); radii in pixels.
     """
@@ -134,7 +134,7 @@ class LMSHybridParams:
     alpha: float = 0.75
     """Step B: blend of the (pi, pi) notch (0) and the diamond half-band (1) in h_lum."""
     exact_halfband: bool = True
-    """Step B: normalise D as a true half-band filter (0 at (pi, pi)); False: SPEC's sum-1 scaling."""
+    """Step B: normalise D as a true half-band filter (0 at (pi, pi)); False: every tap scaled to sum 1."""
     s_method: Literal["guided", "bilateral"] = "guided"
     """Step C: masked guided filter (default) or joint bilateral interpolation."""
     gf_radius: int = 4
@@ -362,8 +362,8 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
 
     # -- OpenCL ---------------------------------------------------------------------------------
     def defines(self) -> dict[str, int | float]:
-        select = SELECTS.index(self.params.select)
         """Compile-time constants of clisp/modules/demosaic_lms/demosaic_lms.cl (see its header)."""
+        select = SELECTS.index(self.params.select)
         return {"CFA_PERIOD": self.cfa.period, "CH_L": self.ch_l, "CH_M": self.ch_m, "CH_S": self.ch_s,
                 "SELECT": select, "NOISY": int(self.noise is not None), "LUM_R": LUM_RADIUS,
                 "CHROMA_R": CHROMA_RADIUS, "BL_R": self.params.bl_radius,

@@ -1,7 +1,7 @@
 """Guided LMS demosaic: guided-filter residuals for M at S sites, guided chroma, and a noise-driven
 LMMSE luminance blend (issue 3; default candidate for LMS raws).
 
-Why: with paper eq. (1), R = 0.86 Y + 8.6 C + 0.14 S (Y = (L+M)/2, C = (L-M)/2, SPEC.md section 2a),
+Why: with paper eq. (1), R = 4.73 L - 3.87 M + 0.14 S = 0.86 Y + 8.6 C + 0.14 S (Y = (L+M)/2, C = (L-M)/2),
 so every L/M separation error reaches red amplified 8.6x. The hybrid of Fig. 5 (``demosaic_lms``)
 low-passes the luminance and keeps the chroma within a 9 x 9 binomial; this stage instead keeps every
 measured L/M sample, estimates the chroma by a guided filter (edges of the chroma follow edges of the
@@ -66,12 +66,8 @@ luminance blend uses the noise variance of y - ylp, sum(D^2) var(L/M sample). On
 Y = ylp (the diamond low-pass of the hybrid with alpha = 1), which is where the SNR lead over Bayer
 comes from; on detail w -> 1 and every sample is kept.
 
-Measured through the OpenCL pipeline (noiseless, Airy r0 = 1 px, tone-mapped PSNR, border 10, set
-means; ``tools/lms_demosaic_eval.py``, 2026-11-25): Kodak 24 37.59 dB, McMaster 18 34.74 dB (Bayer
-DLMMSE 36.21 / 32.73, hybrid 33.90 / 32.09); charts.zone_plate(256) 40.37 dB, linear 46.64 (Bayer
-DLMMSE 29.64 / 44.55, hybrid 14.97). With chroma_radius 3 (until issue 17): 37.50 / 34.55, zone
-plate 43.06 / 52.14. Without alias suppression (radius 3): Kodak 37.46, McMaster 34.42, zone plate
-28.67 (with the generic L - M term alone strong enough for 40 dB, alias_c = 0.1, Kodak fell to 37.02).
+Noiseless tone-mapped PSNR (2026-11-25): Kodak 37.59 dB, McMaster 34.74 dB against Bayer DLMMSE's
+36.21 / 32.73; the measurements and their history are in README.md.
 
 Pipeline use: ``DemosaicLMSGuided.for_raw(raw)`` (noise from RawImage.metadata, neutral from its
 colour matrix); a raw without a gain in its metadata is treated as noiseless.
@@ -176,12 +172,9 @@ class LMSGuidedParams:
     ms_eps: float = 1e-4
     """M at S: guided-filter regulariser (signal^2), plus the target's noise variance."""
     chroma_radius: int = 2
-    """Chroma: guided-filter radius (px) of the demodulated chroma against ylp. 2 (was 3): the chroma
-    of an edge the luminance does not mark spreads over the filter's support (B5, then windows of
-    2 r + 1 averaged over 2 r + 1 px), so colour moves across it (issue 17). Ring colour shift of
-    tools/bench_bleeding.py (mean / worst a*b*): noiseless 0.49 / 2.60 -> 0.33 / 1.36, gain 8
-    0.71 / 2.31 -> 0.61 / 1.43, gain 64 unchanged (the denoiser's); noiseless Kodak +0.09 dB,
-    McMaster +0.19 dB, zone plate 43.06 -> 40.37 dB; PSNR at gains 4-64 within 0.03 dB."""
+    """Chroma: guided-filter radius (px) of the demodulated chroma against ylp. 2 (was 3, issue 17):
+    less colour spread across edges the luminance does not mark (noiseless ring shift, worst a*b*,
+    2.60 -> 1.36; README.md)."""
     chroma_eps: float = 1e-5
     """Chroma: guided-filter regulariser (signal^2), plus the noise variance of ylp."""
     chroma_guide: float = 0.0

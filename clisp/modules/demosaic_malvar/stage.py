@@ -12,7 +12,7 @@ pixel; the paper publishes the result as four 5 x 5 kernels (scaled by 1/8), use
     R at B sites, B at R sites                ``RB_AT_BR``
 
 Measured samples are kept. The operator is linear, so on OpenCL it runs as a per-phase linear
-filter (``linear_filter.py``, halo 2), which also folds the preceding normalisation and white
+filter (clisp/modules/linear_filter, halo 2), which also folds the preceding normalisation and white
 balance and the following colour matrix into one kernel. :meth:`DemosaicMalvar.reference` is an
 independent implementation (the four kernels convolved with the mosaic, picked per site by masks),
 so the test compares two different derivations of the same operator.

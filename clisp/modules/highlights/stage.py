@@ -49,20 +49,11 @@ channels ("inpaint opposed", locally); where the evidence is weak the pixel beco
                              every channel's record: brightness never falls as the scene brightens)
 
 Why trust: the far references are every bright unclipped pixel within R, whether or not they
-belong to the light. A white highlight beside saturated feathers (Kodak 23) took their colour,
-and dividing the free channel by their small chroma made K up to 5x the record; the LMS matrix
-(R = 4.73 L - 3.87 M) turns a 10 % L - M error into 0.5 of red. So the far colour is used only
-where the light's own edge (the rim, within RIM of clipped pixels) has that colour, where the
-pixel's two free channels have it, and where the brightness it implies is within a few times
-that of the references; distances are taken after the colour matrix, where they are seen. A rim
-pixel whose colour differs from many far references is a surface of its own (teal beside a white
-disc) and keeps its colour; one with few far references around it (a lamp on a dark wall)
-takes the neutral, which removes the demosaic's false colour there.
-
-A clipped channel's record is a lower bound on the truth, so the brightness K is at least what it
-implies with the colour rho: without that, a channel that the demosaic put a little low (the
-unclipped S beside clipped L on the LMS ramp) dragged the clipped ones below a channel that had
-just passed its threshold, and coloured lights lost the bright side of their colour.
+belong to the light (a white highlight beside saturated feathers, Kodak 23, took their colour with
+K up to 5x the record). So the far colour is used only where the light's rim, the pixel's free
+channels and the implied brightness agree with it, compared after the colour matrix. A clipped
+channel's record is a lower bound on the truth, so K is at least what it implies with rho. The
+reasoning in full: README.md.
 
 The clipped test on demosaiced values uses MARGIN times the mosaic's threshold (demosaics put a
 clipped channel a few percent low), and DIP times that next to a pixel where the channel is
@@ -159,12 +150,9 @@ contradicts them, and y_c / rho^_c would blow the other channels up."""
 DIP = 0.8
 """At a pixel with a clipped channel, another channel at or above this share of its threshold
 counts as clipped where it is clipped at one of the 8 neighbours: a demosaic puts a clipped
-channel well below its clip level at the sites of the other channels (guided LMS, a blown lamp: M 3 % under its threshold at S sites, next to
-clipped M), which left single pixels coloured on blown whites (per-pixel chroma up to 0.7; 16 px
-block chroma 0.043-0.055 on the benchmark's soft-edged lamp, LMS gain 1, 128 px; 0.001 with
-it). Only where another channel is clipped: on a light's edge, where no channel is clipped, the
-demosaiced channels disagree for other reasons, and raising one of them to the others' level
-coloured the edge (hard-edged lamp 0.002 -> 0.033 without that condition)."""
+channel well below its clip level at the sites of the other channels (guided LMS, blown lamp:
+16 px block chroma 0.043-0.055 without this, 0.001 with it). Only where another channel is
+clipped: raising a channel on an unclipped light's edge coloured it (README.md)."""
 
 
 @dataclass

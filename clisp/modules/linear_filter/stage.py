@@ -1,4 +1,4 @@
-"""Per-phase linear filters on the raw mosaic (kernel ``demosaic_linear.cl: phase_filter``).
+"""Per-phase linear filters on the raw mosaic (kernels ``linear_filter.cl``: ``phase_filter``, ``phase_filter_px``).
 
 Output channel c at a pixel of CFA phase k is ``bias[k, c] + sum_t weights[k, c, t] * raw(tap t)``
 over the (2R+1)^2 window; ``support`` marks the taps that can be non-zero (structure of the
@@ -27,9 +27,8 @@ from ..colour.stage import ColourMatrix, ToneCurve, srgb_source
 
 
 FUSE_TONE_CURVE = False
-"""Whether the tone curve folds into the phase filter. Measured on PoCL (24 MP Bayer, fast preset
-to 16-bit codes): fused, the filter's block loop with the curve inside ran at about 105 MP/s; the
-filter alone (linear, planar) and the separate tone-curve kernel run at about 800 and 270 MP/s."""
+"""Whether the tone curve folds into the phase filter: no, fused it ran at about 105 MP/s against
+800 and 270 MP/s for the filter and the tone-curve kernel apart (PoCL, 24 MP; README.md)."""
 
 
 def tap_offsets(radius: int) -> np.ndarray:
@@ -48,16 +47,14 @@ def tap_channels(cfa: CFA, radius: int) -> np.ndarray:
 
 PER_COLUMN_PERIOD = 2
 """CFA period for which whole-row tiles take kernel ``phase_filter_px`` (one work-item per column)
-instead of the block kernel. Measured on PoCL, bilinear Bayer to interleaved float, 24 MP in
-6000x308 bands: block kernel 50-64 ms, per column 20 ms (dense) and 13 ms (factored). The LMS
-period 4 would compute four column phases per pixel; it keeps the block kernel."""
+instead of the block kernel: 13-20 ms against 50-64 ms for 24 MP of bilinear Bayer on PoCL (README.md).
+The LMS period 4 would compute four column phases per pixel; it keeps the block kernel."""
 
 
 PER_COLUMN_GROUP = (128, 1)
-"""Work-group of kernel ``phase_filter_px``: one row of 128 columns. Measured on PoCL, 24 MP Bayer
-to float RGB in 13 bands of 6000 x 308: the kernel alone 12.5-12.8 ms with (128, 1) or (128, 4),
-15.8-17.0 ms with (64, 1) or WORK_GROUP (64, 4); the tile loop 25-27 ms against 34 ms. A group one
-row high also never leaves a ragged strip of rows, so a band is two launches instead of four."""
+"""Work-group of kernel ``phase_filter_px``: one row of 128 columns (12.5-12.8 ms against 15.8-17.0
+with 64 columns, 24 MP Bayer on PoCL; README.md). A group one row high also never leaves a ragged
+strip of rows, so a band is two launches instead of four."""
 
 
 def channel_pure(basis: np.ndarray, channels: np.ndarray) -> bool:

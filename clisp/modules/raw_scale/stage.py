@@ -1,7 +1,7 @@
 """Per-pixel affine steps on the raw mosaic: black/white normalisation and white balance pass 1.
 
 Both compute ``out = (raw - offset[c]) * scale[c]`` with c the CFA channel of the pixel
-(kernel ``raw.cl: cfa_affine``, halo 0).
+(kernel ``raw_scale.cl: cfa_affine``, halo 0).
 """
 from __future__ import annotations
 
