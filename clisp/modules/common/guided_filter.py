@@ -17,7 +17,7 @@ applied). The output is the window shrunk by 2r on every side.
 
 Users: ``demosaic_lms`` (the hybrid, step C: S over the S sites against lum, level muS) and
 ``demosaic_lms_guided`` (M at S, chroma and S passes). On the device the CFA membership is a closed form
-(``lms_common.LATTICE``), the CFA phase folded into the image coordinates by ``lattice_shift``.
+(``clisp.modules.common.lms.LATTICE``), the CFA phase folded into the image coordinates by ``lattice_shift``.
 """
 from __future__ import annotations
 
@@ -123,7 +123,7 @@ def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: 
 # ---------------------------------------------------------------------------------- OpenCL
 # The filter runs on an "own" window (h, w); the guide (plane g_plane) and v live on device images whose
 # pixel (g_off, g_off), resp. (v_off, v_off), is own-window pixel (0, 0). ``origin``: image coordinates
-# of own-window pixel (0, 0); ``shift``: lms_common.lattice_shift of the CFA.
+# of own-window pixel (0, 0); ``shift``: clisp.modules.common.lms.lattice_shift of the CFA.
 
 def _kernel(rt: Runtime, name: str, r: int, mask: int = MASK_ALL, level_from_guide: bool = False) -> object:
     """Kernel ``name`` of clisp/modules/common/guided_filter.cl built for radius r, ``mask`` and the eps level (one
