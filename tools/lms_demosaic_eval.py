@@ -69,7 +69,7 @@ def registered(names: list[str], kind: str) -> list[str]:
         stage = clisp.pipeline.DEMOSAICS.get(name)
         if stage is None:
             print(f"(skipping {name!r}: not a registered demosaic)", file=sys.stderr)
-        elif kind not in getattr(stage, "cfa_kinds", (kind,)):
+        elif kind not in (stage.cfa_kinds or (kind,)):          # None: any CFA
             print(f"(skipping {name!r}: not a {kind} demosaic)", file=sys.stderr)
         elif name not in kept:
             kept.append(name)
