@@ -46,12 +46,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # noqa: F401  (before clisp: puts this checkout on sys.path)
 
-from clisp.sim.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois  # noqa: E402
-from clisp.metrics import gray_panel_snr, linear_srgb_to_lab  # noqa: E402
-from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.sim.simulate import simulate  # noqa: E402
+from clisp.sim.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois
+from clisp.metrics import gray_panel_snr, linear_srgb_to_lab
+from clisp.pipeline import build_pipeline
+from clisp.sim.simulate import simulate
 
 PATCH, GAP = 64, 48
 DISC_RADII = (8, 16, 32)

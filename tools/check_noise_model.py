@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 
+import toolkit  # noqa: F401  (before clisp: puts this checkout on sys.path)
+
 import clisp
 from clisp.sim.noise import NoiseModel
 from clisp.sim.simulate import inverse_isp_matrix
