@@ -14,8 +14,8 @@ it (Chebyshev distance for patches, Euclidean for discs) in the output and in th
 optics-blurred truth, both converted to CIELAB; the shift is the a*b* distance of the two means
 (noise averages out in a ring mean, so what remains is colour moved across the edge). Reported:
 mean and worst over the 24 patches, and over the 18 discs; averaged over ``--seeds`` noise seeds.
-Also the gray-panel SNR (SPEC section 8: central 32 x 32 of the six neutral patches, linear,
-mean over R, G, B and panels), to show both sides of the trade.
+Also the gray-panel SNR (docs/model.md section 5: central 32 x 32 of the six neutral patches,
+linear, mean over R, G, B and panels), to show both sides of the trade.
 
 First figures (2026-11-24, 2 shared cores, seed 0, preset quality; ``--gains 8,64 --seeds 1``)::
 

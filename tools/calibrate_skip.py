@@ -12,7 +12,7 @@
 Per scene, CFA and gain: the raw is simulated (clisp.sim.simulate, seed 1), the 'quality' preset
 pipeline is built with skip=True (default) and skip=False (--no-skip: analysed, every tile full),
 both run on OpenCL (best of --repeat, analysis time added to the default's), and PSNR
-(tone-mapped, SPEC section 8) is taken against the simulation's truth. Data are read from
+(tone-mapped, docs/model.md section 5) is taken against the simulation's truth. Data are read from
 --data (never copied). Prints one row per case and the means.
 
 First measurement (2 shared CPU cores, PoCL, OpenCL backend, automatic tiles, best of 2;

@@ -1,9 +1,10 @@
-"""The paper's Table 1 and Table 2 from clisp, beside the paper's numbers (SPEC sections 8 and 9).
+"""The paper's Table 1 and Table 2 from clisp, beside the paper's numbers (PAPER_T1, PAPER_T2).
 
 Pipelines (OpenCL): normalise, WB pass 1, demosaic, chroma denoise (clisp.modules.chroma_denoise.stage:
 LMS in the paper's Y = (L+M)/2 / R-Y, G-Y, B-Y space, Bayer in BT.601 YUV, noise levels from the
-simulation's noise model) -- or, "without denoise", the plain colour matrix. Simulation: SPEC
-section 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless).
+simulation's noise model) -- or, "without denoise", the plain colour matrix. Simulation: docs/model.md
+sections 2 and 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless);
+metrics: docs/model.md section 5.
 
 Table 2  gray-panel SNR (dB) of the six ColorChecker neutrals on the demo chart
          (clisp.sim.charts.demo_chart: 64 px patches, central 32 x 32 ROI), LINEAR output, mean over
