@@ -86,10 +86,11 @@ def test_bench_peers_camera_bayer(tmp_path, capsys):
     """With ../shared/data: the Bayer input is the Canon D30's mosaic, tiled."""
     import bench_peers
     import pytest
+    from toolkit import DEFAULT_DATA
 
-    if not (bench_peers.DEFAULT_DATA / bench_peers.CAMERA_RAW).is_file():
+    if not (DEFAULT_DATA / bench_peers.CAMERA_RAW).is_file():
         pytest.skip("no camera raw in ../shared/data")
-    _, text = _bench_peers_small(tmp_path, bench_peers.DEFAULT_DATA, capsys)
+    _, text = _bench_peers_small(tmp_path, DEFAULT_DATA, capsys)
     assert "RAW_CANON_D30_SRGB.CRW's CFA mosaic tiled" in text
 
 

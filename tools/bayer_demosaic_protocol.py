@@ -32,15 +32,16 @@ import os
 import platform
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import BORDER, KODAK, MCMASTER, cpsnr, image_files, load_8bit
+
 from clisp.cfa import bayer_cfa
-from clisp.io.imageio import read_image, read_scene
-from clisp.metrics import psnr
+from clisp.io.imageio import read_scene
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
 from clisp.modules.base import Stage
@@ -49,8 +50,7 @@ from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 from clisp.modules.demosaic_malvar.stage import DemosaicMalvar
 
 CFA = bayer_cfa("RGGB")
-BORDER = 10
-SETS = {"Kodak": ("kodak", "*.png"), "McMaster": ("mcmaster", "*.tif")}
+SETS = {"Kodak": KODAK, "McMaster": MCMASTER}
 SPEED_SHAPE = (4000, 6000)
 
 OURS: dict[str, Stage] = {
@@ -72,23 +72,10 @@ def colour_demosaicing_methods() -> dict[str, Callable[[np.ndarray], np.ndarray]
     }
 
 
-def load_8bit(path: Path) -> np.ndarray:
-    """An 8-bit sRGB file as float64 H x W x 3 in [0, 1], exactly k / 255 (no linearisation)."""
-    pixels = read_image(path)[0].astype(np.float64) * 255.0
-    codes = np.round(pixels)
-    if np.abs(pixels - codes).max() > 1e-3:
-        raise SystemExit(f"{path}: not an 8-bit image")
-    return codes / 255.0
-
-
 def mosaic(image: np.ndarray) -> np.ndarray:
     """RGGB mosaic of an H x W x 3 image: the CFA channel's value at every pixel."""
     channel = CFA.channel_map(image.shape[0], image.shape[1])
     return np.take_along_axis(image, channel[..., None].astype(np.intp), axis=2)[..., 0]
-
-
-def cpsnr(output: np.ndarray, truth: np.ndarray) -> float:
-    return psnr(output, truth, border=BORDER, tone_mapped=False)
 
 
 def quality(data: Path, per_image: bool) -> dict[str, dict[str, list[float]]]:
@@ -98,12 +85,9 @@ def quality(data: Path, per_image: bool) -> dict[str, dict[str, list[float]]]:
         for name, stage in OURS.items()}
     methods.update(colour_demosaicing_methods())
     scores: dict[str, dict[str, list[float]]] = {}
-    for set_name, (folder, pattern) in SETS.items():
-        files = sorted((data / folder).glob(pattern), key=lambda p: (len(p.stem), p.stem))
-        if not files:
-            raise SystemExit(f"no {pattern} images in {data / folder}; pass --data")
+    for set_name, image_set in SETS.items():
         scores[set_name] = {name: [] for name in methods}
-        for path in files:
+        for path in image_files(data, image_set, numeric=True):
             truth = load_8bit(path)
             m = mosaic(truth)
             row = []
@@ -130,24 +114,8 @@ def print_quality(scores: dict[str, dict[str, list[float]]]) -> None:
 def bayer_raw(data: Path):
     """A 6000 x 4000 Bayer raw simulated by clisp (noisy, uint16) from a tiled Kodak image."""
     from clisp.sim.simulate import simulate
-    tile = read_scene(data / "kodak" / "kodim23.png")
-    reps = (-(-SPEED_SHAPE[0] // tile.shape[0]), -(-SPEED_SHAPE[1] // tile.shape[1]), 1)
-    scene = np.tile(tile, reps)[:SPEED_SHAPE[0], :SPEED_SHAPE[1]]
+    scene = toolkit.repeat_to(read_scene(toolkit.kodak_path(data, 23)), *SPEED_SHAPE)
     return simulate(scene, cfa=CFA, gain=1.0, optics="none", seed=0).raw
-
-
-def best_times(runs: dict[str, Callable[[], object]], repeat: int) -> dict[str, float]:
-    """Best wall time of every callable over ``repeat`` rounds. Each round runs all of them once,
-    so the ratios compare runs made under the same load (the machine may be shared)."""
-    for fn in runs.values():
-        fn()  # warm-up: program builds, buffer pool, page faults
-    best = {name: float("inf") for name in runs}
-    for _ in range(repeat):
-        for name, fn in runs.items():
-            start = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - start)
-    return best
 
 
 def kernels_only(stage: Stage, window: np.ndarray) -> Callable[[], None]:
@@ -178,14 +146,8 @@ def rawpy_ahd(raw, folder: Path) -> Callable[[], object]:
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    """CPU model, logical CPUs and the OpenCL device."""
+    cpu = toolkit.cpu_model(lambda: platform.processor() or platform.machine())
     return f"{cpu}, {os.cpu_count()} logical CPUs; OpenCL: {get_runtime().describe()}"
 
 
@@ -201,7 +163,7 @@ def speed(data: Path, repeat: int, tile: int | None = None) -> None:
         for name, stage in stages.items():
             runs[name + "/kernels"] = kernels_only(stage, np.pad(m, stage.halo, mode="reflect"))
             runs[name + "/pipeline"] = (lambda p=Pipeline(CFA, [stage]): p.run(m, tile=tile))
-        best = best_times(runs, repeat)
+        best = toolkit.best_times(runs, repeat)  # interleaved: the ratios compare runs under the same load
     ahd = best["ahd"]
     print(f"\nSpeed on a {SPEED_SHAPE[1]} x {SPEED_SHAPE[0]} ({megapixels:.0f} MP) Bayer mosaic, "
           f"best of {repeat} interleaved rounds")
@@ -217,21 +179,18 @@ def speed(data: Path, repeat: int, tile: int | None = None) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    repo = Path(__file__).resolve().parents[1]
-    parser.add_argument("--data", default=str(repo.parent / "shared" / "data"),
-                        help="folder holding kodak/ and mcmaster/ (default: ../shared/data from the repo root)")
+    toolkit.add_data_option(parser)
     parser.add_argument("--per-image", action="store_true", help="also print every image's CPSNR")
     parser.add_argument("--no-quality", action="store_true", help="skip the CPSNR protocol")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed measurement")
-    parser.add_argument("--repeat", type=int, default=5, help="timing rounds (best is kept)")
+    toolkit.add_repeat_option(parser, 5, "timing rounds, best kept")
     parser.add_argument("--tile", type=int, default=None,
                         help="output tile side for the end-to-end timing (default: whole image)")
     args = parser.parse_args(argv)
-    data = Path(args.data)
     if not args.no_quality:
-        print_quality(quality(data, args.per_image))
+        print_quality(quality(args.data, args.per_image))
     if not args.no_speed:
-        speed(data, args.repeat, args.tile)
+        speed(args.data, args.repeat, args.tile)
     return 0
 
 

@@ -40,7 +40,6 @@ Tools-only dependencies: matplotlib, rawpy, colour-demosaicing.
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import sys
 import tempfile
@@ -52,16 +51,15 @@ from typing import Callable
 
 import numpy as np
 
-from clisp.sim.charts import demo_chart
-from clisp.io.imageio import read_scene
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import BORDER, parse_shape, write_csv
+
 from clisp.metrics import psnr
 from clisp.pipeline import PRESETS, build_pipeline
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
 
-BORDER = 10
-SETS = {"Kodak": ("kodak", ("*.png",)), "McMaster": ("mcmaster", ("*.tif", "*.tiff"))}
 DEMOSAICS_BY_KIND = {"lms": ("bilinear", "hybrid", "guided"), "bayer": ("bilinear", "malvar", "dlmmse")}
 RAWPY_ALGOS = ("LINEAR", "AHD", "DCB", "DHT", "AAHD")
 CD_ALGOS = ("bilinear", "Malvar2004", "Menon2007")
@@ -187,20 +185,16 @@ def all_methods(peers: bool = True) -> list[Method]:
 
 # ------------------------------------------------------------------------------ scenes
 
-def crop4(scene: np.ndarray) -> np.ndarray:
-    return scene[:scene.shape[0] // 4 * 4, :scene.shape[1] // 4 * 4]
-
-
-def load_scenes(data: Path | None, subset: int) -> list[tuple[str, np.ndarray]]:
-    scenes = [("demo chart", demo_chart().image)]
+def load_scenes(data: Path | None, subset: int) -> list[toolkit.Scene]:
+    """The demo chart, then the first ``subset`` Kodak and McMaster images (cropped to multiples of 4)."""
+    scenes = toolkit.demo_charts()
     if data is None or subset <= 0:
         return scenes
-    for set_name, (folder, patterns) in SETS.items():
-        files = sorted({p for pat in patterns for p in (data / folder).glob(pat)})
-        if not files:
-            print(f"warning: no images in {data / folder}; {set_name} skipped", file=sys.stderr)
-        for path in files[:subset]:
-            scenes.append((f"{set_name}/{path.name}", crop4(read_scene(path))))
+    for image_set, load in ((toolkit.KODAK, toolkit.kodak), (toolkit.MCMASTER, toolkit.mcmaster)):
+        found = load(data, subset, required=False)
+        if not found:
+            print(f"warning: no images in {data / image_set.folder}; {image_set.label} skipped", file=sys.stderr)
+        scenes += [toolkit.Scene(f"{image_set.label}/{name}", image) for name, image in found]
     return scenes
 
 
@@ -240,13 +234,7 @@ def speed(methods: list[Method], scene: np.ndarray, shape: tuple[int, int], repe
     mp = shape[0] * shape[1] / 1e6
     result = {}
     for m in methods:
-        run = m.make(sims[m.cfa].raw)
-        run()                                              # warm-up: kernel builds, buffer pools
-        best = np.inf
-        for _ in range(repeat):
-            t = time.perf_counter()
-            run()
-            best = min(best, time.perf_counter() - t)
+        _, best = toolkit.best_of(m.make(sims[m.cfa].raw), repeat, warmup=True)   # warm-up: kernel builds, pools
         result[m.name] = mp / best
         if verbose:
             print(f"  speed: {m.name:28s} {mp / best:8.2f} MP/s ({best:.2f} s)", flush=True)
@@ -274,14 +262,6 @@ def rows_for(methods: list[Method], scores: dict, speeds: dict, gains: list[floa
                              psnr=round(scores[(m.name, gain)], 3), mp_per_s=round(speeds[m.name], 3),
                              pareto=m.name in front, pareto_same_cfa=m.name in front_cfa))
     return rows
-
-
-def write_csv(rows: list[dict], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
@@ -329,11 +309,6 @@ def short_device() -> str:
     return f"{platform.split(' (')[0]} / {device}" if device else text
 
 
-def parse_shape(text: str) -> tuple[int, int]:
-    h, w = (int(v) for v in text.lower().split("x"))
-    return h, w
-
-
 def run_bench(data: Path | None, subset: int, gains: list[float], speed_shape: tuple[int, int], repeat: int,
               csv_path: Path | None, plot_path: Path | None, peers: bool = True, verbose: bool = True) -> dict:
     """The whole benchmark; returns dict(rows, scenes, speed_scene, device, seconds)."""
@@ -341,8 +316,8 @@ def run_bench(data: Path | None, subset: int, gains: list[float], speed_shape: t
     methods = all_methods(peers)
     scenes = load_scenes(data, subset)
     speed_name, speed_scene = "demo chart", scenes[0][1]
-    if data is not None and (data / "kodak" / "kodim23.png").exists():
-        speed_name, speed_scene = "kodim23", crop4(read_scene(data / "kodak" / "kodim23.png"))
+    if data is not None and toolkit.kodak_path(data, 23).exists():
+        speed_name, speed_scene = "kodim23", toolkit.load_scene(toolkit.kodak_path(data, 23))
     if verbose:
         print(f"bench: {len(methods)} methods, {len(scenes)} scenes, gains {gains}, device {get_runtime().describe()}")
     scores = quality(methods, scenes, gains, verbose)
@@ -386,19 +361,18 @@ def summary(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    root = Path(__file__).resolve().parents[1]
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", type=Path, default=root / ".." / "shared" / "data")
+    toolkit.add_data_option(ap)
     ap.add_argument("--no-data", action="store_true", help="demo chart only (no Kodak/McMaster)")
     ap.add_argument("--subset", type=int, default=1, help="first N images of Kodak and of McMaster (default 1)")
     ap.add_argument("--gains", default="1,8,64")
     ap.add_argument("--speed-shape", default="3000x4000", help="HxW of the timing image (default 3000x4000, 12 MP)")
-    ap.add_argument("--repeat", type=int, default=3)
+    toolkit.add_repeat_option(ap, 3, "timed runs per method after a warm-up, best kept")
     ap.add_argument("--no-peers", action="store_true")
-    ap.add_argument("--csv", type=Path, default=root / "docs" / "bench.csv")
-    ap.add_argument("--plot", type=Path, default=root / "docs" / "bench.png")
+    ap.add_argument("--csv", type=Path, default=toolkit.REPO / "docs" / "bench.csv")
+    ap.add_argument("--plot", type=Path, default=toolkit.REPO / "docs" / "bench.png")
     args = ap.parse_args(argv)
-    data = None if args.no_data else args.data.resolve()
+    data = None if args.no_data else args.data
     result = run_bench(data, args.subset, [float(g) for g in args.gains.split(",")], parse_shape(args.speed_shape),
                        args.repeat, args.csv, args.plot, not args.no_peers)
     print(f"\n{'method':30s}" + "".join(f"{'PSNR g' + format(g, 'g'):>12s}" for g in sorted({r['gain'] for r in result['rows']}))

@@ -55,6 +55,8 @@ from typing import Callable
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+
 from clisp.engine import profile
 from clisp.cfa import bayer_cfa
 from clisp.pipeline import Pipeline
@@ -102,14 +104,14 @@ def rawpy_dht(mos: np.ndarray, folder: str) -> Callable[[], object]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shape", default="4000x6000", help="H x W of the mosaic (default 24 MP)")
-    ap.add_argument("--repeat", type=int, default=2)
+    toolkit.add_repeat_option(ap, 2)
     ap.add_argument("--green", type=int, default=5, help="ARI green_iterations")
     ap.add_argument("--chroma", type=int, default=2, help="ARI chroma_iterations")
     ap.add_argument("--profile", action="store_true", help="one more run with event profiling, per kernel")
     ap.add_argument("--skip-dlmmse", action="store_true")
     ap.add_argument("--no-dht", action="store_true", help="leave out rawpy's DHT")
     args = ap.parse_args()
-    h, w = (int(v) for v in args.shape.lower().split("x"))
+    h, w = toolkit.parse_shape(args.shape)
     cfa = bayer_cfa("RGGB")
     rt = get_runtime(profiling=args.profile)
     print(f"device: {rt.describe()}; host: {platform.processor() or platform.machine()}, "
@@ -120,11 +122,7 @@ def main() -> None:
         pipeline = Pipeline(cfa, [stage])
         plan = pipeline.plan(mos.shape, mos.dtype, None, 2**30, "opencl")
         pipeline.run(mos[:2 * stage.halo + 64, :2 * stage.halo + 64])          # build the programs
-        best = float("inf")
-        for _ in range(args.repeat):
-            t0 = time.perf_counter()
-            pipeline.run(mos)
-            best = min(best, time.perf_counter() - t0)
+        _, best = toolkit.best_of(lambda: pipeline.run(mos), args.repeat)
         mp = h * w / 1e6
         print(f"{type(stage).__name__:16s} halo {stage.halo:3d}  window {plan.window_shape}  "
               f"{best:7.2f} s  {mp / best:6.2f} MP/s", flush=True)
@@ -140,12 +138,7 @@ def main() -> None:
             print("rawpy DHT: absent (pip install rawpy)")
             return
         with tempfile.TemporaryDirectory() as folder:
-            run = rawpy_dht(mos, folder)
-            best = float("inf")
-            for _ in range(args.repeat):
-                t0 = time.perf_counter()
-                run()
-                best = min(best, time.perf_counter() - t0)
+            _, best = toolkit.best_of(rawpy_dht(mos, folder), args.repeat)
         print(f"{'rawpy DHT':16s} {'':18s}{'':24s}{best:7.2f} s  {h * w / 1e6 / best:6.2f} MP/s (postprocess)")
 
 

@@ -32,6 +32,8 @@ from typing import Callable
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+
 
 def copy_bandwidth(rt, nbytes: int = 256 * 2**20, repeat: int = 5) -> float:
     """Bytes read + written per second by a float copy kernel on the device."""
@@ -41,25 +43,18 @@ def copy_bandwidth(rt, nbytes: int = 256 * 2**20, repeat: int = 5) -> float:
     b = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, n * 4)
     kernel = cl.Kernel(cl.Program(rt.context, "__kernel void copy(__global const float *a, __global float *b)"
                                               "{ const int i = get_global_id(0); b[i] = a[i]; }").build(), "copy")
-    kernel(rt.queue, (n,), (64,), a, b)
-    rt.queue.finish()
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
+
+    def once() -> None:
         kernel(rt.queue, (n,), (64,), a, b)
         rt.queue.finish()
-        best = min(best, time.perf_counter() - start)
+    _, best = toolkit.best_of(once, repeat, warmup=True)
     return 2 * n * 4 / best
 
 
 def numpy_bandwidth(nbytes: int = 256 * 2**20, repeat: int = 5) -> float:
     """Bytes read + written per second by np.copyto on one thread."""
     src, dst = np.ones(nbytes // 4, np.float32), np.zeros(nbytes // 4, np.float32)
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        np.copyto(dst, src)
-        best = min(best, time.perf_counter() - start)
+    _, best = toolkit.best_of(lambda: np.copyto(dst, src), repeat)
     return 2 * nbytes / best
 
 
@@ -74,9 +69,8 @@ def test_raw(size: tuple[int, int], path: str | None):
     else:
         raw = clisp.simulate(demo_chart().image, cfa="bayer", gain=1, seed=0).raw
     h, w = (s - s % 2 for s in raw.shape)
-    reps = (-(-size[1] // h), -(-size[0] // w))
     from clisp.engine.streaming import aligned_copy           # as clisp's camera reader allocates it
-    data = aligned_copy(np.tile(raw.data[:h, :w], reps)[:size[1], :size[0]])
+    data = aligned_copy(toolkit.repeat_to(raw.data[:h, :w], size[1], size[0]))
     return replace(raw, data=data, metadata={})
 
 
@@ -157,12 +151,13 @@ def pipeline_bandwidth(raw, output: str, repeat: int, copy: Callable[[], float]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--size", default="6000x4000", help="mosaic W x H (default 6000x4000)")
-    parser.add_argument("--repeat", type=int, default=5, help="timed runs, best taken (default 5)")
+    parser.add_argument("--size", type=toolkit.parse_size, default=(6000, 4000), metavar="WxH",
+                        help="mosaic W x H (default 6000x4000)")
+    toolkit.add_repeat_option(parser, 5, "timed runs, best taken")
     parser.add_argument("--raw", default=None, help="a Bayer raw whose mosaic is tiled (default: simulated chart)")
     args = parser.parse_args()
     from clisp.engine.runtime import get_runtime
-    size = tuple(int(v) for v in args.size.lower().split("x"))
+    size = args.size
     rt = get_runtime()
     print(f"machine: {platform.processor() or platform.machine()}, device: {rt.describe()}")
     device_bw, host_bw = copy_bandwidth(rt), numpy_bandwidth()

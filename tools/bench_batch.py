@@ -29,12 +29,13 @@ import argparse
 import multiprocessing
 import shutil
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+import toolkit  # before clisp: puts this checkout on sys.path
 
 from clisp.batch import (BatchSettings, default_workers, local_worker_env, plan_jobs, process_one, read_manifest,
                          run_batch)
@@ -90,9 +91,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", default="1,2", help="comma-separated worker counts (default 1,2)")
     ap.add_argument("--pocl-all", action="store_true",
                     help="also run N > 1 workers with POCL_CPU_MAX_CU_NUM = CPUs (PoCL's default)")
-    ap.add_argument("--work", type=Path, default=None, help="folder for raws and outputs (default: a temporary one)")
+    toolkit.add_work_option(ap)
     args = ap.parse_args(argv)
-    work = args.work or Path(tempfile.mkdtemp(prefix="clisp-bench-batch-"))
+    with toolkit.work_folder(args.work, "clisp-bench-batch-") as work:
+        return bench(args, work)
+
+
+def bench(args: argparse.Namespace, work: Path) -> int:
+    """The loops and Dask runs of ``args`` on raws made in ``work``; prints the table."""
     width, height = args.size
     settings = BatchSettings(preset=args.preset, format=args.format)
     paths = make_raws(work / "raws", args.count, width, height)
@@ -126,8 +132,6 @@ def main(argv: list[str] | None = None) -> int:
         per_file = (batch_1 - seconds) / args.count
         print(f"\nper-file overhead of the Dask path (1 worker, batch s - loop s) / files: {per_file * 1e3:+.0f} ms "
               f"({per_file / (seconds / args.count) * 100:+.1f} % of the loop's {seconds / args.count * 1e3:.0f} ms/file)")
-    if args.work is None:
-        shutil.rmtree(work, ignore_errors=True)
     return 0
 
 

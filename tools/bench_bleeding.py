@@ -14,8 +14,8 @@ it (Chebyshev distance for patches, Euclidean for discs) in the output and in th
 optics-blurred truth, both converted to CIELAB; the shift is the a*b* distance of the two means
 (noise averages out in a ring mean, so what remains is colour moved across the edge). Reported:
 mean and worst over the 24 patches, and over the 18 discs; averaged over ``--seeds`` noise seeds.
-Also the gray-panel SNR (SPEC section 8: central 32 x 32 of the six neutral patches, linear,
-mean over R, G, B and panels), to show both sides of the trade.
+Also the gray-panel SNR (docs/model.md section 5: central 32 x 32 of the six neutral patches,
+linear, mean over R, G, B and panels), to show both sides of the trade.
 
 First figures (2026-11-24, 2 shared cores, seed 0, preset quality; ``--gains 8,64 --seeds 1``)::
 
@@ -46,12 +46,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # noqa: F401  (before clisp: puts this checkout on sys.path)
 
-from clisp.sim.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois  # noqa: E402
-from clisp.metrics import gray_panel_snr, linear_srgb_to_lab  # noqa: E402
-from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.sim.simulate import simulate  # noqa: E402
+from clisp.sim.charts import BACKGROUND, colorchecker, colorchecker_linear, gray_panel_rois
+from clisp.metrics import gray_panel_snr, linear_srgb_to_lab
+from clisp.pipeline import build_pipeline
+from clisp.sim.simulate import simulate
 
 PATCH, GAP = 64, 48
 DISC_RADII = (8, 16, 32)

@@ -43,7 +43,6 @@ Tools-only dependency: rawpy.
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib
 import sys
 import tempfile
@@ -54,9 +53,12 @@ from typing import Callable
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout (clisp, research/: the demosaic studies) on sys.path
+from toolkit import BORDER, Scene
+
+from bench import bayer_pattern, libraw_level, libraw_options, normalised_mosaic
 from clisp.cfa import CFA
-from clisp.sim.charts import dead_leaves, zone_plate
-from clisp.io.imageio import read_scene
+from clisp.sim.charts import dead_leaves
 from clisp.metrics import psnr
 from clisp.pipeline import DEMOSAICS, Pipeline, build_pipeline, make_demosaic
 from clisp.io.rawimage import RawImage
@@ -64,14 +66,6 @@ from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
 from clisp.modules.base import Stage
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: the demosaic studies
-from bench import bayer_pattern, crop4, libraw_level, libraw_options, normalised_mosaic  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data"
-BORDER = 10
-SETS = {"kodak": ("kodak", ("*.png",)), "mcmaster": ("mcmaster", ("*.tif", "*.tiff"))}
 SETTINGS = {"noiseless": (None, "airy"), "noiseless-sharp": (None, "none"),
             "4": (4.0, "airy"), "16": (16.0, "airy"), "64": (64.0, "airy")}
 LIBRAW_ALGOS = ("AHD", "DHT", "AAHD", "VNG", "DCB")
@@ -83,24 +77,15 @@ bits: quantisation 1/64 DN, far below any demosaic's error)."""
 # ------------------------------------------------------------------------------------- scenes
 
 def load_scenes(data: Path, sets: list[str], subset: int | None, n_dead: int,
-                dead_size: int) -> dict[str, list[tuple[str, np.ndarray]]]:
-    """{set: [(name, H x W x 3 linear sRGB scene)]}: files of Kodak/McMaster, generated dead leaves."""
-    scenes: dict[str, list[tuple[str, np.ndarray]]] = {}
+                dead_size: int) -> dict[str, list[Scene]]:
+    """{set: [(name, H x W x 3 linear sRGB scene)]}: files of Kodak/McMaster (the first ``subset``,
+    cropped to multiples of 4), generated dead leaves and zone plate."""
+    loaders = {"kodak": lambda: toolkit.kodak(data, subset), "mcmaster": lambda: toolkit.mcmaster(data, subset),
+               "deadleaves": lambda: toolkit.dead_leaves_charts(n_dead, dead_size), "zoneplate": toolkit.zone_plates}
     for name in sets:
-        if name == "deadleaves":
-            scenes[name] = [(f"dead_leaves_{s}", dead_leaves(dead_size, seed=s)) for s in range(n_dead)]
-            continue
-        if name == "zoneplate":
-            scenes[name] = [("zone_plate_256", zone_plate(256))]
-            continue
-        if name not in SETS:
-            raise SystemExit(f"unknown set {name!r}; choose from {', '.join(list(SETS) + ['deadleaves', 'zoneplate'])}")
-        folder, patterns = SETS[name]
-        files = sorted({p for pat in patterns for p in (data / folder).glob(pat)})
-        if not files:
-            raise SystemExit(f"no images in {data / folder}; pass --data")
-        scenes[name] = [(p.name, crop4(read_scene(p))) for p in files[:subset]]
-    return scenes
+        if name not in loaders:
+            raise SystemExit(f"unknown set {name!r}; choose from {', '.join(loaders)}")
+    return {name: loaders[name]() for name in sets}
 
 
 # ------------------------------------------------------------------------------------- methods
@@ -259,7 +244,7 @@ def report(scores: Scores, sets: list[str], settings: list[str], bayer_default: 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help=f"data folder (default {DEFAULT_DATA})")
+    toolkit.add_data_option(parser)
     parser.add_argument("--sets", default="kodak,mcmaster,deadleaves", help="kodak, mcmaster, deadleaves")
     parser.add_argument("--subset", type=int, default=None, help="first N images of each file set")
     parser.add_argument("--dead-leaves", type=int, default=8, help="dead-leaves charts (default 8)")
@@ -315,10 +300,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{time.perf_counter() - start:.0f} s]", flush=True)
     rows = report(scores, list(scenes), settings, bayer_default)
     if args.csv:
-        with open(args.csv, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        toolkit.write_csv(rows, args.csv)
     return 0
 
 

@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import parse_size
 
-from clisp.engine import profile  # noqa: E402
-from clisp.engine.runtime import _ProfiledKernel, _define_flags, get_runtime  # noqa: E402
-from clisp.modules.highlights import stage as highlights  # noqa: E402
-from toolkit import parse_size  # noqa: E402
+from clisp.engine import profile
+from clisp.engine.runtime import _ProfiledKernel, _define_flags, get_runtime
+from clisp.modules.highlights import stage as highlights
 
 NEUTRAL = np.array([0.95, 0.96, 1.0])
 THRESHOLD = np.array([0.9, 1.1, 2.7])
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline", type=Path, default=None, help="another clisp source tree")
     ap.add_argument("--size", type=parse_size, default=(6000, 4000), metavar="WxH")
     ap.add_argument("--lights", type=int, default=60)
-    ap.add_argument("--repeat", type=int, default=3)
+    toolkit.add_repeat_option(ap, 3, "timed rounds after an untimed one, median kept")
     args = ap.parse_args(argv)
     rt = get_runtime(profiling=True)
     print(f"device: {rt.describe()}", flush=True)

@@ -33,22 +33,19 @@ Usage: python tools/bench_highlights.py [--size 192] [--no-libraw] [--accept]
 from __future__ import annotations
 
 import argparse
-import csv
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # before clisp: puts this checkout on sys.path
 
-import clisp  # noqa: E402
-from clisp.metrics import ciede2000, psnr  # noqa: E402
-from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.sim.simulate import inverse_isp_matrix  # noqa: E402
-from clisp.noise_estimate import CLIP_FRACTION  # noqa: E402
-from clisp.modules.highlights.stage import box_max  # noqa: E402
-from toolkit import DEFAULT_DATA  # noqa: E402
+import clisp
+from clisp.metrics import ciede2000, psnr
+from clisp.pipeline import build_pipeline
+from clisp.sim.simulate import inverse_isp_matrix
+from clisp.noise_estimate import CLIP_FRACTION
+from clisp.modules.highlights.stage import box_max
 
 PEAK = 4.0
 BLOCK = 16
@@ -195,9 +192,9 @@ def own_photos(n: int = 384, seed: int = 7) -> dict[str, np.ndarray]:
 
 
 def natural_scenes(data: Path, only: str) -> dict[str, np.ndarray]:
-    """Kodak images of ``data``/kodak (linear sRGB) and :func:`own_photos`, by name."""
+    """Kodak images of ``data``/kodak (linear sRGB, uncropped) and :func:`own_photos`, by name."""
     from clisp.io.imageio import read_scene
-    scenes_ = {path.stem: read_scene(path) for path in sorted((data / "kodak").glob("kodim*.png"))}
+    scenes_ = {Path(name).stem: image for name, image in toolkit.kodak(data, read=read_scene, required=False)}
     scenes_.update(own_photos())
     return {k: v for k, v in scenes_.items() if not only or only in k}
 
@@ -212,7 +209,7 @@ def natural(args: argparse.Namespace) -> int:
     """Issue 25's table: gross errors and CIEDE2000 per mode on natural scenes."""
     rows, fails = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        for name, scene in natural_scenes(Path(args.data), args.only).items():
+        for name, scene in natural_scenes(args.data, args.only).items():
             for cfa in ("lms", "bayer"):
                 for gain in (1, 8):
                     sim = clisp.simulate(scene, cfa=cfa, gain=gain, seed=1)
@@ -241,10 +238,7 @@ def natural(args: argparse.Namespace) -> int:
                     print(f"{name:20s} {cfa:5s} g{gain:<2d} " + "  ".join(
                         f"{m.split()[-1]} {g}/{w:.2f}" for m, (g, w) in cells.items()) + tag, flush=True)
     if args.csv:
-        with open(args.csv, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        toolkit.write_csv(rows, Path(args.csv))
     print("\ntotals: gross-error pixels (sum), worst error (max), CIEDE2000 over clipped + rim (mean)")
     for group, pick in (("Kodak", lambda r: r["scene"].startswith("kodim")),
                         ("own photos", lambda r: not r["scene"].startswith("kodim"))):
@@ -269,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-libraw", action="store_true")
     ap.add_argument("--accept", action="store_true", help="issue 14's acceptance figures instead")
     ap.add_argument("--natural", action="store_true", help="issue 25's natural scenes instead")
-    ap.add_argument("--data", default=str(DEFAULT_DATA), help="folder with kodak/ (--natural)")
+    toolkit.add_data_option(ap, "kodak/ (--natural)")
     ap.add_argument("--only", default="", help="scenes whose name contains this (--natural)")
     ap.add_argument("--csv", default="", help="write every row of --natural here")
     args = ap.parse_args(argv)

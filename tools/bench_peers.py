@@ -39,15 +39,14 @@ import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from toolkit import (DEFAULT_DATA, KODAK_SCENE, NEUTRAL_CWD, REPO, clisp_cmd, cpu_model, describe_output, git_rev,
-                     last_line, markers, parse_size, repo_env, update_results, write_csv)
+import toolkit
+from toolkit import (NEUTRAL_CWD, REPO, clisp_cmd, cpu_model, describe_output, git_rev, last_line, markers,
+                     measure_process, parse_size, repo_env, scene_file, update_results, write_csv)
 
 CAMERA_RAW = "raw/RAW_CANON_D30_SRGB.CRW"
 STALE_METADATA = ("flip", "raw_size", "visible_origin", "default_crop", "crop")
@@ -116,25 +115,10 @@ def tiled_camera_raw(camera: Path, out: Path, width: int, height: int) -> None:
     from clisp.io.rawfile import read_raw, write_raw
     raw = read_raw(camera)
     h, w = raw.shape
-    mosaic = raw.data[:h // 2 * 2, :w // 2 * 2]
-    reps = (-(-height // mosaic.shape[0]), -(-width // mosaic.shape[1]))
-    big = np.ascontiguousarray(np.tile(mosaic, reps)[:height, :width])
+    big = np.ascontiguousarray(toolkit.repeat_to(raw.data[:h // 2 * 2, :w // 2 * 2], height, width))
     metadata = {k: v for k, v in raw.metadata.items() if k not in STALE_METADATA}
     metadata["tiled_from"] = camera.name
     write_raw(out, dataclasses.replace(raw, data=big, metadata=metadata))
-
-
-def scene_file(data: Path, work: Path) -> Path:
-    """A Kodak image from ``data``, else clisp's demo chart written as a 16-bit PNG in ``work``."""
-    kodak = data / KODAK_SCENE
-    if kodak.is_file():
-        return kodak
-    path = work / "demo_chart.png"
-    if not path.is_file():
-        from clisp.sim.charts import demo_chart
-        from clisp.io.imageio import write_image
-        write_image(path, demo_chart().image, encoded=False)
-    return path
 
 
 def simulated_raw(scene: Path, out: Path, cfa: str, width: int, height: int) -> None:
@@ -219,35 +203,17 @@ def peer_commands(bayer: Path, out: Path, work: Path, shape: tuple[int, int]) ->
 # Running
 # --------------------------------------------------------------------------------------------
 
-LAUNCHER = """\
-import os, sys, time
-log = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-null = os.open(os.devnull, os.O_RDONLY)
-actions = [(os.POSIX_SPAWN_DUP2, null, 0), (os.POSIX_SPAWN_DUP2, log, 1), (os.POSIX_SPAWN_DUP2, log, 2)]
-t0 = time.perf_counter()
-pid = os.posix_spawnp(sys.argv[2], sys.argv[2:], os.environ, file_actions=actions)
-_, status, usage = os.wait4(pid, 0)
-print(time.perf_counter() - t0, usage.ru_maxrss, os.waitstatus_to_exitcode(status))
-"""
-"""Runs a command and prints its wall time (s), peak RSS (KiB) and exit code. A child's ru_maxrss
-starts from the RSS of the process it was forked from (Linux keeps the larger across exec), so the
-commands are started from this small process (about 10 MiB), not from the benchmark itself."""
-
-
 def run_once(cmd: Command) -> tuple[float, float, str]:
-    """Run ``cmd`` once: (wall s, child's peak RSS MiB, '' or the failure message)."""
+    """Run ``cmd`` once as its own process (toolkit.measure_process: started from a small launcher,
+    so that its peak RSS is its own): (wall s, child's peak RSS MiB, '' or the failure message)."""
     cmd.output.unlink(missing_ok=True)
-    with tempfile.NamedTemporaryFile(suffix=".log") as log:
-        try:
-            done = subprocess.run([sys.executable, "-S", "-c", LAUNCHER, log.name, *cmd.argv], env=cmd.env, cwd=NEUTRAL_CWD,
-                                  capture_output=True, text=True, check=True)
-            wall, rss_kib, code = done.stdout.split()
-        except (subprocess.CalledProcessError, ValueError) as exc:
-            return math.nan, math.nan, f"could not start: {last_line(getattr(exc, 'stderr', '') or str(exc))}"
-        text = Path(log.name).read_text(errors="replace")
-    if int(code) != 0:
-        return float(wall), int(rss_kib) / 1024.0, f"exit {code}: {last_line(text)}"
-    return float(wall), int(rss_kib) / 1024.0, check_output(cmd)
+    run = measure_process(cmd.argv, cmd.env)
+    if not run.started:
+        return math.nan, math.nan, f"could not start: {last_line(run.stderr)}"
+    if run.code != 0:
+        said = last_line("\n".join((run.stdout, run.stderr)))
+        return run.wall_s, run.peak_mib, f"exit {run.code}: {said}"
+    return run.wall_s, run.peak_mib, check_output(cmd)
 
 
 def check_output(cmd: Command) -> str:
@@ -423,18 +389,16 @@ def section(rows: list[dict[str, object]], header: list[str], argv: list[str]) -
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--size", type=parse_size, default=(6000, 4000), metavar="WxH", help="image size (default 6000x4000)")
-    p.add_argument("--repeat", type=int, default=3, metavar="N", help="timed runs per command (default 3)")
+    toolkit.add_repeat_option(p, 3, "timed runs per command, median kept")
     p.add_argument("--baseline", type=Path, default=None, metavar="DIR", help="another clisp source tree to time too")
     p.add_argument("--only", default=None, metavar="REGEX",
                    help="run only commands whose label ('TOOL PRESET INPUT FORMAT', e.g. 'clisp fast bayer tif') matches")
-    p.add_argument("--data", type=Path, default=DEFAULT_DATA, help=f"data folder (default {DEFAULT_DATA})")
-    p.add_argument("--work", type=Path, default=None, help="folder for inputs and outputs (default: a temporary one)")
+    toolkit.add_data_option(p, "raw/ and kodak/")
+    toolkit.add_work_option(p, "inputs and outputs")
     p.add_argument("--csv", type=Path, default=None, help="write one row per command here")
     p.add_argument("--results", type=Path, default=None, help="update this Markdown file's bench_peers section")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
-    args = p.parse_args(argv)
-    args.data = args.data.resolve()           # children run in NEUTRAL_CWD
-    return args
+    return p.parse_args(argv)
 
 
 def planned_commands(args: argparse.Namespace, work: Path) -> tuple[list[Command], dict[str, tuple[Path, str]]]:
@@ -460,9 +424,7 @@ def planned_commands(args: argparse.Namespace, work: Path) -> tuple[list[Command
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    with tempfile.TemporaryDirectory(prefix="bench_peers-") as tmp:
-        work = (args.work or Path(tmp)).resolve()
-        work.mkdir(parents=True, exist_ok=True)
+    with toolkit.work_folder(args.work, "bench_peers-") as work:
         cmds, inputs = planned_commands(args, work)
         if not cmds:
             print(f"bench_peers: no command matches --only {args.only!r}", file=sys.stderr)

@@ -15,12 +15,13 @@ import argparse
 import os
 import platform
 import tempfile
-import time
 from functools import partial
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
+
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import best_times
 
 from clisp.sim.charts import demo_chart
 from clisp.pipeline import DEFAULT_PRESET, PRESETS, build_pipeline, process_file
@@ -37,38 +38,15 @@ SWEEP_MP = (0.5, 1, 2, 4, 8, 16)
 
 def machine() -> str:
     """CPU model, cores and memory of this machine."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (OSError, ValueError):
-        mem = float("nan")
-    return f"{model}, {os.cpu_count()} cores, {mem:.0f} GiB, {platform.system()} {platform.release()}"
+    model = toolkit.cpu_model(lambda: platform.processor() or platform.machine())
+    return f"{model}, {os.cpu_count()} cores, {toolkit.total_memory_gib():.0f} GiB, {platform.system()} {platform.release()}"
 
 
 def big_raw(cfa: str, width: int, height: int) -> RawImage:
     """The demo chart simulated at gain 8, its mosaic repeated to height x width."""
     raw = simulate(demo_chart().image, cfa=cfa, gain=8, seed=1).raw
-    reps = (-(-height // raw.shape[0]), -(-width // raw.shape[1]))
-    raw.data = np.ascontiguousarray(np.tile(raw.data, reps)[:height, :width])
+    raw.data = np.ascontiguousarray(toolkit.repeat_to(raw.data, height, width))
     return raw
-
-
-def interleaved(runs: dict[str, Callable[[], object]], repeat: int) -> dict[str, float]:
-    """Best wall time (s) of each run: one warm-up each, then ``repeat`` rounds of all runs in
-    turn, so drift on a shared machine hits every variant alike."""
-    for run in runs.values():
-        run()
-    times: dict[str, list[float]] = {name: [] for name in runs}
-    for _ in range(repeat):
-        for name, run in runs.items():
-            start = time.perf_counter()
-            run()
-            times[name].append(time.perf_counter() - start)
-    return {name: min(t) for name, t in times.items()}
 
 
 def compare(raw: RawImage, preset: str, repeat: int) -> None:
@@ -77,7 +55,7 @@ def compare(raw: RawImage, preset: str, repeat: int) -> None:
     pipeline = build_pipeline(raw, preset=preset)
     mp = raw.data.size / 1e6
     plan = pipeline.plan(raw.shape, raw.data.dtype)
-    best = interleaved({"whole": lambda: pipeline.run(raw.data, tile=0),
+    best = best_times({"whole": lambda: pipeline.run(raw.data, tile=0),
                         "tiled": lambda: pipeline.run(raw.data)}, repeat)
     w, t = mp / best["whole"], mp / best["tiled"]
     print(f"{preset:<12} whole {w:7.1f} MP/s   tiled {t:7.1f} MP/s "
@@ -98,7 +76,7 @@ def sweep(raw: RawImage, repeat: int) -> None:
         label = "whole" if band_mp is None else f"{band_mp:g} MP"
         runs[f"bands of {label:>6} ({len(plan.tiles):3d} x {rows:5d} rows)"] = partial(
             pipeline.stream, source, ArraySink(out), plan)
-    for name, seconds in interleaved(runs, repeat).items():
+    for name, seconds in best_times(runs, repeat).items():
         print(f"  {name}: {raw.data.size / 1e6 / seconds:7.1f} MP/s")
 
 
@@ -114,13 +92,14 @@ def file_run(raw: RawImage) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--size", default="5760x4320", help="WxH of the raw (default 5760x4320, 25 MP)")
+    parser.add_argument("--size", type=toolkit.parse_size, default=(5760, 4320), metavar="WxH",
+                        help="WxH of the raw (default 5760x4320, 25 MP)")
     parser.add_argument("--cfa", default="lms", help="lms or bayer (presets that cannot use it are skipped)")
-    parser.add_argument("--repeat", type=int, default=3, help="timed runs of each variant (best counts)")
+    toolkit.add_repeat_option(parser, 3, "timed runs of each variant, best counts")
     parser.add_argument("--sweep", action="store_true", help="also time full-width bands of several sizes")
     parser.add_argument("--file", action="store_true", help="also time the streamed DNG -> EXR path")
     args = parser.parse_args()
-    width, height = (int(v) for v in args.size.lower().split("x"))
+    width, height = args.size
     print(f"machine: {machine()}")
     print(f"device:  {get_runtime().describe()}")
     raw = big_raw(args.cfa, width, height)

@@ -19,20 +19,18 @@ The "before" settings are passed explicitly, so the crops can be remade from any
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # before clisp: puts this checkout on sys.path
 
-from bench_bleeding import scene  # noqa: E402
-import clisp.pipeline as pipeline_module  # noqa: E402
-from clisp.sim.colorimetry import srgb_encode  # noqa: E402
-from clisp.sim.simulate import simulate  # noqa: E402
-from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams  # noqa: E402
-from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided, LMSGuidedParams  # noqa: E402
+from bench_bleeding import scene
+import clisp.pipeline as pipeline_module
+from clisp.sim.colorimetry import srgb_encode
+from clisp.sim.simulate import simulate
+from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams
+from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided, LMSGuidedParams
 
 ROWS = slice(248, 360)
 
@@ -56,7 +54,7 @@ def save_crop(path: Path, image: np.ndarray) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs" / "bleeding")
+    toolkit.add_out_option(ap, "docs/bleeding", "the crops")
     ap.add_argument("--gain", type=float, default=64)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()

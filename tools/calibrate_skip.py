@@ -1,7 +1,7 @@
 """Measure what the per-tile skips (clisp.skip) save and cost: time and PSNR, default vs --no-skip.
 
     python tools/calibrate_skip.py [--gains 1,64] [--cfas lms,bayer] [--kodak 5,23] [--mcmaster 5,9]
-                                   [--sky 2048x1536] [--tile N] [--repeat 2]
+                                   [--sky 2048x1536] [--tile N] [--repeat 2] [--data DIR]
     python tools/calibrate_skip.py --levels      # predicted visible chroma noise on grey fields
     python tools/calibrate_skip.py --cost        # analysis cost, ms per MP
     python tools/calibrate_skip.py --cli [--work DIR] [--scenes sky,kodak,mcm] [--repeat 3]
@@ -12,8 +12,8 @@
 Per scene, CFA and gain: the raw is simulated (clisp.sim.simulate, seed 1), the 'quality' preset
 pipeline is built with skip=True (default) and skip=False (--no-skip: analysed, every tile full),
 both run on OpenCL (best of --repeat, analysis time added to the default's), and PSNR
-(tone-mapped, SPEC section 8) is taken against the simulation's truth. Data are read from
-/work/shared/data (never copied). Prints one row per case and the means.
+(tone-mapped, docs/model.md section 5) is taken against the simulation's truth. Data are read from
+--data (never copied). Prints one row per case and the means.
 
 First measurement (2 shared CPU cores, PoCL, OpenCL backend, automatic tiles, best of 2;
 ``--sky 2048x1536 --kodak 5,23 --mcmaster 5,9 --gains 1,64``). Thresholds: clisp.skip's initial
@@ -40,19 +40,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import kodak_path, mcmaster_path
 
-from clisp.io.imageio import read_scene  # noqa: E402
-from clisp.metrics import psnr  # noqa: E402
-from clisp.pipeline import build_pipeline  # noqa: E402
-from clisp.sim.simulate import simulate  # noqa: E402
-
-DATA = Path("/work/shared/data")
+from clisp.io.imageio import read_scene
+from clisp.metrics import psnr
+from clisp.pipeline import build_pipeline
+from clisp.sim.simulate import simulate
 
 
 def sky(h: int, w: int, seed: int = 0) -> np.ndarray:
@@ -67,24 +65,12 @@ def sky(h: int, w: int, seed: int = 0) -> np.ndarray:
     return img.astype(np.float32)
 
 
-def timed_run(pipe, data: np.ndarray, tile: int | None, repeat: int) -> tuple[np.ndarray, float]:
-    out = None
-    best = float("inf")
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = pipe.run(data, tile=tile)
-        best = min(best, time.perf_counter() - t)
-    return out, best
-
-
 def compare(name: str, scene: np.ndarray, cfa: str, gain: float, tile: int | None, repeat: int) -> dict:
     sim = simulate(scene, cfa=cfa, gain=gain, seed=1)
     row = {"scene": name, "cfa": cfa, "gain": gain, "mp": sim.raw.data.size / 1e6}
     for skip in (True, False):
-        t = time.perf_counter()
-        pipe = build_pipeline(sim.raw, output="linear", skip=skip)
-        build = time.perf_counter() - t
-        out, seconds = timed_run(pipe, sim.raw.data, tile, repeat)
+        pipe, build = toolkit.best_of(lambda: build_pipeline(sim.raw, output="linear", skip=skip), 1)  # timed once
+        out, seconds = toolkit.best_of(lambda: pipe.run(sim.raw.data, tile=tile), repeat)
         key = "skip" if skip else "full"
         row[f"t_{key}"] = seconds + (pipe.skipper.analysis.seconds if skip else 0.0)
         row[f"psnr_{key}"] = psnr(out, sim.truth)
@@ -95,16 +81,16 @@ def compare(name: str, scene: np.ndarray, cfa: str, gain: float, tile: int | Non
     return row
 
 
-def collage(name: str, data: Path = DATA) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+def collage(name: str, data: Path) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
     """A 12 MP natural scene and its images' regions (y0, y1, x0, x1): 'kodak' = 24 Kodak images
     (portrait ones turned) in 6 rows of 5 (3000 x 3840, the last row cut to 440 rows); 'mcm' = the
     18 McMaster images in 6 rows of 8 (3000 x 4000)."""
     if name == "kodak":
-        ims = [read_scene(data / "kodak" / f"kodim{i:02d}.png") for i in range(1, 25)]
+        ims = [read_scene(kodak_path(data, i)) for i in range(1, 25)]
         ims = [im if im.shape[0] == 512 else np.rot90(im) for im in ims]
         grid_, (ih, iw), h, w = (6, 5), (512, 768), 3000, 3840
     else:
-        ims = [read_scene(data / "mcmaster" / f"{i}.tif") for i in range(1, 19)]
+        ims = [read_scene(mcmaster_path(data, i)) for i in range(1, 19)]
         grid_, (ih, iw), h, w = (6, 8), (500, 500), 3000, 4000
     rows = [np.concatenate([ims[(r * grid_[1] + c) % len(ims)] for c in range(grid_[1])], 1) for r in range(grid_[0])]
     scene = np.ascontiguousarray(np.concatenate(rows, 0)[:h, :w])
@@ -112,26 +98,24 @@ def collage(name: str, data: Path = DATA) -> tuple[np.ndarray, list[tuple[int, i
     return scene, regions
 
 
-def cli_acceptance(work: Path, scenes: list[str], cfas: list[str], gains: list[str], repeat: int) -> int:
+def cli_acceptance(data: Path, work: Path, scenes: list[str], cfas: list[str], gains: list[str], repeat: int) -> int:
     """Simulate each scene (cached in ``work``), then time `clisp process` default against
-    `--no-skip` (interleaved, median of ``repeat``), score both and print the plan."""
-    import subprocess
+    `--no-skip` (whole processes, interleaved, median of ``repeat``), score both and print the plan."""
     from clisp.io.imageio import read_image
     from clisp.io.rawfile import write_raw
     work.mkdir(parents=True, exist_ok=True)
-    clisp = [sys.executable, "-m", "clisp"]
 
-    def timed(args: list[str]) -> tuple[float, str]:
-        t = time.perf_counter()
-        r = subprocess.run(clisp + [str(a) for a in args], capture_output=True, text=True)
-        if r.returncode:
+    def timed(args: list[object]) -> tuple[float, str]:
+        """Wall time (s) and stdout of this checkout's ``clisp ARGS`` as a process of its own."""
+        r = toolkit.measure_process(toolkit.clisp_cmd(*(str(a) for a in args)), toolkit.repo_env(toolkit.REPO))
+        if r.code:
             raise SystemExit(r.stderr)
-        return time.perf_counter() - t, r.stdout
+        return r.wall_s, r.stdout
 
     print(f"{'scene':<7}{'cfa':<6}{'gain':>5}{'default s':>11}{'no-skip s':>11}{'ratio':>7}{'dB default':>12}"
           f"{'dB no-skip':>12}{'loss':>8}  plan")
     for name in scenes:
-        scene, regions = (sky(3000, 4000), [(10, 2990, 10, 3990)]) if name == "sky" else collage(name)
+        scene, regions = (sky(3000, 4000), [(10, 2990, 10, 3990)]) if name == "sky" else collage(name, data)
         for cfa in cfas:
             for gain in gains:
                 raw_path, truth_path = work / f"{name}_{cfa}_g{gain}.dng", work / f"{name}_{cfa}_truth_g{gain}.npy"
@@ -162,7 +146,8 @@ def cli_acceptance(work: Path, scenes: list[str], cfas: list[str], gains: list[s
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cli", action="store_true", help="issue 13's acceptance: whole process, 12 MP scenes")
-    ap.add_argument("--work", type=Path, default=Path("/tmp/calibrate_skip"), help="--cli: raws and outputs")
+    toolkit.add_work_option(ap, "--cli: raws and outputs", default=Path("/tmp/calibrate_skip"))
+    toolkit.add_data_option(ap)
     ap.add_argument("--scenes", default="sky,kodak,mcm", help="--cli: sky, kodak, mcm")
     ap.add_argument("--gains", default="1,64")
     ap.add_argument("--cfas", default="lms,bayer")
@@ -170,25 +155,25 @@ def main() -> int:
     ap.add_argument("--mcmaster", default="5,9")
     ap.add_argument("--sky", default="2048x1536", help="WxH of the flat sky scene ('' to leave out)")
     ap.add_argument("--tile", type=int, default=None)
-    ap.add_argument("--repeat", type=int, default=2)
+    toolkit.add_repeat_option(ap, 2, "timed runs, best kept (--cli: the median)")
     ap.add_argument("--levels", action="store_true")
     ap.add_argument("--cost", action="store_true")
     args = ap.parse_args()
     if args.cli:
-        return cli_acceptance(args.work, args.scenes.split(","), args.cfas.split(","), args.gains.split(","),
+        return cli_acceptance(args.data, args.work.resolve(), args.scenes.split(","), args.cfas.split(","), args.gains.split(","),
                               args.repeat)
     if args.levels:
         return levels()
     if args.cost:
-        return cost()
+        return cost(args.data)
     scenes = []
     if args.sky:
         w, h = (int(v) for v in args.sky.lower().split("x"))
         scenes.append((f"sky {w}x{h}", sky(h, w)))
     for i in filter(None, args.kodak.split(",")):
-        scenes.append((f"kodim{int(i):02d}", read_scene(DATA / "kodak" / f"kodim{int(i):02d}.png")))
+        scenes.append((f"kodim{int(i):02d}", read_scene(kodak_path(args.data, int(i)))))
     for i in filter(None, args.mcmaster.split(",")):
-        scenes.append((f"mcm{int(i)}", read_scene(DATA / "mcmaster" / f"{int(i)}.tif")))
+        scenes.append((f"mcm{int(i)}", read_scene(mcmaster_path(args.data, int(i)))))
     rows = []
     print(f"{'scene':<16}{'cfa':<6}{'gain':>5}{'MP':>6}{'t skip':>9}{'t full':>9}{'ratio':>7}"
           f"{'dB skip':>9}{'dB full':>9}{'loss':>8}  paths")
@@ -224,10 +209,11 @@ def levels() -> int:
     return 0
 
 
-def cost() -> int:
+def cost(data: Path) -> int:
+    """The analysis's cost on a 12 MP raw (kodim05 simulated and repeated), ms per MP."""
     import dataclasses
     from clisp.analysis import analyse
-    scene = read_scene(DATA / "kodak" / "kodim05.png")
+    scene = read_scene(kodak_path(data, 5))
     for cfa in ("lms", "bayer"):
         raw = simulate(scene, cfa=cfa, gain=1, seed=1).raw
         big = dataclasses.replace(raw, data=np.ascontiguousarray(np.tile(raw.data, (6, 6))[:3000, :4000]))

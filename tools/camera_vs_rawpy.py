@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+
 import clisp
 from clisp.metrics import linear_srgb_to_lab
 
@@ -59,7 +61,7 @@ def compare(path: Path, demosaic: str | None, algorithm: str, denoise: bool) -> 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    toolkit.add_data_option(parser, "raw/")
     parser.add_argument("--demosaic", default=None, help="clisp Bayer demosaic (default: the preset's)")
     parser.add_argument("--denoise", action="store_true",
                         help="keep clisp's chroma denoiser (LibRaw has none, so per-pixel CIEDE2000 then "
@@ -67,10 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rawpy-demosaic", default="LINEAR",
                         help="LibRaw demosaic: LINEAR (bilinear, isolates colour from demosaic), AHD, ...")
     args = parser.parse_args(argv)
-    files = sorted(p for p in (Path(args.data) / "raw").glob("*") if p.is_file())
+    files = sorted(p for p in (args.data / "raw").glob("*") if p.is_file())
     if not files:
-        print(f"no raws in {args.data}/raw", file=sys.stderr)
-        return 1
+        raise toolkit.missing_data(args.data / "raw", "raws")
     print(f"{'file':<44}{'median dE00':>12}{'mean':>8}{'p95':>8}{'exposure':>10}{'compared':>10}")
     worst = 0.0
     for path in files:

@@ -40,12 +40,11 @@ import re
 import shlex
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import toolkit
-from toolkit import (DEFAULT_DATA, KODAK_SCENE, NEUTRAL_CWD, REPO, clisp_cmd, describe_output, markers, parse_size,
+from toolkit import (NEUTRAL_CWD, REPO, ProcessRun, clisp_cmd, describe_output, markers, measure_process, parse_size,
                      write_csv)
 from toolkit import repo_env as clisp_env
 
@@ -56,19 +55,6 @@ MIB = 2**20
 
 MARK_START, MARK_END = markers("check_mem")
 SECTION_TITLE = "## Peak memory against --mem (tools/check_mem.py)"
-
-LAUNCHER = """\
-import os, sys, time
-t0 = time.perf_counter()
-pid = os.posix_spawnp(sys.argv[2], sys.argv[2:], os.environ)
-_, status, usage = os.wait4(pid, 0)
-with open(sys.argv[1], "w") as f:
-    f.write(f"{time.perf_counter() - t0} {usage.ru_maxrss} {os.waitstatus_to_exitcode(status)}")
-"""
-"""``python -S -c LAUNCHER RESULT ARGV...``: runs ARGV (stdin/stdout/stderr inherited) and writes its
-wall time (s), peak RSS (ru_maxrss, KiB) and exit code to RESULT. Started from this small process,
-ARGV's ru_maxrss floor is the launcher's RSS, not this tool's."""
-
 
 # --------------------------------------------------------------------------------------------
 # Arguments
@@ -113,8 +99,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--refuse-mem", default="150M", metavar="SIZE", help="--mem far below the minimum (default 150M)")
     p.add_argument("--no-refusal", action="store_true", help="skip the refusal checks")
     p.add_argument("--clisp", type=Path, default=REPO, help=f"clisp checkout under test (default {REPO})")
-    p.add_argument("--data", type=Path, default=DEFAULT_DATA, help=f"data folder (default {DEFAULT_DATA})")
-    p.add_argument("--work", type=Path, default=None, help="folder for raws and outputs (default: a temporary one)")
+    toolkit.add_data_option(p, "kodak/")
+    toolkit.add_work_option(p)
     p.add_argument("--csv", type=Path, default=None, help="write one row per run here")
     p.add_argument("--results", type=Path, default=None, help="update this Markdown file's check_mem section")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
@@ -122,7 +108,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for text in [*args.mems, args.refuse_mem]:
         parse_mem(text)                                  # fail early on a bad size
     args.clisp = args.clisp.resolve()
-    args.data = args.data.resolve()           # children run in NEUTRAL_CWD
     return args
 
 
@@ -133,19 +118,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def size_label(size: tuple[int, int]) -> str:
     """'24MP', '400MP', '0.12MP': megapixels to 3 significant digits."""
     return f"{size[0] * size[1] / 1e6:.3g}MP"
-
-
-def scene_file(data: Path, work: Path, root: Path) -> Path:
-    """A Kodak image from ``data``, else clisp's demo chart written as a 16-bit PNG in ``work``."""
-    kodak = data / KODAK_SCENE
-    if kodak.is_file():
-        return kodak
-    path = work / "demo_chart.png"
-    if not path.is_file():
-        code = ("import sys; from clisp.sim.charts import demo_chart; from clisp.io.imageio import write_image; "
-                "write_image(sys.argv[1], demo_chart().image, encoded=False)")
-        subprocess.run([sys.executable, "-c", code, str(path)], env=clisp_env(root), cwd=NEUTRAL_CWD, check=True)
-    return path
 
 
 def make_raw(scene: Path, cfa: str, size: tuple[int, int], work: Path, root: Path) -> Path:
@@ -184,22 +156,11 @@ class Run:
 
 
 @dataclass
-class Measured:
-    """What one process did: wall time (s), peak RSS (MiB), exit code, stdout and stderr."""
-
-    wall_s: float
-    peak_mib: float
-    code: int
-    stdout: str
-    stderr: str
-
-
-@dataclass
 class Result:
     """A run's figures and verdict."""
 
     run: Run
-    measured: Measured | None = None
+    measured: ProcessRun | None = None
     tiles: int = 0
     tile_w: int = 0
     tile_h: int = 0
@@ -212,21 +173,6 @@ class Result:
     @property
     def headroom_mib(self) -> float:
         return self.run.mem_mib - self.measured.peak_mib if self.measured else math.nan
-
-
-def measure(argv: list[str], env: dict[str, str] | None = None) -> Measured:
-    """Run ``argv`` through the launcher: its own wall time, peak RSS and exit code, and output."""
-    with tempfile.TemporaryDirectory(prefix="check_mem-") as tmp:
-        out, err, res = (Path(tmp) / n for n in ("out", "err", "res"))
-        with open(out, "w") as fo, open(err, "w") as fe:
-            proc = subprocess.Popen([sys.executable, "-S", "-c", LAUNCHER, str(res), *argv], env=env, cwd=NEUTRAL_CWD,
-                                    stdin=subprocess.DEVNULL, stdout=fo, stderr=fe)
-            code = proc.wait()
-        text_out, text_err = out.read_text(errors="replace"), err.read_text(errors="replace")
-        if code != 0 or not res.is_file():
-            return Measured(math.nan, math.nan, -1, text_out, f"launcher failed ({code}): {text_err}")
-        wall, kib, status = res.read_text().split()
-    return Measured(float(wall), int(kib) / 1024, int(status), text_out, text_err)
 
 
 def time_v_peak_mib(argv: list[str]) -> float:
@@ -244,9 +190,9 @@ ALLOC_MIB = 256
 def launcher_check() -> tuple[bool, str]:
     """(ok, summary): the launcher's floor (``true``) and a touched 256 MiB allocation, which must
     read 256 MiB plus an interpreter (and agree with /usr/bin/time -v)."""
-    floor = measure(["true"]).peak_mib
+    floor = measure_process(["true"]).peak_mib
     alloc = [sys.executable, "-S", "-c", f"b = b'x' * ({ALLOC_MIB} * 2**20)"]
-    got = measure(alloc).peak_mib
+    got = measure_process(alloc).peak_mib
     ref = time_v_peak_mib(alloc)
     ok = floor < 32 and ALLOC_MIB <= got < ALLOC_MIB + 48 and (math.isnan(ref) or abs(got - ref) < 8)
     text = (f"peak RSS of `true` {floor:.1f} MiB; of a touched {ALLOC_MIB} MiB allocation in python -S "
@@ -281,7 +227,7 @@ def run_one(run: Run, raw: Path, outdir: Path, root: Path) -> Result:
     """Run ``run``: measure, check the output and the peak against --mem, delete the output."""
     out = outdir / f"{run.cfa}-{run.size[0]}x{run.size[1]}-{run.preset}-{run.mem}.{run.fmt}"
     out.unlink(missing_ok=True)
-    m = measure(process_argv(raw, out, run.preset, run.mem), clisp_env(root))
+    m = measure_process(process_argv(raw, out, run.preset, run.mem), clisp_env(root))
     res = Result(run, m)
     found = TILES_RE.search(m.stdout)
     if found:
@@ -330,7 +276,7 @@ def check_refusal(ref: Refusal, raw: Path, outdir: Path, root: Path) -> Refusal:
     """Run with ``--mem ref.mem``: exit 2, one stderr line naming the output and a minimum, no file."""
     out = outdir / f"refuse-{ref.cfa}-{ref.size[0]}x{ref.size[1]}-{ref.preset}.{ref.fmt}"
     out.unlink(missing_ok=True)
-    m = measure(process_argv(raw, out, ref.preset, ref.mem), clisp_env(root))
+    m = measure_process(process_argv(raw, out, ref.preset, ref.mem), clisp_env(root))
     lines = [line for line in m.stderr.splitlines() if line.strip()]
     ref.code, ref.line = m.code, " / ".join(lines)
     found = MIN_RE.search(ref.line)
@@ -401,14 +347,6 @@ def refusal_lines(refusals: list[Refusal]) -> list[str]:
     return lines
 
 
-def total_memory_gib() -> float:
-    """Physical memory (GiB)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (OSError, ValueError):
-        return math.nan
-
-
 def device_line(root: Path) -> str:
     """The OpenCL device clisp uses (``clisp info --device``)."""
     done = subprocess.run(clisp_cmd("info", "--device"), capture_output=True, text=True, env=clisp_env(root), cwd=NEUTRAL_CWD)
@@ -420,7 +358,7 @@ def header_lines(root: Path, inputs: dict[tuple[str, tuple[int, int]], Path], sc
                  launcher: str) -> list[str]:
     """Machine, clisp revision, inputs and the launcher check, as Markdown list items."""
     cpu = toolkit.cpu_model(lambda: platform.processor() or "unknown CPU")
-    lines = [f"- Machine: {cpu}, {os.cpu_count()} cores, {total_memory_gib():.0f} GiB; "
+    lines = [f"- Machine: {cpu}, {os.cpu_count()} cores, {toolkit.total_memory_gib():.0f} GiB; "
              f"OpenCL: {device_line(root)}",
              f"- clisp: {root} at {toolkit.git_rev(root, dirty=True)}",
              f"- Inputs: `clisp simulate {scene.name} --cfa lms|bayer --gain 8 --size WxH`: "
@@ -466,13 +404,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"check_mem: no run matches --only {args.only!r}", file=sys.stderr)
         return 2
     root = args.clisp
-    with tempfile.TemporaryDirectory(prefix="check_mem-") as tmp:
-        work = (args.work or Path(tmp)).resolve()
+    with toolkit.work_folder(args.work, "check_mem-") as work:
         outdir = work / "out"
         outdir.mkdir(parents=True, exist_ok=True)
         launcher_ok, launcher = launcher_check()
         progress(args.quiet, f"launcher: {launcher}")
-        scene = scene_file(args.data, work, root)
+        scene = toolkit.scene_file(args.data, work, root)
         inputs: dict[tuple[str, tuple[int, int]], Path] = {}
         for r in runs:
             if (r.cfa, r.size) not in inputs:

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import argparse
 import subprocess
-import sys
-import tempfile
 from pathlib import Path
+
+import toolkit
 
 
 def spec_of(path: Path):
@@ -46,8 +46,9 @@ def icc_description(blob: bytes) -> str:
 def check(raw: Path, work: Path) -> bool:
     ok = True
     outputs = {ext: work / f"{raw.stem}.{ext}" for ext in ("tif", "exr")}
-    for out in outputs.values():
-        subprocess.run([sys.executable, "-m", "clisp", "process", str(raw), "-o", str(out)], check=True)
+    for out in outputs.values():          # this checkout's clisp, as a process of its own
+        subprocess.run(toolkit.clisp_cmd("process", str(raw), "-o", str(out)), check=True,
+                       env=toolkit.repo_env(toolkit.REPO), cwd=toolkit.NEUTRAL_CWD)
     source = spec_of(raw)
     make, model = source.get_string_attribute("Make"), source.get_string_attribute("Model")
     print(f"{raw.name}: raw Make {make!r}, Model {model!r}")
@@ -72,12 +73,10 @@ def check(raw: Path, work: Path) -> bool:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("raws", nargs="+", type=Path)
-    ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("raws", nargs="+", type=toolkit.resolved_path)
+    toolkit.add_work_option(ap, "the outputs")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        work = args.work or Path(tmp)
-        work.mkdir(parents=True, exist_ok=True)
+    with toolkit.work_folder(args.work, "check_metadata-") as work:
         results = [check(raw, work) for raw in args.raws]
     return 0 if all(results) else 1
 

@@ -1,4 +1,4 @@
-"""Flat fields through clisp.sim.simulate against the noise model (SPEC.md section 3).
+"""Flat fields through clisp.sim.simulate against the noise model (docs/model.md section 3).
 
 For each CFA, gain and grey level, a 512 x 512 flat grey scene (no optics) is simulated; per CFA
 channel the measured DN mean and variance are compared with the model's expectation
@@ -12,6 +12,8 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+
+import toolkit  # noqa: F401  (before clisp: puts this checkout on sys.path)
 
 import clisp
 from clisp.sim.noise import NoiseModel

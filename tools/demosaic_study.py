@@ -1,7 +1,7 @@
 """Issue 12 study: plain-NumPy Bayer demosaic candidates against our DLMMSE and LibRaw's demosaics,
 in the classic protocol of tools/bayer_demosaic_protocol.py.
 
-Protocol (imported from that tool: ``load_8bit``, ``mosaic``, ``cpsnr``): every Kodak (24 PNG) and
+Protocol (that tool's ``mosaic``; toolkit's ``load_8bit`` and ``cpsnr``): every Kodak (24 PNG) and
 McMaster (18 TIFF) image, sRGB-ENCODED 8-bit as float in [0, 1], mosaicked RGGB (no noise),
 demosaicked, clipped to [0, 1] and scored by CPSNR with a 10 px border excluded.
 
@@ -30,7 +30,7 @@ Printed: per-set mean CPSNR of every method and its mean wall time per image (Nu
 single-threaded NumPy, OpenCL on the device the runtime picks, LibRaw including the DNG read and
 postprocess, not the write). The machine may be shared: times are indicative.
 
-    python tools/demosaic_study.py [--data /work/shared/data] [--sets Kodak,McMaster]
+    python tools/demosaic_study.py [--data ../shared/data] [--sets Kodak,McMaster]
         [--methods REGEX] [--per-image] [--limit N] [--csv out.csv] [--halo]
 
 ``--halo`` measures instead, per NumPy candidate, how much context a tile needs: the largest
@@ -39,7 +39,6 @@ postprocess, not the write). The machine may be shared: times are indicative.
 from __future__ import annotations
 
 import argparse
-import csv
 import hashlib
 import re
 import sys
@@ -50,17 +49,17 @@ from typing import Callable
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(1, str(Path(__file__).resolve().parents[1]))     # research/: the demosaic studies
-from bayer_demosaic_protocol import CFA, SETS, cpsnr, load_8bit, mosaic  # noqa: E402
+import toolkit  # before clisp: puts this checkout (clisp, research/) on sys.path
+from toolkit import cpsnr, image_files, load_8bit
 
-from clisp.pipeline import Pipeline  # noqa: E402
-from clisp.modules.demosaic_ari import reference as bayer_ri  # noqa: E402
-from research.demosaic.bayer_gbtf import SLOW_TAPS, demosaic_gbtf  # noqa: E402
-from research.demosaic.bayer_rcd import demosaic_rcd  # noqa: E402
-from research.demosaic.bayer_rcd_gbtf import demosaic_rcd_gbtf  # noqa: E402
-from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear  # noqa: E402
-from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE  # noqa: E402
+from bayer_demosaic_protocol import CFA, SETS, mosaic
+from clisp.pipeline import Pipeline
+from clisp.modules.demosaic_ari import reference as bayer_ri
+from research.demosaic.bayer_gbtf import SLOW_TAPS, demosaic_gbtf
+from research.demosaic.bayer_rcd import demosaic_rcd
+from research.demosaic.bayer_rcd_gbtf import demosaic_rcd_gbtf
+from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
+from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 
 Method = Callable[[np.ndarray], np.ndarray]
 
@@ -154,10 +153,7 @@ def study(data: Path, sets: list[str], pattern: str, per_image: bool, limit: int
     scores: dict[str, dict[str, list[float]]] = {}
     times: dict[str, list[float]] = {name: [] for name in methods}
     for set_name in sets:
-        folder_name, glob = SETS[set_name]
-        files = sorted((data / folder_name).glob(glob), key=lambda p: (len(p.stem), p.stem))[:limit]
-        if not files:
-            raise SystemExit(f"no {glob} images in {data / folder_name}; pass --data")
+        files = image_files(data, SETS[set_name], limit, numeric=True)
         scores[set_name] = {name: [] for name in methods}
         if per_image:
             print(f"{'set':9s} {'image':12s} " + " ".join(f"{n[:14]:>14s}" for n in methods), flush=True)
@@ -191,19 +187,17 @@ def print_table(scores: dict[str, dict[str, list[float]]], times: dict[str, list
 
 
 def write_csv(path: Path, scores: dict[str, dict[str, list[float]]], times: dict[str, list[float]]) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["method", "set", "images", "cpsnr_mean_db", "seconds_per_image"])
-        for set_name, by_method in scores.items():
-            for name, values in by_method.items():
-                writer.writerow([name, set_name, len(values), f"{np.mean(values):.4f}", f"{np.mean(times[name]):.4f}"])
+    """One row per method and set: images, mean CPSNR (dB) and mean seconds per image."""
+    toolkit.write_csv([dict(method=name, set=set_name, images=len(values), cpsnr_mean_db=f"{np.mean(values):.4f}",
+                            seconds_per_image=f"{np.mean(times[name]):.4f}")
+                       for set_name, by_method in scores.items() for name, values in by_method.items()], path)
 
 
 def halo(data: Path, methods: dict[str, Method], core: int = 64,
          margins: tuple[int, ...] = (8, 12, 16, 20, 24, 32, 48, 64, 96, 128)) -> None:
     """Per method: max |tile - whole| over a core x core block in the middle of kodim19, the tile
     being that block grown by each margin (even: the tile keeps the RGGB phase)."""
-    m = mosaic(load_8bit(data / "kodak" / "kodim19.png"))
+    m = mosaic(load_8bit(toolkit.kodak_path(data, 19)))
     y0, x0 = (m.shape[0] - core) // 2 // 2 * 2, (m.shape[1] - core) // 2 // 2 * 2
     print(f"max |tile - whole image| on a {core} x {core} block of kodim19 ({m.shape[1]} x {m.shape[0]}), "
           f"per margin (px of context around the block)")
@@ -222,7 +216,7 @@ def halo(data: Path, methods: dict[str, Method], core: int = 64,
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default="/work/shared/data", help="folder holding kodak/ and mcmaster/")
+    toolkit.add_data_option(parser)
     parser.add_argument("--sets", default="Kodak,McMaster", help="comma-separated subset of Kodak,McMaster")
     parser.add_argument("--methods", default=".", help="regular expression on the method names")
     parser.add_argument("--per-image", action="store_true", help="also print every image's CPSNR")
@@ -231,14 +225,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--halo", action="store_true", help="measure the NumPy candidates' effective halo instead")
     args = parser.parse_args(argv)
     if args.halo:
-        halo(Path(args.data), {k: v for k, v in candidates().items() if re.search(args.methods, k)})
+        halo(args.data, {k: v for k, v in candidates().items() if re.search(args.methods, k)})
         return 0
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     unknown = [s for s in sets if s not in SETS]
     if unknown:
         raise SystemExit(f"unknown set(s) {unknown}; choose from {list(SETS)}")
     with tempfile.TemporaryDirectory() as folder:
-        scores, times = study(Path(args.data), sets, args.methods, args.per_image, args.limit, Path(folder))
+        scores, times = study(args.data, sets, args.methods, args.per_image, args.limit, Path(folder))
     print_table(scores, times)
     if args.csv:
         write_csv(Path(args.csv), scores, times)

@@ -11,9 +11,10 @@ noise.png   per-pixel raw SNR against the normalised signal at gains 1 to 64 (cl
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
+
+import toolkit  # before clisp: puts this checkout on sys.path
 
 from clisp.cfa import CFA, bayer_cfa, lms_cfa
 from clisp.sim.noise import NoiseModel
@@ -83,12 +84,12 @@ def raw_snr_db(model: NoiseModel, gain: float, signal: np.ndarray) -> np.ndarray
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs" / "figures"))
+    toolkit.add_out_option(parser, "docs/figures", "the figures")
     args = parser.parse_args(argv)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    out = Path(args.out)
+    out = args.out
     out.mkdir(parents=True, exist_ok=True)
 
     fig, axes = plt.subplots(1, 3, figsize=(9, 3.3))

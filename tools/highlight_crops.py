@@ -22,12 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # before clisp: puts this checkout on sys.path
 
-import clisp  # noqa: E402
-from clisp.pipeline import build_pipeline  # noqa: E402
-from bench_highlights import libraw, own_photos  # noqa: E402
-from toolkit import DEFAULT_DATA  # noqa: E402
+import clisp
+from clisp.pipeline import build_pipeline
+from bench_highlights import libraw, own_photos
 
 CROPS = {"kodim23": (slice(140, 260), slice(220, 340)), "glossy spheres": (slice(40, 160), slice(40, 160)),
          "flowers": (slice(150, 270), slice(0, 120))}
@@ -84,14 +83,14 @@ def row(scene: np.ndarray, cfa: str, crop: tuple[slice, slice], baseline: Path |
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs" / "highlights")
+    toolkit.add_data_option(ap, "kodak/ (--kodak)")
+    toolkit.add_out_option(ap, "docs/highlights", "the crops")
     ap.add_argument("--baseline", type=Path, default=None, help="a clisp source tree for a 'before' column")
     ap.add_argument("--kodak", action="store_true", help="add Kodak 23 (needs --data)")
     args = ap.parse_args(argv)
     from PIL import Image
     scenes = {k: v for k, v in own_photos().items() if k in CROPS}
-    kodak = args.data / "kodak" / "kodim23.png"
+    kodak = toolkit.kodak_path(args.data, 23)
     if args.kodak:
         from clisp.io.imageio import read_scene
         scenes = {"kodim23": read_scene(kodak), **scenes}

@@ -25,29 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import BORDER
+
 import clisp
 import clisp.pipeline
 from clisp.sim import charts
 from clisp.cfa import lms_cfa
-from clisp.io.imageio import read_scene, write_image
+from clisp.io.imageio import write_image
 from clisp.metrics import psnr, tone_map
 
-# Until the lead registers the stage in clisp/pipeline.py (remove this line then):
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "data"
-SETS = {"kodak": ("kodak", "*.png"), "mcmaster": ("mcmaster", "*.tif")}
-BORDER = 10
+SETS = {"kodak": toolkit.KODAK, "mcmaster": toolkit.MCMASTER}
 ZONE_SIZE = 256
 SPOT = (44, 84)
 """Rows/columns of the zone-plate crop around (64, 64), where the sRGB cosine's 2nd harmonic sits on the
 (pi, pi) L-M carrier (local frequency (0.25, 0.25) cycles/px)."""
-
-
-def load_scene(path: Path) -> np.ndarray:
-    """Linear sRGB scene cropped to multiples of 4 (the LMS CFA period)."""
-    scene = read_scene(path)
-    return scene[:scene.shape[0] // 4 * 4, :scene.shape[1] // 4 * 4]
 
 
 def score(scene: np.ndarray, cfa: str, names: list[str],
@@ -69,7 +61,7 @@ def registered(names: list[str], kind: str) -> list[str]:
         stage = clisp.pipeline.DEMOSAICS.get(name)
         if stage is None:
             print(f"(skipping {name!r}: not a registered demosaic)", file=sys.stderr)
-        elif kind not in getattr(stage, "cfa_kinds", (kind,)):
+        elif kind not in (stage.cfa_kinds or (kind,)):          # None: any CFA
             print(f"(skipping {name!r}: not a {kind} demosaic)", file=sys.stderr)
         elif name not in kept:
             kept.append(name)
@@ -79,15 +71,15 @@ def registered(names: list[str], kind: str) -> list[str]:
 def evaluate_sets(data: Path, subset: int | None, methods: list[tuple[str, str]]) -> dict[str, dict]:
     """{set: {(cfa, name): [dB per image]}} for every method (cfa, demosaic name)."""
     results: dict[str, dict] = {}
-    for set_name, (folder, pattern) in SETS.items():
-        files = sorted((data / folder).glob(pattern))[:subset]
+    for set_name, image_set in SETS.items():
+        files = toolkit.image_files(data, image_set, subset, required=False)
         if not files:
-            print(f"(no {set_name} images under {data / folder})", file=sys.stderr)
+            print(f"(no {set_name} images under {data / image_set.folder})", file=sys.stderr)
             continue
         per = {m: [] for m in methods}
         start = time.perf_counter()
         for path in files:
-            scene = load_scene(path)
+            scene = toolkit.load_scene(path)                  # cropped to multiples of 4 (the LMS CFA period)
             for cfa in dict.fromkeys(c for c, _ in methods):
                 scores = score(scene, cfa, [n for c, n in methods if c == cfa])
                 for name, (db, _) in scores.items():
@@ -169,7 +161,7 @@ def bench(names: list[str], height: int = 4000, width: int = 6000, repeats: int 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(DEFAULT_DATA), help="folder holding kodak/ and mcmaster/")
+    toolkit.add_data_option(parser)
     parser.add_argument("--subset", type=int, default=None, help="only the first N images of each set")
     parser.add_argument("--demosaic", nargs="*", default=[], help="extra LMS demosaic names")
     parser.add_argument("--bayer", nargs="*", default=[], help="extra Bayer demosaic names")
@@ -182,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     lms = registered(["bilinear", "hybrid"] + args.demosaic, "lms")
     bayer = registered(["bilinear", "dlmmse"] + args.bayer, "bayer")
     methods = [("lms", n) for n in lms] + [("bayer", n) for n in bayer]
-    results = {} if args.no_sets else evaluate_sets(Path(args.data), args.subset, methods)
+    results = {} if args.no_sets else evaluate_sets(args.data, args.subset, methods)
     zone_db, truth, images = zone_plate(methods)
     zone_linear_db = zone_plate(methods, "linear")[0]
     speed = bench(lms) if args.bench else {}

@@ -1,9 +1,10 @@
-"""The paper's Table 1 and Table 2 from clisp, beside the paper's numbers (SPEC sections 8 and 9).
+"""The paper's Table 1 and Table 2 from clisp, beside the paper's numbers (PAPER_T1, PAPER_T2).
 
 Pipelines (OpenCL): normalise, WB pass 1, demosaic, chroma denoise (clisp.modules.chroma_denoise.stage:
 LMS in the paper's Y = (L+M)/2 / R-Y, G-Y, B-Y space, Bayer in BT.601 YUV, noise levels from the
-simulation's noise model) -- or, "without denoise", the plain colour matrix. Simulation: SPEC
-section 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless).
+simulation's noise model) -- or, "without denoise", the plain colour matrix. Simulation: docs/model.md
+sections 2 and 3 (Airy optics r0 = 1 px, shot + read noise, 10-bit ADC, gains 4..64, or noiseless);
+metrics: docs/model.md section 5.
 
 Table 2  gray-panel SNR (dB) of the six ColorChecker neutrals on the demo chart
          (clisp.sim.charts.demo_chart: 64 px patches, central 32 x 32 ROI), LINEAR output, mean over
@@ -41,10 +42,13 @@ from typing import Callable
 
 import numpy as np
 
+import toolkit  # before clisp: puts this checkout on sys.path
+from toolkit import BORDER, KODAK, MCMASTER, load_scene
+
 from clisp.batch import map_ordered, worker_cache
 from clisp.cfa import CFA
 from clisp.sim.charts import demo_chart
-from clisp.io.imageio import read_scene, write_image
+from clisp.io.imageio import write_image
 from clisp.metrics import gray_panel_snr, psnr
 from clisp.sim.noise import ChannelNoise
 from clisp.noise_estimate import raw_noise
@@ -60,8 +64,7 @@ from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 
 GAINS = (4, 8, 16, 32, 64)
-BORDER = 10
-SETS = {"Kodak": ("kodak", ("*.png",)), "McMaster": ("mcmaster", ("*.tif", "*.tiff"))}
+SETS = {"Kodak": KODAK, "McMaster": MCMASTER}
 SPEED_SHAPE = (4000, 6000)
 
 PAPER_T1 = {   # (Bayer, LMS) per noise level; None = no added noise. McMaster is the paper's "IMAX".
@@ -224,25 +227,6 @@ def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int, ma
 # Table 1
 # ------------------------------------------------------------------------------------------
 
-def set_files(data: Path, folder: str, patterns: tuple[str, ...], subset: int | None) -> list[Path]:
-    """The first ``subset`` images of a set by file name (all for None)."""
-    files = sorted({p for pat in patterns for p in (data / folder).glob(pat)})
-    if not files:
-        raise SystemExit(f"no images in {data / folder}")
-    return files[:subset]
-
-
-def load_scene(path: Path) -> np.ndarray:
-    """A set's image as linear sRGB, cropped to multiples of 4."""
-    scene = read_scene(path)
-    h, w = scene.shape[0] // 4 * 4, scene.shape[1] // 4 * 4
-    return scene[:h, :w]
-
-
-def load_set(data: Path, folder: str, patterns: tuple[str, ...], subset: int | None) -> list[tuple[str, np.ndarray]]:
-    return [(path.name, load_scene(path)) for path in set_files(data, folder, patterns, subset)]
-
-
 def table1_item(item: tuple, runner: Runner) -> list[tuple[tuple, tuple[float, float]]]:
     """One (image path, noise level, columns) of Table 1: [((gain, kind, name, run), (PSNR
     tone-mapped, PSNR linear))] in the order of the serial loop."""
@@ -266,8 +250,8 @@ def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str],
     levels = [None] + list(GAINS)
     columns = [("bayer", bayer_name)] + [("lms", n) for n in lms_names]
     results: dict = {}
-    for set_name, (folder, patterns) in SETS.items():
-        paths = set_files(data, folder, patterns, subset)
+    for set_name, image_set in SETS.items():
+        paths = toolkit.image_files(data, image_set, subset)     # the first ``subset`` by file name
         t0 = time.perf_counter()
         items = [(path, gain, columns) for path in paths for gain in levels]
         for scores in mapper(table1_item, items, runner, progress=f"Table 1 {set_name}"):
@@ -373,10 +357,9 @@ def crops(runner: Runner, folder: Path, lms_names: list[str], bayer_name: str) -
 # ------------------------------------------------------------------------------------------
 
 def main(argv: list[str] | None = None) -> int:
-    root = Path(__file__).resolve().parents[1]
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", type=Path, default=root / ".." / "shared" / "data", help="folder with kodak/ and mcmaster/")
+    toolkit.add_data_option(ap)
     ap.add_argument("--subset", type=int, default=None, help="only the first N images of each set")
     default_lms = next(n for n in LMS_PREFERENCE if n in DEMOSAICS)
     ap.add_argument("--lms-demosaic", default=default_lms, help=f"comma-separated (default {default_lms})")
@@ -384,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=4, help="noise seeds averaged in Table 2 (default 4)")
     ap.add_argument("--tile", type=int, default=None, help="tile side; 0 = whole image (default: the planner's tiles)")
     ap.add_argument("--crops", type=Path, default=None, help="folder for the gain-64 dead-leaves crops")
-    ap.add_argument("--repeat", type=int, default=3, help="timing repeats (default 3)")
+    toolkit.add_repeat_option(ap, 3, "timing repeats, best kept")
     ap.add_argument("--no-table1", action="store_true")
     ap.add_argument("--no-table2", action="store_true")
     ap.add_argument("--no-speed", action="store_true")

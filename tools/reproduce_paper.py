@@ -1,9 +1,10 @@
 """Regenerate docs/RESULTS.md: the paper's Table 1 and Table 2 beside ours, the spectral
 ColorChecker colour error, and the speed/quality benchmark (tools/bench.py) with its plot and CSV.
 
-Every number in the markdown except the paper's (SPEC.md section 9, tools/paper_tables.PAPER_*)
-comes from this run. Table 1 and Table 2 use tools/paper_tables.py's machinery (Runner, table1,
-table2: same pipelines, PSNR and SNR definitions); the "Charts" row (clisp.sim.charts.demo_chart) and
+Every number in the markdown except the paper's (its Tables 1 and 2 as published:
+tools/paper_tables.PAPER_T1 and PAPER_T2, PAPER_T1_EXTRA here) comes from this run. Table 1 and
+Table 2 use tools/paper_tables.py's machinery (Runner, table1, table2: same pipelines, PSNR and SNR
+definitions, docs/model.md section 5); the "Charts" row (clisp.sim.charts.demo_chart) and
 the spectral row (clisp.sim.spectral.simulate_spectral, compared with the paper's hyperspectral ISET
 row) are scored here the same way (tone-mapped PSNR, 10 px border, chroma denoise on).
 
@@ -22,22 +23,21 @@ import sys
 import time
 from contextlib import contextmanager
 from functools import partial
-from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+import toolkit  # before clisp: puts this checkout on sys.path
 
-import bench  # noqa: E402
-import paper_tables as pt  # noqa: E402
-from clisp.metrics import psnr  # noqa: E402
-from clisp.engine.runtime import get_runtime  # noqa: E402
-from clisp.sim.simulate import simulate  # noqa: E402
-from clisp.sim.spectral import patch_delta_e, simulate_spectral, spectral_colorchecker  # noqa: E402
-from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams  # noqa: E402
+import bench
+import paper_tables as pt
+from clisp.metrics import psnr
+from clisp.engine.runtime import get_runtime
+from clisp.sim.simulate import simulate
+from clisp.sim.spectral import patch_delta_e, simulate_spectral, spectral_colorchecker
+from clisp.modules.chroma_denoise.stage import ChromaDenoiseParams
 
-PAPER_T1_EXTRA = {   # SPEC.md section 9, verbatim (Kodak and IMAX/McMaster are in paper_tables.PAPER_T1)
+PAPER_T1_EXTRA = {   # the paper's Table 1, verbatim (Kodak and IMAX/McMaster are in paper_tables.PAPER_T1)
     "ISET (hyperspectral)": {None: (47.10, 48.93), 4: (39.02, 41.23), 8: (37.48, 39.44), 16: (35.03, 37.28),
                              32: (32.86, 35.26), 64: (31.20, 33.55)},
     "Charts (RGB)": {None: (47.67, 47.50), 4: (36.94, 39.01), 8: (35.26, 37.16), 16: (33.03, 34.97),
@@ -52,7 +52,7 @@ def chart_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[float, fl
     pair = []
     for kind, name in (("bayer", bayer), ("lms", lms)):
         sim = simulate(scene, kind, gain=gain, seed=0)
-        pair.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=pt.BORDER))
+        pair.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=toolkit.BORDER))
     return tuple(pair)
 
 
@@ -69,7 +69,7 @@ def spectral_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[tuple[
     for kind, name in (("bayer", bayer), ("lms", lms)):
         sim = simulate_spectral(kind, gain=gain, seed=0)
         image = runner.run(sim.raw, name, True)
-        pair.append(psnr(image, sim.truth, border=pt.BORDER))
+        pair.append(psnr(image, sim.truth, border=toolkit.BORDER))
         if gain is None:
             d = patch_delta_e(image, sim.truth, rois)
             de[kind] = (float(np.mean(d)), float(np.max(d)))
@@ -89,13 +89,13 @@ def spectral_rows(runner: pt.Runner, lms: str, bayer: str, mapper: pt.Mapper = p
 def sweep_mapper(scheduler: str | None) -> Iterator[pt.Mapper]:
     """The Mapper of the per-image/per-gain sweeps: this process, or with ``scheduler`` the Dask
     cluster there through clisp.batch (each worker: one OpenCL context, one Runner). The tools'
-    functions travel by value, so the workers need clisp, not this checkout's tools/."""
+    functions (toolkit's included) travel by value, so the workers need clisp, not this checkout's tools/."""
     if not scheduler:
         yield pt.serial
         return
     import cloudpickle
     from clisp.batch import dask_client, map_ordered
-    for module in (pt, sys.modules[__name__]):
+    for module in (toolkit, pt, sys.modules[__name__]):
         if module.__name__ != "__main__":              # __main__ travels by value anyway
             cloudpickle.register_pickle_by_value(module)
     with dask_client(scheduler=scheduler) as client:
@@ -155,22 +155,21 @@ def md_bench(result: dict, csv_rel: str, png_rel: str) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    root = Path(__file__).resolve().parents[1]
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", type=Path, default=root / ".." / "shared" / "data")
+    toolkit.add_data_option(ap)
     ap.add_argument("--subset", type=int, default=4,
                     help="first N images of Kodak and McMaster for Table 1 (0 = all; default 4)")
     ap.add_argument("--seeds", type=int, default=2, help="noise seeds for Table 2")
     ap.add_argument("--bench-subset", type=int, default=1)
     ap.add_argument("--speed-shape", default="3000x4000")
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", type=Path, default=root / "docs")
+    toolkit.add_repeat_option(ap, 3, "the benchmark's timed runs per method, best kept")
+    toolkit.add_out_option(ap, "docs", "RESULTS.md, bench.csv and bench.png")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="run the Table 1/2, chart and spectral sweeps (per image and gain) on the Dask "
                          "cluster at ADDRESS (clisp.batch); the speed benchmark stays in this process")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    data = args.data.resolve()
+    data = args.data
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     lms = next(n for n in pt.LMS_PREFERENCE if n in pt.DEMOSAICS)
@@ -192,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         times["Table 1 (charts, spectral)"] = time.perf_counter() - t
     t = time.perf_counter()
     csv_path, png_path = out / "bench.csv", out / "bench.png"
-    result = bench.run_bench(data, args.bench_subset, [1.0, 8.0, 64.0], bench.parse_shape(args.speed_shape),
+    result = bench.run_bench(data, args.bench_subset, [1.0, 8.0, 64.0], toolkit.parse_shape(args.speed_shape),
                              args.repeat, csv_path, png_path)
     times["bench"] = time.perf_counter() - t
     total = time.perf_counter() - t0
@@ -200,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     def ours(set_name: str) -> dict:
         return {g: (t1[(set_name, g, "bayer", bayer, "with")][0], t1[(set_name, g, "lms", lms, "with")][0])
                 for g in LEVELS}
-    n_all = {s: len({p for pat in pt.SETS[s][1] for p in (data / pt.SETS[s][0]).glob(pat)}) for s in pt.SETS}
+    n_all = {s: len(toolkit.image_files(data, image_set, required=False)) for s, image_set in pt.SETS.items()}
     n_set = {s: min(n_all[s], subset or n_all[s]) for s in pt.SETS}
     rows = {
         "ISET (hyperspectral)": ("spectral ColorChecker, clisp.sim.spectral", spectral, PAPER_T1_EXTRA["ISET (hyperspectral)"]),
@@ -213,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     md = [
         "# Results: the paper's tables beside clisp's",
         "",
-        "Generated by `tools/reproduce_paper.py`; every number here except the paper's (SPEC.md section 9) "
+        "Generated by `tools/reproduce_paper.py`; every number here except the paper's (its Tables 1 and 2 "
+        "as published, in tools/paper_tables.py and tools/reproduce_paper.py) "
         "comes from that run. Regenerate with (from the repository root, venv active):",
         "",
         "```sh",

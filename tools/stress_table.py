@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import toolkit  # noqa: F401  (before clisp: puts this checkout on sys.path)
 
-from clisp.errors import ClispError  # noqa: E402
-from clisp.stress import (CASES, DEMOSAICS_BY_KIND, DIVERGENCE, PIPELINE_TOL, STAGE_TOL, expected,  # noqa: E402
-                          outcome, pipeline_error, stage_errors)
+from clisp.errors import ClispError
+from clisp.stress import (CASES, DEMOSAICS_BY_KIND, DIVERGENCE, PIPELINE_TOL, STAGE_TOL, expected, outcome,
+                          pipeline_error, stage_errors)
 
 
 def main() -> int:
