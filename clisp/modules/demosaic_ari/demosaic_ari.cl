@@ -499,7 +499,7 @@ __kernel void ari_gauss_x(__global const float *restrict src, const int sb, cons
 }
 
 /* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
- * multiplied by the mask (bayer_ri._criterion's normalisation). Out planes: smoothed c, smoothed g.
+ * multiplied by the mask (reference._criterion's normalisation). Out planes: smoothed c, smoothed g.
  * Halo 2 along y. */
 __kernel void ari_gauss_y(__global const float *restrict src, const int sb, const int sp, const int ss,
                           __global float *restrict out, const int w, const int h, const float k0,
@@ -551,7 +551,7 @@ __kernel void ari_select(__global const float *restrict crit, const int cb, cons
 }
 
 /* Criterion-weighted mean of plane ``p`` of the four estimates e0..e3 (planes est1, est2, best; view
- * base, pitch, plane stride): sum w e / sum w, w = 1 / (best + ARI_CRIT_REG) (bayer_ri._adaptive). */
+ * base, pitch, plane stride): sum w e / sum w, w = 1 / (best + ARI_CRIT_REG) (reference._adaptive). */
 #define ARI_EST_ARGS(k) __global const float *restrict e##k, const int e##k##b, const int e##k##p, const int e##k##s
 #define ARI_ADAPT(k, pl) { const int at = e##k##b + y * e##k##p + x; \
                           const float wt = 1.0f / (e##k[2 * e##k##s + at] + ARI_CRIT_REG); \

@@ -419,7 +419,10 @@ def _adaptive(estimates: list[tuple[Array, Array]]) -> Array:
     return num / den
 
 
-def _ari_window(kind: str, d: str, along: int, across: int) -> Window:
+def ari_window(kind: str, d: str, along: int, across: int) -> Window:
+    """The window of ARI's guided filters along direction ``d`` ("h", "v", "d1", "d2") with radii
+    ``along`` and ``across`` it (pixels for a box, lattice steps for a diagonal window; ``kind`` does
+    not change the shape). Shared with the device stage, which derives its margins from it."""
     if d in ("d1", "d2"):
         return ("diag", along, across) if d == "d1" else ("diag", across, along)
     return ("box", across, along) if d == "h" else ("box", along, across)
@@ -443,7 +446,7 @@ def _ari_green(raw: Array, sites: Sites, iterations: int, kinds: tuple[str, ...]
             g, c = g0, c0
             best, est_g, est_c = np.full(raw.shape, np.inf), g0, c0
             for _ in range(iterations):
-                window = _ari_window(kind, d, along, across)
+                window = ari_window(kind, d, along, across)
                 lap = _along(d, LAPLACIAN) if kind == "mlri" else None
                 t_g, t_c = np.zeros_like(raw), np.zeros_like(raw)
                 for line, c_sites, g_sites in sites.lines(d):
@@ -480,7 +483,7 @@ def _ari_chroma(guide: Array, planes: list[tuple[Array, Array, Array]], directio
             lap = _along(d, LAPLACIAN) if kind == "mlri" else None
             cur, ests, best = starts, starts, np.full(guide.shape, np.inf)
             for _ in range(iterations):
-                window = _ari_window(kind, d, along, across)
+                window = ari_window(kind, d, along, across)
                 new, errs = [], []
                 for (values, known, targets), x in zip(planes, cur):
                     t = guided_filter(guide, x, mask, window, laplacian=lap, lap_mask=known, weighted=True)

@@ -1,12 +1,12 @@
 """ARI Bayer demosaic (adaptive residual interpolation; Monno, Kiku, Tanaka, Okutomi, ICIP 2015 /
-Sensors 2017) as a Stage: the OpenCL port of ``bayer_ri.demosaic_ari`` (float64 NumPy, the definition
+Sensors 2017) as a Stage: the OpenCL port of ``reference.demosaic_ari`` (float64 NumPy, the definition
 of correct; its module doc describes the algorithm). Kernels: ``clisp/modules/demosaic_ari/demosaic_ari.cl`` (and ``box_x``,
 ``box_y`` of ``clisp/modules/common/guided_ri.cl``).
 
 Input: a white-balanced Bayer mosaic window (linear, nominally [0, 1]; nothing is clipped, so values
 above 1 and below 0 pass through the algebra), any of the four phases. Output: the window less
 ``halo`` on every side, R, G, B (planar on the device). ``reference()`` is
-``bayer_ri.demosaic_ari(window, phase, green_iterations, chroma_iterations, clip=None)`` cropped by the
+``reference.demosaic_ari(window, phase, green_iterations, chroma_iterations, clip=None)`` cropped by the
 halo (the reference mirrors at the window's border; the device never does: it is valid-only, and the
 halo is the formal support of the chain, so the two agree on the whole output).
 
@@ -62,7 +62,7 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from . import reference as bayer_ri
+from .reference import KINDS, PHASES, RB_KINDS, SCALE, ari_window, demosaic_ari
 from ..base import Stage
 from ..demosaic_malvar.stage import check_bayer
 from ..common.guided_ri import enqueue_box
@@ -70,15 +70,15 @@ from ..common.guided_ri import enqueue_box
 i32, f32 = np.int32, np.float32
 
 STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
-"""Direction -> (dy, dx) step, as bayer_ri._along."""
+"""Direction -> (dy, dx) step, as reference._along."""
 SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
 """Site codes of clisp/modules/demosaic_ari/demosaic_ari.cl."""
 LAPLACIAN_RADIUS = 2
 """MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction."""
 CRITERION_SIGMA, CRITERION_RADIUS = 2.0, 2
-"""bayer_ri._criterion's Gaussian (5 x 5, sigma 2)."""
+"""reference._criterion's Gaussian (5 x 5, sigma 2)."""
 DEFINES = {"ARI_EPS": 1e-10, "ARI_RMSE_FLOOR": 1e-3, "ARI_WEIGHT_REG": 1e-4, "ARI_CRIT_REG": 1e-10}
-"""The reference's constants in 8-bit units (bayer_ri: guided_pair eps, _fit floor and regulariser,
+"""The reference's constants in 8-bit units (reference: guided_pair eps, _fit floor and regulariser,
 _adaptive)."""
 
 
@@ -92,7 +92,7 @@ def _gauss_weights() -> tuple[float, float, float]:
 
 def _window(kind: str, d: str, along: int, across: int) -> tuple[int, int]:
     """Pixel radii (ry, rx) of a box window (h, v) or the (p, q) lattice radii of a diagonal one."""
-    _, a, b = bayer_ri._ari_window(kind, d, along, across)
+    _, a, b = ari_window(kind, d, along, across)
     return a, b
 
 
@@ -128,12 +128,12 @@ def _chain_margin(source: int, guide: int, kind: str, d: str, radii: tuple[int, 
 
 def ari_halo(green_iterations: int, chroma_iterations: int) -> int:
     """The stage's halo: the formal support of the ARI chain (module doc), from the margin rules."""
-    green = max(max(_chain_margin(0, 0, kind, d, bayer_ri.KINDS[kind], green_iterations))
-                for d in ("h", "v") for kind in bayer_ri.KINDS)
-    step2 = max(max(_chain_margin(0, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
-                for d in ("d1", "d2") for kind in bayer_ri.KINDS)
-    return max(max(_chain_margin(step2, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
-               for d in ("h", "v") for kind in bayer_ri.KINDS)
+    green = max(max(_chain_margin(0, 0, kind, d, KINDS[kind], green_iterations))
+                for d in ("h", "v") for kind in KINDS)
+    step2 = max(max(_chain_margin(0, green, kind, d, RB_KINDS[kind], chroma_iterations))
+                for d in ("d1", "d2") for kind in KINDS)
+    return max(max(_chain_margin(step2, green, kind, d, RB_KINDS[kind], chroma_iterations))
+               for d in ("h", "v") for kind in KINDS)
 
 
 # ------------------------------------------------------------------------------------ device views
@@ -239,7 +239,7 @@ class DemosaicARI(Stage):
         return "".join(self.cfa.channels[c] for c in block.ravel())
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        out = bayer_ri.demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
+        out = demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
                                     self.chroma_iterations, clip=None)
         h = self.halo
         return out[h:out.shape[0] - h, h:out.shape[1] - h]
@@ -249,12 +249,12 @@ class DemosaicARI(Stage):
         if src.channels != 1 or np.dtype(src.dtype) != np.float32:
             raise ClispError(f"the ARI demosaic takes a 1-plane float32 mosaic, got {src.channels} x {src.dtype}")
         phase = self.phase(origin)
-        r_site = bayer_ri.PHASES[phase]
+        r_site = PHASES[phase]
         c = _Chain(rt, src.height, src.width, r_site)
         raw_img = c.new(1, 0, 0)
         buf, base, pitch = _View(src, 0, 0).at(0, 0)
         c.launch(c.kernel("ari_scale"), raw_img, buf, base, pitch, raw_img.buffer, i32(raw_img.width),
-                 f32(bayer_ri.SCALE))
+                 f32(SCALE))
         raw = _View(raw_img, 0, 0)
 
         stage_label(f"{self.name} 1 green")
@@ -265,7 +265,7 @@ class DemosaicARI(Stage):
             start = c.new(2, my, mx)
             c.launch(c.kernel("ari_green_start"), start, *raw.at(my, mx, sy, sx), start.buffer, i32(start.width),
                      i32(start.height), i32(sy), i32(sx), *c.parity(my, mx))
-            for kind in bayer_ri.KINDS:
+            for kind in KINDS:
                 ests[d, kind] = self._green_chain(c, raw, _View(start, my, mx), d, kind)
             c.release(start)
         green = self._green_merge(c, raw, list(ests.values()))
@@ -275,13 +275,13 @@ class DemosaicARI(Stage):
         # step 2: R at B, B at R along the diagonals, statistics over the chroma sites
         stage_label(f"{self.name} 2 diagonals")
         ests = [self._chroma_chain(c, green, [(raw, SITE_R, SITE_B), (raw, SITE_B, SITE_R)], d, kind, True)
-                for d in ("d1", "d2") for kind in bayer_ri.KINDS]
+                for d in ("d1", "d2") for kind in KINDS]
         rb = self._merge(c, "ari_rb_merge", ests, [raw], 2)
         # step 3: R and B at the G sites along rows and columns, statistics over every pixel
         stage_label(f"{self.name} 3 G sites")
         rb_r, rb_b = _View(rb.image, rb.my, rb.mx, 0), _View(rb.image, rb.my, rb.mx, 1)
         ests = [self._chroma_chain(c, green, [(rb_r, SITE_C, SITE_G), (rb_b, SITE_C, SITE_G)], d, kind, False)
-                for d in ("h", "v") for kind in bayer_ri.KINDS]
+                for d in ("h", "v") for kind in KINDS]
         out = self._merge(c, "ari_final", ests, [rb, green], 3)
         c.release(raw_img, rb.image, green.image)
         stage_label(self.name)
@@ -297,7 +297,7 @@ class DemosaicARI(Stage):
         dirn = 0 if d == "h" else 1
         sy, sx = STEPS[d]
         lap = LAPLACIAN_RADIUS if mlri else 0
-        along, across = bayer_ri.KINDS[kind]
+        along, across = KINDS[kind]
         g, cl = _View(start.image, start.my, start.mx, 0), _View(start.image, start.my, start.mx, 1)
         lines_img: DeviceImage | None = None
         est: _View | None = None
@@ -387,7 +387,7 @@ class DemosaicARI(Stage):
         """One (direction, kind) chain of step 2 (``diagonal``) or 3 for the two planes (source,
         known sites, target sites); returns the estimate image (planes R, B, criterion)."""
         sy, sx = STEPS[d]
-        along, across = bayer_ri.RB_KINDS[kind]
+        along, across = RB_KINDS[kind]
         k = _gauss_weights()
         cur = []
         for src, known, target in planes:
@@ -487,7 +487,7 @@ class DemosaicARI(Stage):
         else:
             rb, green = extra
             args += [*rb.at(my, mx), rb.stride(), *green.at(my, mx), out.buffer, i32(out.width), i32(out.height),
-                     *c.parity(my, mx), f32(1.0 / bayer_ri.SCALE)]
+                     *c.parity(my, mx), f32(1.0 / SCALE)]
         c.launch(c.kernel(name), out, *args)
         c.release(*(e.image for e in ests))
         return _View(out, my, mx)
