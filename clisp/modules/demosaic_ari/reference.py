@@ -106,6 +106,16 @@ SCALE = 255.0
 """Working scale: data in [0, 1] become 8-bit code values, the units of the published constants."""
 PAD = 16
 """Mirror padding on every side (even: keeps the CFA phase)."""
+EPS = 1e-10
+"""Guided filters' regulariser of the slope, a = cov / (var + EPS) (8-bit units^2; MLRI's slope too)."""
+RMSE_FLOOR = 1e-3
+"""ARI's weighted guided filter: a window's fit weighs 1 / max(RMSE, RMSE_FLOOR) (8-bit units)."""
+WEIGHT_REG = 1e-4
+"""ARI's weighted guided filter divides by the window's sum of those weights + WEIGHT_REG."""
+CRIT_REG = 1e-10
+"""ARI's merges: each estimate weighs 1 / (criterion + CRIT_REG)."""
+CRITERION_RADIUS, CRITERION_SIGMA = 2, 2.0
+"""ARI's criterion smooths its terms by a (2 CRITERION_RADIUS + 1)^2 Gaussian of this sigma (pixels)."""
 PHASES = {"RGGB": (0, 0), "GRBG": (0, 1), "GBRG": (1, 0), "BGGR": (1, 1)}
 """Bayer phase -> (row, column) of the R site in the top-left 2 x 2 block."""
 
@@ -192,9 +202,13 @@ def _taps(x: Array, taps: dict[tuple[int, int], float]) -> Array:
     return out
 
 
+STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
+"""Direction -> its (dy, dx) step: "h" (x), "v" (y), "d1" (y = x), "d2" (y = -x)."""
+
+
 def _along(d: str, weights: list[float]) -> dict[tuple[int, int], float]:
-    """A centred 1-D kernel as taps along d: "h" (x), "v" (y), "d1" (y = x), "d2" (y = -x)."""
-    step = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}[d]
+    """A centred 1-D kernel as taps along d (STEPS)."""
+    step = STEPS[d]
     r = len(weights) // 2
     return {(k * step[0], k * step[1]): w for k, w in zip(range(-r, r + 1), weights) if w != 0}
 
@@ -226,10 +240,15 @@ def _window_size(window: Window) -> int:
     return (2 * window[1] + 1) * (2 * window[2] + 1)
 
 
+def gaussian_taps(radius: int, sigma: float) -> Array:
+    """The 2 radius + 1 taps (offsets -radius..radius) of a normalised 1-D Gaussian of ``sigma`` pixels."""
+    k = np.exp(-np.arange(-radius, radius + 1) ** 2 / (2.0 * sigma * sigma))
+    return k / k.sum()
+
+
 def _gauss(x: Array, radius: int, sigma: float) -> Array:
     """Separable normalised Gaussian smoothing, (2 radius + 1)^2 taps."""
-    k = np.exp(-np.arange(-radius, radius + 1) ** 2 / (2.0 * sigma * sigma))
-    k = list(k / k.sum())
+    k = list(gaussian_taps(radius, sigma))
     return _taps(_taps(x, _along("h", k)), _along("v", k))
 
 
@@ -273,12 +292,12 @@ def _fit(stats: WindowStats, guide: Array, target: Array, eps: float, laplacian:
         return _box(a, window) / count * guide + _box(b, window) / count
     # mean squared residual of a x + b ~ y over the window (b makes the mean residual zero)
     mse = a * a * stats.var_x - 2.0 * a * stats.cov + stats.var_y
-    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), 1e-3)
-    total = _box(weight, window) + 1e-4
+    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), RMSE_FLOOR)
+    total = _box(weight, window) + WEIGHT_REG
     return _box(a * weight, window) / total * guide + _box(b * weight, window) / total
 
 
-def guided_filter(guide: Array, target: Array, mask: Array | None, window: Window, eps: float = 1e-10,
+def guided_filter(guide: Array, target: Array, mask: Array | None, window: Window, eps: float = EPS,
                   laplacian: dict | None = None, lap_mask: Array | None = None, weighted: bool = False,
                   lap_floor: float = 0.0) -> Array:
     """Masked guided filter q = mean(a) guide + mean(b) (He et al.), statistics over ``mask`` (None:
@@ -288,7 +307,7 @@ def guided_filter(guide: Array, target: Array, mask: Array | None, window: Windo
     ``laplacian`` (MLRI): a = sum(lap guide * lap target) / (sum((lap guide)^2) + eps) over the
     ``lap_mask`` sites of the window (the mean of (lap guide)^2 floored at ``lap_floor``); b as above.
     ``weighted`` (ARI): mean(a), mean(b) weighted by 1 / RMSE of each window's fit a guide + b ~ target
-    over the mask (RMSE floored at 1e-3); else the plain window means (over every pixel).
+    over the mask (RMSE floored at RMSE_FLOOR); else the plain window means (over every pixel).
     """
     stats = WindowStats(guide, target, mask, window)
     return _fit(stats, guide, target, eps, laplacian, lap_mask, weighted, lap_floor)
@@ -296,7 +315,7 @@ def guided_filter(guide: Array, target: Array, mask: Array | None, window: Windo
 
 def guided_pair(x: Array, y: Array, mask: Array | None, window: Window, laplacian: dict | None = None,
                 lap_masks: tuple[Array | None, Array | None] = (None, None), weighted: bool = True,
-                eps: float = 1e-10) -> tuple[Array, Array]:
+                eps: float = EPS) -> tuple[Array, Array]:
     """(guided_filter of y against x, of x against y) sharing the window sums; lap_masks: the
     Laplacian masks of the two fits."""
     stats = WindowStats(x, y, mask, window)
@@ -403,18 +422,19 @@ def _criterion(err: list[Array], d: str, region: Array | None) -> Array:
     c = sum(np.abs(e) for e in err)
     g = sum(np.abs(_taps(e, _along(d, GRADIENT))) for e in err)
     if region is None:
-        c, g = _gauss(c, 2, 2.0), _gauss(g, 2, 2.0)
+        c, g = _gauss(c, CRITERION_RADIUS, CRITERION_SIGMA), _gauss(g, CRITERION_RADIUS, CRITERION_SIGMA)
     else:
-        norm = _gauss(region.astype(np.float64), 2, 2.0)
-        c, g = _gauss(c, 2, 2.0) / norm * region, _gauss(g, 2, 2.0) / norm * region
+        norm = _gauss(region.astype(np.float64), CRITERION_RADIUS, CRITERION_SIGMA)
+        c = _gauss(c, CRITERION_RADIUS, CRITERION_SIGMA) / norm * region
+        g = _gauss(g, CRITERION_RADIUS, CRITERION_SIGMA) / norm * region
     return c * c * g
 
 
 def _adaptive(estimates: list[tuple[Array, Array]]) -> Array:
-    """Weighted mean of (estimate, criterion) pairs, weights 1 / (criterion + 1e-10)."""
+    """Weighted mean of (estimate, criterion) pairs, weights 1 / (criterion + CRIT_REG)."""
     num = den = 0.0
     for est, crit in estimates:
-        w = 1.0 / (crit + 1e-10)
+        w = 1.0 / (crit + CRIT_REG)
         num, den = num + w * est, den + w
     return num / den
 
