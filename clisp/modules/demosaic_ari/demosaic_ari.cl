@@ -14,8 +14,9 @@
  *    columns x + px even; R = R row & R column, B = neither, G = one of them (x + y + px + py odd).
  *  - Directions are steps (sy, sx): h (0, 1), v (1, 0), d1 (1, 1), d2 (1, -1).
  *
- * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
- * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
+ * Defines from the host (stage.py's program_defines, every one in every program): ARI_EPS,
+ * ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG (reference.py's EPS, RMSE_FLOOR, WEIGHT_REG, CRIT_REG),
+ * the site codes SITE_R, SITE_B, SITE_C (R or B), SITE_G; per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
  * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
  * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
  * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
@@ -29,65 +30,13 @@
  * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
  * make them unalike or split them into separate programs. */
 
-#ifndef ARI_DIR
-#define ARI_DIR 0
+#if !defined(ARI_EPS) || !defined(ARI_RMSE_FLOOR) || !defined(ARI_WEIGHT_REG) || !defined(ARI_CRIT_REG) \
+    || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) || !defined(ARI_DIR) \
+    || !defined(ARI_MLRI) || !defined(ARI_PAIR) || !defined(ARI_R) || !defined(ARI_SET) || !defined(ARI_FIT) \
+    || !defined(ARI_SY) || !defined(ARI_SX) || !defined(ARI_REGION) || !defined(ARI_KNOWN) || !defined(ARI_TARGET) \
+    || !defined(ARI_P) || !defined(ARI_Q) || !defined(ARI_LS)
+#error "demosaic_ari.cl takes every define from the host (clisp/modules/demosaic_ari/stage.py, program_defines)"
 #endif
-#ifndef ARI_MLRI
-#define ARI_MLRI 0
-#endif
-#ifndef ARI_PAIR
-#define ARI_PAIR 0
-#endif
-#ifndef ARI_R
-#define ARI_R 1
-#endif
-#ifndef ARI_SET
-#define ARI_SET 0
-#endif
-#ifndef ARI_FIT
-#define ARI_FIT 0
-#endif
-#ifndef ARI_SY
-#define ARI_SY 0
-#endif
-#ifndef ARI_SX
-#define ARI_SX 1
-#endif
-#ifndef ARI_REGION
-#define ARI_REGION 0
-#endif
-#ifndef ARI_TARGET
-#define ARI_TARGET SITE_B
-#endif
-#ifndef ARI_P
-#define ARI_P 1
-#endif
-#ifndef ARI_Q
-#define ARI_Q 1
-#endif
-#ifndef ARI_LS
-#define ARI_LS 1
-#endif
-#ifndef ARI_KNOWN
-#define ARI_KNOWN SITE_R
-#endif
-#ifndef ARI_EPS
-#define ARI_EPS 1e-10f
-#endif
-#ifndef ARI_RMSE_FLOOR
-#define ARI_RMSE_FLOOR 1e-3f
-#endif
-#ifndef ARI_WEIGHT_REG
-#define ARI_WEIGHT_REG 1e-4f
-#endif
-#ifndef ARI_CRIT_REG
-#define ARI_CRIT_REG 1e-10f
-#endif
-
-#define SITE_R 0
-#define SITE_B 1
-#define SITE_C 2
-#define SITE_G 3
 
 /* 1.0f where pixel (y, x) of a grid with parities (py, px) is a site of kind ``code``, else 0.0f. */
 __attribute__((always_inline)) inline float ari_site(const int code, const int y, const int x, const int py, const int px)

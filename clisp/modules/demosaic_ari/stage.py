@@ -62,29 +62,59 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from .reference import KINDS, PHASES, RB_KINDS, SCALE, ari_window, demosaic_ari
+from .reference import (CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, EPS, KINDS, LAPLACIAN, PHASES, RB_KINDS,
+                        RMSE_FLOOR, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
 from ..base import Stage
 from ..demosaic_malvar.stage import check_bayer
 from ..common.guided_ri import enqueue_box
 
 i32, f32 = np.int32, np.float32
 
-STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
-"""Direction -> (dy, dx) step, as reference._along."""
 SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
-"""Site codes of clisp/modules/demosaic_ari/demosaic_ari.cl."""
-LAPLACIAN_RADIUS = 2
-"""MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction."""
-CRITERION_SIGMA, CRITERION_RADIUS = 2.0, 2
-"""reference._criterion's Gaussian (5 x 5, sigma 2)."""
-DEFINES = {"ARI_EPS": 1e-10, "ARI_RMSE_FLOOR": 1e-3, "ARI_WEIGHT_REG": 1e-4, "ARI_CRIT_REG": 1e-10}
-"""The reference's constants in 8-bit units (reference: guided_pair eps, _fit floor and regulariser,
-_adaptive)."""
+"""Site codes of the kernels (R, B, chroma = R or B, G; demosaic_ari.cl's ari_site)."""
+LAPLACIAN_RADIUS = len(LAPLACIAN) // 2
+"""MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction reads 2 px each way."""
+CONSTANTS = {"ARI_EPS": EPS, "ARI_RMSE_FLOOR": RMSE_FLOOR, "ARI_WEIGHT_REG": WEIGHT_REG, "ARI_CRIT_REG": CRIT_REG,
+             "SITE_R": SITE_R, "SITE_B": SITE_B, "SITE_C": SITE_C, "SITE_G": SITE_G}
+"""Defines of every program: the reference's constants (8-bit units; float32 literals in the kernels)
+and the site codes."""
+MODES = {
+    "ari_scale": (),
+    "ari_green_start": (),
+    "ari_along_moments": ("ARI_DIR", "ARI_MLRI", "ARI_PAIR", "ARI_R"),
+    "ari_across_coefficients": ("ARI_DIR", "ARI_MLRI", "ARI_PAIR", "ARI_R", "ARI_SET", "ARI_FIT"),
+    "ari_box_apply": ("ARI_DIR", "ARI_PAIR", "ARI_R"),
+    "ari_green_residual": (),
+    "ari_err_terms": ("ARI_SY", "ARI_SX", "ARI_REGION"),
+    "ari_gauss_x": ("ARI_REGION",),
+    "ari_gauss_y": ("ARI_REGION",),
+    "ari_select": (),
+    "ari_green_merge": (),
+    "ari_chroma_start": ("ARI_KNOWN", "ARI_TARGET"),
+    "ari_chroma_residual": ("ARI_KNOWN", "ARI_TARGET"),
+    "ari_diag_coefficients": ("ARI_MLRI", "ARI_P", "ARI_Q", "ARI_LS", "ARI_KNOWN"),
+    "ari_diag_apply": ("ARI_P", "ARI_Q"),
+    "ari_rb_merge": (),
+    "ari_final": (),
+}
+"""Kernel -> the compile-time modes (integer defines) it reads; demosaic_ari.cl's header says what
+each mode means."""
+ALL_MODES = tuple(sorted({mode for modes in MODES.values() for mode in modes}))
+
+
+def program_defines(kernel_name: str, modes: dict[str, int]) -> dict[str, object]:
+    """The defines of the program that runs ``kernel_name`` in ``modes``: CONSTANTS, exactly the modes
+    the kernel reads (any missing or other one is a ClispError), and 0 for the modes it does not
+    read: a program holds every kernel of demosaic_ari.cl, and the others must compile too."""
+    reads = MODES[kernel_name]
+    if set(modes) != set(reads):
+        raise ClispError(f"demosaic_ari.cl {kernel_name} reads the modes {sorted(reads)}, got {sorted(modes)}")
+    return {**CONSTANTS, **dict.fromkeys(ALL_MODES, 0), **modes}
 
 
 def _gauss_weights() -> tuple[float, float, float]:
-    k = np.exp(-np.arange(-CRITERION_RADIUS, CRITERION_RADIUS + 1) ** 2 / (2.0 * CRITERION_SIGMA ** 2))
-    k = k / k.sum()
+    """The criterion's Gaussian taps at offsets 0, 1, 2 (ari_gauss_x / _y's k0, k1, k2)."""
+    k = gaussian_taps(CRITERION_RADIUS, CRITERION_SIGMA)
     return float(k[2]), float(k[3]), float(k[4])
 
 
@@ -177,8 +207,8 @@ class _Chain:
     def parity(self, my: int, mx: int) -> tuple[np.int32, np.int32]:
         return i32((my + self.r_site[0]) & 1), i32((mx + self.r_site[1]) & 1)
 
-    def kernel(self, name: str, **defines: int) -> object:
-        return self.rt.kernel("demosaic_ari", name, {**DEFINES, **defines})
+    def kernel(self, name: str, **modes: int) -> object:
+        return self.rt.kernel("demosaic_ari", name, program_defines(name, modes))
 
     def launch(self, kernel: object, out: DeviceImage, *args: object) -> None:
         launch_exact(self.rt, kernel, out.width, out.height, *args)
@@ -451,7 +481,8 @@ class DemosaicARI(Stage):
                  *c.parity(my, mx))
         cy, cx = (rc, 0) if d == "h" else (0, rc)
         coef = c.new(3, my + cy, mx + cx)
-        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc),
+        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc,
+                                   ARI_SET=0, ARI_FIT=0),
                  coef, mom.buffer, i32(mom.width), i32(mom.width * mom.height), *guide.at(my + cy, mx + cx, cy, cx),
                  *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(0), i32(coef.width), i32(coef.height),
                  *c.parity(my + cy, mx + cx))
