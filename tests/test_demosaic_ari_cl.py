@@ -1,5 +1,5 @@
 """The ARI demosaic on the device (clisp.modules.demosaic_ari.stage, clisp/modules/demosaic_ari/demosaic_ari.cl) against its float64 NumPy
-reference bayer_ri.demosaic_ari (clip=None), and the tiling contract.
+reference clisp.modules.demosaic_ari.reference.demosaic_ari (clip=None), and the tiling contract.
 
 The device stage is valid-only: an H x W window gives its (H - 2 halo)^2 interior, and the halo is the
 formal support of the chain, so the reference run on the same window (mirrored borders) and cropped by

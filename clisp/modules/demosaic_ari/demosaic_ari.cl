@@ -1,34 +1,32 @@
 /* ARI Bayer demosaic (adaptive residual interpolation, Monno et al. 2015/2017) on the device. NumPy
- * float64 reference: clisp/modules/demosaic_ari/reference.py (demosaic_ari, _ari_green, _merge_green, _ari_chroma,
- * guided_pair, guided_filter, _criterion, _adaptive); host side and schedule: clisp/modules/demosaic_ari/stage.py.
+ * float64 reference: reference.py beside this file (demosaic_ari, _ari_green, _merge_green,
+ * _ari_chroma, guided_pair, guided_filter, _criterion, _adaptive); host side: stage.py; schedule,
+ * halo and why the kernels are shaped so (PoCL's vectoriser, and how to check it): README.md.
  *
  * Conventions (the project's tiling contract: valid-only windows, no borders, no bounds checks):
  *  - Data are in 8-bit units (the host scales the mosaic by 255 once, ari_scale), so the reference's
- *    constants apply unchanged: eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion +1e-10.
- *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h) and reads its
- *    inputs through "views": (buffer, base, pitch), base being the element of the input that lies at
- *    output pixel (0, 0), so input pixel (y + dy, x + dx) is buf[base + (y + dy) pitch + x + dx]. The host
+ *    constants apply unchanged (the defines ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG).
+ *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h; parameters
+ *    out, w, h) and reads its inputs through "views": an input v is the parameters v (the buffer),
+ *    v_base (the element of v that lies at output pixel (0, 0)), v_pitch (elements per row) and, for
+ *    several planes, v_plane (elements per plane), so input pixel (y + dy, x + dx) of plane p is
+ *    v[v_base + p v_plane + (y + dy) v_pitch + x + dx]. The host launches every kernel by these names,
  *    tracks each image's margin (its offset inside the stage's input window) and checks every read
  *    stays inside its input; a kernel's "halo" below is how far it reads around the output pixel.
  *  - CFA sites from the parities (py, px) of the output grid: R rows are those with y + py even, R
  *    columns x + px even; R = R row & R column, B = neither, G = one of them (x + y + px + py odd).
  *  - Directions are steps (sy, sx): h (0, 1), v (1, 0), d1 (1, 1), d2 (1, -1).
  *
- * Defines from the host (stage.py's program_defines, every one in every program): ARI_EPS,
- * ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG (reference.py's EPS, RMSE_FLOOR, WEIGHT_REG, CRIT_REG),
- * the site codes SITE_R, SITE_B, SITE_C (R or B), SITE_G; per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
- * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
- * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
- * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
- * window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the diagonal kernels' lattice
- * radii, direction and Laplacian sites). The radii are compile-time so that
- * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
- * straight-line code (a loop of runtime trip count inside it keeps it scalar), and so are the modes.
- * Check with POCL_KERNEL_CACHE=0 POCL_VECTORIZER_REMARKS=1 ("vectorized loop (vectorization width: 8"
- * after the kernel's "_workgroup" inlining remark); "instruction return type cannot be vectorized"
- * means LLVM's SLP vectoriser packed two alike computations of one work-item into a <2 x float> first
- * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
- * make them unalike or split them into separate programs. */
+ * Defines, all from the host and every one in every program (stage.py's program_defines; none has
+ * a default here): ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG (reference.py's EPS,
+ * RMSE_FLOOR, WEIGHT_REG, CRIT_REG); the site codes SITE_R, SITE_B, SITE_C (R or B), SITE_G; and the
+ * modes of the launched kernel (0 where it does not read them): ARI_DIR (0: lines are rows, windows
+ * along x; 1: columns, along y), ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the
+ * fits of a line pair, statistics per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's
+ * direction), ARI_REGION (step 2's criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma
+ * kernels' sites), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
+ * diagonal kernels' lattice radii, direction and Laplacian sites). Radii and modes are compile-time so
+ * that every kernel body is straight-line code, which PoCL vectorises across work-items (README.md). */
 
 #if !defined(ARI_EPS) || !defined(ARI_RMSE_FLOOR) || !defined(ARI_WEIGHT_REG) || !defined(ARI_CRIT_REG) \
     || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) || !defined(ARI_DIR) \

@@ -1,6 +1,7 @@
 """Residual-interpolation Bayer demosaics (RI, MLRI, ARI and an ARI hybrid): NumPy float64 references.
 
-Study code for issue 12 (no OpenCL kernel yet). Every function takes an H x W mosaic (float, values
+The definitions of correct: ``demosaic_ari`` is what the device stage (stage.py, demosaic_ari.cl)
+ports; the others are the candidates of issue 12's study. Every function takes an H x W mosaic (float, values
 normally in [0, 1], linear or sRGB-encoded: the algorithms do not care) and a Bayer phase name
 ("RGGB", "GRBG", "GBRG", "BGGR": the colours of the top-left 2 x 2 block, row by row) and returns
 H x W x 3 float64 RGB. The sampled CFA values stay at their own sites; interpolated values are
@@ -68,33 +69,20 @@ McMaster needs; their means keep most of both (tools/demosaic_study.py).
 
 Units and constants
 -------------------
-The mosaic is multiplied by 255 inside, so the published constants, given for 8-bit data, apply to
-data in [0, 1] unchanged (a linear raw normalised to white = 1 is in the same units); the output is
-scaled back.
+The mosaic is multiplied by ``SCALE`` (255) inside, so the published constants, given for 8-bit
+data, apply to data in [0, 1] unchanged (a linear raw normalised to white = 1 is in the same units);
+the output is scaled back. ARI's constants are named once here (``EPS``, ``RMSE_FLOOR``,
+``WEIGHT_REG``, ``CRIT_REG``, ``CRITERION_RADIUS``, ``CRITERION_SIGMA``) and the device stage takes
+them from here.
 
-Borders and halo
-----------------
+Borders
+-------
 The image is mirror-extended by ``PAD`` (16) pixels on every side (reflection about the edge pixel,
 which keeps the CFA phase; the phase is moved to RGGB by one more mirrored row / column where
-needed) and every filter also mirrors at the array's edge. Halo, measured as the context beyond
-which a tile's output equals the whole image's (tools/demosaic_study.py --halo, kodim19): RI, MLRI and
-weighted MLRI 28 px (exact to rounding; 24 px still differs by up to 2e-6). ARI and the hybrid
-chain eleven G iterations with growing windows (formal support roughly 280 px, the sum of the
-chained window radii, estimated by hand); in practice the difference falls to 4e-4 (ARI) / 1e-5
-(hybrid) at 64 px, 8e-7 / 6e-8 at 96 px and 5e-11 / 2e-11 at 128 px of context.
+needed) and every filter also mirrors at the array's edge. Box sums are running sums
+(scipy.ndimage.uniform_filter1d), so their rounding depends on the position along a row.
 
-Numerics and speed
-------------------
-Box sums are running sums (scipy.ndimage.uniform_filter1d), so their rounding depends on the
-position along a row; ARI's 1 / RMSE weights and per-pixel selections amplify that: a
-phase-shifted crop reproduces the whole image's interior to about 1e-8 (RI, MLRI) and 1e-5 (ARI).
-One 768 x 512 image (Kodak mean), one core of this study's shared machine: RI 0.4 s, MLRI 0.8 s,
-weighted MLRI 0.9 s, ARI 9.2 s, hybrid 9.2 s (its extra MLRI chroma is cheap; ARI's eleven G
-iterations, 16 guided filters each, are nearly all of it).
-
-Results (tools/demosaic_study.py, classic protocol, CPSNR Kodak / McMaster): RI 38.72 / 36.50, MLRI
-39.65 / 36.63, weighted MLRI 39.84 / 36.77, ARI 40.00 / 37.50, hybrid 40.74 / 37.25 (our DLMMSE
-40.21 / 34.47).
+Measured halos, rounding, speed and CPSNR of the study: README.md.
 """
 from __future__ import annotations
 

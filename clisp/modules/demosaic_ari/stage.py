@@ -1,56 +1,22 @@
 """ARI Bayer demosaic (adaptive residual interpolation; Monno, Kiku, Tanaka, Okutomi, ICIP 2015 /
-Sensors 2017) as a Stage: the OpenCL port of ``reference.demosaic_ari`` (float64 NumPy, the definition
-of correct; its module doc describes the algorithm). Kernels: ``clisp/modules/demosaic_ari/demosaic_ari.cl`` (and ``box_x``,
-``box_y`` of ``clisp/modules/common/guided_ri.cl``).
+Sensors 2017) as a Stage: the OpenCL port of ``reference.demosaic_ari`` (float64 NumPy, the
+definition of correct; its module doc describes the algorithm). Kernels: ``demosaic_ari.cl`` beside
+this file (and ``box_x``, ``box_y`` of ``clisp/modules/common/guided_ri.cl``).
 
-Input: a white-balanced Bayer mosaic window (linear, nominally [0, 1]; nothing is clipped, so values
-above 1 and below 0 pass through the algebra), any of the four phases. Output: the window less
-``halo`` on every side, R, G, B (planar on the device). ``reference()`` is
-``reference.demosaic_ari(window, phase, green_iterations, chroma_iterations, clip=None)`` cropped by the
-halo (the reference mirrors at the window's border; the device never does: it is valid-only, and the
-halo is the formal support of the chain, so the two agree on the whole output).
+Input: a white-balanced Bayer mosaic window, H x W float32 (linear, nominally [0, 1]; nothing is
+clipped, so values above 1 and below 0 pass through the algebra), any of the four phases. Output:
+R, G, B planes of the window less ``halo`` on every side, 3 x (H - 2 halo) x (W - 2 halo) on the
+device, in the mosaic's units. ``reference()`` is ``reference.demosaic_ari(window, phase,
+green_iterations, chroma_iterations, clip=None)`` cropped by the halo (the reference mirrors at the
+window's border; the device never does: it is valid-only, and the halo is the formal support of the
+chain, so the two agree on the whole output).
 
-Units: the device scales the mosaic by 255 once (``ari_scale``) and the output back by 1/255, so the
-reference's constants (eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion + 1e-10, all
-in 8-bit units) are used unchanged, in float32.
+Units: the device scales the mosaic by ``SCALE`` (255) once (``ari_scale``) and the output back by
+1 / SCALE, so the reference's constants (``EPS``, ``RMSE_FLOOR``, ``WEIGHT_REG``, ``CRIT_REG``, in
+8-bit units) apply unchanged, in float32. They reach the kernels as defines with the site codes and
+each kernel's modes (``program_defines``); every kernel is launched by name (``Runtime.launch_named``).
 
-Schedule (one chain of short kernels; every image is valid-only and carries its margin, i.e. its
-offset inside the input window; the host checks every read stays inside its input):
-
-  step 1, per direction d in (h, v) and kind k in (RI, MLRI), ``green_iterations`` iterations, window
-  (along, across) radii growing by 1 from (2, 1) (RI) / (4, 0) (MLRI):
-    ari_along_moments       centred moments along the line (+ MLRI's Laplacian moments)  r_along (+2)
-    ari_across_coefficients per line set (R lines, B lines) and fit (G from chroma,      r_across
-                            chroma from G) the weighted fit: 4 launches
-    box_x (h) / box_y (v)   sums of the 12 coefficient planes along the lines            r_along
-    ari_box_apply           their sums across the lines, the tentative G line t_g and    r_across
-                            chroma line t_c (each pixel's own line set)
-    ari_green_residual      residuals at the samples, [1/2, 1, 1/2] along d -> new lines  1 along d
-    ari_err_terms           |err| and |gradient of err| of the two fits                  1 along d
-    ari_gauss_x, _y         the criterion's 5 x 5 Gaussian (sigma 2)                     2
-    ari_select              per pixel the iteration with the smallest criterion c^2 g    0
-  ari_green_merge: G at the chroma sites, the four estimates weighted by 1 / (criterion + 1e-10)
-  step 2 (R at B, B at R; diagonals d1, d2; statistics over the chroma sites) and step 3 (R, B at the
-  G sites; h, v; every pixel), ``chroma_iterations`` iterations each, both planes sharing one
-  criterion: ari_chroma_start, then per iteration and plane the fit (step 2: ari_diag_coefficients +
-  ari_diag_apply, direct sums over the diagonal window; step 3: ari_along_moments +
-  ari_across_coefficients + box along + ari_box_apply), ari_chroma_residual, then ari_err_terms, ari_gauss_x/y
-  (normalised over the chroma sites in step 2), ari_select; ari_rb_merge after step 2, ari_final
-  after step 3 (R, G, B, scaled back).
-
-Halo: the sum of the chained radii, computed by :func:`ari_halo` from the same margin arithmetic that
-the enqueue runs (and checked against it there):
-  step 1: 3 + N (N + 10) (MLRI along the lines: 1 (start) + sum over iterations of 2 r + 2 + 1
-          (window sums and coefficient sums, Laplacian, residual) + 2 (criterion: gradient 1 and
-          Gaussian 2, less the residual's 1)); the RI kind and the across axis need less;
-  step 2: 2 M^2 + 7 M + 2 (RI, diagonal windows of pixel radius 4 + 2t);
-  step 3: M^2 + 6 M + 3 (MLRI along the lines; its start reads step 2's planes 1 px along d);
-  N = green_iterations, M = chroma_iterations: 121 px for (5, 2), 277 for (11, 2).
-Measured tolerance against the reference (tests/test_demosaic_ari_cl.py, 16 scene x phase cases, output
-in the mosaic's units): max |error| 5e-7..4e-6 on smooth ramps and white noise, up to 2.1e-4 (0.05
-8-bit levels) beside sharp colour edges and discs, mean <= 1.9e-6, PSNR vs the reference >= 104 dB;
-the test bounds are max 1e-3, mean 1e-5, PSNR 95 dB. The larger errors are float32 rounding amplified
-by ARI's 1 / RMSE weights of nearly exact fits and its per-pixel argmin where criteria nearly tie.
+Schedule, halo derivation, accuracy against the reference and measured history: README.md.
 """
 from __future__ import annotations
 
@@ -155,7 +121,9 @@ def _chain_margin(source: int, guide: int, kind: str, d: str, radii: tuple[int, 
 
 
 def ari_halo(green_iterations: int, chroma_iterations: int) -> int:
-    """The stage's halo: the formal support of the ARI chain (module doc), from the margin rules."""
+    """The stage's halo in pixels: the formal support of the ARI chain, from the margin rules that the
+    enqueue follows (and checks). Closed form, N = ``green_iterations``, M = ``chroma_iterations``:
+    3 + N (N + 10) + 2 M^2 + 7 M + 2 + M^2 + 6 M + 3 (121 px for (5, 2); README.md derives it)."""
     green = max(max(_chain_margin(0, 0, kind, d, KINDS[kind], green_iterations))
                 for d in ("h", "v") for kind in KINDS)
     step2 = max(max(_chain_margin(0, green, kind, d, RB_KINDS[kind], chroma_iterations))
@@ -214,6 +182,7 @@ class _Chain:
         self.rt, self.h, self.w, self.r_site = rt, height, width, r_site
 
     def new(self, channels: int, my: int, mx: int) -> DeviceImage:
+        """A pooled image of ``channels`` planes spanning the window less margin (my, mx) on every side."""
         h, w = self.h - 2 * my, self.w - 2 * mx
         if h < 1 or w < 1:
             raise ClispError(f"ARI: a {self.h} x {self.w} window is too small for margin ({my}, {mx})")
@@ -230,6 +199,7 @@ class _Chain:
                              program_defines(kernel_name, modes))
 
     def release(self, *images: DeviceImage | None) -> None:
+        """Return the images (None: skipped) to the pool."""
         for image in images:
             if image is not None:
                 self.rt.release(image)
@@ -271,12 +241,11 @@ class DemosaicARI(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """Pooled float32 planes per input pixel: what one enqueue creates from an empty pool
-        (Runtime.metering, tests/test_demosaic_ari_cl.py: 55 planes on a 300 x 300 window, 90-92 on
-        442 x 6242, 742 x 1742 and 1000 x 1000):
-        at the peak of step 1 the mosaic, the start lines, the estimates of finished chains, the
-        current lines and estimate and 12 coefficient planes with their two box passes are alive, and
-        the pool's buffers of the other (margin-dependent) sizes stay allocated beside them."""
+        """Device bytes per input pixel, 96 float32 planes: covers what one enqueue creates from an
+        empty pool (at most 92 planes metered on large windows; README.md). At the peak of step 1 the
+        mosaic, the start lines, the estimates of finished chains, the current lines and estimate and
+        12 coefficient planes with their two box passes are alive, and the pool's buffers of the other
+        (margin-dependent) sizes stay allocated beside them."""
         return 4.0 * 96
 
     def phase(self, origin: tuple[int, int]) -> str:
@@ -517,7 +486,7 @@ class DemosaicARI(Stage):
 
     def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
                    across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
-        """Coefficient sums along the lines (box_x / box_y of guided.cl, every plane), then across them
+        """Coefficient sums along the lines (box_x / box_y of common/guided_ri.cl, every plane), then across them
         fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
         dirn = 0 if d == "h" else 1
         sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
