@@ -1,7 +1,7 @@
 """ARI Bayer demosaic (adaptive residual interpolation; Monno, Kiku, Tanaka, Okutomi, ICIP 2015 /
 Sensors 2017) as a Stage: the OpenCL port of ``reference.demosaic_ari`` (float64 NumPy, the
 definition of correct; its module doc describes the algorithm). Kernels: ``demosaic_ari.cl`` beside
-this file (and ``box_x``, ``box_y`` of ``clisp/modules/common/guided_ri.cl``).
+this file, and the box filter shared in clisp/modules/common (``enqueue_box``).
 
 Input: a white-balanced Bayer mosaic window, H x W float32 (linear, nominally [0, 1]; nothing is
 clipped, so values above 1 and below 0 pass through the algebra), any of the four phases. Output:
@@ -486,7 +486,7 @@ class DemosaicARI(Stage):
 
     def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
                    across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
-        """Coefficient sums along the lines (box_x / box_y of common/guided_ri.cl, every plane), then across them
+        """Coefficient sums along the lines (the shared box filter, every plane), then across them
         fused with the tentative estimates (ari_box_apply); releases coef. Returns (t, margin y, x)."""
         dirn = 0 if d == "h" else 1
         sums = enqueue_box(c.rt, coef, 0, along, release_src=True, per_radius=True) if d == "h" else \
