@@ -328,8 +328,8 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 #endif
 }
 
-/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the sums along them are done: box_x
- * for ARI_DIR 0, box_y for 1) and the tentative estimates. coef: the along-summed coefficient planes
+/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the shared box filter has
+ * summed them along the lines: along x for ARI_DIR 0, along y for 1) and the tentative estimates. coef: the along-summed coefficient planes
  * (a view with a plane stride). ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
  * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
  * (ys view); out planes t_g, t_c. Else (3 planes): t = (A x + B) / (W + reg), out 1 plane.
