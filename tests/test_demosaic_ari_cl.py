@@ -1,5 +1,5 @@
 """The ARI demosaic on the device (clisp.modules.demosaic_ari.stage, clisp/modules/demosaic_ari/demosaic_ari.cl) against its float64 NumPy
-reference bayer_ri.demosaic_ari (clip=None), and the tiling contract.
+reference clisp.modules.demosaic_ari.reference.demosaic_ari (clip=None), and the tiling contract.
 
 The device stage is valid-only: an H x W window gives its (H - 2 halo)^2 interior, and the halo is the
 formal support of the chain, so the reference run on the same window (mirrored borders) and cropped by
@@ -18,6 +18,8 @@ residual weight 0.5 -> 0.49 gives PSNR 47-74 dB, one MLRI Laplacian tap 2 -> 2.0
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -25,9 +27,10 @@ from scipy import ndimage
 from clisp.cfa import BAYER_PHASES, bayer_cfa
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
+from clisp.engine.runtime import kernel_path
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline
 from clisp.modules.colour.stage import ColourMatrix
-from clisp.modules.demosaic_ari.stage import DemosaicARI, ari_halo
+from clisp.modules.demosaic_ari.stage import MODES, DemosaicARI, ari_halo, program_defines
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 
 TOL_MAX = 1e-3
@@ -107,6 +110,19 @@ def test_options_and_registration():
     assert all("ari" not in str(p["demosaic"]) for p in PRESETS.values())     # no preset default changed
     with pytest.raises(ClispError):
         DemosaicARI(bayer_cfa("RGGB"), green_iterations=0)
+
+
+def test_defines_come_from_the_host(rt):
+    """demosaic_ari.cl holds no fallback of a host define: a program built without them fails, and the
+    host refuses a kernel's modes given incompletely or with others; its table covers every kernel."""
+    with pytest.raises(ClispError, match="build"):
+        rt.kernel("demosaic_ari", "ari_scale", {})
+    with pytest.raises(ClispError, match="ari_box_apply"):
+        program_defines("ari_box_apply", {"ARI_DIR": 0, "ARI_R": 2})
+    with pytest.raises(ClispError, match="ari_scale"):
+        program_defines("ari_scale", {"ARI_R": 2})
+    kernels = re.findall(r"__kernel void (\w+)", kernel_path("demosaic_ari.cl").read_text())
+    assert sorted(MODES) == sorted(kernels)                  # the host's table names every kernel once
 
 
 # ------------------------------------------------------------------------------------ vs reference

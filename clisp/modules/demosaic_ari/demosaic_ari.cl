@@ -1,93 +1,40 @@
 /* ARI Bayer demosaic (adaptive residual interpolation, Monno et al. 2015/2017) on the device. NumPy
- * float64 reference: clisp/modules/demosaic_ari/reference.py (demosaic_ari, _ari_green, _merge_green, _ari_chroma,
- * guided_pair, guided_filter, _criterion, _adaptive); host side and schedule: clisp/modules/demosaic_ari/stage.py.
+ * float64 reference: reference.py beside this file (demosaic_ari, _ari_green, _merge_green,
+ * _ari_chroma, guided_pair, guided_filter, _criterion, _adaptive); host side: stage.py; schedule,
+ * halo and why the kernels are shaped so (PoCL's vectoriser, and how to check it): README.md.
  *
  * Conventions (the project's tiling contract: valid-only windows, no borders, no bounds checks):
  *  - Data are in 8-bit units (the host scales the mosaic by 255 once, ari_scale), so the reference's
- *    constants apply unchanged: eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion +1e-10.
- *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h) and reads its
- *    inputs through "views": (buffer, base, pitch), base being the element of the input that lies at
- *    output pixel (0, 0), so input pixel (y + dy, x + dx) is buf[base + (y + dy) pitch + x + dx]. The host
+ *    constants apply unchanged (the defines ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG).
+ *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h; parameters
+ *    out, w, h) and reads its inputs through "views": an input v is the parameters v (the buffer),
+ *    v_base (the element of v that lies at output pixel (0, 0)), v_pitch (elements per row) and, for
+ *    several planes, v_plane (elements per plane), so input pixel (y + dy, x + dx) of plane p is
+ *    v[v_base + p v_plane + (y + dy) v_pitch + x + dx]. The host launches every kernel by these names,
  *    tracks each image's margin (its offset inside the stage's input window) and checks every read
  *    stays inside its input; a kernel's "halo" below is how far it reads around the output pixel.
  *  - CFA sites from the parities (py, px) of the output grid: R rows are those with y + py even, R
  *    columns x + px even; R = R row & R column, B = neither, G = one of them (x + y + px + py odd).
  *  - Directions are steps (sy, sx): h (0, 1), v (1, 0), d1 (1, 1), d2 (1, -1).
  *
- * Defines from the host: ARI_EPS (1e-10), ARI_RMSE_FLOOR (1e-3), ARI_WEIGHT_REG (1e-4), ARI_CRIT_REG
- * (1e-10); per program variant ARI_DIR (0: lines are rows, windows along x; 1: columns, along y),
- * ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the fits of a line pair, statistics
- * per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's direction), ARI_REGION (step 2's
- * criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma kernels' sites), ARI_R (the
- * window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the diagonal kernels' lattice
- * radii, direction and Laplacian sites). The radii are compile-time so that
- * the window loops unroll fully: PoCL vectorises a kernel across work-items only when its body is
- * straight-line code (a loop of runtime trip count inside it keeps it scalar), and so are the modes.
- * Check with POCL_KERNEL_CACHE=0 POCL_VECTORIZER_REMARKS=1 ("vectorized loop (vectorization width: 8"
- * after the kernel's "_workgroup" inlining remark); "instruction return type cannot be vectorized"
- * means LLVM's SLP vectoriser packed two alike computations of one work-item into a <2 x float> first
- * (the two fits of ari_across_coefficients, the two divisions and counts of ari_diag_coefficients):
- * make them unalike or split them into separate programs. */
+ * Defines, all from the host and every one in every program (stage.py's program_defines; none has
+ * a default here): ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG (reference.py's EPS,
+ * RMSE_FLOOR, WEIGHT_REG, CRIT_REG); the site codes SITE_R, SITE_B, SITE_C (R or B), SITE_G; and the
+ * modes of the launched kernel (0 where it does not read them): ARI_DIR (0: lines are rows, windows
+ * along x; 1: columns, along y), ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the
+ * fits of a line pair, statistics per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's
+ * direction), ARI_REGION (step 2's criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma
+ * kernels' sites), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
+ * diagonal kernels' lattice radii, direction and Laplacian sites). Radii and modes are compile-time so
+ * that every kernel body is straight-line code, which PoCL vectorises across work-items (README.md). */
 
-#ifndef ARI_DIR
-#define ARI_DIR 0
+#if !defined(ARI_EPS) || !defined(ARI_RMSE_FLOOR) || !defined(ARI_WEIGHT_REG) || !defined(ARI_CRIT_REG) \
+    || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) || !defined(ARI_DIR) \
+    || !defined(ARI_MLRI) || !defined(ARI_PAIR) || !defined(ARI_R) || !defined(ARI_SET) || !defined(ARI_FIT) \
+    || !defined(ARI_SY) || !defined(ARI_SX) || !defined(ARI_REGION) || !defined(ARI_KNOWN) || !defined(ARI_TARGET) \
+    || !defined(ARI_P) || !defined(ARI_Q) || !defined(ARI_LS)
+#error "demosaic_ari.cl takes every define from the host (clisp/modules/demosaic_ari/stage.py, program_defines)"
 #endif
-#ifndef ARI_MLRI
-#define ARI_MLRI 0
-#endif
-#ifndef ARI_PAIR
-#define ARI_PAIR 0
-#endif
-#ifndef ARI_R
-#define ARI_R 1
-#endif
-#ifndef ARI_SET
-#define ARI_SET 0
-#endif
-#ifndef ARI_FIT
-#define ARI_FIT 0
-#endif
-#ifndef ARI_SY
-#define ARI_SY 0
-#endif
-#ifndef ARI_SX
-#define ARI_SX 1
-#endif
-#ifndef ARI_REGION
-#define ARI_REGION 0
-#endif
-#ifndef ARI_TARGET
-#define ARI_TARGET SITE_B
-#endif
-#ifndef ARI_P
-#define ARI_P 1
-#endif
-#ifndef ARI_Q
-#define ARI_Q 1
-#endif
-#ifndef ARI_LS
-#define ARI_LS 1
-#endif
-#ifndef ARI_KNOWN
-#define ARI_KNOWN SITE_R
-#endif
-#ifndef ARI_EPS
-#define ARI_EPS 1e-10f
-#endif
-#ifndef ARI_RMSE_FLOOR
-#define ARI_RMSE_FLOOR 1e-3f
-#endif
-#ifndef ARI_WEIGHT_REG
-#define ARI_WEIGHT_REG 1e-4f
-#endif
-#ifndef ARI_CRIT_REG
-#define ARI_CRIT_REG 1e-10f
-#endif
-
-#define SITE_R 0
-#define SITE_B 1
-#define SITE_C 2
-#define SITE_G 3
 
 /* 1.0f where pixel (y, x) of a grid with parities (py, px) is a site of kind ``code``, else 0.0f. */
 __attribute__((always_inline)) inline float ari_site(const int code, const int y, const int x, const int py, const int px)
@@ -117,22 +64,22 @@ __attribute__((always_inline)) inline void ari_fit_values(const float a, const f
     r[2] = wt;
 }
 
-/* ari_scale: dst = src * scale (the mosaic in 8-bit units). Halo 0. */
-__kernel void ari_scale(__global const float *restrict src, const int sb, const int sp,
-                        __global float *restrict dst, const int w, const float scale)
+/* ari_scale: out = src * scale (the mosaic in 8-bit units). Halo 0. */
+__kernel void ari_scale(__global const float *restrict src, const int src_base, const int src_pitch,
+                        __global float *restrict out, const int w, const float scale)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    dst[y * w + x] = src[sb + y * sp + x] * scale;
+    out[y * w + x] = src[src_base + y * src_pitch + x] * scale;
 }
 
 /* ari_green_start: the lines of ARI step 1 before the iterations, along d = (sy, sx): m = mean of the
  * two neighbours along d; planes g0 = G sites ? raw : m, c0 = G sites ? m : raw. Halo 1 along d. */
-__kernel void ari_green_start(__global const float *restrict raw, const int rb, const int rp,
-                              __global float *restrict out, const int w, const int h, const int sy,
-                              const int sx, const int py, const int px)
+__kernel void ari_green_start(__global const float *restrict raw, const int raw_base, const int raw_pitch,
+                              __global float *restrict out, const int w, const int h, const int sy, const int sx,
+                              const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int at = rb + y * rp + x, s = sy * rp + sx;
+    const int at = raw_base + y * raw_pitch + x, s = sy * raw_pitch + sx;
     const float v = raw[at], m = 0.5f * raw[at - s] + 0.5f * raw[at + s];
     const int g = ari_is_green(y, x, py, px);
     out[y * w + x] = g ? v : m;
@@ -147,19 +94,18 @@ __kernel void ari_green_start(__global const float *restrict raw, const int rb, 
  * sites sum L(x) L(y), sum L(x)^2, count, then over chroma sites sum L(x) L(y), sum L(y)^2, count
  * (12 planes); else (step 3) over chroma sites sum L(x) L(y), sum L(x)^2, count (9 planes); plain: 6
  * planes. Halo r along the line (r + 2 with ARI_MLRI). */
-__kernel void ari_along_moments(__global const float *restrict xs, const int xb, const int xp,
-                                __global const float *restrict ys, const int yb, const int yp,
-                                __global float *restrict out, const int w, const int h,
-                                const int py, const int px)
+__kernel void ari_along_moments(__global const float *restrict xs, const int xs_base, const int xs_pitch,
+                                __global const float *restrict ys, const int ys_base, const int ys_pitch,
+                                __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
 #if ARI_DIR == 0
     const int xs_step = 1, ys_step = 1;
 #else
-    const int xs_step = xp, ys_step = yp;
+    const int xs_step = xs_pitch, ys_step = ys_pitch;
 #endif
-    __global const float *xc = xs + xb + y * xp + x;
-    __global const float *yc = ys + yb + y * yp + x;
+    __global const float *xc = xs + xs_base + y * xs_pitch + x;
+    __global const float *yc = ys + ys_base + y * ys_pitch + x;
     const float cx = xc[0], cy = yc[0];
     float n = 0.0f, sd = 0.0f, se = 0.0f, sdd = 0.0f, see = 0.0f, sde = 0.0f;
 #if ARI_MLRI
@@ -262,10 +208,11 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
 }
 
 /* ari_across_coefficients: second pass of the window statistics, across the lines, radius r = ARI_R, then
- * the weighted fits. rows: the planes of ari_along_moments (row pitch rw, plane stride rp;
- * rows[(y + r + j) rw + x] is the line at output row y + j for ARI_DIR 0, rows[y rw + x + r + j] the
- * column x + j for 1), each centred on the guide / target values of its own output pixel, read from
- * the views x, y (aligned to the output). Output planes from element ob of out. ARI_PAIR (step 1):
+ * the weighted fits. rows: the planes of ari_along_moments (row pitch rows_pitch, plane stride
+ * rows_plane; rows[(y + r + j) rows_pitch + x] is the line at output row y + j for ARI_DIR 0,
+ * rows[y rows_pitch + x + r + j] the column x + j for 1), each centred on the x, y values of its own
+ * output pixel, read from the views xs, ys (aligned to the output). Output planes from element
+ * out_base of out. ARI_PAIR (step 1):
  * the lines of line set ARI_SET (0: R lines, 1: B lines: rows / columns of that parity): the lines
  * at even and at odd offsets j are summed apart (no branch: j is compile-time), then each pixel takes
  * the sums of its set's parity; ARI_FIT 0: the fit of y (G line) from x (chroma line), planes a_g w,
@@ -273,22 +220,22 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
  * SLP-packed into <2 x float> operations, which keeps PoCL from vectorising across work-items; the
  * host launches the 4 (set, fit) programs into planes 0-2, 3-5, 6-8, 9-11). Else (step 3): every
  * line, the fit of y from x, 3 planes. Halo r across the lines. */
-__kernel void ari_across_coefficients(__global const float *restrict rows, const int rw, const int rp,
-                                      __global const float *restrict xs, const int xb, const int xp,
-                                      __global const float *restrict ys, const int yb, const int yp,
-                                      __global float *restrict out, const int ob, const int w, const int h,
+__kernel void ari_across_coefficients(__global const float *restrict rows, const int rows_pitch, const int rows_plane,
+                                      __global const float *restrict xs, const int xs_base, const int xs_pitch,
+                                      __global const float *restrict ys, const int ys_base, const int ys_pitch,
+                                      __global float *restrict out, const int out_base, const int w, const int h,
                                       const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const float cx = xs[xb + y * xp + x], cy = ys[yb + y * yp + x];
+    const float cx = xs[xs_base + y * xs_pitch + x], cy = ys[ys_base + y * ys_pitch + x];
 #if ARI_DIR == 0
-    const int line_step = rw, xstep = xp, ystep = yp;
-    const int at0 = (y + ARI_R) * rw + x;
+    const int line_step = rows_pitch, xstep = xs_pitch, ystep = ys_pitch;
+    const int at0 = (y + ARI_R) * rows_pitch + x;
 #else
     const int line_step = 1, xstep = 1, ystep = 1;
-    const int at0 = y * rw + x + ARI_R;
+    const int at0 = y * rows_pitch + x + ARI_R;
 #endif
-    const int xa = xb + y * xp + x, ya = yb + y * yp + x;
+    const int xa = xs_base + y * xs_pitch + x, ya = ys_base + y * ys_pitch + x;
 #if ARI_PAIR
 #if ARI_DIR == 0
     const int line0 = y + py;
@@ -304,16 +251,16 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
         const int in_a = ((j + ARI_R) & 1) == 0;
         const float dx = xs[xa + j * xstep] - cx, dy = ys[ya + j * ystep] - cy;
         if (in_a)
-            ari_add_line(&ma, rows, i, rp, dx, dy, 1.0f);
+            ari_add_line(&ma, rows, i, rows_plane, dx, dy, 1.0f);
         else
-            ari_add_line(&mb, rows, i, rp, dx, dy, 1.0f);
+            ari_add_line(&mb, rows, i, rows_plane, dx, dy, 1.0f);
 #if ARI_MLRI
 #pragma unroll
         for (int t = 0; t < 3; ++t) {
             if (in_a)
-                la[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+                la[t] += rows[(6 + 3 * ARI_FIT + t) * rows_plane + i];
             else
-                lb[t] += rows[(6 + 3 * ARI_FIT + t) * rp + i];
+                lb[t] += rows[(6 + 3 * ARI_FIT + t) * rows_plane + i];
         }
 #endif
     }
@@ -347,18 +294,18 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     const int i = y * w + x, plane = w * h;
 #pragma unroll
     for (int t = 0; t < 3; ++t)
-        out[ob + t * plane + i] = f[t];
+        out[out_base + t * plane + i] = f[t];
 #else
     ari_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     float l[3] = {0.0f, 0.0f, 0.0f};
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        ari_add_line(&m, rows, i, rp, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
+        ari_add_line(&m, rows, i, rows_plane, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
 #if ARI_MLRI
 #pragma unroll
         for (int t = 0; t < 3; ++t)
-            l[t] += rows[(6 + t) * rp + i];
+            l[t] += rows[(6 + t) * rows_plane + i];
 #endif
     }
     float mean_x, mean_y, var_x, var_y, cov;
@@ -375,45 +322,45 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     float f[3];
     ari_fit_values(a, mean_x, mean_y, var_x, var_y, cov, f);
     const int i = y * w + x, plane = w * h;
-    out[ob + i] = f[0];
-    out[ob + plane + i] = f[1];
-    out[ob + 2 * plane + i] = f[2];
+    out[out_base + i] = f[0];
+    out[out_base + plane + i] = f[1];
+    out[out_base + 2 * plane + i] = f[2];
 #endif
 }
 
-/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the sums along them are done: box_x
- * for ARI_DIR 0, box_y for 1) and the tentative estimates. coef: view (cb, pitch cp, plane stride cs)
- * of the along-summed coefficient planes. ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
+/* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the shared box filter has
+ * summed them along the lines: along x for ARI_DIR 0, along y for 1) and the tentative estimates. coef: the along-summed coefficient planes
+ * (a view with a plane stride). ARI_PAIR (step 1, 12 planes): at a pixel of line set s,
  * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
  * (ys view); out planes t_g, t_c. Else (3 planes): t = (A x + B) / (W + reg), out 1 plane.
  * Halo r across the lines. */
-__kernel void ari_box_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
-                            __global const float *restrict xs, const int xb, const int xp,
-                            __global const float *restrict ys, const int yb, const int yp,
-                            __global float *restrict out, const int w, const int h,
-                            const int py, const int px)
+__kernel void ari_box_apply(__global const float *restrict coef, const int coef_base, const int coef_pitch,
+                            const int coef_plane,
+                            __global const float *restrict xs, const int xs_base, const int xs_pitch,
+                            __global const float *restrict ys, const int ys_base, const int ys_pitch,
+                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
 #if ARI_DIR == 0
-    const int step = cp;
+    const int step = coef_pitch;
 #else
     const int step = 1;
 #endif
-    __global const float *k = coef + cb + y * cp + x;
-    const float xv = xs[xb + y * xp + x];
+    __global const float *k = coef + coef_base + y * coef_pitch + x;
+    const float xv = xs[xs_base + y * xs_pitch + x];
 #if ARI_PAIR
     float acc[12] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j)
 #pragma unroll
         for (int t = 0; t < 12; ++t)
-            acc[t] += k[t * cs + j * step];
+            acc[t] += k[t * coef_plane + j * step];
 #if ARI_DIR == 0
     const int set = (y + py) & 1;
 #else
     const int set = (x + px) & 1;
 #endif
-    const float yv = ys[yb + y * yp + x];
+    const float yv = ys[ys_base + y * ys_pitch + x];
     const float ag = set ? acc[6] : acc[0], bg = set ? acc[7] : acc[1], wg = set ? acc[8] : acc[2];
     const float ac = set ? acc[9] : acc[3], bc = set ? acc[10] : acc[4], wc = set ? acc[11] : acc[5];
     out[y * w + x] = (ag * xv + bg) / (wg + ARI_WEIGHT_REG);
@@ -423,8 +370,8 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int cb, c
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j) {
         a += k[j * step];
-        b += k[cs + j * step];
-        wt += k[2 * cs + j * step];
+        b += k[coef_plane + j * step];
+        wt += k[2 * coef_plane + j * step];
     }
     out[y * w + x] = (a * xv + b) / (wt + ARI_WEIGHT_REG);
 #endif
@@ -433,15 +380,16 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int cb, c
 /* ari_green_residual: the new lines of one step-1 iteration along d = (sy, sx): residuals
  * raw - t at the G (chroma) sites interpolated with [1/2, 1, 1/2] along d and added to the tentative
  * estimate; out planes g = G sites ? raw : t_g + r_g, c = G sites ? t_c + r_c : raw. Halo 1 along d. */
-__kernel void ari_green_residual(__global const float *restrict raw, const int rb, const int rp,
-                                 __global const float *restrict tg, const int gb, const int gp,
-                                 __global const float *restrict tc, const int cb, const int cp,
-                                 __global float *restrict out, const int w, const int h, const int sy,
-                                 const int sx, const int py, const int px)
+__kernel void ari_green_residual(__global const float *restrict raw, const int raw_base, const int raw_pitch,
+                                 __global const float *restrict tg, const int tg_base, const int tg_pitch,
+                                 __global const float *restrict tc, const int tc_base, const int tc_pitch,
+                                 __global float *restrict out, const int w, const int h, const int sy, const int sx,
+                                 const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int ra = rb + y * rp + x, ga = gb + y * gp + x, ca = cb + y * cp + x;
-    const int rs = sy * rp + sx, gs = sy * gp + sx, cs = sy * cp + sx;
+    const int ra = raw_base + y * raw_pitch + x, ga = tg_base + y * tg_pitch + x;
+    const int ca = tc_base + y * tc_pitch + x;
+    const int rs = sy * raw_pitch + sx, gs = sy * tg_pitch + sx, cs = sy * tc_pitch + sx;
     const int green = ari_is_green(y, x, py, px);
     const float mg = green ? 1.0f : 0.0f;             /* G at the centre; the two neighbours are the other */
     const float e0g = raw[ra] - tg[ga], e0c = raw[ra] - tc[ca];
@@ -456,10 +404,10 @@ __kernel void ari_green_residual(__global const float *restrict raw, const int r
 /* ari_err_terms: the unsmoothed criterion terms of two fits, errors e_k = u_k - t_k (times the chroma
  * site mask with ARI_REGION: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
  * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (ARI_SY, ARI_SX)). Halo 1 along d. */
-__kernel void ari_err_terms(__global const float *restrict u1, const int u1b, const int u1p,
-                            __global const float *restrict t1, const int t1b, const int t1p,
-                            __global const float *restrict u2, const int u2b, const int u2p,
-                            __global const float *restrict t2, const int t2b, const int t2p,
+__kernel void ari_err_terms(__global const float *restrict u1, const int u1_base, const int u1_pitch,
+                            __global const float *restrict t1, const int t1_base, const int t1_pitch,
+                            __global const float *restrict u2, const int u2_base, const int u2_pitch,
+                            __global const float *restrict t2, const int t2_base, const int t2_pitch,
                             __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
@@ -472,22 +420,23 @@ __kernel void ari_err_terms(__global const float *restrict u1, const int u1b, co
 #else
         const float m = 1.0f;
 #endif
-        e1[k + 1] = (u1[u1b + yy * u1p + xx] - t1[t1b + yy * t1p + xx]) * m;
-        e2[k + 1] = (u2[u2b + yy * u2p + xx] - t2[t2b + yy * t2p + xx]) * m;
+        e1[k + 1] = (u1[u1_base + yy * u1_pitch + xx] - t1[t1_base + yy * t1_pitch + xx]) * m;
+        e2[k + 1] = (u2[u2_base + yy * u2_pitch + xx] - t2[t2_base + yy * t2_pitch + xx]) * m;
     }
     out[y * w + x] = __builtin_fabsf(e1[1]) + __builtin_fabsf(e2[1]);
     out[w * h + y * w + x] = __builtin_fabsf(e1[2] - e1[0]) + __builtin_fabsf(e2[2] - e2[0]);
 }
 
 /* ari_gauss_x: the criterion's 5-tap Gaussian (weights k0 centre, k1, k2) along x of the 2 planes of
- * src (view sb, pitch sp, plane stride ss). ARI_REGION (step 2): a third plane, the same smoothing of
+ * the view src (with a plane stride). ARI_REGION (step 2): a third plane, the same smoothing of
  * the chroma site mask. Halo 2 along x. */
-__kernel void ari_gauss_x(__global const float *restrict src, const int sb, const int sp, const int ss,
-                          __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px)
+__kernel void ari_gauss_x(__global const float *restrict src, const int src_base, const int src_pitch,
+                          const int src_plane,
+                          __global float *restrict out, const int w, const int h, const float k0, const float k1,
+                          const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
+    __global const float *s0 = src + src_base + y * src_pitch + x, *s1 = s0 + src_plane;
     out[y * w + x] = k2 * (s0[-2] + s0[2]) + k1 * (s0[-1] + s0[1]) + k0 * s0[0];
     out[w * h + y * w + x] = k2 * (s1[-2] + s1[2]) + k1 * (s1[-1] + s1[1]) + k0 * s1[0];
 #if ARI_REGION
@@ -499,19 +448,20 @@ __kernel void ari_gauss_x(__global const float *restrict src, const int sb, cons
 }
 
 /* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
- * multiplied by the mask (bayer_ri._criterion's normalisation). Out planes: smoothed c, smoothed g.
+ * multiplied by the mask (reference._criterion's normalisation). Out planes: smoothed c, smoothed g.
  * Halo 2 along y. */
-__kernel void ari_gauss_y(__global const float *restrict src, const int sb, const int sp, const int ss,
-                          __global float *restrict out, const int w, const int h, const float k0,
-                          const float k1, const float k2, const int py, const int px)
+__kernel void ari_gauss_y(__global const float *restrict src, const int src_base, const int src_pitch,
+                          const int src_plane,
+                          __global float *restrict out, const int w, const int h, const float k0, const float k1,
+                          const float k2, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    __global const float *s0 = src + sb + y * sp + x, *s1 = s0 + ss;
-    float a0 = k2 * (s0[-2 * sp] + s0[2 * sp]) + k1 * (s0[-sp] + s0[sp]) + k0 * s0[0];
-    float a1 = k2 * (s1[-2 * sp] + s1[2 * sp]) + k1 * (s1[-sp] + s1[sp]) + k0 * s1[0];
+    __global const float *s0 = src + src_base + y * src_pitch + x, *s1 = s0 + src_plane;
+    float a0 = k2 * (s0[-2 * src_pitch] + s0[2 * src_pitch]) + k1 * (s0[-src_pitch] + s0[src_pitch]) + k0 * s0[0];
+    float a1 = k2 * (s1[-2 * src_pitch] + s1[2 * src_pitch]) + k1 * (s1[-src_pitch] + s1[src_pitch]) + k0 * s1[0];
 #if ARI_REGION
-    __global const float *s2 = s1 + ss;
-    const float a2 = k2 * (s2[-2 * sp] + s2[2 * sp]) + k1 * (s2[-sp] + s2[sp]) + k0 * s2[0];
+    __global const float *s2 = s1 + src_plane;
+    const float a2 = k2 * (s2[-2 * src_pitch] + s2[2 * src_pitch]) + k1 * (s2[-src_pitch] + s2[src_pitch]) + k0 * s2[0];
     const float m = ari_site(SITE_C, y, x, py, px);
     a0 = a0 / a2 * m;
     a1 = a1 / a2 * m;
@@ -520,65 +470,69 @@ __kernel void ari_gauss_y(__global const float *restrict src, const int sb, cons
     out[w * h + y * w + x] = a1;
 }
 
-/* ari_select: one iteration's selection: crit = c^2 g from the smoothed terms (view cb, plane stride
- * cs); where crit < best (always on the ``first`` iteration) the estimates become the new values n1, n2
- * (views), else the previous ones (planes of prev: est1, est2, best; view pb, plane stride ps). Out
- * planes est1, est2, best. Halo 0. */
-__kernel void ari_select(__global const float *restrict crit, const int cb, const int cp, const int cs,
-                         __global const float *restrict n1, const int n1b, const int n1p,
-                         __global const float *restrict n2, const int n2b, const int n2p,
-                         __global const float *restrict prev, const int pb, const int pp, const int ps,
+/* ari_select: one iteration's selection: criterion c^2 g from the smoothed terms (planes c, g of the
+ * view crit); where it is below the best so far (always on the ``first`` iteration) the estimates
+ * become the new values n1, n2 (views), else the previous ones (planes estimate 1, estimate 2, best
+ * criterion of the view prev). Out planes estimate 1, estimate 2, best criterion. Halo 0. */
+__kernel void ari_select(__global const float *restrict crit, const int crit_base, const int crit_pitch,
+                         const int crit_plane,
+                         __global const float *restrict n1, const int n1_base, const int n1_pitch,
+                         __global const float *restrict n2, const int n2_base, const int n2_pitch,
+                         __global const float *restrict prev, const int prev_base, const int prev_pitch,
+                         const int prev_plane,
                          __global float *restrict out, const int w, const int h, const int first)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int ci = cb + y * cp + x;
-    const float c = crit[ci], g = crit[cs + ci];
+    const int ci = crit_base + y * crit_pitch + x;
+    const float c = crit[ci], g = crit[crit_plane + ci];
     const float cr = c * c * g;
-    const float v1 = n1[n1b + y * n1p + x], v2 = n2[n2b + y * n2p + x];
+    const float v1 = n1[n1_base + y * n1_pitch + x], v2 = n2[n2_base + y * n2_pitch + x];
     const int i = y * w + x, plane = w * h;
     if (first) {
         out[i] = v1;
         out[plane + i] = v2;
         out[2 * plane + i] = cr;
     } else {
-        const int pi = pb + y * pp + x;
-        const float best = prev[2 * ps + pi];
+        const int pi = prev_base + y * prev_pitch + x;
+        const float best = prev[2 * prev_plane + pi];
         const int better = cr < best;
         out[i] = better ? v1 : prev[pi];
-        out[plane + i] = better ? v2 : prev[ps + pi];
+        out[plane + i] = better ? v2 : prev[prev_plane + pi];
         out[2 * plane + i] = better ? cr : best;
     }
 }
 
-/* Criterion-weighted mean of plane ``p`` of the four estimates e0..e3 (planes est1, est2, best; view
- * base, pitch, plane stride): sum w e / sum w, w = 1 / (best + ARI_CRIT_REG) (bayer_ri._adaptive). */
-#define ARI_EST_ARGS(k) __global const float *restrict e##k, const int e##k##b, const int e##k##p, const int e##k##s
-#define ARI_ADAPT(k, pl) { const int at = e##k##b + y * e##k##p + x; \
-                          const float wt = 1.0f / (e##k[2 * e##k##s + at] + ARI_CRIT_REG); \
-                          num += wt * e##k[(pl) * e##k##s + at]; den += wt; }
-/* ARI_MEAN4(var, pl): float var = the criterion-weighted mean of plane pl of the four estimates e0..e3. */
+/* The four (direction, kind) estimates of a merge: ARI_EST_ARGS(k) declares the view est<k> (est<k>,
+ * est<k>_base, est<k>_pitch, est<k>_plane) of one ari_select output (planes: estimate 1, estimate 2,
+ * best criterion). ARI_MEAN4(var, pl): float var = the criterion-weighted mean of plane pl of est0..est3,
+ * sum w e / sum w with w = 1 / (criterion + ARI_CRIT_REG) (reference._adaptive). */
+#define ARI_EST_ARGS(k) __global const float *restrict est##k, const int est##k##_base, const int est##k##_pitch, \
+                        const int est##k##_plane
+#define ARI_ADAPT(k, pl) { const int at = est##k##_base + y * est##k##_pitch + x; \
+                          const float wt = 1.0f / (est##k[2 * est##k##_plane + at] + ARI_CRIT_REG); \
+                          num += wt * est##k[(pl) * est##k##_plane + at]; den += wt; }
 #define ARI_MEAN4(var, pl) float var; { float num = 0.0f, den = 0.0f; \
                            ARI_ADAPT(0, pl) ARI_ADAPT(1, pl) ARI_ADAPT(2, pl) ARI_ADAPT(3, pl) var = num / den; }
 
 /* ari_green_merge: G = raw at G sites, else the criterion-weighted mean of the four (direction, kind)
- * G estimates (plane 0 of e0..e3). Halo 0. */
+ * G estimates (plane 0 of est0..est3). Halo 0. */
 __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
-                              __global const float *restrict raw, const int rb, const int rp,
+                              __global const float *restrict raw, const int raw_base, const int raw_pitch,
                               __global float *restrict out, const int w, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     ARI_MEAN4(g, 0)
-    out[y * w + x] = ari_is_green(y, x, py, px) ? raw[rb + y * rp + x] : g;
+    out[y * w + x] = ari_is_green(y, x, py, px) ? raw[raw_base + y * raw_pitch + x] : g;
 }
 
 /* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
  * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
-__kernel void ari_chroma_start(__global const float *restrict src, const int sb, const int sp,
-                               __global float *restrict out, const int w, const int sy, const int sx,
-                               const int py, const int px)
+__kernel void ari_chroma_start(__global const float *restrict src, const int src_base, const int src_pitch,
+                               __global float *restrict out, const int w, const int sy, const int sx, const int py,
+                               const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int at = sb + y * sp + x, s = sy * sp + sx;
+    const int at = src_base + y * src_pitch + x, s = sy * src_pitch + sx;
     const float vm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * src[at - s];
     const float vp = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * src[at + s];
     const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
@@ -588,17 +542,18 @@ __kernel void ari_chroma_start(__global const float *restrict src, const int sb,
 /* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the ARI_KNOWN
  * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = ARI_TARGET ? t + residual : v.
  * Halo 1 along d. */
-__kernel void ari_chroma_residual(__global const float *restrict src, const int sb, const int sp,
-                                  __global const float *restrict ts, const int tb, const int tp,
-                                  __global float *restrict out, const int w, const int sy, const int sx,
-                                  const int py, const int px)
+__kernel void ari_chroma_residual(__global const float *restrict src, const int src_base, const int src_pitch,
+                                  __global const float *restrict t, const int t_base, const int t_pitch,
+                                  __global float *restrict out, const int w, const int sy, const int sx, const int py,
+                                  const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    const int at = sb + y * sp + x, s = sy * sp + sx, ta = tb + y * tp + x, st = sy * tp + sx;
-    const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - ts[ta - st]);
-    const float rpl = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * (src[at + s] - ts[ta + st]);
+    const int at = src_base + y * src_pitch + x, s = sy * src_pitch + sx;
+    const int ta = t_base + y * t_pitch + x, st = sy * t_pitch + sx;
+    const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - t[ta - st]);
+    const float rpl = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * (src[at + s] - t[ta + st]);
     const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
-    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? ts[ta] + (0.5f * rm + 0.5f * rpl) : v;
+    out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? t[ta] + (0.5f * rm + 0.5f * rpl) : v;
 }
 
 /* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
@@ -606,26 +561,25 @@ __kernel void ari_chroma_residual(__global const float *restrict src, const int 
  * directly (the window's sites are all chroma sites or all G sites, the latter giving the empty fit
  * a = b = 0, w = 1 / floor), ARI_MLRI: slope from the Laplacians along d = (1, ARI_LS) ([-1, 0, 2, 0, -1])
  * over the ARI_KNOWN sites. Out planes a w, b w, w. Halo p + q (+ 2 with ARI_MLRI). */
-__kernel void ari_diag_coefficients(__global const float *restrict xs, const int xb, const int xp,
-                                    __global const float *restrict ys, const int yb, const int yp,
-                                    __global float *restrict out, const int w, const int h,
-                                    const int py, const int px)
+__kernel void ari_diag_coefficients(__global const float *restrict xs, const int xs_base, const int xs_pitch,
+                                    __global const float *restrict ys, const int ys_base, const int ys_pitch,
+                                    __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    __global const float *xc = xs + xb + y * xp + x, *yc = ys + yb + y * yp + x;
+    __global const float *xc = xs + xs_base + y * xs_pitch + x, *yc = ys + ys_base + y * ys_pitch + x;
     const float cx = xc[0], cy = yc[0];
     const float m = ari_site(SITE_C, y, x, py, px);
     float n = 0.0f, sd = 0.0f, se = 0.0f, sdd = 0.0f, see = 0.0f, sde = 0.0f;
 #if ARI_MLRI
     float l_xy = 0.0f, l_xx = 0.0f, l_n = 0.0f;
-    const int lxs = 2 * (xp + ARI_LS), lys = 2 * (yp + ARI_LS);
+    const int lxs = 2 * (xs_pitch + ARI_LS), lys = 2 * (ys_pitch + ARI_LS);
 #endif
 #pragma unroll
     for (int i = -ARI_P; i <= ARI_P; ++i)
 #pragma unroll
         for (int j = -ARI_Q; j <= ARI_Q; ++j) {
             const int dy = i + j, dx = i - j;
-            const float xv = xc[dy * xp + dx], yv = yc[dy * yp + dx];
+            const float xv = xc[dy * xs_pitch + dx], yv = yc[dy * ys_pitch + dx];
             const float d = m * (xv - cx), e = m * (yv - cy);
             sd += d;
             se += e;
@@ -634,8 +588,8 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
             sde += d * e;
 #if ARI_MLRI
             const float lm = ari_site(ARI_KNOWN, y + dy, x + dx, py, px);
-            const float lx = 2.0f * xv - xc[dy * xp + dx - lxs] - xc[dy * xp + dx + lxs];
-            const float ly = 2.0f * yv - yc[dy * yp + dx - lys] - yc[dy * yp + dx + lys];
+            const float lx = 2.0f * xv - xc[dy * xs_pitch + dx - lxs] - xc[dy * xs_pitch + dx + lxs];
+            const float ly = 2.0f * yv - yc[dy * ys_pitch + dx - lys] - yc[dy * ys_pitch + dx + lys];
             l_xy += lm * lx * ly;
             l_xx += lm * lx * lx;
             l_n += lm;
@@ -663,38 +617,39 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
     out[2 * w * h + y * w + x] = f[2];
 }
 
-/* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (view cb,
- * pitch cp, plane stride cs) over the diagonal window (ARI_P, ARI_Q); x the guide (view). Halo p + q. */
-__kernel void ari_diag_apply(__global const float *restrict coef, const int cb, const int cp, const int cs,
-                             __global const float *restrict xs, const int xb, const int xp,
+/* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (the view
+ * coef) over the diagonal window (ARI_P, ARI_Q); x the guide (the view xs). Halo p + q. */
+__kernel void ari_diag_apply(__global const float *restrict coef, const int coef_base, const int coef_pitch,
+                             const int coef_plane,
+                             __global const float *restrict xs, const int xs_base, const int xs_pitch,
                              __global float *restrict out, const int w)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    __global const float *k = coef + cb + y * cp + x;
+    __global const float *k = coef + coef_base + y * coef_pitch + x;
     float a = 0.0f, b = 0.0f, wt = 0.0f;
 #pragma unroll
     for (int i = -ARI_P; i <= ARI_P; ++i)
 #pragma unroll
         for (int j = -ARI_Q; j <= ARI_Q; ++j) {
-            const int o = (i + j) * cp + (i - j);
+            const int o = (i + j) * coef_pitch + (i - j);
             a += k[o];
-            b += k[cs + o];
-            wt += k[2 * cs + o];
+            b += k[coef_plane + o];
+            wt += k[2 * coef_plane + o];
         }
-    out[y * w + x] = (a * xs[xb + y * xp + x] + b) / (wt + ARI_WEIGHT_REG);
+    out[y * w + x] = (a * xs[xs_base + y * xs_pitch + x] + b) / (wt + ARI_WEIGHT_REG);
 }
 
 /* ari_rb_merge: R and B after step 2: red = R sites ? raw : B sites ? the criterion-weighted mean of
- * the four R estimates (plane 0 of e0..e3) : 0; blue likewise (plane 1, R and B swapped). Out planes
+ * the four R estimates (plane 0 of est0..est3) : 0; blue likewise (plane 1, R and B swapped). Out planes
  * red, blue. Halo 0. */
 __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
-                           __global const float *restrict raw, const int rb, const int rp,
+                           __global const float *restrict raw, const int raw_base, const int raw_pitch,
                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     ARI_MEAN4(r_at_b, 0)
     ARI_MEAN4(b_at_r, 1)
-    const float v = raw[rb + y * rp + x];
+    const float v = raw[raw_base + y * raw_pitch + x];
     const float is_r = ari_site(SITE_R, y, x, py, px), is_b = ari_site(SITE_B, y, x, py, px);
     out[y * w + x] = is_r != 0.0f ? v : is_b != 0.0f ? r_at_b : 0.0f;
     out[w * h + y * w + x] = is_b != 0.0f ? v : is_r != 0.0f ? b_at_r : 0.0f;
@@ -702,19 +657,19 @@ __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), AR
 
 /* ari_final: the stage's output planes R, G, B (times ``scale``, back to the mosaic's units): at G
  * sites R and B are the criterion-weighted means of the four step-3 estimates (planes 0, 1 of
- * e0..e3), elsewhere the step-2 planes (rb view, plane stride rbs); G from the green view. Halo 0. */
+ * est0..est3), elsewhere the step-2 planes (the view rb); G from the view green. Halo 0. */
 __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
-                        __global const float *restrict rbp, const int rbb, const int rbpp, const int rbs,
-                        __global const float *restrict gs, const int gb, const int gp,
+                        __global const float *restrict rb, const int rb_base, const int rb_pitch, const int rb_plane,
+                        __global const float *restrict green, const int green_base, const int green_pitch,
                         __global float *restrict out, const int w, const int h, const int py, const int px,
                         const float scale)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     ARI_MEAN4(r_at_g, 0)
     ARI_MEAN4(b_at_g, 1)
-    const int green = ari_is_green(y, x, py, px);
-    const int at = rbb + y * rbpp + x;
-    out[y * w + x] = (green ? r_at_g : rbp[at]) * scale;
-    out[w * h + y * w + x] = gs[gb + y * gp + x] * scale;
-    out[2 * w * h + y * w + x] = (green ? b_at_g : rbp[rbs + at]) * scale;
+    const int g_site = ari_is_green(y, x, py, px);
+    const int at = rb_base + y * rb_pitch + x;
+    out[y * w + x] = (g_site ? r_at_g : rb[at]) * scale;
+    out[w * h + y * w + x] = green[green_base + y * green_pitch + x] * scale;
+    out[2 * w * h + y * w + x] = (g_site ? b_at_g : rb[rb_plane + at]) * scale;
 }

@@ -1,6 +1,7 @@
 """Residual-interpolation Bayer demosaics (RI, MLRI, ARI and an ARI hybrid): NumPy float64 references.
 
-Study code for issue 12 (no OpenCL kernel yet). Every function takes an H x W mosaic (float, values
+The definitions of correct: ``demosaic_ari`` is what the device stage (stage.py, demosaic_ari.cl)
+ports; the others are the candidates of issue 12's study. Every function takes an H x W mosaic (float, values
 normally in [0, 1], linear or sRGB-encoded: the algorithms do not care) and a Bayer phase name
 ("RGGB", "GRBG", "GBRG", "BGGR": the colours of the top-left 2 x 2 block, row by row) and returns
 H x W x 3 float64 RGB. The sampled CFA values stay at their own sites; interpolated values are
@@ -68,33 +69,20 @@ McMaster needs; their means keep most of both (tools/demosaic_study.py).
 
 Units and constants
 -------------------
-The mosaic is multiplied by 255 inside, so the published constants, given for 8-bit data, apply to
-data in [0, 1] unchanged (a linear raw normalised to white = 1 is in the same units); the output is
-scaled back.
+The mosaic is multiplied by ``SCALE`` (255) inside, so the published constants, given for 8-bit
+data, apply to data in [0, 1] unchanged (a linear raw normalised to white = 1 is in the same units);
+the output is scaled back. ARI's constants are named once here (``EPS``, ``RMSE_FLOOR``,
+``WEIGHT_REG``, ``CRIT_REG``, ``CRITERION_RADIUS``, ``CRITERION_SIGMA``) and the device stage takes
+them from here.
 
-Borders and halo
-----------------
+Borders
+-------
 The image is mirror-extended by ``PAD`` (16) pixels on every side (reflection about the edge pixel,
 which keeps the CFA phase; the phase is moved to RGGB by one more mirrored row / column where
-needed) and every filter also mirrors at the array's edge. Halo, measured as the context beyond
-which a tile's output equals the whole image's (tools/demosaic_study.py --halo, kodim19): RI, MLRI and
-weighted MLRI 28 px (exact to rounding; 24 px still differs by up to 2e-6). ARI and the hybrid
-chain eleven G iterations with growing windows (formal support roughly 280 px, the sum of the
-chained window radii, estimated by hand); in practice the difference falls to 4e-4 (ARI) / 1e-5
-(hybrid) at 64 px, 8e-7 / 6e-8 at 96 px and 5e-11 / 2e-11 at 128 px of context.
+needed) and every filter also mirrors at the array's edge. Box sums are running sums
+(scipy.ndimage.uniform_filter1d), so their rounding depends on the position along a row.
 
-Numerics and speed
-------------------
-Box sums are running sums (scipy.ndimage.uniform_filter1d), so their rounding depends on the
-position along a row; ARI's 1 / RMSE weights and per-pixel selections amplify that: a
-phase-shifted crop reproduces the whole image's interior to about 1e-8 (RI, MLRI) and 1e-5 (ARI).
-One 768 x 512 image (Kodak mean), one core of this study's shared machine: RI 0.4 s, MLRI 0.8 s,
-weighted MLRI 0.9 s, ARI 9.2 s, hybrid 9.2 s (its extra MLRI chroma is cheap; ARI's eleven G
-iterations, 16 guided filters each, are nearly all of it).
-
-Results (tools/demosaic_study.py, classic protocol, CPSNR Kodak / McMaster): RI 38.72 / 36.50, MLRI
-39.65 / 36.63, weighted MLRI 39.84 / 36.77, ARI 40.00 / 37.50, hybrid 40.74 / 37.25 (our DLMMSE
-40.21 / 34.47).
+Measured halos, rounding, speed and CPSNR of the study: README.md.
 """
 from __future__ import annotations
 
@@ -106,6 +94,16 @@ SCALE = 255.0
 """Working scale: data in [0, 1] become 8-bit code values, the units of the published constants."""
 PAD = 16
 """Mirror padding on every side (even: keeps the CFA phase)."""
+EPS = 1e-10
+"""Guided filters' regulariser of the slope, a = cov / (var + EPS) (8-bit units^2; MLRI's slope too)."""
+RMSE_FLOOR = 1e-3
+"""ARI's weighted guided filter: a window's fit weighs 1 / max(RMSE, RMSE_FLOOR) (8-bit units)."""
+WEIGHT_REG = 1e-4
+"""ARI's weighted guided filter divides by the window's sum of those weights + WEIGHT_REG."""
+CRIT_REG = 1e-10
+"""ARI's merges: each estimate weighs 1 / (criterion + CRIT_REG)."""
+CRITERION_RADIUS, CRITERION_SIGMA = 2, 2.0
+"""ARI's criterion smooths its terms by a (2 CRITERION_RADIUS + 1)^2 Gaussian of this sigma (pixels)."""
 PHASES = {"RGGB": (0, 0), "GRBG": (0, 1), "GBRG": (1, 0), "BGGR": (1, 1)}
 """Bayer phase -> (row, column) of the R site in the top-left 2 x 2 block."""
 
@@ -192,9 +190,13 @@ def _taps(x: Array, taps: dict[tuple[int, int], float]) -> Array:
     return out
 
 
+STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
+"""Direction -> its (dy, dx) step: "h" (x), "v" (y), "d1" (y = x), "d2" (y = -x)."""
+
+
 def _along(d: str, weights: list[float]) -> dict[tuple[int, int], float]:
-    """A centred 1-D kernel as taps along d: "h" (x), "v" (y), "d1" (y = x), "d2" (y = -x)."""
-    step = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}[d]
+    """A centred 1-D kernel as taps along d (STEPS)."""
+    step = STEPS[d]
     r = len(weights) // 2
     return {(k * step[0], k * step[1]): w for k, w in zip(range(-r, r + 1), weights) if w != 0}
 
@@ -226,10 +228,15 @@ def _window_size(window: Window) -> int:
     return (2 * window[1] + 1) * (2 * window[2] + 1)
 
 
+def gaussian_taps(radius: int, sigma: float) -> Array:
+    """The 2 radius + 1 taps (offsets -radius..radius) of a normalised 1-D Gaussian of ``sigma`` pixels."""
+    k = np.exp(-np.arange(-radius, radius + 1) ** 2 / (2.0 * sigma * sigma))
+    return k / k.sum()
+
+
 def _gauss(x: Array, radius: int, sigma: float) -> Array:
     """Separable normalised Gaussian smoothing, (2 radius + 1)^2 taps."""
-    k = np.exp(-np.arange(-radius, radius + 1) ** 2 / (2.0 * sigma * sigma))
-    k = list(k / k.sum())
+    k = list(gaussian_taps(radius, sigma))
     return _taps(_taps(x, _along("h", k)), _along("v", k))
 
 
@@ -273,12 +280,12 @@ def _fit(stats: WindowStats, guide: Array, target: Array, eps: float, laplacian:
         return _box(a, window) / count * guide + _box(b, window) / count
     # mean squared residual of a x + b ~ y over the window (b makes the mean residual zero)
     mse = a * a * stats.var_x - 2.0 * a * stats.cov + stats.var_y
-    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), 1e-3)
-    total = _box(weight, window) + 1e-4
+    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), RMSE_FLOOR)
+    total = _box(weight, window) + WEIGHT_REG
     return _box(a * weight, window) / total * guide + _box(b * weight, window) / total
 
 
-def guided_filter(guide: Array, target: Array, mask: Array | None, window: Window, eps: float = 1e-10,
+def guided_filter(guide: Array, target: Array, mask: Array | None, window: Window, eps: float = EPS,
                   laplacian: dict | None = None, lap_mask: Array | None = None, weighted: bool = False,
                   lap_floor: float = 0.0) -> Array:
     """Masked guided filter q = mean(a) guide + mean(b) (He et al.), statistics over ``mask`` (None:
@@ -288,7 +295,7 @@ def guided_filter(guide: Array, target: Array, mask: Array | None, window: Windo
     ``laplacian`` (MLRI): a = sum(lap guide * lap target) / (sum((lap guide)^2) + eps) over the
     ``lap_mask`` sites of the window (the mean of (lap guide)^2 floored at ``lap_floor``); b as above.
     ``weighted`` (ARI): mean(a), mean(b) weighted by 1 / RMSE of each window's fit a guide + b ~ target
-    over the mask (RMSE floored at 1e-3); else the plain window means (over every pixel).
+    over the mask (RMSE floored at RMSE_FLOOR); else the plain window means (over every pixel).
     """
     stats = WindowStats(guide, target, mask, window)
     return _fit(stats, guide, target, eps, laplacian, lap_mask, weighted, lap_floor)
@@ -296,7 +303,7 @@ def guided_filter(guide: Array, target: Array, mask: Array | None, window: Windo
 
 def guided_pair(x: Array, y: Array, mask: Array | None, window: Window, laplacian: dict | None = None,
                 lap_masks: tuple[Array | None, Array | None] = (None, None), weighted: bool = True,
-                eps: float = 1e-10) -> tuple[Array, Array]:
+                eps: float = EPS) -> tuple[Array, Array]:
     """(guided_filter of y against x, of x against y) sharing the window sums; lap_masks: the
     Laplacian masks of the two fits."""
     stats = WindowStats(x, y, mask, window)
@@ -403,23 +410,27 @@ def _criterion(err: list[Array], d: str, region: Array | None) -> Array:
     c = sum(np.abs(e) for e in err)
     g = sum(np.abs(_taps(e, _along(d, GRADIENT))) for e in err)
     if region is None:
-        c, g = _gauss(c, 2, 2.0), _gauss(g, 2, 2.0)
+        c, g = _gauss(c, CRITERION_RADIUS, CRITERION_SIGMA), _gauss(g, CRITERION_RADIUS, CRITERION_SIGMA)
     else:
-        norm = _gauss(region.astype(np.float64), 2, 2.0)
-        c, g = _gauss(c, 2, 2.0) / norm * region, _gauss(g, 2, 2.0) / norm * region
+        norm = _gauss(region.astype(np.float64), CRITERION_RADIUS, CRITERION_SIGMA)
+        c = _gauss(c, CRITERION_RADIUS, CRITERION_SIGMA) / norm * region
+        g = _gauss(g, CRITERION_RADIUS, CRITERION_SIGMA) / norm * region
     return c * c * g
 
 
 def _adaptive(estimates: list[tuple[Array, Array]]) -> Array:
-    """Weighted mean of (estimate, criterion) pairs, weights 1 / (criterion + 1e-10)."""
+    """Weighted mean of (estimate, criterion) pairs, weights 1 / (criterion + CRIT_REG)."""
     num = den = 0.0
     for est, crit in estimates:
-        w = 1.0 / (crit + 1e-10)
+        w = 1.0 / (crit + CRIT_REG)
         num, den = num + w * est, den + w
     return num / den
 
 
-def _ari_window(kind: str, d: str, along: int, across: int) -> Window:
+def ari_window(kind: str, d: str, along: int, across: int) -> Window:
+    """The window of ARI's guided filters along direction ``d`` ("h", "v", "d1", "d2") with radii
+    ``along`` and ``across`` it (pixels for a box, lattice steps for a diagonal window; ``kind`` does
+    not change the shape). Shared with the device stage, which derives its margins from it."""
     if d in ("d1", "d2"):
         return ("diag", along, across) if d == "d1" else ("diag", across, along)
     return ("box", across, along) if d == "h" else ("box", along, across)
@@ -443,7 +454,7 @@ def _ari_green(raw: Array, sites: Sites, iterations: int, kinds: tuple[str, ...]
             g, c = g0, c0
             best, est_g, est_c = np.full(raw.shape, np.inf), g0, c0
             for _ in range(iterations):
-                window = _ari_window(kind, d, along, across)
+                window = ari_window(kind, d, along, across)
                 lap = _along(d, LAPLACIAN) if kind == "mlri" else None
                 t_g, t_c = np.zeros_like(raw), np.zeros_like(raw)
                 for line, c_sites, g_sites in sites.lines(d):
@@ -480,7 +491,7 @@ def _ari_chroma(guide: Array, planes: list[tuple[Array, Array, Array]], directio
             lap = _along(d, LAPLACIAN) if kind == "mlri" else None
             cur, ests, best = starts, starts, np.full(guide.shape, np.inf)
             for _ in range(iterations):
-                window = _ari_window(kind, d, along, across)
+                window = ari_window(kind, d, along, across)
                 new, errs = [], []
                 for (values, known, targets), x in zip(planes, cur):
                     t = guided_filter(guide, x, mask, window, laplacian=lap, lap_mask=known, weighted=True)

@@ -1,56 +1,22 @@
 """ARI Bayer demosaic (adaptive residual interpolation; Monno, Kiku, Tanaka, Okutomi, ICIP 2015 /
-Sensors 2017) as a Stage: the OpenCL port of ``bayer_ri.demosaic_ari`` (float64 NumPy, the definition
-of correct; its module doc describes the algorithm). Kernels: ``clisp/modules/demosaic_ari/demosaic_ari.cl`` (and ``box_x``,
-``box_y`` of ``clisp/modules/common/guided_ri.cl``).
+Sensors 2017) as a Stage: the OpenCL port of ``reference.demosaic_ari`` (float64 NumPy, the
+definition of correct; its module doc describes the algorithm). Kernels: ``demosaic_ari.cl`` beside
+this file, and the box filter shared in clisp/modules/common (``enqueue_box``).
 
-Input: a white-balanced Bayer mosaic window (linear, nominally [0, 1]; nothing is clipped, so values
-above 1 and below 0 pass through the algebra), any of the four phases. Output: the window less
-``halo`` on every side, R, G, B (planar on the device). ``reference()`` is
-``bayer_ri.demosaic_ari(window, phase, green_iterations, chroma_iterations, clip=None)`` cropped by the
-halo (the reference mirrors at the window's border; the device never does: it is valid-only, and the
-halo is the formal support of the chain, so the two agree on the whole output).
+Input: a white-balanced Bayer mosaic window, H x W float32 (linear, nominally [0, 1]; nothing is
+clipped, so values above 1 and below 0 pass through the algebra), any of the four phases. Output:
+R, G, B planes of the window less ``halo`` on every side, 3 x (H - 2 halo) x (W - 2 halo) on the
+device, in the mosaic's units. ``reference()`` is ``reference.demosaic_ari(window, phase,
+green_iterations, chroma_iterations, clip=None)`` cropped by the halo (the reference mirrors at the
+window's border; the device never does: it is valid-only, and the halo is the formal support of the
+chain, so the two agree on the whole output).
 
-Units: the device scales the mosaic by 255 once (``ari_scale``) and the output back by 1/255, so the
-reference's constants (eps 1e-10, RMSE floor 1e-3, weight regulariser 1e-4, criterion + 1e-10, all
-in 8-bit units) are used unchanged, in float32.
+Units: the device scales the mosaic by ``SCALE`` (255) once (``ari_scale``) and the output back by
+1 / SCALE, so the reference's constants (``EPS``, ``RMSE_FLOOR``, ``WEIGHT_REG``, ``CRIT_REG``, in
+8-bit units) apply unchanged, in float32. They reach the kernels as defines with the site codes and
+each kernel's modes (``program_defines``); every kernel is launched by name (``Runtime.launch_named``).
 
-Schedule (one chain of short kernels; every image is valid-only and carries its margin, i.e. its
-offset inside the input window; the host checks every read stays inside its input):
-
-  step 1, per direction d in (h, v) and kind k in (RI, MLRI), ``green_iterations`` iterations, window
-  (along, across) radii growing by 1 from (2, 1) (RI) / (4, 0) (MLRI):
-    ari_along_moments       centred moments along the line (+ MLRI's Laplacian moments)  r_along (+2)
-    ari_across_coefficients per line set (R lines, B lines) and fit (G from chroma,      r_across
-                            chroma from G) the weighted fit: 4 launches
-    box_x (h) / box_y (v)   sums of the 12 coefficient planes along the lines            r_along
-    ari_box_apply           their sums across the lines, the tentative G line t_g and    r_across
-                            chroma line t_c (each pixel's own line set)
-    ari_green_residual      residuals at the samples, [1/2, 1, 1/2] along d -> new lines  1 along d
-    ari_err_terms           |err| and |gradient of err| of the two fits                  1 along d
-    ari_gauss_x, _y         the criterion's 5 x 5 Gaussian (sigma 2)                     2
-    ari_select              per pixel the iteration with the smallest criterion c^2 g    0
-  ari_green_merge: G at the chroma sites, the four estimates weighted by 1 / (criterion + 1e-10)
-  step 2 (R at B, B at R; diagonals d1, d2; statistics over the chroma sites) and step 3 (R, B at the
-  G sites; h, v; every pixel), ``chroma_iterations`` iterations each, both planes sharing one
-  criterion: ari_chroma_start, then per iteration and plane the fit (step 2: ari_diag_coefficients +
-  ari_diag_apply, direct sums over the diagonal window; step 3: ari_along_moments +
-  ari_across_coefficients + box along + ari_box_apply), ari_chroma_residual, then ari_err_terms, ari_gauss_x/y
-  (normalised over the chroma sites in step 2), ari_select; ari_rb_merge after step 2, ari_final
-  after step 3 (R, G, B, scaled back).
-
-Halo: the sum of the chained radii, computed by :func:`ari_halo` from the same margin arithmetic that
-the enqueue runs (and checked against it there):
-  step 1: 3 + N (N + 10) (MLRI along the lines: 1 (start) + sum over iterations of 2 r + 2 + 1
-          (window sums and coefficient sums, Laplacian, residual) + 2 (criterion: gradient 1 and
-          Gaussian 2, less the residual's 1)); the RI kind and the across axis need less;
-  step 2: 2 M^2 + 7 M + 2 (RI, diagonal windows of pixel radius 4 + 2t);
-  step 3: M^2 + 6 M + 3 (MLRI along the lines; its start reads step 2's planes 1 px along d);
-  N = green_iterations, M = chroma_iterations: 121 px for (5, 2), 277 for (11, 2).
-Measured tolerance against the reference (tests/test_demosaic_ari_cl.py, 16 scene x phase cases, output
-in the mosaic's units): max |error| 5e-7..4e-6 on smooth ramps and white noise, up to 2.1e-4 (0.05
-8-bit levels) beside sharp colour edges and discs, mean <= 1.9e-6, PSNR vs the reference >= 104 dB;
-the test bounds are max 1e-3, mean 1e-5, PSNR 95 dB. The larger errors are float32 rounding amplified
-by ARI's 1 / RMSE weights of nearly exact fits and its per-pixel argmin where criteria nearly tie.
+Schedule, halo derivation, accuracy against the reference and measured history: README.md.
 """
 from __future__ import annotations
 
@@ -61,30 +27,58 @@ import numpy as np
 from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.profile import stage_label
-from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from . import reference as bayer_ri
+from ...engine.runtime import DeviceImage, Runtime
+from .reference import (CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, EPS, KINDS, LAPLACIAN, PHASES, RB_KINDS,
+                        RMSE_FLOOR, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
 from ..base import Stage
 from ..demosaic_malvar.stage import check_bayer
 from ..common.box import enqueue_box
 
-i32, f32 = np.int32, np.float32
-
-STEPS = {"h": (0, 1), "v": (1, 0), "d1": (1, 1), "d2": (1, -1)}
-"""Direction -> (dy, dx) step, as bayer_ri._along."""
 SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
-"""Site codes of clisp/modules/demosaic_ari/demosaic_ari.cl."""
-LAPLACIAN_RADIUS = 2
-"""MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction."""
-CRITERION_SIGMA, CRITERION_RADIUS = 2.0, 2
-"""bayer_ri._criterion's Gaussian (5 x 5, sigma 2)."""
-DEFINES = {"ARI_EPS": 1e-10, "ARI_RMSE_FLOOR": 1e-3, "ARI_WEIGHT_REG": 1e-4, "ARI_CRIT_REG": 1e-10}
-"""The reference's constants in 8-bit units (bayer_ri: guided_pair eps, _fit floor and regulariser,
-_adaptive)."""
+"""Site codes of the kernels (R, B, chroma = R or B, G; demosaic_ari.cl's ari_site)."""
+LAPLACIAN_RADIUS = len(LAPLACIAN) // 2
+"""MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction reads 2 px each way."""
+CONSTANTS = {"ARI_EPS": EPS, "ARI_RMSE_FLOOR": RMSE_FLOOR, "ARI_WEIGHT_REG": WEIGHT_REG, "ARI_CRIT_REG": CRIT_REG,
+             "SITE_R": SITE_R, "SITE_B": SITE_B, "SITE_C": SITE_C, "SITE_G": SITE_G}
+"""Defines of every program: the reference's constants (8-bit units; float32 literals in the kernels)
+and the site codes."""
+MODES = {
+    "ari_scale": (),
+    "ari_green_start": (),
+    "ari_along_moments": ("ARI_DIR", "ARI_MLRI", "ARI_PAIR", "ARI_R"),
+    "ari_across_coefficients": ("ARI_DIR", "ARI_MLRI", "ARI_PAIR", "ARI_R", "ARI_SET", "ARI_FIT"),
+    "ari_box_apply": ("ARI_DIR", "ARI_PAIR", "ARI_R"),
+    "ari_green_residual": (),
+    "ari_err_terms": ("ARI_SY", "ARI_SX", "ARI_REGION"),
+    "ari_gauss_x": ("ARI_REGION",),
+    "ari_gauss_y": ("ARI_REGION",),
+    "ari_select": (),
+    "ari_green_merge": (),
+    "ari_chroma_start": ("ARI_KNOWN", "ARI_TARGET"),
+    "ari_chroma_residual": ("ARI_KNOWN", "ARI_TARGET"),
+    "ari_diag_coefficients": ("ARI_MLRI", "ARI_P", "ARI_Q", "ARI_LS", "ARI_KNOWN"),
+    "ari_diag_apply": ("ARI_P", "ARI_Q"),
+    "ari_rb_merge": (),
+    "ari_final": (),
+}
+"""Kernel -> the compile-time modes (integer defines) it reads; demosaic_ari.cl's header says what
+each mode means."""
+ALL_MODES = tuple(sorted({mode for modes in MODES.values() for mode in modes}))
+
+
+def program_defines(kernel_name: str, modes: dict[str, int]) -> dict[str, object]:
+    """The defines of the program that runs ``kernel_name`` in ``modes``: CONSTANTS, exactly the modes
+    the kernel reads (any missing or other one is a ClispError), and 0 for the modes it does not
+    read: a program holds every kernel of demosaic_ari.cl, and the others must compile too."""
+    reads = MODES[kernel_name]
+    if set(modes) != set(reads):
+        raise ClispError(f"demosaic_ari.cl {kernel_name} reads the modes {sorted(reads)}, got {sorted(modes)}")
+    return {**CONSTANTS, **dict.fromkeys(ALL_MODES, 0), **modes}
 
 
 def _gauss_weights() -> tuple[float, float, float]:
-    k = np.exp(-np.arange(-CRITERION_RADIUS, CRITERION_RADIUS + 1) ** 2 / (2.0 * CRITERION_SIGMA ** 2))
-    k = k / k.sum()
+    """The criterion's Gaussian taps at offsets 0, 1, 2 (ari_gauss_x / _y's k0, k1, k2)."""
+    k = gaussian_taps(CRITERION_RADIUS, CRITERION_SIGMA)
     return float(k[2]), float(k[3]), float(k[4])
 
 
@@ -92,7 +86,7 @@ def _gauss_weights() -> tuple[float, float, float]:
 
 def _window(kind: str, d: str, along: int, across: int) -> tuple[int, int]:
     """Pixel radii (ry, rx) of a box window (h, v) or the (p, q) lattice radii of a diagonal one."""
-    _, a, b = bayer_ri._ari_window(kind, d, along, across)
+    _, a, b = ari_window(kind, d, along, across)
     return a, b
 
 
@@ -127,13 +121,15 @@ def _chain_margin(source: int, guide: int, kind: str, d: str, radii: tuple[int, 
 
 
 def ari_halo(green_iterations: int, chroma_iterations: int) -> int:
-    """The stage's halo: the formal support of the ARI chain (module doc), from the margin rules."""
-    green = max(max(_chain_margin(0, 0, kind, d, bayer_ri.KINDS[kind], green_iterations))
-                for d in ("h", "v") for kind in bayer_ri.KINDS)
-    step2 = max(max(_chain_margin(0, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
-                for d in ("d1", "d2") for kind in bayer_ri.KINDS)
-    return max(max(_chain_margin(step2, green, kind, d, bayer_ri.RB_KINDS[kind], chroma_iterations))
-               for d in ("h", "v") for kind in bayer_ri.KINDS)
+    """The stage's halo in pixels: the formal support of the ARI chain, from the margin rules that the
+    enqueue follows (and checks). Closed form, N = ``green_iterations``, M = ``chroma_iterations``:
+    3 + N (N + 10) + 2 M^2 + 7 M + 2 + M^2 + 6 M + 3 (121 px for (5, 2); README.md derives it)."""
+    green = max(max(_chain_margin(0, 0, kind, d, KINDS[kind], green_iterations))
+                for d in ("h", "v") for kind in KINDS)
+    step2 = max(max(_chain_margin(0, green, kind, d, RB_KINDS[kind], chroma_iterations))
+                for d in ("d1", "d2") for kind in KINDS)
+    return max(max(_chain_margin(step2, green, kind, d, RB_KINDS[kind], chroma_iterations))
+               for d in ("h", "v") for kind in KINDS)
 
 
 # ------------------------------------------------------------------------------------ device views
@@ -148,18 +144,35 @@ class _View:
     mx: int
     plane: int = 0
 
-    def at(self, my: int, mx: int, hy: int = 0, hx: int = 0) -> tuple[object, np.int32, np.int32]:
-        """Kernel arguments (buffer, base, pitch) for an output at margin (my, mx) reading up to
-        (hy, hx) pixels around each output pixel; checks the reads stay inside the image."""
+    def named(self, name: str, my: int, mx: int, hy: int = 0, hx: int = 0, planes: bool = False
+              ) -> dict[str, object]:
+        """The view as the kernel input ``name`` of an output at margin (my, mx) that reads up to
+        (hy, hx) pixels around each output pixel: the arguments ``name`` (the buffer), ``name_base``
+        (the element at output pixel (0, 0)), ``name_pitch`` (elements per row) and, with ``planes``,
+        ``name_plane`` (elements per plane). Checks that the reads stay inside the image."""
         if my - hy < self.my or mx - hx < self.mx:
             raise ClispError(f"ARI: a read at margin ({my}, {mx}) +- ({hy}, {hx}) leaves an image of "
                              f"margin ({self.my}, {self.mx})")
         img = self.image
-        base = self.plane * img.height * img.width + (my - self.my) * img.width + (mx - self.mx)
-        return img.buffer, i32(base), i32(img.width)
+        plane = img.height * img.width
+        base = self.plane * plane + (my - self.my) * img.width + (mx - self.mx)
+        args: dict[str, object] = {name: img.buffer, f"{name}_base": base, f"{name}_pitch": img.width}
+        if planes:
+            args[f"{name}_plane"] = plane
+        return args
 
-    def stride(self) -> np.int32:
-        return i32(self.image.height * self.image.width)
+
+def _estimates(ests: list[_View], my: int, mx: int) -> dict[str, object]:
+    """The four (direction, kind) estimates as the merge kernels' inputs est0..est3 (with plane strides)."""
+    args: dict[str, object] = {}
+    for k, est in enumerate(ests):
+        args.update(est.named(f"est{k}", my, mx, planes=True))
+    return args
+
+
+def _output(image: DeviceImage, height: bool = True) -> dict[str, object]:
+    """A kernel's output arguments: ``out``, its width ``w`` and (``height``) height ``h``."""
+    return {"out": image, "w": image.width, **({"h": image.height} if height else {})}
 
 
 class _Chain:
@@ -169,21 +182,24 @@ class _Chain:
         self.rt, self.h, self.w, self.r_site = rt, height, width, r_site
 
     def new(self, channels: int, my: int, mx: int) -> DeviceImage:
+        """A pooled image of ``channels`` planes spanning the window less margin (my, mx) on every side."""
         h, w = self.h - 2 * my, self.w - 2 * mx
         if h < 1 or w < 1:
             raise ClispError(f"ARI: a {self.h} x {self.w} window is too small for margin ({my}, {mx})")
         return self.rt.acquire(channels, h, w)
 
-    def parity(self, my: int, mx: int) -> tuple[np.int32, np.int32]:
-        return i32((my + self.r_site[0]) & 1), i32((mx + self.r_site[1]) & 1)
+    def parity(self, my: int, mx: int) -> dict[str, int]:
+        """The arguments py, px: the CFA parities of an output grid at margin (my, mx)."""
+        return {"py": (my + self.r_site[0]) & 1, "px": (mx + self.r_site[1]) & 1}
 
-    def kernel(self, name: str, **defines: int) -> object:
-        return self.rt.kernel("demosaic_ari", name, {**DEFINES, **defines})
-
-    def launch(self, kernel: object, out: DeviceImage, *args: object) -> None:
-        launch_exact(self.rt, kernel, out.width, out.height, *args)
+    def launch(self, kernel_name: str, out: DeviceImage, args: dict[str, object], **modes: int) -> None:
+        """Enqueue ``kernel_name`` of demosaic_ari.cl, compiled with ``modes``, over exactly the pixels
+        of ``out`` (one plane), its arguments by name (Runtime.launch_named checks them)."""
+        self.rt.launch_named("demosaic_ari", kernel_name, out.width, out.height, args,
+                             program_defines(kernel_name, modes))
 
     def release(self, *images: DeviceImage | None) -> None:
+        """Return the images (None: skipped) to the pool."""
         for image in images:
             if image is not None:
                 self.rt.release(image)
@@ -225,12 +241,11 @@ class DemosaicARI(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """Pooled float32 planes per input pixel: what one enqueue creates from an empty pool
-        (Runtime.metering, tests/test_demosaic_ari_cl.py: 55 planes on a 300 x 300 window, 90-92 on
-        442 x 6242, 742 x 1742 and 1000 x 1000):
-        at the peak of step 1 the mosaic, the start lines, the estimates of finished chains, the
-        current lines and estimate and 12 coefficient planes with their two box passes are alive, and
-        the pool's buffers of the other (margin-dependent) sizes stay allocated beside them."""
+        """Device bytes per input pixel, 96 float32 planes: covers what one enqueue creates from an
+        empty pool (at most 92 planes metered on large windows; README.md). At the peak of step 1 the
+        mosaic, the start lines, the estimates of finished chains, the current lines and estimate and
+        12 coefficient planes with their two box passes are alive, and the pool's buffers of the other
+        (margin-dependent) sizes stay allocated beside them."""
         return 4.0 * 96
 
     def phase(self, origin: tuple[int, int]) -> str:
@@ -239,7 +254,7 @@ class DemosaicARI(Stage):
         return "".join(self.cfa.channels[c] for c in block.ravel())
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        out = bayer_ri.demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
+        out = demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
                                     self.chroma_iterations, clip=None)
         h = self.halo
         return out[h:out.shape[0] - h, h:out.shape[1] - h]
@@ -249,12 +264,11 @@ class DemosaicARI(Stage):
         if src.channels != 1 or np.dtype(src.dtype) != np.float32:
             raise ClispError(f"the ARI demosaic takes a 1-plane float32 mosaic, got {src.channels} x {src.dtype}")
         phase = self.phase(origin)
-        r_site = bayer_ri.PHASES[phase]
+        r_site = PHASES[phase]
         c = _Chain(rt, src.height, src.width, r_site)
         raw_img = c.new(1, 0, 0)
-        buf, base, pitch = _View(src, 0, 0).at(0, 0)
-        c.launch(c.kernel("ari_scale"), raw_img, buf, base, pitch, raw_img.buffer, i32(raw_img.width),
-                 f32(bayer_ri.SCALE))
+        c.launch("ari_scale", raw_img, {**_View(src, 0, 0).named("src", 0, 0), **_output(raw_img, height=False),
+                                        "scale": SCALE})
         raw = _View(raw_img, 0, 0)
 
         stage_label(f"{self.name} 1 green")
@@ -263,9 +277,9 @@ class DemosaicARI(Stage):
             sy, sx = STEPS[d]
             my, mx = _margin([raw], sy, sx)
             start = c.new(2, my, mx)
-            c.launch(c.kernel("ari_green_start"), start, *raw.at(my, mx, sy, sx), start.buffer, i32(start.width),
-                     i32(start.height), i32(sy), i32(sx), *c.parity(my, mx))
-            for kind in bayer_ri.KINDS:
+            c.launch("ari_green_start", start, {**raw.named("raw", my, mx, sy, sx), **_output(start), "sy": sy,
+                                                "sx": sx, **c.parity(my, mx)})
+            for kind in KINDS:
                 ests[d, kind] = self._green_chain(c, raw, _View(start, my, mx), d, kind)
             c.release(start)
         green = self._green_merge(c, raw, list(ests.values()))
@@ -275,14 +289,14 @@ class DemosaicARI(Stage):
         # step 2: R at B, B at R along the diagonals, statistics over the chroma sites
         stage_label(f"{self.name} 2 diagonals")
         ests = [self._chroma_chain(c, green, [(raw, SITE_R, SITE_B), (raw, SITE_B, SITE_R)], d, kind, True)
-                for d in ("d1", "d2") for kind in bayer_ri.KINDS]
-        rb = self._merge(c, "ari_rb_merge", ests, [raw], 2)
+                for d in ("d1", "d2") for kind in KINDS]
+        rb = self._rb_merge(c, ests, raw)
         # step 3: R and B at the G sites along rows and columns, statistics over every pixel
         stage_label(f"{self.name} 3 G sites")
         rb_r, rb_b = _View(rb.image, rb.my, rb.mx, 0), _View(rb.image, rb.my, rb.mx, 1)
         ests = [self._chroma_chain(c, green, [(rb_r, SITE_C, SITE_G), (rb_b, SITE_C, SITE_G)], d, kind, False)
-                for d in ("h", "v") for kind in bayer_ri.KINDS]
-        out = self._merge(c, "ari_final", ests, [rb, green], 3)
+                for d in ("h", "v") for kind in KINDS]
+        out = self._final(c, ests, rb, green)
         c.release(raw_img, rb.image, green.image)
         stage_label(self.name)
         if (out.my, out.mx) != (self.halo, self.halo):
@@ -297,39 +311,38 @@ class DemosaicARI(Stage):
         dirn = 0 if d == "h" else 1
         sy, sx = STEPS[d]
         lap = LAPLACIAN_RADIUS if mlri else 0
-        along, across = bayer_ri.KINDS[kind]
+        along, across = KINDS[kind]
         g, cl = _View(start.image, start.my, start.mx, 0), _View(start.image, start.my, start.mx, 1)
         lines_img: DeviceImage | None = None
         est: _View | None = None
-        k0, k1, k2 = _gauss_weights()
         for _ in range(self.green_iterations):
             # window statistics: along the lines, then across them per line set
             ay, ax = (0, along + lap) if d == "h" else (along + lap, 0)
             my, mx = _margin([g, cl], ay, ax)
             mom = c.new(12 if mlri else 6, my, mx)
-            c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=along),
-                     mom, *cl.at(my, mx, ay, ax), *g.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
-                     *c.parity(my, mx))
+            c.launch("ari_along_moments", mom, {**cl.named("xs", my, mx, ay, ax), **g.named("ys", my, mx, ay, ax),
+                                                **_output(mom), **c.parity(my, mx)},
+                     ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=along)
             cy, cx = (across, 0) if d == "h" else (0, across)
             coef = c.new(12, my + cy, mx + cx)
             for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
                 for fit in (0, 1):                                  # G from chroma, chroma from G
-                    c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1,
-                                      ARI_R=across, ARI_SET=line_set, ARI_FIT=fit), coef,
-                             mom.buffer, i32(mom.width), i32(mom.width * mom.height),
-                             *cl.at(my + cy, mx + cx, cy, cx), *g.at(my + cy, mx + cx, cy, cx), coef.buffer,
-                             i32((6 * line_set + 3 * fit) * coef.width * coef.height), i32(coef.width),
-                             i32(coef.height), *c.parity(my + cy, mx + cx))
+                    c.launch("ari_across_coefficients", coef, {
+                        "rows": mom, "rows_pitch": mom.width, "rows_plane": mom.width * mom.height,
+                        **cl.named("xs", my + cy, mx + cx, cy, cx), **g.named("ys", my + cy, mx + cx, cy, cx),
+                        **_output(coef), "out_base": (6 * line_set + 3 * fit) * coef.width * coef.height,
+                        **c.parity(my + cy, mx + cx)},
+                        ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=across, ARI_SET=line_set, ARI_FIT=fit)
             c.release(mom)
             t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
             # the new lines, and the criterion of this iteration
             ny, nx = ty + abs(sy), tx + abs(sx)
             new = c.new(2, ny, nx)
-            c.launch(c.kernel("ari_green_residual"), new, *raw.at(ny, nx, sy, sx), *tg.at(ny, nx, sy, sx),
-                     *tc.at(ny, nx, sy, sx), new.buffer, i32(new.width), i32(new.height), i32(sy), i32(sx),
-                     *c.parity(ny, nx))
-            crit = self._criterion(c, [(g, tg), (cl, tc)], d, False, (k0, k1, k2))
+            c.launch("ari_green_residual", new, {
+                **raw.named("raw", ny, nx, sy, sx), **tg.named("tg", ny, nx, sy, sx),
+                **tc.named("tc", ny, nx, sy, sx), **_output(new), "sy": sy, "sx": sx, **c.parity(ny, nx)})
+            crit = self._criterion(c, [(g, tg), (cl, tc)], d, False)
             c.release(t)
             est = self._select(c, crit, _View(new, ny, nx, 0), _View(new, ny, nx, 1), est)
             c.release(lines_img)
@@ -339,27 +352,31 @@ class DemosaicARI(Stage):
         c.release(lines_img)
         return est
 
-    def _criterion(self, c: _Chain, errs: list[tuple[_View, _View]], d: str, region: bool,
-                   gauss: tuple[float, float, float]) -> _View:
+    def _criterion(self, c: _Chain, errs: list[tuple[_View, _View]], d: str, region: bool) -> _View:
         """Smoothed criterion terms (planes c, g) of two fits (u - t) along d (ari_err_terms, ari_gauss_x/y)."""
         sy, sx = STEPS[d]
         views = [v for pair in errs for v in pair]
         ey, ex = _margin(views, abs(sy), abs(sx))
         terms = c.new(2, ey, ex)
         (u1, t1), (u2, t2) = errs
-        c.launch(c.kernel("ari_err_terms", ARI_SY=sy, ARI_SX=sx, ARI_REGION=int(region)), terms, *u1.at(ey, ex, abs(sy), abs(sx)), *t1.at(ey, ex, abs(sy), abs(sx)),
-                 *u2.at(ey, ex, abs(sy), abs(sx)), *t2.at(ey, ex, abs(sy), abs(sx)), terms.buffer,
-                 i32(terms.width), i32(terms.height), *c.parity(ey, ex))
+        reach = (ey, ex, abs(sy), abs(sx))
+        c.launch("ari_err_terms", terms, {**u1.named("u1", *reach), **t1.named("t1", *reach),
+                                          **u2.named("u2", *reach), **t2.named("t2", *reach), **_output(terms),
+                                          **c.parity(ey, ex)},
+                 ARI_SY=sy, ARI_SX=sx, ARI_REGION=int(region))
         r = CRITERION_RADIUS
+        k0, k1, k2 = _gauss_weights()
         gx = c.new(3 if region else 2, ey, ex + r)
         tv = _View(terms, ey, ex)
-        c.launch(c.kernel("ari_gauss_x", ARI_REGION=int(region)), gx, *tv.at(ey, ex + r, 0, r), tv.stride(), gx.buffer, i32(gx.width),
-                 i32(gx.height), *map(f32, gauss), *c.parity(ey, ex + r))
+        c.launch("ari_gauss_x", gx, {**tv.named("src", ey, ex + r, 0, r, planes=True), **_output(gx),
+                                     "k0": k0, "k1": k1, "k2": k2, **c.parity(ey, ex + r)},
+                 ARI_REGION=int(region))
         c.release(terms)
         gy = c.new(2, ey + r, ex + r)
         xv = _View(gx, ey, ex + r)
-        c.launch(c.kernel("ari_gauss_y", ARI_REGION=int(region)), gy, *xv.at(ey + r, ex + r, r, 0), xv.stride(), gy.buffer, i32(gy.width),
-                 i32(gy.height), *map(f32, gauss), *c.parity(ey + r, ex + r))
+        c.launch("ari_gauss_y", gy, {**xv.named("src", ey + r, ex + r, r, 0, planes=True), **_output(gy),
+                                     "k0": k0, "k1": k1, "k2": k2, **c.parity(ey + r, ex + r)},
+                 ARI_REGION=int(region))
         c.release(gx)
         return _View(gy, ey + r, ex + r)
 
@@ -367,18 +384,20 @@ class DemosaicARI(Stage):
         """ari_select: the running per-pixel best of (n1, n2) by criterion; releases crit and prev."""
         my, mx = _margin([crit, n1, n2] + ([prev] if prev else []), 0, 0)
         out = c.new(3, my, mx)
-        p = prev if prev is not None else crit
-        c.launch(c.kernel("ari_select"), out, *crit.at(my, mx), crit.stride(), *n1.at(my, mx), *n2.at(my, mx),
-                 *p.at(my, mx), p.stride(), out.buffer, i32(out.width), i32(out.height), i32(prev is None))
+        p = prev if prev is not None else crit                      # not read on the first iteration
+        c.launch("ari_select", out, {**crit.named("crit", my, mx, planes=True), **n1.named("n1", my, mx),
+                                     **n2.named("n2", my, mx), **p.named("prev", my, mx, planes=True),
+                                     **_output(out), "first": int(prev is None)})
         c.release(crit.image, prev.image if prev else None)
         return _View(out, my, mx)
 
     def _green_merge(self, c: _Chain, raw: _View, ests: list[_View]) -> _View:
+        """ari_green_merge: the full G plane from the four step-1 estimates."""
         my, mx = _margin(ests + [raw], 0, 0)
         m = max(my, mx)
         out = c.new(1, m, m)
-        args = [a for e in ests for a in (*e.at(m, m), e.stride())]
-        c.launch(c.kernel("ari_green_merge"), out, *args, *raw.at(m, m), out.buffer, i32(out.width), *c.parity(m, m))
+        c.launch("ari_green_merge", out, {**_estimates(ests, m, m), **raw.named("raw", m, m),
+                                          **_output(out, height=False), **c.parity(m, m)})
         return _View(out, m, m)
 
     # -- steps 2 and 3 -----------------------------------------------------------------------
@@ -387,14 +406,15 @@ class DemosaicARI(Stage):
         """One (direction, kind) chain of step 2 (``diagonal``) or 3 for the two planes (source,
         known sites, target sites); returns the estimate image (planes R, B, criterion)."""
         sy, sx = STEPS[d]
-        along, across = bayer_ri.RB_KINDS[kind]
-        k = _gauss_weights()
+        along, across = RB_KINDS[kind]
         cur = []
         for src, known, target in planes:
             my, mx = _margin([src], abs(sy), abs(sx))
             img = c.new(1, my, mx)
-            c.launch(c.kernel("ari_chroma_start", ARI_KNOWN=known, ARI_TARGET=target), img, *src.at(my, mx, abs(sy), abs(sx)), img.buffer,
-                     i32(img.width), i32(sy), i32(sx), *c.parity(my, mx))
+            c.launch("ari_chroma_start", img, {**src.named("src", my, mx, abs(sy), abs(sx)),
+                                               **_output(img, height=False), "sy": sy, "sx": sx,
+                                               **c.parity(my, mx)},
+                     ARI_KNOWN=known, ARI_TARGET=target)
             cur.append(_View(img, my, mx))
         est: _View | None = None
         for _ in range(self.chroma_iterations):
@@ -404,11 +424,12 @@ class DemosaicARI(Stage):
                 ts.append(t)
                 ny, nx = _margin([t, src], abs(sy), abs(sx))
                 new = c.new(1, ny, nx)
-                c.launch(c.kernel("ari_chroma_residual", ARI_KNOWN=known, ARI_TARGET=target), new, *src.at(ny, nx, abs(sy), abs(sx)),
-                         *t.at(ny, nx, abs(sy), abs(sx)), new.buffer, i32(new.width), i32(sy), i32(sx),
-                         *c.parity(ny, nx))
+                c.launch("ari_chroma_residual", new, {
+                    **src.named("src", ny, nx, abs(sy), abs(sx)), **t.named("t", ny, nx, abs(sy), abs(sx)),
+                    **_output(new, height=False), "sy": sy, "sx": sx, **c.parity(ny, nx)},
+                    ARI_KNOWN=known, ARI_TARGET=target)
                 news.append(_View(new, ny, nx))
-            crit = self._criterion(c, [(cur[0], ts[0]), (cur[1], ts[1])], d, diagonal, k)
+            crit = self._criterion(c, [(cur[0], ts[0]), (cur[1], ts[1])], d, diagonal)
             c.release(*(t.image for t in ts), *(x.image for x in cur))
             est = self._select(c, crit, news[0], news[1], est)
             cur = news
@@ -421,17 +442,19 @@ class DemosaicARI(Stage):
         """Step 2's weighted guided filter of x against the guide over a diagonal window."""
         mlri = kind == "mlri"
         p, q = _window(kind, d, along, across)
-        h = p + q + (LAPLACIAN_RADIUS if mlri else 0)
-        my, mx = _margin([guide, x], h, h)
+        reach = p + q + (LAPLACIAN_RADIUS if mlri else 0)
+        my, mx = _margin([guide, x], reach, reach)
         coef = c.new(3, my, mx)
-        c.launch(c.kernel("ari_diag_coefficients", ARI_MLRI=int(mlri), ARI_P=p, ARI_Q=q, ARI_LS=STEPS[d][1],
-                                    ARI_KNOWN=known), coef, *guide.at(my, mx, h, h),
-                 *x.at(my, mx, h, h), coef.buffer, i32(coef.width), i32(coef.height), *c.parity(my, mx))
+        c.launch("ari_diag_coefficients", coef, {**guide.named("xs", my, mx, reach, reach),
+                                                 **x.named("ys", my, mx, reach, reach), **_output(coef),
+                                                 **c.parity(my, mx)},
+                 ARI_MLRI=int(mlri), ARI_P=p, ARI_Q=q, ARI_LS=STEPS[d][1], ARI_KNOWN=known)
         r = p + q
         t = c.new(1, my + r, mx + r)
         cv = _View(coef, my, mx)
-        c.launch(c.kernel("ari_diag_apply", ARI_P=p, ARI_Q=q), t, *cv.at(my + r, mx + r, r, r), cv.stride(),
-                 *guide.at(my + r, mx + r), t.buffer, i32(t.width))
+        c.launch("ari_diag_apply", t, {**cv.named("coef", my + r, mx + r, r, r, planes=True),
+                                       **guide.named("xs", my + r, mx + r), **_output(t, height=False)},
+                 ARI_P=p, ARI_Q=q)
         c.release(coef)
         return _View(t, my + r, mx + r)
 
@@ -446,15 +469,17 @@ class DemosaicARI(Stage):
         ay, ax = (0, ra + lap) if d == "h" else (ra + lap, 0)
         my, mx = _margin([guide, x], ay, ax)
         mom = c.new(9 if mlri else 6, my, mx)
-        c.launch(c.kernel("ari_along_moments", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=ra), mom,
-                 *guide.at(my, mx, ay, ax), *x.at(my, mx, ay, ax), mom.buffer, i32(mom.width), i32(mom.height),
-                 *c.parity(my, mx))
+        c.launch("ari_along_moments", mom, {**guide.named("xs", my, mx, ay, ax), **x.named("ys", my, mx, ay, ax),
+                                            **_output(mom), **c.parity(my, mx)},
+                 ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=ra)
         cy, cx = (rc, 0) if d == "h" else (0, rc)
         coef = c.new(3, my + cy, mx + cx)
-        c.launch(c.kernel("ari_across_coefficients", ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc),
-                 coef, mom.buffer, i32(mom.width), i32(mom.width * mom.height), *guide.at(my + cy, mx + cx, cy, cx),
-                 *x.at(my + cy, mx + cx, cy, cx), coef.buffer, i32(0), i32(coef.width), i32(coef.height),
-                 *c.parity(my + cy, mx + cx))
+        c.launch("ari_across_coefficients", coef, {
+            "rows": mom, "rows_pitch": mom.width, "rows_plane": mom.width * mom.height,
+            **guide.named("xs", my + cy, mx + cx, cy, cx), **x.named("ys", my + cy, mx + cx, cy, cx),
+            **_output(coef), "out_base": 0, **c.parity(my + cy, mx + cx)},
+            ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc,
+            ARI_SET=0, ARI_FIT=0)                                   # step 1's line set and fit: unread here
         c.release(mom)
         t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, ra, rc, guide, x, False)
         return _View(t, ty, tx)
@@ -471,23 +496,29 @@ class DemosaicARI(Stage):
         t = c.new(2 if pair else 1, ty, tx)
         sv = _View(sums, sy, sx)
         hy, hx = (across, 0) if d == "h" else (0, across)
-        c.launch(c.kernel("ari_box_apply", ARI_DIR=dirn, ARI_PAIR=int(pair), ARI_R=across), t, *sv.at(ty, tx, hy, hx),
-                 sv.stride(), *x.at(ty, tx), *y.at(ty, tx), t.buffer, i32(t.width), i32(t.height), *c.parity(ty, tx))
+        c.launch("ari_box_apply", t, {**sv.named("coef", ty, tx, hy, hx, planes=True), **x.named("xs", ty, tx),
+                                      **y.named("ys", ty, tx), **_output(t), **c.parity(ty, tx)},
+                 ARI_DIR=dirn, ARI_PAIR=int(pair), ARI_R=across)
         c.release(sums)
         return t, ty, tx
 
-    def _merge(self, c: _Chain, name: str, ests: list[_View], extra: list[_View], channels: int) -> _View:
-        """ari_rb_merge (extra: the mosaic) or ari_final (extra: step 2's R, B and the G plane);
+    def _rb_merge(self, c: _Chain, ests: list[_View], raw: _View) -> _View:
+        """ari_rb_merge: R and B planes after step 2 (the mosaic's samples and step 2's estimates);
         releases the estimates."""
-        my, mx = _margin(ests + extra, 0, 0)
-        out = c.new(channels, my, mx)
-        args = [a for e in ests for a in (*e.at(my, mx), e.stride())]
-        if name == "ari_rb_merge":
-            args += [*extra[0].at(my, mx), out.buffer, i32(out.width), i32(out.height), *c.parity(my, mx)]
-        else:
-            rb, green = extra
-            args += [*rb.at(my, mx), rb.stride(), *green.at(my, mx), out.buffer, i32(out.width), i32(out.height),
-                     *c.parity(my, mx), f32(1.0 / bayer_ri.SCALE)]
-        c.launch(c.kernel(name), out, *args)
+        my, mx = _margin(ests + [raw], 0, 0)
+        out = c.new(2, my, mx)
+        c.launch("ari_rb_merge", out, {**_estimates(ests, my, mx), **raw.named("raw", my, mx), **_output(out),
+                                       **c.parity(my, mx)})
+        c.release(*(e.image for e in ests))
+        return _View(out, my, mx)
+
+    def _final(self, c: _Chain, ests: list[_View], rb: _View, green: _View) -> _View:
+        """ari_final: the output planes R, G, B in the mosaic's units from step 3's estimates, step 2's
+        R and B and the G plane; releases the estimates."""
+        my, mx = _margin(ests + [rb, green], 0, 0)
+        out = c.new(3, my, mx)
+        c.launch("ari_final", out, {**_estimates(ests, my, mx), **rb.named("rb", my, mx, planes=True),
+                                    **green.named("green", my, mx), **_output(out), **c.parity(my, mx),
+                                    "scale": 1.0 / SCALE})
         c.release(*(e.image for e in ests))
         return _View(out, my, mx)
