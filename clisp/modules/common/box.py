@@ -5,8 +5,8 @@ Valid-only, as the tiling contract wants: C x H x W in, C x (H - 2ry) x (W - 2rx
 rows first, then columns, each from 0 in order k = 0 .. 2r; ``box_sums`` is the float64 reference.
 
 >>> import numpy as np
->>> box_sums(np.arange(12.0).reshape(1, 3, 4), 1, 1)
-array([[[45., 54.]]])
+>>> box_sums(np.arange(12.0).reshape(1, 3, 4), 1, 1).tolist()
+[[[45.0, 54.0]]]
 """
 from __future__ import annotations
 
