@@ -36,6 +36,8 @@
 #error "demosaic_ari.cl takes every define from the host (clisp/modules/demosaic_ari/stage.py, program_defines)"
 #endif
 
+#include "guided.h"
+
 /* 1.0f where pixel (y, x) of a grid with parities (py, px) is a site of kind ``code``, else 0.0f. */
 __attribute__((always_inline)) inline float ari_site(const int code, const int y, const int x, const int py, const int px)
 {
@@ -163,33 +165,27 @@ __kernel void ari_along_moments(__global const float *restrict xs, const int xs_
 #endif
 }
 
-/* Accumulator of centred window moments. */
-typedef struct { float n, s1x, s1y, s2x, s2y, sxy; } ari_moments;
+/* Accumulator of centred window moments: gf_moments of clisp/modules/common/guided.h. */
+typedef gf_moments ari_moments;
 
 /* Add the along-pass moments of one line (planes at index i, stride rp), centred on (cxj, cyj), to m,
- * moved to the centre (cx, cy): with dx = cxj - cx, dy = cyj - cy (exact algebra of gf_col_coefficients). */
+ * moved to the centre (cx, cy): dx = cxj - cx, dy = cyj - cy (gf_add_moved). */
 __attribute__((always_inline)) inline void ari_add_line(ari_moments *m, __global const float *restrict rows, const int i, const int rp,
-                         const float dx, const float dy, const float wt)
+                         const float dx, const float dy)
 {
-    const float nj = wt * rows[i], sd = wt * rows[rp + i], se = wt * rows[2 * rp + i];
-    m->n += nj;
-    m->s1x += sd + nj * dx;
-    m->s1y += se + nj * dy;
-    m->s2x += wt * rows[3 * rp + i] + dx * (2.0f * sd + nj * dx);
-    m->s2y += wt * rows[4 * rp + i] + dy * (2.0f * se + nj * dy);
-    m->sxy += wt * rows[5 * rp + i] + dx * se + dy * sd + nj * dx * dy;
+    gf_add_moved(m, rows[i], rows[rp + i], rows[2 * rp + i], rows[3 * rp + i], rows[4 * rp + i], rows[5 * rp + i],
+                 dx, dy);
 }
 
-/* Means, variances and covariance of accumulated moments centred on (cx, cy), given inv = 1 / max(N, 1). */
+/* Means, variances and covariance of accumulated moments centred on (cx, cy), given inv = 1 / max(N, 1)
+ * (gf_centred_stats; the means as cx N / n + E[d], so that an empty window's are 0, as the reference's). */
 __attribute__((always_inline)) inline void ari_stats_inv(const ari_moments *m, const float inv, const float cx, const float cy,
                           float *mean_x, float *mean_y, float *var_x, float *var_y, float *cov)
 {
-    const float md = m->s1x * inv, me = m->s1y * inv;
+    float md, me;
+    gf_centred_stats(m, inv, &md, &me, var_x, var_y, cov);
     *mean_x = cx * (m->n * inv) + md;
     *mean_y = cy * (m->n * inv) + me;
-    *var_x = m->s2x * inv - md * md;
-    *var_y = m->s2y * inv - me * me;
-    *cov = m->sxy * inv - md * me;
 }
 
 /* Means, variances and covariance (over n = max(N, 1)) of accumulated moments centred on (cx, cy). */
@@ -251,9 +247,9 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
         const int in_a = ((j + ARI_R) & 1) == 0;
         const float dx = xs[xa + j * xstep] - cx, dy = ys[ya + j * ystep] - cy;
         if (in_a)
-            ari_add_line(&ma, rows, i, rows_plane, dx, dy, 1.0f);
+            ari_add_line(&ma, rows, i, rows_plane, dx, dy);
         else
-            ari_add_line(&mb, rows, i, rows_plane, dx, dy, 1.0f);
+            ari_add_line(&mb, rows, i, rows_plane, dx, dy);
 #if ARI_MLRI
 #pragma unroll
         for (int t = 0; t < 3; ++t) {
@@ -301,7 +297,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
 #pragma unroll
     for (int j = -ARI_R; j <= ARI_R; ++j) {
         const int i = at0 + j * line_step;
-        ari_add_line(&m, rows, i, rows_plane, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy, 1.0f);
+        ari_add_line(&m, rows, i, rows_plane, xs[xa + j * xstep] - cx, ys[ya + j * ystep] - cy);
 #if ARI_MLRI
 #pragma unroll
         for (int t = 0; t < 3; ++t)
