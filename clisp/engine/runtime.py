@@ -190,6 +190,7 @@ class Runtime:
         self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
         self._signatures: dict[tuple[str, tuple[str, ...], str], tuple[Parameter, ...]] = {}
+        self._flag_cache: dict[tuple, tuple[str, ...]] = {}
         self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
@@ -212,13 +213,28 @@ class Runtime:
                 f"{d.max_compute_units} compute units, {d.global_mem_size / 2**30:.1f} GiB")
 
     # -- programs -------------------------------------------------------------------------
+    def _flags(self, defines: Mapping[str, Any] | None) -> tuple[str, ...]:
+        """The ``-D`` options of ``defines`` (sorted by name), memoised on the defines' items: a
+        launch by name looks its program up twice, and formatting 20 defines each time was most of
+        its host cost."""
+        if not defines:
+            return ()
+        try:
+            key = tuple(defines.items())
+            flags = self._flag_cache.get(key)
+        except TypeError:                                # an unhashable value: format it each time
+            return tuple(_define_flags(defines))
+        if flags is None:
+            flags = self._flag_cache[key] = tuple(_define_flags(defines))
+        return flags
+
     def program(self, name: str, defines: Mapping[str, Any] | None = None, generated: str = "") -> Any:
         """Build the program ``<name>.cl`` (:func:`kernel_path`) with ``-D`` defines once per process and cache it.
 
         ``generated``: host-generated source (e.g. a filter's weights as literals) placed before
         the file's text; part of the cache key.
         """
-        flags = tuple(_define_flags(defines or {}))
+        flags = self._flags(defines)
         key = (name, flags + (generated,))
         if key not in self._programs:
             path = kernel_path(f"{name}.cl")
@@ -246,7 +262,7 @@ class Runtime:
     def kernel(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
                generated: str = "") -> Any:
         """A cached kernel object of the program ``<name>.cl`` (see :meth:`program`)."""
-        flags = tuple(_define_flags(defines or {}))
+        flags = self._flags(defines)
         key = (name, flags + (generated,), kernel_name)
         if key not in self._kernels:
             kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
@@ -261,7 +277,7 @@ class Runtime:
                   generated: str = "") -> tuple["Parameter", ...]:
         """The parameters of ``kernel_name`` in the program ``<name>.cl`` as the compiler reads them
         (macros expanded): name, type and whether it is a pointer; cached per build."""
-        flags = tuple(_define_flags(defines or {}))
+        flags = self._flags(defines)
         key = (name, flags + (generated,), kernel_name)
         if key not in self._signatures:
             kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
