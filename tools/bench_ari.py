@@ -35,8 +35,8 @@ Device time by step (a2ec1fd, first pair): step 1 2.26 s (76%; c03fc4e 4.27 s), 
 (1.11), step 3 0.37 s (0.81). Top kernels: ari_across_coefficients 0.94 s (step 1: four single-fit
 launches per iteration), ari_box_apply 0.27 s, ari_along_moments 0.23 s, ari_select 0.21 s, box_x /
 box_y 0.17 + 0.16 s, ari_diag_coefficients 0.12 s; the criterion's err_terms + gauss_x/y 0.28 s in
-all three steps. Every ARI kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS: clisp/modules/demosaic_ari/demosaic_ari.cl's
-header says how to check).
+all three steps. Every ARI kernel now vectorises at width 8 (POCL_VECTORIZER_REMARKS: clisp/modules/demosaic_ari/README.md
+says how to check).
 
 Measured (commit f6d34d7 + this tool's DHT column; the machine otherwise idle; 24 MP, --repeat 1):
     DemosaicDLMMSE  0.27 s   89.3 MP/s
