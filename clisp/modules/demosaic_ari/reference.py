@@ -212,7 +212,7 @@ BILINEAR = {(dy, dx): (1.0 if dy == 0 else 0.5) * (1.0 if dx == 0 else 0.5)
 
 def _box(x: Array, window: Window) -> Array:
     """Sum of x over ``window`` around every pixel (mirrored borders)."""
-    from scipy.ndimage import uniform_filter1d
+    from scipy.ndimage import uniform_filter1d   # deferred: the CLI imports this module, scipy costs start-up
     kind, ry, rx = window
     if kind == "diag":
         along = _taps(x, _along("d1", [1.0] * (2 * ry + 1)))
