@@ -8,7 +8,10 @@
  * Tiling convention: valid-only windows, the output shrinks by 2R along the filtered axis; no bounds
  * checks (the host launches exactly the outputs, runtime.launch_exact). The sum runs k = 0 .. 2R in
  * order, from 0.0f, then is multiplied by ``scale`` (1: sums; 1 / (2R + 1)^2 on the second pass: a
- * 2-D mean), so a caller's results do not depend on which stage launched it. */
+ * 2-D mean), so a caller's results do not depend on which stage launched it. The sums themselves are
+ * box.h's, which kernels that need box sums at their own sites include too. */
+
+#include "box.h"
 
 /* box_rows: dst(p, y, x) = scale * sum_{k=0..2R} src(p, y, x + k). Planes are stacked along y: launch
  * out_w x (planes * h). Output x is input column x + R. Halo R along x. */
@@ -17,12 +20,7 @@ __kernel void box_rows(__global const float *restrict src, __global float *restr
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    __global const float *s = src + y * in_w + x;
-    float acc = 0.0f;
-#pragma unroll
-    for (int k = 0; k <= 2 * BOX_R; ++k)
-        acc += s[k];
-    dst[y * out_w + x] = acc * scale;
+    dst[y * out_w + x] = box_sum(src + y * in_w + x, 1) * scale;
 }
 
 /* box_cols: dst(p, y, x) = scale * sum_{k=0..2R} src(p, y + k, x), every plane: launch w x
@@ -33,10 +31,5 @@ __kernel void box_cols(__global const float *restrict src, __global float *restr
     const int x = get_global_id(0);
     const int g = get_global_id(1);
     const int p = g / out_h, y = g - p * out_h;
-    __global const float *s = src + (p * in_h + y) * w + x;
-    float acc = 0.0f;
-#pragma unroll
-    for (int k = 0; k <= 2 * BOX_R; ++k)
-        acc += s[k * w];
-    dst[g * w + x] = acc * scale;
+    dst[g * w + x] = box_sum(src + (p * in_h + y) * w + x, w) * scale;
 }

@@ -8,6 +8,8 @@
  * the reach levels HL_D_APPLY, HL_D_CELLS, HL_D_NEAR, HL_D_NEAR_ROWS. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
+#include "box.h"
+
 /* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
  * near on the window less the rim (w1 x h1) -> reference sums per cell and over each cell's
  * neighbourhood (ncw x nch cells of the image's grid) -> output (ow x oh, w1 - 2 R x h1 - 2 R).
@@ -204,8 +206,8 @@ __kernel void hl_cells(__global const float *restrict src, __global const float 
 }
 
 /* hl_cell_box: the sums of each cell's (2 HL_CELL_R + 1)^2 neighbourhood of cells (cells outside
- * the window count 0), HL_SUMS planes of nch x ncw; only cells holding a pixel where hl_apply
- * works. */
+ * the window count 0), HL_SUMS planes of nch x ncw, by the shared box sums (box.h); only cells
+ * holding a pixel where hl_apply works. */
 __kernel void hl_cell_box(__global const float *restrict cells, __global float *restrict dst, const int ncw,
                           const int nch, const int w1, const int h1, const int oy, const int ox,
                           __global const float *restrict reach, const int nbx, const int nby)
@@ -216,13 +218,8 @@ __kernel void hl_cell_box(__global const float *restrict cells, __global float *
     const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
     const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
-    for (int p = 0; p < HL_SUMS; p++) {
-        float s = 0.0f;
-        for (int jj = j0; jj <= j1; jj++)
-            for (int ii = i0; ii <= i1; ii++)
-                s += cells[p * cplane + jj * ncw + ii];
-        dst[p * cplane + j * ncw + i] = s;
-    }
+    for (int p = 0; p < HL_SUMS; p++)
+        dst[p * cplane + j * ncw + i] = box_sum_rect(cells + p * cplane, ncw, i0, i1, j0, j1);
 }
 #endif /* HL_RADIUS > 0 */
 
