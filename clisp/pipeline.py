@@ -22,7 +22,7 @@ from .io.rawfile import read_raw
 from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .engine.profile import host_timer, stage_label
 from .engine.runtime import DeviceImage, get_runtime
-from .modules.base import Stage, fuse_stages
+from .modules.base import Origin, Stage, advance, fuse_stages
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
                                            space_for)
 from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
@@ -232,17 +232,18 @@ class Pipeline:
         """Run ``plan`` from ``source`` into ``sink`` (see streaming.run_tiles); sets and returns
         :attr:`stats`."""
         self._check(source.shape, backend)
+        image = (int(source.shape[0]), int(source.shape[1]))     # the planner's alone; stages get it per window
         halo, (win_h, win_w) = plan.halo, plan.window_shape
         whole = self._device_source(source) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
             get_runtime().trim_pool()                # the pool holds what this plan's tiles need
             compute = partial(self._compute_opencl, self.schedule(fuse), halo, whole=whole,
-                              window_shape=(win_h, win_w))
+                              window_shape=(win_h, win_w), image=image)
         else:
-            compute = partial(self._compute_reference, halo)
+            compute = partial(self._compute_reference, halo, image=image)
 
         if self.skipper is not None:                 # per-tile paths (clisp.skip)
-            compute = self._path_compute(plan, backend, fuse, whole, compute)
+            compute = self._path_compute(plan, backend, fuse, whole, compute, image)
 
         windows = WindowPool()
 
@@ -265,7 +266,7 @@ class Pipeline:
         return self.stats
 
     def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,
-                      full: Callable[..., Any]) -> Callable[..., Any]:
+                      full: Callable[..., Any], image: tuple[int, int]) -> Callable[..., Any]:
         """The compute step of :meth:`stream` choosing each tile's path from the skipper's plan
         (sets :attr:`skip_plan`). A path with a smaller halo runs on the centre of the tile's
         window (its origin moves in by the difference), so every path sees the image's pixels
@@ -279,9 +280,9 @@ class Pipeline:
             d, h = halo - sub.halo, sub.halo
             if backend == "opencl":
                 run = partial(sub._compute_opencl, sub.schedule(fuse), h, whole=whole,
-                              window_shape=(win_h - 2 * d, win_w - 2 * d))
+                              window_shape=(win_h - 2 * d, win_w - 2 * d), image=image)
             else:
-                run = partial(sub._compute_reference, h)
+                run = partial(sub._compute_reference, h, image=image)
 
             def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
                      d: int = d) -> Any:
@@ -303,12 +304,13 @@ class Pipeline:
             raise ClispError(f"raw of {shape[1]}x{shape[0]} is smaller than one CFA tile")
 
     def _compute_reference(self, halo: int, t: Tile, window: np.ndarray,
-                           target: tuple[np.ndarray, int, int]) -> None:
-        """The NumPy stages on the tile's own window (the plan's may reach past the image)."""
-        x, origin = window[:t.h + 2 * halo, :t.w + 2 * halo], (t.y0 - halo, t.x0 - halo)
+                           target: tuple[np.ndarray, int, int], image: tuple[int, int] | None = None) -> None:
+        """The NumPy stages on the tile's own window (the plan's may reach past the image);
+        ``image``: the whole image's (H, W), passed to the stages with each window's Origin."""
+        x, origin = window[:t.h + 2 * halo, :t.w + 2 * halo], Origin(t.y0 - halo, t.x0 - halo, image)
         for stage in self.stages:
             x = stage.reference(x, origin)
-            origin = (origin[0] + stage.halo, origin[1] + stage.halo)
+            origin = advance(origin, stage.halo)
         host, y, x0 = target
         host[y:y + t.h, x0:x0 + t.w] = x
         return None
@@ -336,7 +338,7 @@ class Pipeline:
                 out = Pipeline._host_output(rt, stage, src, *into)
             dst = stage.enqueue(rt, src, origin) if out is None else stage.enqueue(rt, src, origin, out=out)
             rt.release(src)
-            src, origin = dst, (origin[0] + stage.halo, origin[1] + stage.halo)
+            src, origin = dst, advance(origin, stage.halo)
         if not src.interleaved:
             planar, src = src, rt.interleave(src)
             rt.release(planar)
@@ -367,16 +369,16 @@ class Pipeline:
 
     def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray | None,
                         target: tuple[np.ndarray, int, int], whole: Any = None,
-                        window_shape: tuple[int, int] = (0, 0)) -> Any:
+                        window_shape: tuple[int, int] = (0, 0), image: tuple[int, int] | None = None) -> Any:
         """Enqueue one window's upload (none where the device reads the window in place; where
         ``window`` is None, the device gathers the ``window_shape`` window from ``whole``, its view
         of the whole mosaic), every stage and the download of the kept pixels into ``target`` (or,
         where the last stage wrote into the target itself, what makes those pixels readable);
         returns that event, after which nothing reads the window (nothing waits here: no host
-        round trip)."""
+        round trip). ``image``: the whole image's (H, W), passed with each window's Origin."""
         rt = get_runtime()
         stage_label("upload")
-        origin = (t.y0 - halo, t.x0 - halo)
+        origin = Origin(t.y0 - halo, t.x0 - halo, image)
         if window is None:
             src = rt.gather_window(whole, *origin, *window_shape, self.cfa.period)
         else:

@@ -190,11 +190,11 @@ def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
                          stage.interleaved)
 
 
-def flat_demosaic(cfa: Any, shape: tuple[int, int]) -> Any:
-    """The flat path's DemosaicFlat for ``cfa`` and an image of ``shape`` (H, W), or None where it
-    does not apply (not 3 channels)."""
+def flat_demosaic(cfa: Any) -> Any:
+    """The flat path's DemosaicFlat for ``cfa``, or None where it does not apply (not 3 channels).
+    It reads the image's edges from each window's origin (clisp.modules.base.Origin)."""
     try:
-        return DemosaicFlat(cfa, image_shape=(int(shape[0]), int(shape[1])))
+        return DemosaicFlat(cfa)
     except ClispError:
         return None
 
@@ -221,6 +221,8 @@ class Skipper:
     paths     path name -> stage list (``full`` is ``stages``).
     denoiser  the ChromaDenoise stage of ``stages`` (None: nothing to skip).
     enabled   False (--no-skip): every tile takes ``full``; the analysis is still reported.
+    image     the raw's (H, W): the flat path needs enough of the image in a window at its edges
+              (:meth:`flat_window_fits`).
     """
 
     analysis: SceneAnalysis
@@ -230,6 +232,7 @@ class Skipper:
     enabled: bool = True
     visible_light: float = VISIBLE_LIGHT
     visible_none: float = VISIBLE_NONE
+    image: tuple[int, int] | None = None
 
     @classmethod
     def for_pipeline(cls, raw: Any, stages: list[Any], enabled: bool = True,
@@ -242,14 +245,31 @@ class Skipper:
             if denoiser.params.levels > LIGHT_LEVELS:
                 paths[PATH_LIGHT] = stages[:i] + [light_denoiser(denoiser)] + stages[i + 1:]
             paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
-            flat = flat_demosaic(raw.cfa, raw.shape)
+            flat = flat_demosaic(raw.cfa)
             d = demosaic_index(stages, i)
             if flat is not None and d >= 0:       # the demosaic, then (highlights), then the denoiser
                 paths[PATH_FLAT] = stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
-        return cls(analysis, list(stages), paths, denoiser, enabled)
+        return cls(analysis, list(stages), paths, denoiser, enabled,
+                   image=(int(raw.shape[0]), int(raw.shape[1])))
 
     def halo(self, path: str) -> int:
         return sum(stage.halo for stage in self.paths[path])
+
+    def flat_window_fits(self, t: Tile, tile_h: int, tile_w: int) -> bool:
+        """Whether the flat path's demosaic window for tile ``t`` (computing ``tile_h x tile_w``
+        outputs) holds, along each axis where it crosses the image's edge, the stretch of image its
+        point reflection reads (DemosaicFlat.min_inside_px). A narrower window, at the far edge of a
+        last tile that keeps a few pixels, lacks cells the whole image has: that tile takes another
+        path, so that tiles still equal the whole image."""
+        if self.image is None or PATH_FLAT not in self.paths:
+            return False
+        flat = next(stage for stage in self.paths[PATH_FLAT] if isinstance(stage, DemosaicFlat))
+        margin = self.halo(PATH_FLAT)         # the demosaic reads the path's whole window
+        for start, size, extent in ((t.y0, tile_h, self.image[0]), (t.x0, tile_w, self.image[1])):
+            lo, hi = start - margin, start + size + margin
+            if (lo < 0 or hi > extent) and min(hi, extent) - max(lo, 0) < flat.min_inside_px:
+                return False
+        return True
 
     def plan(self, tiles: TilePlan | list[Tile]) -> SkipPlan:
         tile_list = tiles.tiles if isinstance(tiles, TilePlan) else list(tiles)
@@ -272,7 +292,9 @@ class Skipper:
                 v = float(vis[grown].max())
                 reach = a.blocks_for(t.y0, t.x0, t.h, t.w, flat_margin)
                 flat_ok = (PATH_FLAT in self.paths and bool((a.detail[reach] < FLAT_DETAIL).all())
-                           and bool((a.chroma[reach] < FLAT_CHROMA).all()) and not (a.clipped[reach] > 0).any())
+                           and bool((a.chroma[reach] < FLAT_CHROMA).all()) and not (a.clipped[reach] > 0).any()
+                           and self.flat_window_fits(t, *(tiles.tile_h, tiles.tile_w) if isinstance(tiles, TilePlan)
+                                                     else (t.h, t.w)))
                 if not self.enabled:
                     path, reason = PATH_FULL, "--no-skip"
                 elif flat_ok:

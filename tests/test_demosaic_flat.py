@@ -10,6 +10,7 @@ import pytest
 
 from clisp.cfa import cfa_from_name
 from clisp.pipeline import Pipeline
+from clisp.modules.base import Origin
 from clisp.modules.demosaic_flat.stage import CELL_PX, DemosaicFlat, detail_channels
 from test_kernels import run_stage
 from tolerance import assert_close
@@ -30,7 +31,7 @@ def test_kernel_matches_reference(rt, name: str, cells: int, edges: bool) -> Non
     x = mosaic((2 * stage.halo + 21, 2 * stage.halo + 37), seed=cells)
     for origin in ORIGINS:
         if edges:        # an image that ends inside the window on every side
-            stage.image_shape = (x.shape[0] + origin[0] - 9, x.shape[1] + origin[1] - 6)
+            origin = Origin(*origin, image=(x.shape[0] + origin[0] - 9, x.shape[1] + origin[1] - 6))
         assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), f"{name} cells {cells} {origin}")
 
 
@@ -44,17 +45,17 @@ def test_gradient_is_continued_past_the_image_edges(rt) -> None:
     slope = np.array([0.004, 0.002, 0.001])
     ramps = 0.1 + slope[:, None, None] * yy + 0.5 * slope[:, None, None] * xx     # (3, H, W)
     mosaic_ = np.take_along_axis(ramps, cfa.channel_map(96, 80)[None].astype(np.intp), 0)[0]
-    stage = DemosaicFlat(cfa, image_shape=mosaic_.shape)
+    stage = DemosaicFlat(cfa)
     h = stage.halo
     padded = gather_window(mosaic_.astype(np.float32), -h, -h, 96 + 2 * h, 80 + 2 * h, cfa.period)
-    out = stage.reference(padded, (-h, -h))
+    origin = Origin(-h, -h, image=mosaic_.shape)
+    out = stage.reference(padded, origin)
     exact = np.moveaxis(ramps, 0, -1)
     np.testing.assert_allclose(out[1:-1, 1:-1], exact[1:-1, 1:-1], atol=1e-6)
     # the outermost pixels' 3 x 3 residual reads mirrored samples: at most half a pixel's step
     assert np.abs(out - exact).max() <= 0.5 * 0.004 + 1e-6
-    assert_close(run_stage(rt, stage, padded, (-h, -h)), out, "kernel at the edges")
-    stage.image_shape = None
-    biased = stage.reference(padded, (-h, -h))
+    assert_close(run_stage(rt, stage, padded, origin), out, "kernel at the edges")
+    biased = stage.reference(padded, (-h, -h))           # a bare origin: no image edges
     assert np.abs(biased - exact).max() > 0.01
 
 
@@ -94,13 +95,34 @@ def test_fine_luminance_kept_chroma_averaged() -> None:
     assert detail_channels(cfa).tolist() == [1, 1, 0]
 
 
-def test_tiled_equals_whole(rt) -> None:
+@pytest.mark.parametrize("tile", [64, 96])
+def test_tiled_equals_whole(rt, tile: int) -> None:
+    """With the image's edges (the planner's Origin), on tiles whose windows hold at least
+    min_inside_px of image where they meet an edge."""
     cfa = cfa_from_name("lms")
     pipeline = Pipeline(cfa, [DemosaicFlat(cfa)])
     x = mosaic((120, 152), seed=5)
     whole = pipeline.run(x, tile=0)
-    tiled = pipeline.run(x, tile=48)
-    assert_close(tiled, whole, "tiled vs whole")
+    tiled = pipeline.run(x, tile=tile)
+    assert_close(tiled, whole, f"tile {tile} vs whole")
+
+
+def test_narrow_edge_window_reads_only_its_cells(rt) -> None:
+    """A window that holds less image than min_inside_px at an edge (a last tile keeping 8 px):
+    the reflections are clamped to the window's cells inside the image, identically in the kernel
+    and the reference (no index past the grid), and the skip planner sends no such tile to the
+    flat path."""
+    from clisp.engine.tiling import Tile
+    from clisp.skip import PATH_FLAT, Skipper
+    cfa = cfa_from_name("lms")
+    stage = DemosaicFlat(cfa)
+    x = mosaic((2 * stage.halo + 48, 2 * stage.halo + 48), seed=7)
+    origin = Origin(144 - stage.halo, 144 - stage.halo, image=(152, 152))     # 8 px inside at the far edge
+    assert 152 - origin[1] < stage.min_inside_px
+    assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), "narrow edge window")
+    skipper = Skipper(None, [stage], {PATH_FLAT: [stage]}, image=(152, 152))
+    assert not skipper.flat_window_fits(Tile(144, 144, 8, 8), 48, 48)
+    assert skipper.flat_window_fits(Tile(96, 96, 48, 48), 48, 48)
 
 
 def test_cell_fits_every_cfa() -> None:

@@ -10,10 +10,10 @@ side. It has two faces with the same meaning:
 
 ``origin`` is the image coordinate of the input window's pixel (0, 0). It may be negative near the
 image edge: the tiler pads the raw input once (CFA-preserving mirror, see tiling.py), so a stage
-never special-cases borders and tiled output equals whole-image output. The image's extent belongs
-to the planners: a stage sees windows and origins only. The one stage with its own edge rule, the
-skip path's flat demosaic (point-reflected cells instead of mirrored pixels), is built by the skip
-planner (clisp/skip.py, which holds the raw) with the image's shape as a parameter.
+never special-cases borders and tiled output equals whole-image output. The image and its edges
+belong to the planner: it passes each window's ``origin`` as an :class:`Origin`, which also carries
+the whole image's (H, W), so a stage whose rule at the image's edges differs from the mirror
+padding (the flat demosaic's point-reflected cells) reads them there; no stage is built with them.
 """
 from __future__ import annotations
 
@@ -23,6 +23,36 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..engine.runtime import DeviceImage, Runtime
+
+
+class Origin(tuple):
+    """A window's origin: the image coordinate (y, x) of its pixel (0, 0), used as a plain 2-tuple,
+    and ``image``, the whole image's (H, W) as the planner knows it (None for a bare window, e.g. a
+    stage run by hand or the noise calibration's fields: no image edges).
+
+    >>> o = Origin(-8, 16, image=(100, 200))
+    >>> y, x = o
+    >>> (y, x, o.image, advance(o, 2), advance(o, 2).image)
+    (-8, 16, (100, 200), (-6, 18), (100, 200))
+    """
+
+    image: tuple[int, int] | None
+
+    def __new__(cls, y: int, x: int, image: tuple[int, int] | None = None) -> "Origin":
+        origin = super().__new__(cls, (int(y), int(x)))
+        origin.image = None if image is None else (int(image[0]), int(image[1]))
+        return origin
+
+
+def advance(origin: tuple[int, int], halo: int) -> tuple[int, int]:
+    """The origin of a stage's output window: ``origin`` moved in by ``halo`` on both axes, keeping
+    the image an :class:`Origin` carries."""
+    return Origin(origin[0] + halo, origin[1] + halo, image_extent(origin))
+
+
+def image_extent(origin: tuple[int, int]) -> tuple[int, int] | None:
+    """The whole image's (H, W) that ``origin`` carries (an :class:`Origin` from the planner), else None."""
+    return origin.image if isinstance(origin, Origin) else None
 
 
 class Stage(ABC):

@@ -33,7 +33,7 @@ __kernel void flat_cells(__global const float *restrict src, __global float *res
 
 /* reflect_term: term t of demosaic_flat.reflect_terms for index i about [first, last] with anchor
  * K: inside, one term (i, 1); outside, 2K + 2 terms: cells c - K .. c + K with 2 / (2K + 1), then
- * (2c - i, -1), c = first + K (or last - K). Returns the index, sets *w. */
+ * (2c - i clamped to first .. last, -1), c = first + K (or last - K). Returns the index, sets *w. */
 inline int reflect_term(const int i, const int first, const int last, const int k, const int t, float *w)
 {
     if (i >= first && i <= last) {
@@ -46,7 +46,7 @@ inline int reflect_term(const int i, const int first, const int last, const int 
         return c - k + t;
     }
     *w = -1.0f;
-    return 2 * c - i;
+    return clamp(2 * c - i, first, last);             /* a narrow window holds no cell beyond */
 }
 
 /* flat_reflect: dst = cells with every cell outside rows i0..i1 or columns j0..j1 (past the

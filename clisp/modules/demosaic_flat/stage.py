@@ -37,7 +37,7 @@ import numpy as np
 from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ..base import Stage, as_f32, image_extent
 from ..common.box import enqueue_box
 
 PLUS_CENTRE = 4.0
@@ -73,12 +73,14 @@ def anchor(first: int, last: int) -> int:
 
 def reflect_terms(i: int, first: int, last: int) -> list[tuple[int, float]]:
     """f'(i) = sum weight f(index) over the returned terms: f(i) for first <= i <= last, else the
-    point reflection 2 mean(f(c - K .. c + K)) - f(2 c - i) about c = first + K (or last - K)."""
+    point reflection 2 mean(f(c - K .. c + K)) - f(2 c - i) about c = first + K (or last - K), the
+    index 2 c - i clamped to first .. last (reached only by windows narrower than min_inside_px)."""
     if first <= i <= last:
         return [(i, 1.0)]
     k = anchor(first, last)
     c = first + k if i < first else last - k
-    return [(c + d, 2.0 / (2 * k + 1)) for d in range(-k, k + 1)] + [(2 * c - i, -1.0)]
+    mirror = min(max(2 * c - i, first), last)       # clamped: a narrow window holds no cell beyond
+    return [(c + d, 2.0 / (2 * k + 1)) for d in range(-k, k + 1)] + [(mirror, -1.0)]
 
 
 def reflect_cells(cells: np.ndarray, i0: int, i1: int, j0: int, j1: int) -> np.ndarray:
@@ -101,14 +103,14 @@ class DemosaicFlat(Stage):
     """H x W white-balanced mosaic -> (H - 2 halo) x (W - 2 halo) x n_channels camera image for
     tiles without detail (module doc). ``cells``: box radius Rc in cells (0: RADIUS_PX / CELL_PX);
     ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA kind);
-    ``image_shape``: (H, W) of the whole image, so that cells past its edges are point-reflected
-    (:func:`reflect_cells`) instead of read from the tiler's mirror padding (None: no image edges)."""
+    Cells past the image's edges are point-reflected (:func:`reflect_cells`) instead of read from
+    the tiler's mirror padding: the image's (H, W) comes with each window's origin
+    (:class:`clisp.modules.base.Origin`, from the planner); a bare (y, x) origin means no edges."""
 
     cfa: CFA
     cells: int = 0
     axial: float = -1.0
     diagonal: float = 0.0
-    image_shape: tuple[int, int] | None = None
     name = "demosaic_flat"
     in_channels = 1
     out_channels = 3
@@ -126,6 +128,15 @@ class DemosaicFlat(Stage):
     @property
     def halo(self) -> int:
         return (self.cells + 2) * CELL_PX
+
+    @property
+    def min_inside_px(self) -> int:
+        """Pixels of image a window must hold along an axis where it meets the image's edge, so
+        that the point reflection of every cell an output inside the image reads stays within the
+        window's cells inside the image: 2 ANCHOR + Rc + 2 whole cells, plus one for the cell grid's
+        alignment. Windows narrower than this get clamped reflections (the skip planner does not
+        send such tiles to the flat path)."""
+        return (2 * ANCHOR + self.cells + 3) * CELL_PX
 
     @property
     def cell_pattern(self) -> np.ndarray:
@@ -156,11 +167,12 @@ class DemosaicFlat(Stage):
 
     def inside(self, h: int, w: int, origin: tuple[int, int]) -> tuple[int, int, int, int]:
         """(i0, i1, j0, j1): the first and last cell rows and columns of the window's cell grid that
-        lie wholly inside the image (the whole grid without ``image_shape``)."""
+        lie wholly inside the image (the whole grid where ``origin`` carries no image)."""
         ay, ax, cy, cx = self.grid(h, w, origin)
-        if self.image_shape is None:
+        image = image_extent(origin)
+        if image is None:
             return 0, cy - 1, 0, cx - 1
-        (ih, iw), s = self.image_shape, CELL_PX
+        (ih, iw), s = image, CELL_PX
         i0, j0 = max(0, -(-(-origin[0] - ay) // s)), max(0, -(-(-origin[1] - ax) // s))
         i1 = min(cy, (ih - origin[0] - ay) // s) - 1
         j1 = min(cx, (iw - origin[1] - ax) // s) - 1
