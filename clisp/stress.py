@@ -46,7 +46,7 @@ suite's rule of tests/tolerance.py). The linear stages keep the suite's 1e-5; st
 by a local variance (guided filters, LMMSE weights) or pick a direction from a comparison of
 nearly equal gradients get 1e-3: on a constant image their variance is zero to float64 but a few
 ulps to float32, which moves an edge-aware weight by that much; tone_curve's 1e-4 is its
-polynomial sRGB curve (tests/test_kernels). Measured worsts are in docs/stress.md."""
+polynomial sRGB curve (tests/modules/test_kernels). Measured worsts are in docs/stress.md."""
 
 DIVERGENCE: dict[tuple[str, str], float] = {
     ("demosaic_ari", "wb_extreme"): 0.2,

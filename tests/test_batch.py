@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import REPO
 from clisp.batch import BatchSettings, read_manifest, run_batch
 from clisp.io.imageio import read_image
 from clisp.io.rawfile import write_raw
@@ -25,7 +26,7 @@ from clisp.sim.simulate import simulate
 pytest.importorskip("distributed")
 
 START, RESULTS, CLI_LIMIT = 60.0, 120.0, 150.0
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 def make_raws(folder: Path, count: int, shape: tuple[int, int], corrupt: bool = True) -> list[Path]:

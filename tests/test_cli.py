@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import CAMERA_RAWS
 import clisp
 from clisp.sim.charts import demo_chart
 from clisp.cli import main
@@ -18,7 +19,6 @@ from clisp.metrics import psnr
 from clisp.pipeline import crop_of
 from clisp.io.rawfile import read_raw
 
-CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 
 
 @pytest.fixture(scope="module")

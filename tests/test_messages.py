@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import CAMERA_RAWS, DOCS
 from clisp.cli import main
 from clisp.errors import MAX_MESSAGE, ClispError
 from clisp.io.imageio import write_image
 from clisp.io.rawfile import write_raw
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "messages.md"
-CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
+DOC = DOCS / "messages.md"
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ than clip or any pixel over 1.0 off (issue 25's acceptance). ``--csv`` writes ev
 ``--accept``: issue 14's acceptance figures instead, at gain 1, for clip and reconstruct, LMS and
 Bayer: the worst 16 px block chroma of a neutral ramp from 0.2 to 4 (48 x 384 px) and of blown white
 lamps (a hard-edged disc of radius 30 px and the soft-edged lamp above, 128 px), and the largest fall
-of the ramp's column brightness as the scene brightens (the scenes of tests/test_highlights.py).
+of the ramp's column brightness as the scene brightens (the scenes of tests/modules/test_highlights.py).
 
 Usage: python tools/bench_highlights.py [--size 192] [--no-libraw] [--accept]
        python tools/bench_highlights.py --natural [--data DIR] [--only kodim23] [--csv PATH] [--no-libraw]

@@ -6,7 +6,7 @@
  * the bracket a degree-6 polynomial in m (SRGB_M*), and 2^(e/2.4) = 2^n 2^f with n = floor(e/2.4),
  * 2^f a degree-5 polynomial (SRGB_F*) and 2^n from the exponent bits. Coefficients come from the
  * host (clisp.sim.colorimetry.srgb_poly_defines); the curve is within 0.02 of a 16-bit code over every
- * float in [threshold, 1] (tests/test_kernels.py). Needs the SRGB_* defines of SRGB_ENCODING too. */
+ * float in [threshold, 1] (tests/modules/test_kernels.py). Needs the SRGB_* defines of SRGB_ENCODING too. */
 
 /* encode_srgb: clip to [0, 1], then the sRGB transfer function. */
 inline float encode_srgb(const float x)

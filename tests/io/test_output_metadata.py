@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from paths import CAMERA_RAWS
 import clisp
 from clisp.io import rawfile
 from clisp.io.camera import visible_crop
@@ -26,7 +27,6 @@ from clisp.pipeline import crop_of, process_file
 from clisp.io.rawfile import read_raw, write_raw
 from clisp.io.rawimage import RawImage
 
-CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 
 RAW_SHAPE = (40, 64)
 ACTIVE_AREA = (2, 4, 38, 60)            # top, left, bottom, right: a 36 x 56 visible mosaic

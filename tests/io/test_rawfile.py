@@ -8,6 +8,7 @@ import pytest
 import rawpy
 import tifffile
 
+from paths import CAMERA_RAWS
 from clisp.io import rawfile
 from clisp.io.camera import channel_values, pick_colour_matrix, pick_wb, rgb_cam_from_cam_xyz, visible_pattern
 from clisp.cfa import BAYER_PHASES, CFA, bayer_cfa, cfa_from_pattern, lms_cfa
@@ -16,7 +17,7 @@ from clisp.errors import ClispError
 from clisp.io.rawfile import raw_info, read_raw, write_raw
 from clisp.io.rawimage import RawImage
 
-CAMERA_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "raw"
+CAMERA_DIR = CAMERA_RAWS
 
 # name -> (cfa name, visible (H, W), black level, white level)
 CAMERA_FILES = {

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import csv
 import sys
-from pathlib import Path
 
 import numpy as np
 
 
-TOOLS = Path(__file__).resolve().parents[1] / "tools"
+from paths import TOOLS
+
 sys.path.insert(0, str(TOOLS))
 
 import bench  # noqa: E402  (tools/ is not a package)

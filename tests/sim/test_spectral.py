@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from paths import SHARED_DATA
 import clisp
 from clisp.sim.colorimetry import P_LMS
 from clisp.errors import ClispError
@@ -58,7 +59,7 @@ def test_noisy_and_reproducible() -> None:
     assert a.raw.metadata["scene"].startswith("spectral colorchecker")
 
 
-ISETCAM = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
+ISETCAM = SHARED_DATA
 
 
 @pytest.mark.skipif(not (ISETCAM / "spectral" / "isetcam" / "macbethChart.mat").is_file(),

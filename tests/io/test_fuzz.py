@@ -9,7 +9,7 @@ characters (as the CLI prints it) naming the file; a raw that is accepted proces
 pixels; no input hangs (a watchdog ends the run after HANG_S on one input) and none allocates
 beyond a bound (the process's peak RSS growth and the worst Python/NumPy peak per input are
 asserted and reported). The default run tries a few hundred inputs; ``pytest -m stress -s`` tries
-more than 10,000 and prints the figures (tests/test_fuzz.py::test_fuzz_report).
+more than 10,000 and prints the figures (tests/io/test_fuzz.py::test_fuzz_report).
 """
 from __future__ import annotations
 
@@ -26,12 +26,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from paths import CAMERA_RAWS
 from clisp.errors import MAX_MESSAGE, ClispError, error_line
 from clisp.io.imageio import read_scene, write_image
 from clisp.pipeline import build_pipeline
 from clisp.io.rawfile import PRIVATE_PREFIX, raw_info, read_raw, write_raw
 
-CAMERA_RAWS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw"
 
 HANG_S = 60
 """An input still running after this many seconds counts as a hang (the watchdog dumps the

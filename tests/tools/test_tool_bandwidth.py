@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+from paths import TOOLS
+
+sys.path.insert(0, str(TOOLS))
 
 import bench_bandwidth  # noqa: E402  (tools/ is not a package)
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from paths import TOOLS
 from clisp.cfa import BAYER_PHASES, bayer_cfa
 from clisp.sim.charts import dead_leaves
 from clisp.sim.colorimetry import srgb_encode
@@ -147,7 +148,7 @@ def test_study_libraw_harness_matches_bilinear(tmp_path):
     equals bilinear in the interior), also for an image darker than LibRaw's auto-maximum threshold."""
     import sys
     from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    sys.path.insert(0, str(TOOLS))
     import demosaic_study  # noqa: E402  (tools/ is not a package)
 
     libraw = demosaic_study.LibRaw(tmp_path)
