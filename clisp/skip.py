@@ -192,7 +192,7 @@ def light_denoiser(stage: Any, levels: int = LIGHT_LEVELS) -> Any:
 
 def flat_demosaic(cfa: Any) -> Any:
     """The flat path's DemosaicFlat for ``cfa``, or None where it does not apply (not 3 channels).
-    It reads the image's edges from each window's origin (clisp.modules.base.Origin)."""
+    It reads the image's edges from each window's origin (clisp.engine.stage.Origin)."""
     try:
         return DemosaicFlat(cfa)
     except ClispError:

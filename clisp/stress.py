@@ -5,7 +5,7 @@ Every case is a small :class:`~clisp.io.rawimage.RawImage` built in code and a s
 correct outcome is: ``"finite"`` (the pipeline runs, every output pixel is finite and each stage's
 kernel equals its reference within :data:`STAGE_TOL`), or ``"error"`` (a ClispError naming the
 raw, raised before anything is computed). :func:`stage_errors` measures the per-stage error the
-way the stage contract defines it (modules/base.py): both faces get the *same* input, the
+way the stage contract defines it (clisp/engine/stage.py): both faces get the *same* input, the
 reference's float64 output of the stage before, cast to float32 for the kernel, so an error is
 the stage's own and not carried in from upstream. The tests (tests/test_stress.py) assert the
 bounds; ``tools/stress_table.py`` prints the worst error per stage and case (docs/stress.md).

@@ -263,7 +263,7 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     did not gather windows itself: file raws, unaligned arrays)."""
     import gc
     import weakref
-    import clisp.pipeline as pipeline_module
+    import clisp.engine.executor as pipeline_module
     from clisp.engine.runtime import get_runtime
     from clisp.engine.streaming import ArrayWindows
     rt = get_runtime()

@@ -44,7 +44,7 @@ from clisp.cfa import bayer_cfa
 from clisp.io.imageio import read_scene
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
-from clisp.modules.base import Stage
+from clisp.engine.stage import Stage
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 from clisp.modules.demosaic_malvar.stage import DemosaicMalvar

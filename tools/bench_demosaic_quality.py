@@ -64,7 +64,7 @@ from clisp.pipeline import DEMOSAICS, Pipeline, build_pipeline, make_demosaic
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
-from clisp.modules.base import Stage
+from clisp.engine.stage import Stage
 
 SETTINGS = {"noiseless": (None, "airy"), "noiseless-sharp": (None, "none"),
             "4": (4.0, "airy"), "16": (16.0, "airy"), "64": (64.0, "airy")}

@@ -57,7 +57,7 @@ from clisp.pipeline import DEMOSAICS, Pipeline
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
-from clisp.modules.base import Stage
+from clisp.engine.stage import Stage
 from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
                                          space_for)
 from clisp.modules.colour.stage import ColourMatrix

@@ -28,7 +28,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.io.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.io.rawimage import RawImage
 from clisp.sim.simulate import mirror_repeat_index, simulate, simulate_large
-from clisp.modules.base import Stage
+from clisp.engine.stage import Stage
 import clisp.engine.streaming
 from clisp.engine.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
 from clisp.engine.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan

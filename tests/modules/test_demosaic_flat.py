@@ -10,7 +10,7 @@ import pytest
 
 from clisp.cfa import cfa_from_name
 from clisp.pipeline import Pipeline
-from clisp.modules.base import Origin
+from clisp.engine.stage import Origin
 from clisp.modules.demosaic_flat.stage import CELL_PX, DemosaicFlat, detail_channels
 from test_kernels import run_stage
 from tolerance import assert_close

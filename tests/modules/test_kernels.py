@@ -16,7 +16,7 @@ from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
 from clisp.io.rawimage import RawImage
 from clisp.engine.runtime import DeviceImage
-from clisp.modules.base import fuse_stages
+from clisp.engine.stage import fuse_stages
 from clisp.modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.linear_filter import stage as linear_filter

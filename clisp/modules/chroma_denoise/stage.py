@@ -66,7 +66,7 @@ import numpy as np
 from ...errors import ClispError
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix
 
 BT601 = np.array([0.299, 0.587, 0.114])

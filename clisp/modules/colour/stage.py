@@ -13,7 +13,7 @@ import numpy as np
 
 from ...sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 
 
 @dataclass

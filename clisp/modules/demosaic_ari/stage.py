@@ -30,7 +30,7 @@ from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from .reference import (CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, EPS, KINDS, LAPLACIAN, PHASES, RB_KINDS,
                         RMSE_FLOOR, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
-from ..base import Stage
+from ...engine.stage import Stage
 from ..demosaic_malvar.stage import check_bayer
 from ..common.box import enqueue_box
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime
-from ..base import Stage
+from ...engine.stage import Stage
 from ..linear_filter.stage import LinearPhaseFilter, tap_channels, tap_offsets
 
 

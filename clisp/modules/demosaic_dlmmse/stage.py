@@ -44,7 +44,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix
 from ..demosaic_malvar.stage import check_bayer
 

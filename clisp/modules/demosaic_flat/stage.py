@@ -37,7 +37,7 @@ import numpy as np
 from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32, image_extent
+from ...engine.stage import Stage, as_f32, image_extent
 from ..common.box import enqueue_box
 
 PLUS_CENTRE = 4.0
@@ -105,7 +105,7 @@ class DemosaicFlat(Stage):
     ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA kind);
     Cells past the image's edges are point-reflected (:func:`reflect_cells`) instead of read from
     the tiler's mirror padding: the image's (H, W) comes with each window's origin
-    (:class:`clisp.modules.base.Origin`, from the planner); a bare (y, x) origin means no edges."""
+    (:class:`clisp.engine.stage.Origin`, from the planner); a bare (y, x) origin means no edges."""
 
     cfa: CFA
     cells: int = 0

@@ -73,7 +73,7 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...sim.noise import NOISELESS, ChannelNoise
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..common.guided_filter import MASK_S, enqueue_guided_filter, guided_filter
 from ..common.lms import (NoiseFromRaw, binomial, check_lms_structure, correlate_valid, diamond_halfband,
                          lattice_shift, valid)

@@ -92,7 +92,7 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...sim.noise import NOISELESS, ChannelNoise
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..common.box import enqueue_box
 from ..colour.stage import camera_neutral
 from ..common.guided_filter import (MASK_ALL, MASK_S, enqueue_guided_filter, enqueue_guided_pair,

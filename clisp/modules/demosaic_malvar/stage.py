@@ -33,7 +33,7 @@ import numpy as np
 from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime
-from ..base import Stage
+from ...engine.stage import Stage
 from ..linear_filter.stage import LinearPhaseFilter, tap_channels, tap_offsets
 
 R, G, B = 0, 1, 2

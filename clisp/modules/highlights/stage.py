@@ -77,7 +77,7 @@ import numpy as np
 from ...errors import ClispError
 from ...noise_estimate import CLIP_FRACTION
 from ...engine.runtime import DeviceImage, Runtime
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, camera_neutral
 
 MODES = ("clip", "reconstruct", "clamp", "off")

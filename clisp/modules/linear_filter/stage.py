@@ -22,7 +22,7 @@ import numpy as np
 from ...cfa import CFA
 from ...sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, ToneCurve, srgb_source
 
 

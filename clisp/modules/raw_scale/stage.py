@@ -11,7 +11,7 @@ import numpy as np
 
 from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
-from ..base import Stage, as_f32
+from ...engine.stage import Stage, as_f32
 
 
 @dataclass

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..engine.runtime import DeviceImage, Runtime
+from .runtime import DeviceImage, Runtime
 
 
 class Origin(tuple):

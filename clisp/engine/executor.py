@@ -1,0 +1,380 @@
+"""The executor: a list of stages run over tiles, on OpenCL or the NumPy reference.
+
+:class:`Pipeline` holds the stages; :meth:`Pipeline.plan` sizes the tiles from the stages' declared
+needs and the memory budget (clisp.engine.tiling), :meth:`Pipeline.stream` runs them window by
+window (clisp.engine.streaming), each window's stages enqueued one after another on the device
+with no host round trip, and each window's origin passed as an Origin that carries the image's
+extent (the planner alone knows the image). Which stages a raw gets is clisp.pipeline's.
+"""
+from __future__ import annotations
+
+import math
+import time
+from contextlib import closing
+from dataclasses import dataclass, field, replace
+from functools import partial
+from typing import Any, Callable
+
+import numpy as np
+
+from ..cfa import CFA
+from ..errors import ClispError
+from .profile import host_timer, stage_label
+from .runtime import DeviceImage, get_runtime
+from .stage import Origin, Stage, advance, fuse_stages
+from .streaming import READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
+from .tiling import DEVICE_SHARE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
+
+DEFAULT_BUDGET = 2**30
+"""Memory budget in bytes. ``clisp process --mem`` / :func:`process_file`: the peak resident set
+of the whole process (clisp.engine.memory). :meth:`Pipeline.run` (the in-memory API): the host and device
+buffers of the tiles in flight, not the interpreter or the output array."""
+
+TILES_IN_FLIGHT = 3
+"""Host copies of a tile's window and result alive at once: one being read or written, one
+being computed, one queued (see streaming.run_tiles). For the per-pixel estimate (reference)."""
+
+READ_WINDOWS = READ_AHEAD + 3
+"""Raw windows alive on the host at once (Pipeline.tile_cost): two tiles in flight (a device that
+shares host memory reads them in place), READ_AHEAD read ahead (streaming.WindowPool), and the
+block a file source reads rows into before gathering them."""
+
+SINK_BANDS = 2
+"""Output band buffers of a streamed file (streaming.BandSink's rotation)."""
+
+WRITER_ROWS = 2 * 128
+"""Rows of float32 the writer converts at once (imageio.WRITE_ROWS), counted twice for the
+library's own copy."""
+
+
+@dataclass
+class RunStats:
+    """Wall time of the last run, its throughput in megapixels per second and its tiling."""
+
+    seconds: float = 0.0
+    megapixels: float = 0.0
+    tiles: int = 0
+    tile_shape: tuple[int, int] = (0, 0)
+
+    @property
+    def mp_per_s(self) -> float:
+        return self.megapixels / self.seconds if self.seconds > 0 else float("nan")
+
+
+@dataclass
+class Pipeline:
+    """Stages applied in order to a raw mosaic; the first stage reads raw DN, the last writes RGB."""
+
+    cfa: CFA
+    stages: list[Stage]
+    stats: RunStats = field(default_factory=RunStats)
+    skipper: Any = None
+    """A clisp.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
+    skip_plan: Any = None
+    """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
+
+    @property
+    def halo(self) -> int:
+        """Total input border one output pixel needs (sum of the stage halos)."""
+        return sum(stage.halo for stage in self.stages)
+
+    @property
+    def align(self) -> int:
+        """Tile-origin multiple: the CFA period and every stage's alignment."""
+        return math.lcm(self.cfa.period, *(stage.align for stage in self.stages))
+
+    @property
+    def out_channels(self) -> int:
+        return self.stages[-1].out_channels
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        """float32, or uint16 when the pipeline ends in 16-bit codes (output 'srgb16')."""
+        return self.stages[-1].out_dtype
+
+    def describe(self) -> str:
+        return " -> ".join(stage.name for stage in self.stages)
+
+    def needs(self, raw_dtype: Any) -> TileNeeds:
+        """The planner's numbers for raw input of ``raw_dtype`` (B/px of the input window).
+
+        Device: the raw, every stage's declared buffers (all stay pooled; the unfused sum bounds
+        the fused schedule) and an interleaved result. Host: TILES_IN_FLIGHT windows and results.
+        """
+        raw_bytes = float(np.dtype(raw_dtype).itemsize)
+        out_bytes = float(self.out_dtype.itemsize * self.out_channels)
+        stage_bytes = [float(stage.bytes_per_pixel) for stage in self.stages]
+        return TileNeeds(halo=self.halo, align=self.align,
+                         device_bytes=raw_bytes + sum(stage_bytes) + out_bytes,
+                         host_bytes=TILES_IN_FLIGHT * (raw_bytes + out_bytes),
+                         largest_bytes=max(stage_bytes + [raw_bytes, out_bytes]))
+
+    def plan(self, shape: tuple[int, int], raw_dtype: Any, tile: int | None = None,
+             budget: int = DEFAULT_BUDGET, backend: str = "opencl", sink_bands: bool = False) -> TilePlan:
+        """Tiles for an H x W raw: ``tile`` None = from ``budget`` (bytes for the tiles in flight)
+        and the device's limits, 0 = the whole image, N = N x N (see tiling.make_plan).
+
+        On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
+        count the band buffers and writer rows of a streamed output file (process_file)."""
+        limits = device_limits(backend)
+        needs = self.needs(raw_dtype)
+        if backend == "opencl":
+            needs = replace(needs, cost=self.tile_cost(raw_dtype, shape[1], limits, sink_bands))
+        return make_plan(shape[0], shape[1], needs, tile, budget, limits)
+
+    def tile_cost(self, raw_dtype: Any, image_width: int, limits: DeviceLimits,
+                  sink_bands: bool) -> Callable[[int, int], float]:
+        """Bytes one tile of (rows, columns) output pixels takes while it runs, as a function:
+        its device buffers, measured by enqueueing the tile's schedule in a metering run (exact,
+        whatever the stages allocate), counted as host memory when the device shares it (a CPU
+        device: PoCL's buffers are resident pages of this process); READ_WINDOWS raw windows; with
+        ``sink_bands`` SINK_BANDS output bands of the image's width and the writer's converted rows.
+        inf past DEVICE_SHARE of the device's memory or its largest allocation."""
+        rt = get_runtime()
+        schedule = self.schedule()
+        shared = rt.host_unified or bool(rt.device.type & rt.cl.device_type.CPU)
+        raw_item = np.dtype(raw_dtype).itemsize
+        out_px = self.out_channels * self.out_dtype.itemsize
+        halo = self.halo
+        metered: dict[tuple[int, int], tuple[int, int]] = {}
+
+        def cost(rows: int, cols: int) -> float:
+            window = (rows + 2 * halo, cols + 2 * halo)
+            if window not in metered:
+                metered[window] = self.metered_tile(schedule, window, raw_dtype)
+            created, largest = metered[window]
+            if (limits.global_mem and created > DEVICE_SHARE * limits.global_mem) or \
+                    (limits.max_alloc and largest > limits.max_alloc):
+                return math.inf
+            host = READ_WINDOWS * window[0] * window[1] * raw_item
+            if sink_bands:
+                host += SINK_BANDS * rows * image_width * out_px + WRITER_ROWS * image_width * self.out_channels * 4
+            return host + (created if shared else 0)
+        return cost
+
+    def metered_tile(self, schedule: list[Stage], window: tuple[int, int], raw_dtype: Any) -> tuple[int, int]:
+        """(bytes of all device buffers, bytes of the largest) that one tile of input ``window``
+        (rows, columns) creates, from a metering run of :meth:`_enqueue_tile` (nothing runs).
+        Where the device gathers windows from an in-memory mosaic (Runtime.gather_window) each
+        tile has one pooled input window, not counted here, but the host then takes none of the
+        READ_WINDOWS windows the memory plan counts: the plan errs on the safe side."""
+        rt = get_runtime()
+        with rt.metering() as meter:
+            if rt.host_unified and np.dtype(raw_dtype) in (np.uint16, np.float32):
+                src = DeviceImage(None, 1, window[0], window[1], np.dtype(raw_dtype),
+                                  host=np.empty(0, raw_dtype))   # read in place (Runtime.host_input)
+            else:
+                src = rt.acquire(1, window[0], window[1], raw_dtype)
+            rt.release(self._enqueue_tile(rt, schedule, src, (0, 0)))
+        return meter.created, meter.largest
+
+    def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
+            fuse: bool = True, budget: int = DEFAULT_BUDGET) -> np.ndarray:
+        """Process an H x W raw mosaic (DN, uint16 or float32) into H x W x 3 float32 (uint16
+        for a pipeline built with output 'srgb16').
+
+        ``tile``: output tile side in pixels; None (default) chooses tiles from ``budget`` (bytes)
+        and the device's limits, 0 runs the whole image as one tile.
+        ``backend``: 'opencl' (kernels) or 'reference' (NumPy, float64 inside, stage by stage).
+        ``fuse``: on OpenCL, merge neighbouring stages that compose (e.g. normalise, WB 1, bilinear
+        demosaic and colour matrix become one kernel); False runs one kernel per stage.
+        A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
+        """
+        self._check(data.shape, backend)
+        out = np.empty((data.shape[0], data.shape[1], self.out_channels), dtype=self.out_dtype)
+        plan = self.plan(data.shape, data.dtype, tile, budget, backend)
+        with closing(window_source(data)) as source:
+            self.stream(source, ArraySink(out), plan, backend, fuse)
+        return out
+
+    def stream(self, source: WindowSource, sink: TileSink, plan: TilePlan, backend: str = "opencl",
+               fuse: bool = True, progress: Callable[[Tile], None] | None = None) -> RunStats:
+        """Run ``plan`` from ``source`` into ``sink`` (see streaming.run_tiles); sets and returns
+        :attr:`stats`."""
+        self._check(source.shape, backend)
+        image = (int(source.shape[0]), int(source.shape[1]))     # the planner's alone; stages get it per window
+        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        whole = self._device_source(source) if backend == "opencl" else None
+        if backend == "opencl":                      # halo passed on: stages recompute it per call
+            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
+            compute = partial(self._compute_opencl, self.schedule(fuse), halo, whole=whole,
+                              window_shape=(win_h, win_w), image=image)
+        else:
+            compute = partial(self._compute_reference, halo, image=image)
+
+        if self.skipper is not None:                 # per-tile paths (clisp.skip)
+            compute = self._path_compute(plan, backend, fuse, whole, compute, image)
+
+        windows = WindowPool()
+
+        def read(t: Tile) -> np.ndarray | None:
+            if whole is not None:                    # the device gathers the window itself
+                return None
+            with host_timer("read tile windows"):
+                return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period,
+                                   windows.take((win_h, win_w), source.window_dtype))
+
+        start = time.perf_counter()
+        try:
+            run_tiles(plan, read, compute, sink, progress, release=None if whole is not None else windows.give)
+        finally:
+            if backend == "opencl":
+                get_runtime().queue.finish()          # no copy may still target the sink's arrays
+        height, width = source.shape
+        self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
+                              (plan.tile_h, plan.tile_w))
+        return self.stats
+
+    def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,
+                      full: Callable[..., Any], image: tuple[int, int]) -> Callable[..., Any]:
+        """The compute step of :meth:`stream` choosing each tile's path from the skipper's plan
+        (sets :attr:`skip_plan`). A path with a smaller halo runs on the centre of the tile's
+        window (its origin moves in by the difference), so every path sees the image's pixels
+        at the same coordinates and tiled equals whole per path."""
+        skipper = self.skipper
+        self.skip_plan = skip_plan = skipper.plan(plan)
+        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        computes: dict[str, Callable[..., Any]] = {"full": full}
+        for name in set(skip_plan.counts) - {"full"}:
+            sub = Pipeline(self.cfa, skipper.paths[name])
+            d, h = halo - sub.halo, sub.halo
+            if backend == "opencl":
+                run = partial(sub._compute_opencl, sub.schedule(fuse), h, whole=whole,
+                              window_shape=(win_h - 2 * d, win_w - 2 * d), image=image)
+            else:
+                run = partial(sub._compute_reference, h, image=image)
+
+            def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
+                     d: int = d) -> Any:
+                if window is None:
+                    return run(t, window, target)
+                inner = np.ascontiguousarray(window[d:window.shape[0] - d, d:window.shape[1] - d])
+                # the device may read ``inner`` in place (or copy it asynchronously) until the tile's
+                # event: keep it alive with the event, not only for this call
+                return KeepAlive(run(t, inner, target), inner)
+            computes[name] = crop
+        return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
+
+    def _check(self, shape: tuple[int, ...], backend: str) -> None:
+        if backend not in ("opencl", "reference"):
+            raise ClispError(f"unknown backend {backend!r}; expected opencl or reference")
+        if len(shape) != 2:
+            raise ClispError(f"raw data must be H x W, got shape {tuple(shape)}")
+        if min(shape) < self.cfa.period:
+            raise ClispError(f"raw of {shape[1]}x{shape[0]} is smaller than one CFA tile")
+
+    def _compute_reference(self, halo: int, t: Tile, window: np.ndarray,
+                           target: tuple[np.ndarray, int, int], image: tuple[int, int] | None = None) -> None:
+        """The NumPy stages on the tile's own window (the plan's may reach past the image);
+        ``image``: the whole image's (H, W), passed to the stages with each window's Origin."""
+        x, origin = window[:t.h + 2 * halo, :t.w + 2 * halo], Origin(t.y0 - halo, t.x0 - halo, image)
+        for stage in self.stages:
+            x = stage.reference(x, origin)
+            origin = advance(origin, stage.halo)
+        host, y, x0 = target
+        host[y:y + t.h, x0:x0 + t.w] = x
+        return None
+
+    def schedule(self, fuse: bool = True) -> list[Stage]:
+        """The stages as run on OpenCL: fused where they compose, the last one writing the host's
+        interleaved layout when it can."""
+        schedule = fuse_stages(self.stages) if fuse else list(self.stages)
+        last = schedule[-1].with_interleaved_output()
+        if last is not None:
+            schedule[-1] = last
+        return schedule
+
+    @staticmethod
+    def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int],
+                      into: tuple[np.ndarray, int] | None = None) -> Any:
+        """Enqueue every stage of ``schedule`` on the uploaded window ``src`` (released on the
+        way); returns the interleaved result. ``into``: (host band array, first row): where the
+        last stage may write its whole output itself (Runtime.host_image), which spares the
+        download; the result then has ``host`` set."""
+        for i, stage in enumerate(schedule):
+            stage_label(stage.name)
+            out = None
+            if into is not None and i == len(schedule) - 1:
+                out = Pipeline._host_output(rt, stage, src, *into)
+            dst = stage.enqueue(rt, src, origin) if out is None else stage.enqueue(rt, src, origin, out=out)
+            rt.release(src)
+            src, origin = dst, advance(origin, stage.halo)
+        if not src.interleaved:
+            planar, src = src, rt.interleave(src)
+            rt.release(planar)
+        return src
+
+    @staticmethod
+    def _host_output(rt: Any, stage: Stage, src: Any, host: np.ndarray, y: int) -> Any:
+        """A host image over ``host[y:y + h]`` for ``stage``'s whole h x w output, when the stage
+        can write into one, its output is interleaved and as wide as the band, and the rows fit
+        (a last ragged tile's extra rows land in the band's spare rows, never past it)."""
+        if not (stage.writes_into and stage.interleaved):
+            return None
+        h, w = stage.output_shape(src.height, src.width)
+        if host.ndim != 3 or host.shape[1] != w or host.shape[2] != stage.out_channels \
+                or host.dtype != stage.out_dtype or y + h > host.shape[0]:
+            return None
+        return rt.host_image(host[y:y + h])
+
+    @staticmethod
+    def _device_source(source: WindowSource) -> Any:
+        """A device image over the whole mosaic of an in-memory source that the device reads in
+        place (Runtime.host_source: a device sharing host memory, an aligned uint16 or float32
+        array), so that each tile's window is gathered by the device (Runtime.gather_window), not
+        copied by the host; None otherwise (files, discrete GPUs, other dtypes)."""
+        if not isinstance(source, ArrayWindows) or source.data.dtype not in (np.uint16, np.float32):
+            return None
+        return get_runtime().host_source(source.data)
+
+    def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray | None,
+                        target: tuple[np.ndarray, int, int], whole: Any = None,
+                        window_shape: tuple[int, int] = (0, 0), image: tuple[int, int] | None = None) -> Any:
+        """Enqueue one window's upload (none where the device reads the window in place; where
+        ``window`` is None, the device gathers the ``window_shape`` window from ``whole``, its view
+        of the whole mosaic), every stage and the download of the kept pixels into ``target`` (or,
+        where the last stage wrote into the target itself, what makes those pixels readable);
+        returns that event, after which nothing reads the window (nothing waits here: no host
+        round trip). ``image``: the whole image's (H, W), passed with each window's Origin."""
+        rt = get_runtime()
+        stage_label("upload")
+        origin = Origin(t.y0 - halo, t.x0 - halo, image)
+        if window is None:
+            src = rt.gather_window(whole, *origin, *window_shape, self.cfa.period)
+        else:
+            if window.dtype not in (np.uint16, np.float32):
+                window = window.astype(np.float32)
+            src = rt.host_input(window) or rt.upload(window)       # in place where the device can
+        host, y, x = target
+        into = (host, y) if x == 0 and t.w == host.shape[1] else None
+        src = self._enqueue_tile(rt, schedule, src, origin, into)
+        stage_label("download")
+        if src.host is not None:
+            event = rt.settle_host_image(src)
+        else:
+            event = rt.download_region(src, host, y, x, t.h, t.w)
+            rt.release(src)                           # the in-order queue copies before reuse
+        rt.queue.flush()
+        return event
+
+
+class KeepAlive:
+    """A tile's event that also holds host arrays the device reads until it completes (a window
+    made for one call, e.g. a path's cropped window): ``wait()`` waits for the event, then lets
+    them go."""
+
+    def __init__(self, event: Any, *arrays: np.ndarray) -> None:
+        self.event, self.arrays = event, arrays
+
+    def wait(self) -> None:
+        if self.event is not None:
+            self.event.wait()
+        self.arrays = ()
+
+
+def device_limits(backend: str) -> DeviceLimits:
+    """The OpenCL device's memory limits (none for the NumPy reference)."""
+    if backend != "opencl":
+        return DeviceLimits()
+    device = get_runtime().device
+    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
