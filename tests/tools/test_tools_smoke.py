@@ -170,3 +170,10 @@ def test_bench_highlights_own_photos_and_gross_errors():
     out = truth.copy()
     out[0, 0, 1], out[1, 1, 2] = 0.6, -0.4
     assert gross_errors(out, truth) == (1, 0.6)
+
+
+def test_layout_sources_check(capsys):
+    """tools/check_layout.py sources: no OpenCL source keeps a default for a host constant (#ifndef)
+    and every function-level import in clisp/ says why it waits (issue 26); fails on either."""
+    import check_layout
+    assert check_layout.main(["sources"]) == 0, capsys.readouterr().out
