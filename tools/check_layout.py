@@ -6,6 +6,8 @@
     python tools/check_layout.py sources                  # #ifndef host-constant defaults; uncommented function-level imports
     python tools/check_layout.py hashes --baseline DIR    # outputs' pixel hashes, every preset, vs DIR's
 
+Child processes run in a neutral folder: `python -m clisp` and `python -c` put the working
+directory first on sys.path, where this checkout's clisp would shadow the baseline's.
 ``hashes`` processes simulated LMS and Bayer raws (from Kodak images), the Canon D30 CRW tiled to
 24 MP as a clisp DNG (as tools/bench_peers.py builds it) and the 550D DNG with every preset and a
 few options (ARI, Malvar, hybrid, a forced 96 px tile, clipped highlights), once with this checkout
@@ -56,13 +58,14 @@ def check_startup(baseline: Path | None, repeat: int) -> int:
     for _ in range(repeat):
         for tree in trees:
             start = time.perf_counter()
-            subprocess.run([sys.executable, "-c", "import clisp.cli"], env=toolkit.repo_env(tree), check=True)
+            subprocess.run([sys.executable, "-c", "import clisp.cli"], env=toolkit.repo_env(tree), check=True,
+                           cwd=toolkit.NEUTRAL_CWD)
             times[tree].append(time.perf_counter() - start)
     probe = f"import sys, clisp.cli; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
     bad = 0
     for tree in trees:
         loaded = subprocess.run([sys.executable, "-c", probe], env=toolkit.repo_env(tree), check=True,
-                                capture_output=True, text=True).stdout.split()
+                                capture_output=True, text=True, cwd=toolkit.NEUTRAL_CWD).stdout.split()
         bad += tree == REPO and any(m in loaded for m in HEAVY[:5])
         t = sorted(times[tree])
         print(f"{toolkit.git_rev(tree)}: import clisp.cli best {t[0] * 1e3:.0f} ms, median "
@@ -151,7 +154,8 @@ def hash_runs(data: Path, work: Path) -> list[tuple[str, list[str]]]:
     for name, (scene, cfa, gain, seed) in sims.items():
         if not (work / name).exists():
             subprocess.run(toolkit.clisp_cmd("simulate", str(data / scene), "-o", str(work / name), "--cfa", cfa,
-                                             "--gain", gain, "--seed", seed), check=True, env=toolkit.repo_env(REPO))
+                                             "--gain", gain, "--seed", seed), check=True, env=toolkit.repo_env(REPO),
+                           cwd=toolkit.NEUTRAL_CWD)
     d30 = work / "bayer-RAW_CANON_D30_SRGB-6000x4000.dng"
     if not d30.exists():
         subprocess.run([sys.executable, str(REPO / "tools" / "bench_peers.py"), "--work", str(work), "--only",
@@ -168,7 +172,7 @@ def output_hash(tree: Path, raw: str, options: list[str], out: Path) -> str:
     from clisp.io.imageio import read_image
     import numpy as np
     subprocess.run(toolkit.clisp_cmd("process", raw, "-o", str(out), *options), check=True, capture_output=True,
-                   env=toolkit.repo_env(tree))
+                   env=toolkit.repo_env(tree), cwd=toolkit.NEUTRAL_CWD)
     return hashlib.sha256(np.ascontiguousarray(read_image(out)[0]).tobytes()).hexdigest()[:16]
 
 
