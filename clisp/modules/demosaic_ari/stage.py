@@ -308,33 +308,14 @@ class DemosaicARI(Stage):
         """One (direction, kind) chain of step 1; returns the estimate image (planes G line, chroma
         line, criterion) of the selected iterations."""
         mlri = kind == "mlri"
-        dirn = 0 if d == "h" else 1
         sy, sx = STEPS[d]
-        lap = LAPLACIAN_RADIUS if mlri else 0
         along, across = KINDS[kind]
         g, cl = _View(start.image, start.my, start.mx, 0), _View(start.image, start.my, start.mx, 1)
         lines_img: DeviceImage | None = None
         est: _View | None = None
         for _ in range(self.green_iterations):
-            # window statistics: along the lines, then across them per line set
-            ay, ax = (0, along + lap) if d == "h" else (along + lap, 0)
-            my, mx = _margin([g, cl], ay, ax)
-            mom = c.new(12 if mlri else 6, my, mx)
-            c.launch("ari_along_moments", mom, {**cl.named("xs", my, mx, ay, ax), **g.named("ys", my, mx, ay, ax),
-                                                **_output(mom), **c.parity(my, mx)},
-                     ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=along)
-            cy, cx = (across, 0) if d == "h" else (0, across)
-            coef = c.new(12, my + cy, mx + cx)
-            for line_set in (0, 1):                                 # R lines -> planes 0-5, B lines 6-11
-                for fit in (0, 1):                                  # G from chroma, chroma from G
-                    c.launch("ari_across_coefficients", coef, {
-                        "rows": mom, "rows_pitch": mom.width, "rows_plane": mom.width * mom.height,
-                        **cl.named("xs", my + cy, mx + cx, cy, cx), **g.named("ys", my + cy, mx + cx, cy, cx),
-                        **_output(coef), "out_base": (6 * line_set + 3 * fit) * coef.width * coef.height,
-                        **c.parity(my + cy, mx + cx)},
-                        ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=1, ARI_R=across, ARI_SET=line_set, ARI_FIT=fit)
-            c.release(mom)
-            t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, along, across, cl, g, True)
+            coef, margin = self._fit_coefficients(c, cl, g, d, mlri, along, across, pair=True)
+            t, ty, tx = self._box_apply(c, coef, margin, d, along, across, cl, g, True)
             tg, tc = _View(t, ty, tx, 0), _View(t, ty, tx, 1)
             # the new lines, and the criterion of this iteration
             ny, nx = ty + abs(sy), tx + abs(sx)
@@ -462,27 +443,38 @@ class DemosaicARI(Stage):
                  known: int) -> _View:
         """Step 3's weighted guided filter of x against the guide over a box window (statistics over
         every pixel, MLRI's Laplacian moments over the chroma sites)."""
-        mlri = kind == "mlri"
+        coef, margin = self._fit_coefficients(c, guide, x, d, kind == "mlri", along, across, pair=False)
+        t, ty, tx = self._box_apply(c, coef, margin, d, along, across, guide, x, False)
+        return _View(t, ty, tx)
+
+    def _fit_coefficients(self, c: _Chain, x: _View, y: _View, d: str, mlri: bool, along: int, across: int,
+                          pair: bool) -> tuple[DeviceImage, tuple[int, int]]:
+        """The weighted fits' coefficients over windows of 2 along + 1 pixels along the lines and
+        2 across + 1 across them: the moments along the lines (ari_along_moments), then across
+        them with the fits (ari_across_coefficients). ``pair`` (step 1): the four fits of line set
+        x fit into planes 0-5 (R lines) and 6-11 (B lines), G from chroma then chroma from G; else
+        (step 3) the one fit of y from x, 3 planes. Releases the moments; returns the coefficients
+        and their margin."""
         dirn = 0 if d == "h" else 1
         lap = LAPLACIAN_RADIUS if mlri else 0
-        ra, rc = along, across
-        ay, ax = (0, ra + lap) if d == "h" else (ra + lap, 0)
-        my, mx = _margin([guide, x], ay, ax)
-        mom = c.new(9 if mlri else 6, my, mx)
-        c.launch("ari_along_moments", mom, {**guide.named("xs", my, mx, ay, ax), **x.named("ys", my, mx, ay, ax),
+        ay, ax = (0, along + lap) if d == "h" else (along + lap, 0)
+        my, mx = _margin([x, y], ay, ax)
+        mom = c.new((12 if pair else 9) if mlri else 6, my, mx)
+        c.launch("ari_along_moments", mom, {**x.named("xs", my, mx, ay, ax), **y.named("ys", my, mx, ay, ax),
                                             **_output(mom), **c.parity(my, mx)},
-                 ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=ra)
-        cy, cx = (rc, 0) if d == "h" else (0, rc)
-        coef = c.new(3, my + cy, mx + cx)
-        c.launch("ari_across_coefficients", coef, {
-            "rows": mom, "rows_pitch": mom.width, "rows_plane": mom.width * mom.height,
-            **guide.named("xs", my + cy, mx + cx, cy, cx), **x.named("ys", my + cy, mx + cx, cy, cx),
-            **_output(coef), "out_base": 0, **c.parity(my + cy, mx + cx)},
-            ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=0, ARI_R=rc,
-            ARI_SET=0, ARI_FIT=0)                                   # step 1's line set and fit: unread here
+                 ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=int(pair), ARI_R=along)
+        cy, cx = (across, 0) if d == "h" else (0, across)
+        coef = c.new(12 if pair else 3, my + cy, mx + cx)
+        fits = [(line_set, fit) for line_set in (0, 1) for fit in (0, 1)] if pair else [(0, 0)]   # step 3: unread
+        for line_set, fit in fits:
+            c.launch("ari_across_coefficients", coef, {
+                "rows": mom, "rows_pitch": mom.width, "rows_plane": mom.width * mom.height,
+                **x.named("xs", my + cy, mx + cx, cy, cx), **y.named("ys", my + cy, mx + cx, cy, cx),
+                **_output(coef), "out_base": (6 * line_set + 3 * fit) * coef.width * coef.height,
+                **c.parity(my + cy, mx + cx)},
+                ARI_DIR=dirn, ARI_MLRI=int(mlri), ARI_PAIR=int(pair), ARI_R=across, ARI_SET=line_set, ARI_FIT=fit)
         c.release(mom)
-        t, ty, tx = self._box_apply(c, coef, (my + cy, mx + cx), d, ra, rc, guide, x, False)
-        return _View(t, ty, tx)
+        return coef, (my + cy, mx + cx)
 
     def _box_apply(self, c: _Chain, coef: DeviceImage, margin: tuple[int, int], d: str, along: int,
                    across: int, x: _View, y: _View, pair: bool) -> tuple[DeviceImage, int, int]:
