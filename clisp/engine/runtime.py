@@ -430,7 +430,7 @@ class Runtime:
 
     def gather_window(self, whole: DeviceImage, y0: int, x0: int, h: int, w: int, period: int) -> DeviceImage:
         """The h x w window at (y0, x0) of the one-plane image ``whole``, CFA-mirror padded outside it,
-        as a pooled device image: tiling.gather_window done by the device (clisp/modules/raw_scale/raw_scale.cl), so a
+        as a pooled device image: tiling.gather_window done by the device (clisp/engine/gather.cl), so a
         mosaic already in memory that the device reads in place (host_source) needs no host copy per
         tile. The columns inside the mosaic are one vectorised launch, those outside it (at most the
         halo on each side) their own small launches."""
