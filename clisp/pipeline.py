@@ -27,6 +27,7 @@ from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, c
                                            space_for)
 from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
 from .modules.demosaic_ari.stage import DemosaicARI
+from .modules.demosaic_ri.stage import DemosaicRI
 from .modules.demosaic_bilinear.stage import DemosaicBilinear
 from .modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 from .modules.demosaic_lms.stage import DemosaicLMSHybrid
@@ -44,6 +45,7 @@ DEMOSAICS: dict[str, type[Stage]] = {
     "hybrid": DemosaicLMSHybrid,
     "guided": DemosaicLMSGuided,
     "ari": DemosaicARI,
+    "ri": DemosaicRI,
 }
 """Demosaic stages by CLI name, each built by its ``for_raw(raw)`` (Stage: from the raw's CFA;
 stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFAs it supports."""
@@ -51,7 +53,8 @@ stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFAs 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}, "denoise_levels": 0, "highlights": "clamp"},
     "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse"}, "denoise_levels": 2, "highlights": "reconstruct"},
-    "quality": {"demosaic": {"lms": "guided", "bayer": "dlmmse"}, "denoise_levels": 3, "highlights": "reconstruct"},
+    "quality": {"demosaic": {"lms": "guided", "bayer": "ri"}, "denoise_levels": 3, "highlights": "reconstruct"},
+    "best": {"demosaic": {"lms": "guided", "bayer": "ari"}, "denoise_levels": 3, "highlights": "reconstruct"},
 }
 """Named parameter sets (``--preset``); an option is one value or a dict per CFA kind.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight

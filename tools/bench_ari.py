@@ -63,6 +63,7 @@ from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
 from clisp.modules.demosaic_ari.stage import DemosaicARI
 from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
+from clisp.modules.demosaic_ri.stage import DemosaicRI
 
 
 def synthetic_mosaic(height: int, width: int, seed: int = 0) -> np.ndarray:
@@ -108,7 +109,9 @@ def main() -> None:
     ap.add_argument("--green", type=int, default=5, help="ARI green_iterations")
     ap.add_argument("--chroma", type=int, default=2, help="ARI chroma_iterations")
     ap.add_argument("--profile", action="store_true", help="one more run with event profiling, per kernel")
-    ap.add_argument("--skip-dlmmse", action="store_true")
+    ap.add_argument("--methods", default="dlmmse,ri,ari",
+                    help="device demosaics to time, of dlmmse, ri, ari (comma-separated)")
+    ap.add_argument("--skip-dlmmse", action="store_true", help="leave out DLMMSE (same as --methods without it)")
     ap.add_argument("--no-dht", action="store_true", help="leave out rawpy's DHT")
     args = ap.parse_args()
     h, w = toolkit.parse_shape(args.shape)
@@ -117,7 +120,13 @@ def main() -> None:
     print(f"device: {rt.describe()}; host: {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs visible")
     mos = synthetic_mosaic(h, w)
-    stages = ([] if args.skip_dlmmse else [DemosaicDLMMSE(cfa)]) + [DemosaicARI(cfa, args.green, args.chroma)]
+    makers = {"dlmmse": lambda: DemosaicDLMMSE(cfa), "ri": lambda: DemosaicRI(cfa),
+              "ari": lambda: DemosaicARI(cfa, args.green, args.chroma)}
+    methods = [m for m in args.methods.split(",") if m and not (args.skip_dlmmse and m == "dlmmse")]
+    unknown = [m for m in methods if m not in makers]
+    if unknown:
+        raise SystemExit(f"unknown --methods {unknown}; choose from {sorted(makers)}")
+    stages = [makers[m]() for m in methods]
     for stage in stages:
         pipeline = Pipeline(cfa, [stage])
         plan = pipeline.plan(mos.shape, mos.dtype, None, 2**30, "opencl")

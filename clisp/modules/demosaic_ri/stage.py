@@ -1,0 +1,206 @@
+"""RI Bayer demosaic (one-pass adaptive residual interpolation) as a Stage: the quality preset's
+Bayer demosaic. Reference, algorithm and citations: reference.py beside this file (float64 NumPy,
+the definition of correct); kernels: demosaic_ri.cl (one ``ri_<step>`` per step); schedule and
+measurements: README.md.
+
+Steps (radius = the halo the step reads; their sum is the stage's halo, 19)::
+
+    green_fit     4   per direction, the weighted guided-filter fits of the G line and the chroma
+                      line to each other over 7 pixels along the line (12 planes)
+    green_lines   4   the coefficients' 1 / RMSE-weighted means, the tentatives, the residual
+                      interpolated along the line: G - C along rows and along columns (2 planes)
+    green_merge   4   G: the GBTF merge of the two differences at the chroma sites
+    chroma_laplacians 2  the Laplacians of G and of the mosaic (2 planes)
+    chroma_fit    2   the weighted MLRI fits of R and B from G over 5 x 5 windows (6 planes)
+    chroma_apply  2   the tentative R and B (2 planes)
+    complete_rgb  1   R, G, B: the tentatives plus the bilinear residual, times a fused matrix
+
+Input: a white-balanced Bayer mosaic window, H x W (float32, or uint16 as a first stage), any of the
+four phases; output: 3 x (H - 38) x (W - 38) float32 in the mosaic's units (or H x W x 3 with
+``interleaved``). Nothing is clipped.
+
+Example: a flat mosaic stays flat::
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> out = DemosaicRI(bayer_cfa("GRBG")).reference(np.full((40, 41), 0.5), (0, 0))
+    >>> out.shape, bool(np.allclose(out, 0.5))
+    ((2, 3, 3), True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ...cfa import CFA
+from ...engine.runtime import DeviceImage, Runtime
+from ...engine.stage import Stage, as_f32
+from ..colour.stage import ColourMatrix
+from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_REG
+from ..demosaic_malvar.stage import check_bayer
+from .reference import CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
+
+R_CHANNEL = 0
+
+
+def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]:
+    """The defines of demosaic_ri.cl: the reference's constants (8-bit units) and radii, the input
+    type and the output layout."""
+    taps = "{" + ",".join(f"{float(v)!r}f" for v in smooth_taps()) + "}"
+    return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "RI_SCALE": SCALE,
+            "RI_EPS": EPS, "RI_RMSE_FLOOR": RMSE_FLOOR, "RI_WEIGHT_REG": WEIGHT_REG, "RI_MLRI_FLOOR": MLRI_FLOOR,
+            "RI_MERGE_REG": MERGE_REG, "RI_LINE_R": LINE_RADIUS, "RI_CHROMA_R": CHROMA_RADIUS, "RI_SMOOTH": taps,
+            "INTERLEAVED": int(interleaved), "RI_OFF_Y": 0, "RI_OFF_X": 0}
+
+
+@dataclass
+class DemosaicRI(Stage):
+    """H x W white-balanced Bayer mosaic -> (H - 38) x (W - 38) x 3 camera RGB (module doc).
+
+    matrix       3 x 3 applied to the output (identity unless a following ColourMatrix was fused in;
+                 a schedule choice that saves one pass over the image)
+    interleaved  write H x W x 3 (the host layout) instead of planes, when this is the last stage
+    """
+
+    cfa: CFA
+    matrix: np.ndarray | None = field(default=None, compare=False)
+    interleaved: bool = False
+    name = "demosaic_ri"
+    cfa_kinds = ("bayer",)
+    in_channels = 1
+    out_channels = 3
+
+    def __post_init__(self) -> None:
+        check_bayer(self.cfa, "the RI demosaic")
+
+    @property
+    def halo(self) -> int:
+        return HALO
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """Device bytes per input pixel, 24 float32 planes: at the peak (ri_green_apply) the 12 fit
+        planes and the 4 tentatives are alive; the later images (2 differences, G, 2 Laplacians, 6
+        chroma fits, 2 tentatives, 3 outputs) reuse the pool as it allows (the smallest free buffer
+        that fits: the differences take the fits' buffer, so G and the chroma images need new ones).
+        Metered from an empty pool: 67 B/px on 120 x 120, 83 B/px on 300 x 1500
+        (test_device_memory_within_declared)."""
+        return 4.0 * 24
+
+    def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
+        """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
+        pixel (y, x) is an R site when y + ry and x + rx are even."""
+        ys, xs = np.nonzero(self.cfa.pattern == R_CHANNEL)
+        return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.channel_map(2, 2, (0, 0)), origin)
+        if self.matrix is not None:
+            out = np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), out)
+        return out
+
+    # -- OpenCL ------------------------------------------------------------------------------
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        defines = program_defines(src.dtype, self.interleaved)
+        matrix = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
+        margins = {}                        # step -> its output grid's margin inside the window
+        at = 0
+        for step, r in STEP_RADII.items():
+            at += r
+            margins[step] = at
+
+        def image(step: str, prev: DeviceImage, channels: int) -> DeviceImage:
+            r = STEP_RADII[step]
+            return rt.acquire(channels, prev.height - 2 * r, prev.width - 2 * r)
+
+        def run(step: str, out: DeviceImage, args: dict[str, object], mosaic: bool = True) -> None:
+            """Launch ri_<step> over ``out`` with ``args``, the output and (``mosaic``) the mosaic
+            and the site parities of the step's grid."""
+            m = margins[step]
+            ry, rx = self.r_parity(origin, m)
+            args = {"out": out, "w": out.width, **args}
+            if mosaic:
+                args.update(raw=src, raw_w=src.width, raw_m=m, ry=ry, rx=rx)
+            if step != "green_merge":
+                args["h"] = out.height
+            rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines)
+
+        def planes(name: str, img: DeviceImage, margin: int) -> dict[str, object]:
+            """An input image's arguments: buffer, pitch, plane size and margin around the output."""
+            return {name: img, f"{name}_w": img.width, f"{name}_plane": img.width * img.height,
+                    f"{name}_m": margin}
+
+        def plane(name: str, img: DeviceImage, margin: int) -> dict[str, object]:
+            return {name: img, f"{name}_w": img.width, f"{name}_m": margin}
+
+        # G along rows (along_x 1: planes 0-5, 0-1, 0) and columns (0: planes 6-11, 2-3, 1);
+        # swap 0: G from the chroma line (t_g), 1: the chroma line from G (t_c)
+        fits = image("green_fit", src, 12)
+        for along_x in (1, 0):
+            for swap in (0, 1):
+                run("green_fit", fits, {"along_x": along_x, "swap": swap, "base": 6 * (1 - along_x) + 3 * swap})
+        tent = image("green_apply", fits, 4)
+        for along_x in (1, 0):
+            for swap in (0, 1):
+                run("green_apply", tent, {**planes("fits", fits, STEP_RADII["green_apply"]), "along_x": along_x,
+                                          "swap": swap, "base": 6 * (1 - along_x) + 3 * swap,
+                                          "out_plane": 2 * (1 - along_x) + swap})
+        rt.release(fits)
+        dif = image("green_residual", tent, 2)
+        for along_x in (1, 0):
+            run("green_residual", dif, {**planes("tent", tent, STEP_RADII["green_residual"]), "along_x": along_x,
+                                        "base": 2 * (1 - along_x), "out_plane": 1 - along_x})
+        rt.release(tent)
+        green = image("green_merge", dif, 1)
+        run("green_merge", green, planes("dif", dif, STEP_RADII["green_merge"]))
+        rt.release(dif)
+        g_at = margins["green_merge"]
+        laps = image("chroma_laplacians", green, 2)
+        run("chroma_laplacians", laps, plane("g", green, STEP_RADII["chroma_laplacians"]))
+        cfits = image("chroma_fit", laps, 6)
+        self._chroma_fits(rt, src, green, laps, cfits, origin, margins, defines)
+        rt.release(laps)
+        tent = image("chroma_apply", cfits, 2)
+        run("chroma_apply", tent, {**planes("fits", cfits, STEP_RADII["chroma_apply"]),
+                                   **plane("g", green, margins["chroma_apply"] - g_at)}, mosaic=False)
+        rt.release(cfits)
+        rgb = image("complete_rgb", tent, 3)
+        run("complete_rgb", rgb, {**planes("tent", tent, STEP_RADII["complete_rgb"]),
+                                  **plane("g", green, margins["complete_rgb"] - g_at),
+                                  "m": rt.constant(as_f32(matrix))})
+        rt.release(tent)
+        rt.release(green)
+        rgb.interleaved = self.interleaved
+        return rgb
+
+    def _chroma_fits(self, rt: Runtime, src: DeviceImage, green: DeviceImage, laps: DeviceImage,
+                     out: DeviceImage, origin: tuple[int, int], margins: dict[str, int],
+                     defines: dict[str, object]) -> None:
+        """ri_chroma_fit over the four pixel classes of the output grid, R then B: a class's
+        offsets to the colour's lattice are compile-time (RI_OFF_Y, RI_OFF_X), one launch covers
+        its pixels (2 gy + sy, 2 gx + sx)."""
+        m = margins["chroma_fit"]
+        ry, rx = self.r_parity(origin, m)                # R rows: y + ry even
+        args = {"raw": src, "raw_w": src.width, "raw_m": m, "g": green, "g_w": green.width,
+                "g_m": m - margins["green_merge"], "laps": laps, "laps_w": laps.width,
+                "laps_plane": laps.width * laps.height, "laps_m": STEP_RADII["chroma_fit"], "out": out,
+                "w": out.width, "h": out.height}
+        for base, (py, px) in ((0, (ry, rx)), (3, (ry + 1, rx + 1))):
+            for sy in (0, 1):
+                for sx in (0, 1):
+                    n_y, n_x = (out.height - sy + 1) // 2, (out.width - sx + 1) // 2
+                    if n_y == 0 or n_x == 0:
+                        continue
+                    off = {"RI_OFF_Y": (sy + py) % 2, "RI_OFF_X": (sx + px) % 2}
+                    rt.launch_named("demosaic_ri", "ri_chroma_fit", n_x, n_y,
+                                    {**args, "sy": sy, "sx": sx, "base": base}, {**defines, **off})
+
+    def fuse(self, following: Stage) -> Stage | None:
+        """A following colour matrix runs inside the last kernel (same maths, one pass fewer)."""
+        if isinstance(following, ColourMatrix) and not self.interleaved:
+            current = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
+            return replace(self, matrix=np.asarray(following.matrix, dtype=np.float64) @ current)
+        return None
+
+    def with_interleaved_output(self) -> "DemosaicRI":
+        return replace(self, interleaved=True)

@@ -1,0 +1,218 @@
+"""The RI demosaic (clisp.modules.demosaic_ri): its float64 reference against the residual-interpolation
+study code it condenses (clisp.modules.demosaic_ari.reference), the device kernels against the reference,
+the tiling contract and the presets.
+
+Tolerance (float32 device, float64 reference on the float32 input; output in the mosaic's units):
+    max |opencl - reference| <= TOL_MAX, mean <= TOL_MEAN.
+MEASURED (PoCL CPU, test_matches_reference): 2e-6..1.6e-5 max; the worst on sharp edges beside flat
+patches, where the 1 / max(RMSE, 1e-3) weights of nearly exact fits amplify float32 rounding. The
+bounds leave ~10x room; a broken kernel fails them by orders of magnitude (tried: the residual's 0.5
+-> 0.49 in ri_green_residual gives 3e-3, one Laplacian tap 4 -> 4.01 in ri_chroma_laplacians 2e-3).
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from clisp.cfa import BAYER_PHASES, bayer_cfa
+from clisp.engine.runtime import kernel_path
+from clisp.errors import ClispError
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.demosaic_ari import reference as ari
+from clisp.modules.demosaic_ri.reference import HALO, STEP_RADII, demosaic
+from clisp.modules.demosaic_ri.stage import DemosaicRI, program_defines
+from clisp.modules.raw_scale.stage import normalize, white_balance1
+from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline, resolve_options
+from clisp.sim.colorimetry import B_BAYER, WB_BAYER
+
+TOL_MAX = 2e-4
+TOL_MEAN = 2e-6
+OUT = 40
+"""Output side of the device comparisons (the window is OUT + 2 HALO)."""
+
+
+def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
+    """size x size x 3 linear RGB test scenes, nominally [0, 1] with some values outside."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64) / size
+    if kind == "ramps":                       # smooth colour ramps, a highlight above 1
+        rgb = np.stack([0.1 + 0.8 * xx, 0.2 + 0.6 * yy, 0.9 - 0.7 * (xx + yy) / 2], axis=-1)
+        rgb += 0.6 * np.exp(-((xx - 0.5) ** 2 + (yy - 0.5) ** 2) / 0.002)[..., None]
+    elif kind == "edges":                     # sharp colour edges at several angles, values below 0
+        rgb = np.full((size, size, 3), 0.3)
+        rgb[xx + 0.3 * yy > 0.5] = (0.9, 0.5, 0.1)
+        rgb[(yy - 0.6 * xx > 0.4)] = (0.05, 0.2, 0.8)
+        rgb[np.abs(xx - yy) < 0.02] = (1.1, 1.0, -0.02)
+    elif kind == "discs":                     # a small dead-leaves pattern
+        rgb = np.full((size, size, 3), 0.5)
+        for _ in range(60):
+            cy, cx, r = rng.random(), rng.random(), 0.02 + 0.15 * rng.random() ** 2
+            rgb[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.random(3)
+    elif kind == "noise":                     # white noise mosaic, [-0.1, 1.2]
+        rgb = rng.uniform(-0.1, 1.2, (size, size, 3))
+    else:
+        raise ValueError(kind)
+    if kind != "noise":
+        rgb += rng.normal(0, 0.005, rgb.shape)
+    return rgb
+
+
+def mosaic(rgb: np.ndarray, phase: str, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    ch = bayer_cfa(phase).channel_map(rgb.shape[0], rgb.shape[1], origin)
+    return np.take_along_axis(rgb, ch[..., None].astype(np.intp), axis=-1)[..., 0].astype(np.float32)
+
+
+def run_device(rt, stage: DemosaicRI, mos: np.ndarray, origin=(0, 0)) -> np.ndarray:
+    src = rt.upload(np.ascontiguousarray(mos))
+    out = stage.enqueue(rt, src, origin)
+    result = rt.download(out)
+    rt.release(out)
+    rt.release(src)
+    return result if out.interleaved else np.moveaxis(result, 0, -1)
+
+
+# ------------------------------------------------------------------------------------ the reference
+
+def study_version(m: np.ndarray, phase: str, monkeypatch) -> np.ndarray:
+    """The same algorithm through the study's mirrored-border functions: ARI's step 1 with the RI
+    kind only, one iteration, window 7 x 1 along the line; the GBTF merge; weighted MLRI chroma on
+    5 x 5 windows (docs/RESULTS.md, issue 27's study)."""
+    monkeypatch.setitem(ari.KINDS, "ri", (3, 0))
+
+    def core(raw, sites, lo, hi):
+        lines = ari._ari_green(raw, sites, 1, ("ri",))
+        green = np.where(sites.g, raw, ari._merge_green(raw, sites, lines, "gbtf"))
+
+        def gf(guide, target, mask):
+            return ari.guided_filter(guide, target, mask, ("box", 2, 2), eps=0.0, laplacian=ari.LAPLACIAN_2D,
+                                     lap_mask=mask, weighted=True, lap_floor=ari.MLRI_FLOOR)
+        red, blue = ari._rb_by_ri(raw, sites, green, lo, hi, gf)
+        return red, green, blue
+    return ari._run(m, phase, None, core)
+
+
+@pytest.mark.parametrize("phase", BAYER_PHASES)
+def test_reference_is_the_study_algorithm(phase, monkeypatch):
+    """The valid-only reference equals the study's construction (mirrored borders) on the interior."""
+    m = mosaic(scene("discs", 90, 1), phase).astype(np.float64)
+    ours = demosaic(m, phase)
+    theirs = study_version(m, phase, monkeypatch)[HALO:-HALO, HALO:-HALO]
+    np.testing.assert_allclose(ours, theirs, atol=1e-9)
+
+
+def test_reference_window_origin():
+    """A window cut at an odd origin reproduces the whole image's result there (the CFA from the origin)."""
+    m = mosaic(scene("edges", 80, 2), "GRBG").astype(np.float64)
+    whole = demosaic(m, "GRBG")
+    part = demosaic(m[3:, 5:], "GRBG", (3, 5))
+    np.testing.assert_allclose(part, whole[3:, 5:], atol=1e-12)
+
+
+def test_reference_flat_and_samples():
+    flat = demosaic(np.full((50, 51), 0.3), "BGGR")
+    assert np.allclose(flat, 0.3)
+    m = mosaic(scene("discs", 70, 3), "RGGB").astype(np.float64)
+    out = demosaic(m, "RGGB")
+    ch = bayer_cfa("RGGB").channel_map(70, 70)[HALO:-HALO, HALO:-HALO]
+    inner = m[HALO:-HALO, HALO:-HALO]
+    for c in range(3):
+        np.testing.assert_allclose(out[..., c][ch == c], inner[ch == c], atol=1e-12)
+
+
+def test_halo_is_the_sum_of_the_steps():
+    assert HALO == sum(STEP_RADII.values()) == 19
+    assert DemosaicRI(bayer_cfa("RGGB")).output_shape(100, 101) == (62, 63)
+
+
+# ------------------------------------------------------------------------------------ the device
+
+@pytest.mark.parametrize("kind", ["ramps", "edges", "discs", "noise"])
+@pytest.mark.parametrize("phase, origin", [("RGGB", (0, 0)), ("GRBG", (1, 3)), ("GBRG", (-2, -5)), ("BGGR", (5, 2))])
+def test_matches_reference(rt, kind, phase, origin):
+    stage = DemosaicRI(bayer_cfa(phase))
+    size = OUT + 2 * HALO
+    mos = mosaic(scene(kind, size, BAYER_PHASES.index(phase)), phase, origin)
+    ref = stage.reference(mos.astype(np.float64), origin)
+    out = run_device(rt, stage, mos, origin)
+    assert out.shape == ref.shape
+    err = np.abs(out - ref)
+    assert err.max() <= TOL_MAX and err.mean() <= TOL_MEAN, f"max {err.max():.3g}, mean {err.mean():.3g}"
+
+
+def test_odd_shapes_and_uint16_input(rt):
+    """Odd window sides (ri_chroma_fit's four pixel classes cover every pixel) and a uint16 mosaic as
+    the first stage (RAW_T ushort)."""
+    stage = DemosaicRI(bayer_cfa("GBRG"))
+    rng = np.random.default_rng(4)
+    mos16 = (ndimage.gaussian_filter(rng.random((2 * HALO + 17, 2 * HALO + 22)), 1.5) * 60000).astype(np.uint16)
+    ref = stage.reference(mos16.astype(np.float64), (1, 0))
+    src = rt.upload(mos16)
+    out = stage.enqueue(rt, src, (1, 0))
+    got = np.moveaxis(rt.download(out), 0, -1)
+    rt.release(out)
+    rt.release(src)
+    assert got.shape == ref.shape == (17, 22, 3)
+    assert np.abs(got - ref).max() <= TOL_MAX * 60000
+
+
+def test_colour_matrix_fusion_and_interleaved(rt):
+    cfa = bayer_cfa("RGGB")
+    stage = DemosaicRI(cfa)
+    fused = stage.fuse(ColourMatrix(B_BAYER))
+    assert isinstance(fused, DemosaicRI) and stage.matrix is None
+    mos = mosaic(scene("ramps", OUT + 2 * HALO, 2), "RGGB")
+    expected = np.einsum("ij,hwj->hwi", B_BAYER, stage.reference(mos.astype(np.float64), (0, 0)))
+    for candidate in (fused, fused.with_interleaved_output()):
+        out = run_device(rt, candidate, mos)
+        assert np.abs(out - expected).max() <= TOL_MAX * 4
+
+
+def test_defines_come_from_the_host(rt):
+    """demosaic_ri.cl holds no fallback of a host define: a program built without them fails; the host
+    gives every one the kernel file checks."""
+    with pytest.raises(ClispError, match="build"):
+        rt.kernel("demosaic_ri", "ri_green_fit", {})
+    checked = set(re.findall(r"!defined\((\w+)\)", kernel_path("demosaic_ri.cl").read_text()))
+    assert checked == set(program_defines(np.dtype(np.float32), False))
+
+
+def test_device_memory_within_declared(rt):
+    """bytes_per_pixel covers what one enqueue creates from an empty pool (Runtime.metering)."""
+    stage = DemosaicRI(bayer_cfa("RGGB"))
+    for h, w in ((120, 120), (300, 1500)):
+        src = rt.upload(np.zeros((h, w), dtype=np.float32))
+        with rt.metering() as pool:
+            stage.enqueue(rt, src, (0, 0))
+        rt.release(src)
+        assert pool.created <= stage.bytes_per_pixel * h * w, (h, w, pool.created / (h * w))
+
+
+def test_tiled_equals_whole():
+    cfa = bayer_cfa("GBRG")
+    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER),
+                              DemosaicRI(cfa), ColourMatrix(B_BAYER)])
+    rng = np.random.default_rng(5)
+    sc = ndimage.gaussian_filter(rng.random((150, 171)), 2.0) * 600 + 100
+    raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)
+    whole = pipeline.run(raw, tile=0)
+    assert whole.shape == (150, 171, 3)
+    for tile in (48, 96):
+        np.testing.assert_array_equal(pipeline.run(raw, tile=tile), whole, err_msg=f"tile {tile}")
+
+
+# ------------------------------------------------------------------------------------ presets
+
+def test_presets():
+    assert DEMOSAICS["ri"] is DemosaicRI
+    assert resolve_options("quality", None, "bayer")["demosaic"] == "ri"
+    assert resolve_options(None, None, "bayer")["demosaic"] == "ri"          # quality is the default
+    assert resolve_options("best", None, "bayer")["demosaic"] == "ari"
+    assert resolve_options("best", None, "lms")["demosaic"] == PRESETS["quality"]["demosaic"]["lms"]
+    with pytest.raises(ClispError, match="works on bayer"):
+        resolve_options(None, "ri", "lms")
+    with pytest.raises(ClispError, match="Bayer CFA"):
+        from clisp.cfa import lms_cfa
+        DemosaicRI(lms_cfa())
