@@ -27,6 +27,7 @@ from clisp.modules.demosaic_ri.stage import DemosaicRI, program_defines
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline, resolve_options
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
+from clisp.sim.noise import ChannelNoise
 
 TOL_MAX = 2e-4
 TOL_MEAN = 2e-6
@@ -140,6 +141,21 @@ def test_matches_reference(rt, kind, phase, origin):
     assert out.shape == ref.shape
     err = np.abs(out - ref)
     assert err.max() <= TOL_MAX and err.mean() <= TOL_MEAN, f"max {err.max():.3g}, mean {err.mean():.3g}"
+
+
+def test_noise_regularisation(rt):
+    """With the raw's noise the chroma slope is regularised (reference.CHROMA_NOISE_K): the kernel
+    follows the reference, and the result differs from the noiseless stage's (the term is used)."""
+    noise = ChannelNoise(shot=(2e-3, 1e-3, 3e-3), floor=(1e-5, 2e-5, 1e-5))
+    stage = DemosaicRI(bayer_cfa("GRBG"), noise)
+    mos = mosaic(scene("discs", OUT + 2 * HALO, 6), "GRBG", (1, 1))
+    ref = stage.reference(mos.astype(np.float64), (1, 1))
+    out = run_device(rt, stage, mos, (1, 1))
+    err = np.abs(out - ref)
+    assert err.max() <= TOL_MAX and err.mean() <= TOL_MEAN, f"max {err.max():.3g}, mean {err.mean():.3g}"
+    plain = DemosaicRI(bayer_cfa("GRBG")).reference(mos.astype(np.float64), (1, 1))
+    assert np.abs(plain - ref).max() > 1e-3
+    np.testing.assert_array_equal(plain[..., 1], ref[..., 1])        # G does not use it
 
 
 def test_odd_shapes_and_uint16_input(rt):

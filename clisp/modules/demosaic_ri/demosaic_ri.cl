@@ -212,14 +212,17 @@ __kernel void ri_chroma_laplacians(__global const RAW_T *restrict raw, const int
  * colour's rows / columns), so that the window's sites are known when compiling: 9, 6 or 4 taps
  * instead of 25 masked ones. Written as (a w, b w, w) to planes base..base + 2 of the 6-plane image
  * (R: 0, B: 3): slope a = (sum(L g L x) / n) / max(sum (L g)^2 / n, RI_MLRI_FLOOR) over the n sites
- * (laps: L g, L x), b = mean x - a mean g, the weight from that fit's RMSE; moments centred on the
+ * (laps: L g, L x), plus reg_shot mean g + reg_floor (the host's CHROMA_NOISE_K 20 sigma^2 of G's noise at
+ * the window's mean G, 8-bit units; 0 when noiseless), b = mean x - a mean g, the weight from that
+ * fit's RMSE; moments centred on the
  * centre's G and on the colour's sample next to the centre. One colour per launch (two are alike:
  * SLP). Halo RI_CHROMA_R. */
 __kernel void ri_chroma_fit(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
                             __global const float *restrict g, const int g_w, const int g_m,
                             __global const float *restrict laps, const int laps_w, const int laps_plane,
                             const int laps_m, __global float *restrict out, const int w, const int h,
-                            const int sy, const int sx, const int base)
+                            const int sy, const int sx, const int base, const float reg_shot,
+                            const float reg_floor)
 {
     const int x = 2 * get_global_id(0) + sx, y = 2 * get_global_id(1) + sy;
     const int ra = (y + raw_m) * raw_w + x + raw_m;
@@ -250,7 +253,9 @@ __kernel void ri_chroma_fit(__global const RAW_T *restrict raw, const int raw_w,
     float md, me, vg, vx, cv;
     gf_centred_stats(&m, inv, &md, &me, &vg, &vx, &cv);
     float aw, bw, wt;
-    ri_weighted_fit((ll * inv) / (gg * inv > RI_MLRI_FLOOR ? gg * inv : RI_MLRI_FLOOR), cg + md, cx + me, vg, vx,
+    const float mg = cg + md;
+    const float reg = reg_shot * (mg > 0.0f ? mg : 0.0f) + reg_floor;     /* K 20 sigma^2 at the mean G */
+    ri_weighted_fit((ll * inv) / ((gg * inv > RI_MLRI_FLOOR ? gg * inv : RI_MLRI_FLOOR) + reg), mg, cx + me, vg, vx,
                     cv, &aw, &bw, &wt);
     const int o = y * w + x, p = w * h;
     out[base * p + o] = aw;

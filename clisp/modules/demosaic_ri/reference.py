@@ -54,6 +54,13 @@ loses 8 dB, docs/RESULTS.md)."""
 MERGE_RADIUS, MERGE_REG, MERGE_SIGMA = MLRI_MERGE
 """GBTF merge: gradient sums over (2 r + 1)^2 pixels, r pixels away; 1 / (D^2 + reg) (8-bit units^2);
 one-sided Gaussian of sigma (pixels)."""
+CHROMA_NOISE_K = 4.0
+"""Noise regularisation of the chroma slope: the mean squared Laplacian of G is floored by adding
+CHROMA_NOISE_K times the Laplacian's noise variance (20 sigma^2: taps 4 and four -1 on i.i.d. noise of
+variance sigma^2 at the window's mean G), so that where the Laplacian is mostly noise the slope
+shrinks towards 0 and the chroma fit towards the window mean. 4 from issue 27's study (first 6 Kodak
+and McMaster images, 4 dead-leaves charts, gains 16 and 64: +0.5 to +1.1 dB over no regularisation; 1
+and 16 did worse, and regularising the G fits the same way lost 0.05-0.2 dB), docs/RESULTS.md."""
 SMOOTH_TAPS = 5
 """The one-sided smoothing of each side's colour difference: taps 0..4 towards the side."""
 
@@ -191,12 +198,14 @@ def chroma_laplacians(g: Array, raw: Array) -> Array:
     return np.stack([laplacian(g), laplacian(raw)])
 
 
-def chroma_fit(g: Array, raw: Array, laps: Array, sites: Array) -> Array:
+def chroma_fit(g: Array, raw: Array, laps: Array, sites: Array, noise: tuple[float, float] = (0.0, 0.0)) -> Array:
     """Weighted MLRI fits of R (sites == R) and B (sites == B) from G over every 5 x 5 window; halo
     CHROMA_RADIUS. ``g``, ``raw``, ``sites`` on the grid of ``laps``. Returns 6 planes: (a w, b w, w)
     of R, then of B. Slope a = sum(L g L x) / max(sum (L g)^2, n MLRI_FLOOR) over the channel's sites
     of the window (L the Laplacian, n their count), b = mean x - a mean g, weight from the RMSE of
-    that fit (weighted_fit)."""
+    that fit (weighted_fit). ``noise``: (shot, floor) of G's noise variance shot * level + floor in
+    8-bit units (level in 8-bit units too); the mean squared Laplacian of G gains CHROMA_NOISE_K * 20
+    times that variance at the window's mean G."""
     r = CHROMA_RADIUS
     offs = [(i, j) for i in range(-r, r + 1) for j in range(-r, r + 1)]
     gs = [view(g, r, i, j) for i, j in offs]
@@ -214,7 +223,8 @@ def chroma_fit(g: Array, raw: Array, laps: Array, sites: Array) -> Array:
         cov = sum(mm * (gg - mg) * (xx - mx) for mm, gg, xx in zip(ms, gs, xs)) / n
         s_gx = sum(mm * a * b for mm, a, b in zip(ms, lgs, lxs))
         s_gg = sum(mm * a * a for mm, a in zip(ms, lgs))
-        a = (s_gx / n) / np.maximum(s_gg / n, MLRI_FLOOR)
+        noise_var = noise[0] * np.maximum(mg, 0.0) + noise[1]
+        a = (s_gx / n) / (np.maximum(s_gg / n, MLRI_FLOOR) + CHROMA_NOISE_K * 20.0 * noise_var)
         out.extend(weighted_fit(a, mg, mx, vg, vx, cov))
     return np.stack(out)
 
@@ -247,10 +257,13 @@ def complete_rgb(tent: Array, g: Array, raw: Array, sites: Array) -> Array:
 
 # ----------------------------------------------------------------------------------- chain
 
-def demosaic(mosaic: Array, pattern: str | Array, origin: tuple[int, int] = (0, 0)) -> Array:
+def demosaic(mosaic: Array, pattern: str | Array, origin: tuple[int, int] = (0, 0),
+             noise: tuple[float, float] = (0.0, 0.0)) -> Array:
     """H x W Bayer mosaic -> (H - 2 HALO) x (W - 2 HALO) x 3 (module doc). ``pattern``: a phase name
     ("RGGB", ...) or a 2 x 2 array of channel indices (0 R, 1 G, 2 B) of image pixels (0..1, 0..1);
-    ``origin``: the image position of mosaic pixel (0, 0)."""
+    ``origin``: the image position of mosaic pixel (0, 0); ``noise``: (shot, floor) of the G samples'
+    noise variance shot * level + floor in the mosaic's units (clisp.sim.noise.ChannelNoise; zeros:
+    noiseless, no regularisation)."""
     if isinstance(pattern, str):
         names = pattern.upper()
         pattern = np.array([["RGB".index(c) for c in names[:2]], ["RGB".index(c) for c in names[2:]]])
@@ -271,7 +284,8 @@ def demosaic(mosaic: Array, pattern: str | Array, origin: tuple[int, int] = (0, 
     m += STEP_RADII["green_merge"]
     laps = chroma_laplacians(g, view(raw, m))
     c = STEP_RADII["chroma_laplacians"]
-    fits = chroma_fit(view(g, c), view(raw, m + c), laps, view(sites, m + c))
+    noise8 = (noise[0] * SCALE, noise[1] * SCALE * SCALE)         # variance in 8-bit units at 8-bit levels
+    fits = chroma_fit(view(g, c), view(raw, m + c), laps, view(sites, m + c), noise8)
     c += STEP_RADII["chroma_fit"]
     tent = chroma_apply(fits, view(g, c))
     c += STEP_RADII["chroma_apply"]

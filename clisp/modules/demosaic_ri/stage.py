@@ -38,7 +38,8 @@ from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix
 from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_REG
 from ..demosaic_malvar.stage import check_bayer
-from .reference import CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
+from ...sim.noise import ChannelNoise
+from .reference import CHROMA_NOISE_K, CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
 
 R_CHANNEL = 0
 
@@ -57,12 +58,15 @@ def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]
 class DemosaicRI(Stage):
     """H x W white-balanced Bayer mosaic -> (H - 38) x (W - 38) x 3 camera RGB (module doc).
 
+    noise        the raw's noise (white-balanced units; None or zero: noiseless): regularises the
+                 chroma slope (reference.CHROMA_NOISE_K)
     matrix       3 x 3 applied to the output (identity unless a following ColourMatrix was fused in;
                  a schedule choice that saves one pass over the image)
     interleaved  write H x W x 3 (the host layout) instead of planes, when this is the last stage
     """
 
     cfa: CFA
+    noise: ChannelNoise | None = None
     matrix: np.ndarray | None = field(default=None, compare=False)
     interleaved: bool = False
     name = "demosaic_ri"
@@ -72,6 +76,19 @@ class DemosaicRI(Stage):
 
     def __post_init__(self) -> None:
         check_bayer(self.cfa, "the RI demosaic")
+
+    @classmethod
+    def for_raw(cls, raw) -> "DemosaicRI":
+        """The stage for ``raw``: its CFA and its noise from the metadata's gain and noise model (None
+        for noiseless simulations and camera raws without a gain)."""
+        return cls(raw.cfa, ChannelNoise.from_metadata(raw.metadata, raw.pass1_gains()))
+
+    def green_noise(self) -> tuple[float, float]:
+        """(shot, floor) of the G samples' noise variance in the mosaic's units; zeros without noise."""
+        if self.noise is None:
+            return 0.0, 0.0
+        g = self.cfa.channels.index("G")
+        return float(self.noise.shot[g]), float(self.noise.floor[g])
 
     @property
     def halo(self) -> int:
@@ -94,7 +111,8 @@ class DemosaicRI(Stage):
         return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.channel_map(2, 2, (0, 0)), origin)
+        out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.channel_map(2, 2, (0, 0)), origin,
+                       self.green_noise())
         if self.matrix is not None:
             out = np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), out)
         return out
@@ -181,7 +199,10 @@ class DemosaicRI(Stage):
         its pixels (2 gy + sy, 2 gx + sx)."""
         m = margins["chroma_fit"]
         ry, rx = self.r_parity(origin, m)                # R rows: y + ry even
-        args = {"raw": src, "raw_w": src.width, "raw_m": m, "g": green, "g_w": green.width,
+        shot, floor = self.green_noise()
+        k = CHROMA_NOISE_K * 20.0
+        args = {"reg_shot": k * shot * SCALE, "reg_floor": k * floor * SCALE * SCALE,
+                "raw": src, "raw_w": src.width, "raw_m": m, "g": green, "g_w": green.width,
                 "g_m": m - margins["green_merge"], "laps": laps, "laps_w": laps.width,
                 "laps_plane": laps.width * laps.height, "laps_m": STEP_RADII["chroma_fit"], "out": out,
                 "w": out.width, "h": out.height}
