@@ -38,7 +38,7 @@ import resource
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -161,6 +161,12 @@ def shared_runner(params: ChromaDenoiseParams, tile: int | None) -> Runner:
     return worker_cache(("paper_tables.Runner", params, tile), lambda: Runner(params, tile))
 
 
+def bayer_list(bayer_names: str | Sequence[str]) -> list[str]:
+    """One Bayer demosaic name or several as a list; the first is the one set against the paper's
+    Bayer (its figures and leads go beside PAPER_T1 / PAPER_T2), the others are extra columns."""
+    return [bayer_names] if isinstance(bayer_names, str) else list(bayer_names)
+
+
 Mapper = Callable[..., list]
 """``mapper(fn, items, *args, progress=label, timeout=s) -> [fn(item, *args) for item in items]``, in order:
 clisp.batch.map_ordered bound to a Dask client (a sweep on a cluster) or to None (this process)."""
@@ -188,14 +194,18 @@ def table2_item(item: tuple, runner: Runner) -> dict[bool, np.ndarray]:
     return {denoise: gray_panel_snr(runner.run(raw, name, denoise), demo.gray_rois) for denoise in (True, False)}
 
 
-def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int, mapper: Mapper = serial) -> dict:
+def table2(runner: Runner, lms_names: list[str], bayer_name: str | Sequence[str], seeds: int,
+           mapper: Mapper = serial) -> dict:
+    """{(gain, kind, demosaic): {denoise: mean gray-panel SNRs}}; ``bayer_name``: one Bayer
+    demosaic or several (bayer_list), each one more set of items."""
+    bayer_names = bayer_list(bayer_name)
     items = [(gain, kind, name, seed) for gain in GAINS
-             for kind, names in (("bayer", [bayer_name]), ("lms", lms_names)) for name in names
+             for kind, names in (("bayer", bayer_names), ("lms", lms_names)) for name in names
              for seed in range(seeds)]
     snrs = iter(mapper(table2_item, items, runner, progress="Table 2"))
     results: dict = {}
     for gain in GAINS:
-        for kind, names in (("bayer", [bayer_name]), ("lms", lms_names)):
+        for kind, names in (("bayer", bayer_names), ("lms", lms_names)):
             for name in names:
                 snr = {True: [], False: []}
                 for seed in range(seeds):
@@ -205,7 +215,7 @@ def table2(runner: Runner, lms_names: list[str], bayer_name: str, seeds: int, ma
                 results[(gain, kind, name)] = {d: np.mean(v, axis=0) for d, v in snr.items()}
     print(f"\nTable 2: gray-panel SNR (dB), linear output, mean of R, G, B; demo chart, {seeds} seed(s); "
           "'ours' with chroma denoise; paper in brackets")
-    for name in lms_names:
+    for name, bayer_name in ((n, b) for n in lms_names for b in bayer_names):
         print(f"\n  LMS demosaic {name!r}, Bayer demosaic {bayer_name!r}")
         print("  gain  " + "".join(f"{'P' + str(k + 1) + ' Bayer/LMS':>22}" for k in range(6))
               + f"{'mean lead':>16}{'darkest lead':>16}")
@@ -245,10 +255,13 @@ def table1_item(item: tuple, runner: Runner) -> list[tuple[tuple, tuple[float, f
     return out
 
 
-def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str], bayer_name: str,
+def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str], bayer_name: str | Sequence[str],
            mapper: Mapper = serial) -> dict:
+    """{(set, gain, kind, demosaic, run): mean (PSNR tone-mapped, PSNR linear)}; ``bayer_name``:
+    one Bayer demosaic or several (bayer_list), each one more column of every item."""
+    bayer_names = bayer_list(bayer_name)
     levels = [None] + list(GAINS)
-    columns = [("bayer", bayer_name)] + [("lms", n) for n in lms_names]
+    columns = [("bayer", b) for b in bayer_names] + [("lms", n) for n in lms_names]
     results: dict = {}
     for set_name, image_set in SETS.items():
         paths = toolkit.image_files(data, image_set, subset)     # the first ``subset`` by file name
@@ -260,10 +273,10 @@ def table1(runner: Runner, data: Path, subset: int | None, lms_names: list[str],
         print(f"\n[{set_name}: {len(paths)} images in {time.perf_counter() - t0:.0f} s]")
     mean = {k: np.mean(v, axis=0) for k, v in results.items()}
     for set_name in SETS:
-        n = len(results[(set_name, None, "bayer", bayer_name, "with")])
+        n = len(results[(set_name, None, "bayer", bayer_names[0], "with")])
         print(f"\nTable 1: PSNR (dB), tone-mapped, {BORDER} px border, {set_name} ({n} images); "
               "Bayer/LMS with chroma denoise; paper in brackets")
-        for name in lms_names:
+        for name, bayer_name in ((n, b) for n in lms_names for b in bayer_names):
             print(f"  LMS {name!r} vs Bayer {bayer_name!r}")
             print(f"  {'noise':>10}  {'ours Bayer/LMS':>16}  {'LMS-Bayer':>9}  {'paper':>13}  {'paper LMS-Bayer':>15}"
                   f"  {'linear Bayer/LMS':>16}")

@@ -8,6 +8,11 @@ definitions, docs/model.md section 5); the "Charts" row (clisp.sim.charts.demo_c
 the spectral row (clisp.sim.spectral.simulate_spectral, compared with the paper's hyperspectral ISET
 row) are scored here the same way (tone-mapped PSNR, 10 px border, chroma denoise on).
 
+Two Bayer demosaics are run: ``dlmmse`` (the paper's Bayer baseline, DLMMSE; its figures and the
+LMS leads over it stand beside the paper's) and, when clisp.pipeline.DEMOSAICS has it, ``ri``
+(clisp's residual-interpolation Bayer demosaic, the ``quality`` preset's default: the strongest
+fast Bayer), shown on a line of its own in each cell with the LMS lead over it.
+
     python tools/reproduce_paper.py [--data ../shared/data] [--subset N] [--seeds S]
         [--bench-subset N] [--speed-shape HxW] [--repeat R] [--out docs] [--scheduler ADDRESS]
 
@@ -44,40 +49,63 @@ PAPER_T1_EXTRA = {   # the paper's Table 1, verbatim (Kodak and IMAX/McMaster ar
                      32: (31.32, 33.13), 64: (30.14, 31.78)},
 }
 LEVELS = [None] + list(pt.GAINS)
+EXTRA_BAYER = ("ri",)
+"""Bayer demosaics run beside the paper's baseline (dlmmse) when registered in DEMOSAICS."""
 
 
-def chart_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[float, float]:
-    """(Bayer, LMS) tone-mapped PSNR on the demo chart at one noise level."""
+def bayer_names(base: str) -> list[str]:
+    """The Bayer demosaics of this run: ``base`` (the paper's baseline) first, then those of
+    EXTRA_BAYER that clisp.pipeline.DEMOSAICS registers."""
+    return [base] + [n for n in EXTRA_BAYER if n in pt.DEMOSAICS and n != base]
+
+
+def label(name: str) -> str:
+    """A demosaic's name as the tables print it (dlmmse -> DLMMSE, ri -> RI)."""
+    return name.upper()
+
+
+def pipelines(lms: str, bayer: str | list[str]) -> list[tuple[str, str]]:
+    """(kind, demosaic) in the order of the chart and spectral rows' tuples: the first Bayer, the
+    LMS, then the other Bayers (so that a single Bayer gives the (Bayer, LMS) pair)."""
+    first, *others = pt.bayer_list(bayer)
+    return [("bayer", first), ("lms", lms)] + [("bayer", n) for n in others]
+
+
+def chart_item(gain, runner: pt.Runner, lms: str, bayer: str | list[str]) -> tuple[float, ...]:
+    """(Bayer, LMS, *other Bayers) tone-mapped PSNR on the demo chart at one noise level;
+    ``bayer``: one name or several (the first is the paper's baseline)."""
     scene = pt.chart().image
-    pair = []
-    for kind, name in (("bayer", bayer), ("lms", lms)):
+    scores = []
+    for kind, name in pipelines(lms, bayer):
         sim = simulate(scene, kind, gain=gain, seed=0)
-        pair.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=toolkit.BORDER))
-    return tuple(pair)
+        scores.append(psnr(runner.run(sim.raw, name, True), sim.truth, border=toolkit.BORDER))
+    return tuple(scores)
 
 
-def chart_rows(runner: pt.Runner, lms: str, bayer: str, mapper: pt.Mapper = pt.serial) -> dict:
-    """{gain: (Bayer, LMS) tone-mapped PSNR} on the demo chart, chroma denoise on, seed 0."""
+def chart_rows(runner: pt.Runner, lms: str, bayer: str | list[str], mapper: pt.Mapper = pt.serial) -> dict:
+    """{gain: (Bayer, LMS, *other Bayers) tone-mapped PSNR} on the demo chart, chroma denoise on, seed 0."""
     return dict(zip(LEVELS, mapper(chart_item, LEVELS, runner, lms, bayer, progress="charts")))
 
 
-def spectral_item(gain, runner: pt.Runner, lms: str, bayer: str) -> tuple[tuple[float, float], dict]:
-    """Spectral ColorChecker at one noise level: (Bayer, LMS) PSNR, and when noiseless the
-    mean/max CIEDE2000 per kind."""
+def spectral_item(gain, runner: pt.Runner, lms: str, bayer: str | list[str]) -> tuple[tuple[float, ...], dict]:
+    """Spectral ColorChecker at one noise level: (Bayer, LMS, *other Bayers) PSNR, and when
+    noiseless the mean/max CIEDE2000 per (kind, demosaic)."""
     rois = spectral_colorchecker("lms").rois
-    pair, de = [], {}
-    for kind, name in (("bayer", bayer), ("lms", lms)):
+    scores, de = [], {}
+    for kind, name in pipelines(lms, bayer):
         sim = simulate_spectral(kind, gain=gain, seed=0)
         image = runner.run(sim.raw, name, True)
-        pair.append(psnr(image, sim.truth, border=toolkit.BORDER))
+        scores.append(psnr(image, sim.truth, border=toolkit.BORDER))
         if gain is None:
             d = patch_delta_e(image, sim.truth, rois)
-            de[kind] = (float(np.mean(d)), float(np.max(d)))
-    return tuple(pair), de
+            de[(kind, name)] = (float(np.mean(d)), float(np.max(d)))
+    return tuple(scores), de
 
 
-def spectral_rows(runner: pt.Runner, lms: str, bayer: str, mapper: pt.Mapper = pt.serial) -> tuple[dict, dict]:
-    """Spectral ColorChecker: {gain: (Bayer, LMS) PSNR} and the noiseless mean/max CIEDE2000 per kind."""
+def spectral_rows(runner: pt.Runner, lms: str, bayer: str | list[str],
+                  mapper: pt.Mapper = pt.serial) -> tuple[dict, dict]:
+    """Spectral ColorChecker: {gain: (Bayer, LMS, *other Bayers) PSNR} and the noiseless mean/max
+    CIEDE2000 per (kind, demosaic)."""
     out, de = {}, {}
     for gain, (pair, d) in zip(LEVELS, mapper(spectral_item, LEVELS, runner, lms, bayer, progress="spectral")):
         out[gain] = pair
@@ -107,28 +135,40 @@ def fmt_level(gain) -> str:
     return "no noise" if gain is None else f"{gain}x"
 
 
-def md_table1(rows: dict[str, tuple[str, dict, dict]]) -> list[str]:
+def md_table1(rows: dict[str, tuple[str, dict, dict]], others: list[str] = ()) -> list[str]:
+    """Table 1's markdown: per cell ours (paper's Bayer)/LMS (lead), the paper's, then a line per
+    other Bayer demosaic (``others``, in the order of the tuples' tail: chart_item) with the LMS lead
+    over it."""
     lines = ["| set (ours: what was run) | " + " | ".join(fmt_level(g) for g in LEVELS) + " |",
              "|---|" + "---|" * len(LEVELS)]
-    for label, (note, ours, paper) in rows.items():
+    for set_label, (note, ours, paper) in rows.items():
         cells = []
         for g in LEVELS:
-            b, lm = ours[g]
+            b, lm, *extra = ours[g]
             pb, pl = paper[g]
-            cells.append(f"{b:.2f}/{lm:.2f} ({lm - b:+.2f})<br>paper {pb:.2f}/{pl:.2f} ({pl - pb:+.2f})")
-        lines.append(f"| {label} ({note}) | " + " | ".join(cells) + " |")
+            cells.append(f"{b:.2f}/{lm:.2f} ({lm - b:+.2f})<br>paper {pb:.2f}/{pl:.2f} ({pl - pb:+.2f})"
+                         + "".join(f"<br>{label(n)} {x:.2f} (LMS - {label(n)} {lm - x:+.2f})"
+                                   for n, x in zip(others, extra)))
+        lines.append(f"| {set_label} ({note}) | " + " | ".join(cells) + " |")
     return lines
 
 
-def md_table2(t2: dict, lms: str, bayer: str, seeds: int) -> list[str]:
-    lines = ["| gain | " + " | ".join(f"P{k + 1}" for k in range(6)) + " | mean lead (paper) |",
+def md_table2(t2: dict, lms: str, bayer: str | list[str], seeds: int) -> list[str]:
+    """Table 2's markdown: per gain and panel ours (paper's Bayer)/LMS, the paper's, then a line
+    per other Bayer demosaic; the last column the mean LMS lead over each."""
+    first, *others = pt.bayer_list(bayer)
+    lead_head = f"mean lead of LMS over {label(first)} (paper)" + "".join(f"<br>over {label(n)}" for n in others)
+    lines = ["| gain | " + " | ".join(f"P{k + 1}" for k in range(6)) + f" | {lead_head} |",
              "|---|" + "---|" * 7]
     for gain in pt.GAINS:
-        b, lm = t2[(gain, "bayer", bayer)][True], t2[(gain, "lms", lms)][True]
+        b, lm = t2[(gain, "bayer", first)][True], t2[(gain, "lms", lms)][True]
+        extra = [t2[(gain, "bayer", n)][True] for n in others]
         pb, pl = pt.PAPER_T2[gain]
-        cells = [f"{b[k]:.2f}/{lm[k]:.2f}<br>paper {pb[k]:.2f}/{pl[k]:.2f}" for k in range(6)]
+        cells = [f"{b[k]:.2f}/{lm[k]:.2f}<br>paper {pb[k]:.2f}/{pl[k]:.2f}"
+                 + "".join(f"<br>{label(n)} {x[k]:.2f}" for n, x in zip(others, extra)) for k in range(6)]
         lead, plead = float(np.mean(lm - b)), float(np.mean(np.subtract(pl, pb)))
-        lines.append(f"| {gain}x | " + " | ".join(cells) + f" | {lead:+.2f} ({plead:+.2f}) |")
+        leads = "".join(f"<br>{float(np.mean(lm - x)):+.2f} over {label(n)}" for n, x in zip(others, extra))
+        lines.append(f"| {gain}x | " + " | ".join(cells) + f" | {lead:+.2f} ({plead:+.2f}){leads} |")
     return lines
 
 
@@ -174,20 +214,22 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     lms = next(n for n in pt.LMS_PREFERENCE if n in pt.DEMOSAICS)
     bayer = "dlmmse" if pt.demosaic_factory("dlmmse") is not None else "bilinear"
+    bayers = bayer_names(bayer)                  # the paper's baseline first, then RI when registered
+    others = bayers[1:]
     runner = pt.Runner(ChromaDenoiseParams(), None)
     times = {}
 
     subset = args.subset or None
     with sweep_mapper(args.scheduler) as mapper:
         t = time.perf_counter()
-        t2 = pt.table2(runner, [lms], bayer, args.seeds, mapper)
+        t2 = pt.table2(runner, [lms], bayers, args.seeds, mapper)
         times["Table 2"] = time.perf_counter() - t
         t = time.perf_counter()
-        t1 = pt.table1(runner, data, subset, [lms], bayer, mapper)
+        t1 = pt.table1(runner, data, subset, [lms], bayers, mapper)
         times["Table 1 (Kodak, McMaster)"] = time.perf_counter() - t
         t = time.perf_counter()
-        charts = chart_rows(runner, lms, bayer, mapper)
-        spectral, delta_e = spectral_rows(runner, lms, bayer, mapper)
+        charts = chart_rows(runner, lms, bayers, mapper)
+        spectral, delta_e = spectral_rows(runner, lms, bayers, mapper)
         times["Table 1 (charts, spectral)"] = time.perf_counter() - t
     t = time.perf_counter()
     csv_path, png_path = out / "bench.csv", out / "bench.png"
@@ -197,7 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     total = time.perf_counter() - t0
 
     def ours(set_name: str) -> dict:
-        return {g: (t1[(set_name, g, "bayer", bayer, "with")][0], t1[(set_name, g, "lms", lms, "with")][0])
+        return {g: (t1[(set_name, g, "bayer", bayer, "with")][0], t1[(set_name, g, "lms", lms, "with")][0],
+                    *(t1[(set_name, g, "bayer", n, "with")][0] for n in others))
                 for g in LEVELS}
     n_all = {s: len(toolkit.image_files(data, image_set, required=False)) for s, image_set in pt.SETS.items()}
     n_set = {s: min(n_all[s], subset or n_all[s]) for s in pt.SETS}
@@ -224,8 +267,11 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"Run: {total / 60:.1f} min on {get_runtime().describe()} "
         f"({', '.join(f'{k} {v / 60:.1f} min' for k, v in times.items())}). "
-        f"Pipelines: LMS demosaic `{lms}`, Bayer demosaic `{bayer}`, chroma denoise on "
-        f"({ChromaDenoiseParams()}), as in tools/paper_tables.py.",
+        f"Pipelines: LMS demosaic `{lms}`; Bayer demosaic `{bayer}` ({label(bayer)}: the paper's Bayer "
+        "baseline; every Bayer/LMS figure and LMS lead set beside the paper's is against it)"
+        + "".join(f" and Bayer demosaic `{n}` ({label(n)}: clisp's residual-interpolation Bayer, the "
+                  "`quality` preset's; the cells' lines headed " + label(n) + ")" for n in others)
+        + f"; chroma denoise on ({ChromaDenoiseParams()}), as in tools/paper_tables.py.",
         "",
         f"**Size of this run:** Table 1 uses {n_set['Kodak']} of {n_all['Kodak']} Kodak and "
         f"{n_set['McMaster']} of {n_all['McMaster']} McMaster images (the first by file name; "
@@ -233,28 +279,38 @@ def main(argv: list[str] | None = None) -> int:
         f"Table 2 averages {args.seeds} noise seed(s); the benchmark uses {len(result['scenes'])} scenes. "
         "Charts and spectral rows use one seed (0).",
         "",
-        "## Table 1: PSNR (dB), tone-mapped, 10 px border, Bayer/LMS (LMS - Bayer)",
+        f"## Table 1: PSNR (dB), tone-mapped, 10 px border, {label(bayer)}/LMS (LMS - {label(bayer)})"
+        + "".join(f"; {label(n)} (LMS - {label(n)})" for n in others),
         "",
-        "Ours first, the paper's below. The paper's ISET row used hyperspectral scenes, which are not "
+        f"Ours first ({label(bayer)} Bayer/LMS), the paper's below (its Bayer/LMS)"
+        + "".join(f", then ours with the {label(n)} Bayer demosaic (`{n}`) and the LMS lead over it"
+                  for n in others)
+        + ". The paper's ISET row used hyperspectral scenes, which are not "
         "available; ours is the spectral ColorChecker of clisp.spectral (Stockman-Sharpe cones / "
         "Nikon D100 QE under D65). McMaster stands in for the paper's IMAX.",
         "",
-        *md_table1(rows),
+        *md_table1(rows, others),
         "",
         "## Spectral ColorChecker colour error (noiseless, CIEDE2000 over the 24 patches)",
         "",
-        "| CFA | mean | max |",
+        "| CFA (demosaic) | mean | max |",
         "|---|---|---|",
-        *[f"| {k.upper() if k == 'lms' else 'Bayer'} | {v[0]:.2f} | {v[1]:.2f} |" for k, v in delta_e.items()],
+        *[f"| {'LMS' if kind == 'lms' else 'Bayer'} (`{name}`) | {v[0]:.2f} | {v[1]:.2f} |"
+          for (kind, name), v in sorted(delta_e.items(), key=lambda kv: kv[0][0] == "lms")],   # Bayers first
         "",
         "clisp.sim.spectral.patch_delta_e: mean colour of the central 32x32 px of each patch, output vs truth, "
         "after the full pipeline (Airy optics, demosaic, chroma denoise, fitted colour matrix).",
         "",
-        "## Table 2: gray-panel SNR (dB), linear output, mean of R, G, B; Bayer/LMS",
+        f"## Table 2: gray-panel SNR (dB), linear output, mean of R, G, B; {label(bayer)}/LMS"
+        + "".join(f"; {label(n)}" for n in others),
         "",
-        f"Demo chart, {args.seeds} seed(s), chroma denoise on; panels P1 (darkest) .. P6.",
+        f"Demo chart, {args.seeds} seed(s), chroma denoise on; panels P1 (darkest) .. P6. Per cell ours "
+        f"({label(bayer)} Bayer/LMS), then the paper's (its Bayer/LMS)"
+        + "".join(f", then ours with the {label(n)} Bayer demosaic (`{n}`)" for n in others)
+        + f"; last column the mean LMS lead over {label(bayer)} (the paper's in brackets)"
+        + "".join(f" and over {label(n)}" for n in others) + ".",
         "",
-        *md_table2(t2, lms, bayer, args.seeds),
+        *md_table2(t2, lms, bayers, args.seeds),
         "",
         "## Speed against quality (tools/bench.py)",
         "",
