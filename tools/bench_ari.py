@@ -1,7 +1,7 @@
-"""Speed of the ARI Bayer demosaic on the device beside DLMMSE, in the same run (issue 12).
+"""Speed of the Bayer demosaics on the device (DLMMSE, RI, ARI), in the same run (issues 12, 27).
 
-    python tools/bench_ari.py [--shape 4000x6000] [--repeat 2] [--profile] [--green 5] [--chroma 2]
-                              [--skip-dlmmse] [--no-dht]
+    python tools/bench_ari.py [--shape 4000x6000] [--repeat 2] [--profile] [--methods dlmmse,ri,ari]
+                              [--green 5] [--chroma 2] [--skip-dlmmse] [--no-dht]
 
 A synthetic white-balanced Bayer mosaic (RGGB, float32, smooth colour fields with random discs and
 noise) of --shape is processed by a one-stage Pipeline (the demosaic alone) through clisp's tiler at
