@@ -59,8 +59,8 @@ CHROMA_NOISE_K = 4.0
 CHROMA_NOISE_K times the Laplacian's noise variance (20 sigma^2: taps 4 and four -1 on i.i.d. noise of
 variance sigma^2 at the window's mean G), so that where the Laplacian is mostly noise the slope
 shrinks towards 0 and the chroma fit towards the window mean. 4 from issue 27's study (first 6 Kodak
-and McMaster images, 4 dead-leaves charts, gains 16 and 64: +0.5 to +1.1 dB over no regularisation; 1
-and 16 did worse, and regularising the G fits the same way lost 0.05-0.2 dB), docs/RESULTS.md."""
+and McMaster images, 4 dead-leaves charts, gains 16 and 64: +0.45 to +1.1 dB over no regularisation;
+16 gained less, and regularising the G fits the same way lost 0.05-0.2 dB), docs/RESULTS.md."""
 SMOOTH_TAPS = 5
 """The one-sided smoothing of each side's colour difference: taps 0..4 towards the side."""
 
