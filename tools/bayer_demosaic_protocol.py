@@ -4,7 +4,8 @@ For every image of Kodak (24 PNG) and McMaster (18 TIFF): the sRGB-ENCODED 8-bit
 [0, 1] (no linearisation), is mosaicked as RGGB (no optics, no noise, no colour matrix) and
 demosaicked by
 
-    clisp bilinear / Malvar / DLMMSE   our OpenCL kernels, through a Pipeline holding only the
+    clisp bilinear / Malvar / DLMMSE / RI / ARI
+                                       our OpenCL kernels, through a Pipeline holding only the
                                        demosaic stage (the pipeline pads the borders with the
                                        CFA-preserving mirror), whole image as one tile
     cd Malvar2004 / cd Menon2007       colour_demosaicing.demosaicing_CFA_Bayer_Malvar2004 /
@@ -45,9 +46,11 @@ from clisp.io.imageio import read_scene
 from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
 from clisp.engine.stage import Stage
+from clisp.modules.demosaic_ari.stage import DemosaicARI
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 from clisp.modules.demosaic_malvar.stage import DemosaicMalvar
+from clisp.modules.demosaic_ri.stage import DemosaicRI
 
 CFA = bayer_cfa("RGGB")
 SETS = {"Kodak": KODAK, "McMaster": MCMASTER}
@@ -58,7 +61,11 @@ OURS: dict[str, Stage] = {
     "clisp Malvar": DemosaicMalvar(CFA),
     "clisp DLMMSE": DemosaicDLMMSE(CFA),
     "clisp DLMMSE (window mean)": DemosaicDLMMSE(CFA, local_mean="window"),
+    "clisp RI": DemosaicRI(CFA),
+    "clisp ARI": DemosaicARI(CFA),
 }
+SLOW = ("clisp ARI",)
+"""Left out of the speed measurement (about a minute per 24 MP run; tools/bench_ari.py times it)."""
 
 
 def colour_demosaicing_methods() -> dict[str, Callable[[np.ndarray], np.ndarray]]:
@@ -157,7 +164,7 @@ def speed(data: Path, repeat: int, tile: int | None = None) -> None:
     scale = raw.pass1_gains() / (raw.white_level - raw.black_level)
     channel = CFA.channel_map(*SPEED_SHAPE)
     m = ((raw.data - raw.black_level[channel]) * scale[channel]).astype(np.float32)
-    stages = {name: stage for name, stage in OURS.items() if "window" not in name}
+    stages = {name: stage for name, stage in OURS.items() if "window" not in name and name not in SLOW}
     with tempfile.TemporaryDirectory() as folder:
         runs: dict[str, Callable[[], object]] = {"ahd": rawpy_ahd(raw, Path(folder))}
         for name, stage in stages.items():

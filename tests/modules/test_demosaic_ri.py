@@ -28,42 +28,12 @@ from clisp.modules.raw_scale.stage import normalize, white_balance1
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline, resolve_options
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.sim.noise import ChannelNoise
+from bayer_scenes import mosaic, scene
 
 TOL_MAX = 2e-4
 TOL_MEAN = 2e-6
 OUT = 40
 """Output side of the device comparisons (the window is OUT + 2 HALO)."""
-
-
-def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
-    """size x size x 3 linear RGB test scenes, nominally [0, 1] with some values outside."""
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64) / size
-    if kind == "ramps":                       # smooth colour ramps, a highlight above 1
-        rgb = np.stack([0.1 + 0.8 * xx, 0.2 + 0.6 * yy, 0.9 - 0.7 * (xx + yy) / 2], axis=-1)
-        rgb += 0.6 * np.exp(-((xx - 0.5) ** 2 + (yy - 0.5) ** 2) / 0.002)[..., None]
-    elif kind == "edges":                     # sharp colour edges at several angles, values below 0
-        rgb = np.full((size, size, 3), 0.3)
-        rgb[xx + 0.3 * yy > 0.5] = (0.9, 0.5, 0.1)
-        rgb[(yy - 0.6 * xx > 0.4)] = (0.05, 0.2, 0.8)
-        rgb[np.abs(xx - yy) < 0.02] = (1.1, 1.0, -0.02)
-    elif kind == "discs":                     # a small dead-leaves pattern
-        rgb = np.full((size, size, 3), 0.5)
-        for _ in range(60):
-            cy, cx, r = rng.random(), rng.random(), 0.02 + 0.15 * rng.random() ** 2
-            rgb[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.random(3)
-    elif kind == "noise":                     # white noise mosaic, [-0.1, 1.2]
-        rgb = rng.uniform(-0.1, 1.2, (size, size, 3))
-    else:
-        raise ValueError(kind)
-    if kind != "noise":
-        rgb += rng.normal(0, 0.005, rgb.shape)
-    return rgb
-
-
-def mosaic(rgb: np.ndarray, phase: str, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-    ch = bayer_cfa(phase).channel_map(rgb.shape[0], rgb.shape[1], origin)
-    return np.take_along_axis(rgb, ch[..., None].astype(np.intp), axis=-1)[..., 0].astype(np.float32)
 
 
 def run_device(rt, stage: DemosaicRI, mos: np.ndarray, origin=(0, 0)) -> np.ndarray:

@@ -3,17 +3,20 @@ Bayer demosaic. Reference, algorithm and citations: reference.py beside this fil
 the definition of correct); kernels: demosaic_ri.cl (one ``ri_<step>`` per step); schedule and
 measurements: README.md.
 
-Steps (radius = the halo the step reads; their sum is the stage's halo, 19)::
+Steps (radius = the halo the step reads; their sum is the stage's halo, 19; launches per window)::
 
-    green_fit     4   per direction, the weighted guided-filter fits of the G line and the chroma
-                      line to each other over 7 pixels along the line (12 planes)
-    green_lines   4   the coefficients' 1 / RMSE-weighted means, the tentatives, the residual
-                      interpolated along the line: G - C along rows and along columns (2 planes)
-    green_merge   4   G: the GBTF merge of the two differences at the chroma sites
-    chroma_laplacians 2  the Laplacians of G and of the mosaic (2 planes)
-    chroma_fit    2   the weighted MLRI fits of R and B from G over 5 x 5 windows (6 planes)
-    chroma_apply  2   the tentative R and B (2 planes)
-    complete_rgb  1   R, G, B: the tentatives plus the bilinear residual, times a fused matrix
+    green_fit          4  4  per direction and fit, the weighted guided-filter fit of the G line
+                             from the chroma line or the converse over 7 pixels (12 planes)
+    green_apply        3  4  the coefficients' 1 / RMSE-weighted means along the line: the
+                             tentatives t_g, t_c per direction (4 planes)
+    green_residual     1  2  G - C along rows and along columns: the tentative plus the residual
+                             interpolated along the line (2 planes)
+    green_merge        4  1  G: the GBTF merge of the two differences at the chroma sites
+    chroma_laplacians  2  1  the Laplacians of G and of the mosaic (2 planes)
+    chroma_fit         2  8  per colour and pixel class, the weighted MLRI fit of R (B) from G over
+                             5 x 5 windows, its slope regularised by the raw's noise (6 planes)
+    chroma_apply       2  1  the tentative R and B (2 planes)
+    complete_rgb       1  1  R, G, B: the tentatives plus the bilinear residual, times a fused matrix
 
 Input: a white-balanced Bayer mosaic window, H x W (float32, or uint16 as a first stage), any of the
 four phases; output: 3 x (H - 38) x (W - 38) float32 in the mosaic's units (or H x W x 3 with
