@@ -3,7 +3,8 @@ demosaics, on Kodak, McMaster and dead leaves, noiseless and noisy (issue 12, it
 
 For every scene and setting a Bayer raw and an LMS raw are simulated once (clisp.sim.simulate, seed 0)
 and every method of that CFA processes the same raw. Settings: ``noiseless`` (Airy optics),
-``noiseless-sharp`` (no optics), and gains ``4``, ``16``, ``64`` (Airy optics, shot + read noise).
+``noiseless-sharp`` (no optics), and gains ``4``, ``16``, ``64`` (Airy optics, shot + read noise; also
+``1`` and ``8`` on request).
 
 Bayer methods share everything but the demosaic. The stages of ``clisp process``'s default
 pipeline for the Bayer raw (clisp.pipeline.build_pipeline, linear output) are split at the
@@ -66,8 +67,9 @@ from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
 from clisp.engine.stage import Stage
 
-SETTINGS = {"noiseless": (None, "airy"), "noiseless-sharp": (None, "none"),
-            "4": (4.0, "airy"), "16": (16.0, "airy"), "64": (64.0, "airy")}
+SETTINGS = {"noiseless": (None, "airy"), "noiseless-sharp": (None, "none"), "1": (1.0, "airy"),
+            "4": (4.0, "airy"), "8": (8.0, "airy"), "16": (16.0, "airy"), "64": (64.0, "airy")}
+DEFAULT_SETTINGS = ("noiseless", "noiseless-sharp", "4", "16", "64")
 LIBRAW_ALGOS = ("AHD", "DHT", "AAHD", "VNG", "DCB")
 NOISELESS_SCALE = 64.0
 """Noiseless raws are float DN; LibRaw reads integers, so its DNG holds DN x 64 (10-bit data in 16
@@ -249,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subset", type=int, default=None, help="first N images of each file set")
     parser.add_argument("--dead-leaves", type=int, default=8, help="dead-leaves charts (default 8)")
     parser.add_argument("--dead-size", type=int, default=512, help="dead-leaves side in px (default 512)")
-    parser.add_argument("--settings", default=",".join(SETTINGS), help=f"of {', '.join(SETTINGS)}")
+    parser.add_argument("--settings", default=",".join(DEFAULT_SETTINGS),
+                        help=f"of {', '.join(SETTINGS)} (default {','.join(DEFAULT_SETTINGS)})")
     parser.add_argument("--bayer", default=None,
                         help="our Bayer demosaics (default: the default pipeline's, then any others given)")
     parser.add_argument("--libraw", default=",".join(LIBRAW_ALGOS), help="LibRaw demosaics ('' for none)")
