@@ -186,7 +186,7 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
     assert run(["simulate", scene_png, "-o", raw_path, "--cfa", "bayer", "--gain", "4"], capsys)[0] == 0
     code, out, err = run(["process", raw_path, "-o", tmp_path / "o.tif", "--profile"], capsys)
     assert code == 0, err
-    for expected in ("device: stage / kernel", "demosaic_dlmmse", "chroma_denoise", "joint_bilateral",
+    for expected in ("device: stage / kernel", "demosaic_ri", "ri_green_fit", "chroma_denoise", "joint_bilateral",
                      "upload", "download", "write output", "device total", "start-up"):
         assert expected in out, f"{expected!r} missing from the profile:\n{out}"
     total = float(next(line for line in out.splitlines() if "device total" in line).split()[-1])

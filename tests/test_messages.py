@@ -135,7 +135,7 @@ MESSAGES = {
     "output-folder-missing": (lambda f, t: ["process", f["good"], "-o", t / "nowhere" / "o.exr"],
                               r".*o\.exr: output folder .*nowhere does not exist"),
     "unknown-preset": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--preset", "nope"],
-                       r"unknown preset 'nope'; available: fast, balanced, quality"),
+                       r"unknown preset 'nope'; available: fast, balanced, quality, best"),
     "demosaic-for-cfa": (lambda f, t: ["process", f["float"], "-o", t / "o.exr", "--demosaic", "ari"],
                          r"demosaic 'ari' works on bayer CFAs, not lms"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
