@@ -23,7 +23,7 @@ from clisp.errors import ClispError
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.demosaic_ari import reference as ari
 from clisp.modules.demosaic_ri.reference import HALO, STEP_RADII, demosaic
-from clisp.modules.demosaic_ri.stage import DemosaicRI, program_defines
+from clisp.modules.demosaic_ri.stage import DemosaicRI, chroma_fit_defines, program_defines
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline, resolve_options
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
@@ -157,12 +157,15 @@ def test_colour_matrix_fusion_and_interleaved(rt):
 
 
 def test_defines_come_from_the_host(rt):
-    """demosaic_ri.cl holds no fallback of a host define: a program built without them fails; the host
-    gives every one the kernel file checks."""
-    with pytest.raises(ClispError, match="build"):
-        rt.kernel("demosaic_ri", "ri_green_fit", {})
-    checked = set(re.findall(r"!defined\((\w+)\)", kernel_path("demosaic_ri.cl").read_text()))
-    assert checked == set(program_defines(np.dtype(np.float32), False))
+    """The two kernel files hold no fallback of a host define: a program built without them fails;
+    the host gives each exactly the ones its file checks."""
+    for program, kernel, defines in (("demosaic_ri", "ri_green_fit", program_defines(np.dtype(np.float32), False)),
+                                     ("demosaic_ri_chroma_fit", "ri_chroma_fit",
+                                      chroma_fit_defines(np.dtype(np.float32), 1, 0))):
+        with pytest.raises(ClispError, match="build"):
+            rt.kernel(program, kernel, {})
+        checked = set(re.findall(r"!defined\((\w+)\)", kernel_path(f"{program}.cl").read_text()))
+        assert checked == set(defines), program
 
 
 def test_device_memory_within_declared(rt):

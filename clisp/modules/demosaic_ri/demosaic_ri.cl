@@ -14,41 +14,25 @@
  *    and one is selected, so that PoCL vectorises across work-items along x.
  *
  * Defines, all from the host (stage.py, RI_DEFINES; none has a default here): RAW_T, RI_SCALE,
- * RI_EPS, RI_RMSE_FLOOR, RI_WEIGHT_REG (ARI's constants), RI_MLRI_FLOOR, RI_MERGE_REG, RI_LINE_R
+ * RI_EPS, RI_RMSE_FLOOR, RI_WEIGHT_REG (ARI's constants), RI_MERGE_REG, RI_LINE_R
  * (the G fits' window radius along the line), RI_CHROMA_R (the chroma fits' window radius),
- * RI_SMOOTH (the merge's one-sided Gaussian taps, offsets 0..4), INTERLEAVED, RI_OFF_Y and RI_OFF_X
- * (ri_chroma_fit's pixel class; 0 in the programs of the other kernels). */
+ * RI_SMOOTH (the merge's one-sided Gaussian taps, offsets 0..4), INTERLEAVED. ri_chroma_fit is a
+ * program of its own (demosaic_ri_chroma_fit.cl): it is compiled once per pixel class. */
 
 #if !defined(RAW_T) || !defined(RI_SCALE) || !defined(RI_EPS) || !defined(RI_RMSE_FLOOR) \
-    || !defined(RI_WEIGHT_REG) || !defined(RI_MLRI_FLOOR) || !defined(RI_MERGE_REG) || !defined(RI_LINE_R) \
-    || !defined(RI_CHROMA_R) || !defined(RI_SMOOTH) || !defined(INTERLEAVED) || !defined(RI_OFF_Y) || !defined(RI_OFF_X)
+    || !defined(RI_WEIGHT_REG) || !defined(RI_MERGE_REG) || !defined(RI_LINE_R) || !defined(RI_CHROMA_R) \
+    || !defined(RI_SMOOTH) || !defined(INTERLEAVED)
 #error "demosaic_ri.cl takes every define from the host (clisp/modules/demosaic_ri/stage.py)"
 #endif
 
 #include "guided.h"
+#include "demosaic_ri.h"
 
 __constant float ri_smooth[5] = RI_SMOOTH;
-
-#define RAW(v, i) ((float)(v)[i] * RI_SCALE)
 
 __attribute__((always_inline)) inline int ri_is_green(const int y, const int x, const int ry, const int rx)
 {
     return ((y + ry + x + rx) & 1) != 0;
-}
-
-/* ARI's weighted fit of one window from its centred statistics: r = (a w, b w, w) with
- * b = mean_y - a mean_x, w = 1 / max(sqrt(max(a^2 var_x - 2 a cov + var_y, 0)), RI_RMSE_FLOOR). */
-__attribute__((always_inline)) inline void ri_weighted_fit(const float a, const float mean_x, const float mean_y,
-                                                           const float var_x, const float var_y, const float cov,
-                                                           float *aw, float *bw, float *wt)
-{
-    const float b = mean_y - a * mean_x;
-    const float mse = a * a * var_x - 2.0f * a * cov + var_y;
-    const float rmse = __builtin_sqrtf(mse > 0.0f ? mse : 0.0f);
-    const float w = 1.0f / (rmse > RI_RMSE_FLOOR ? rmse : RI_RMSE_FLOOR);
-    *aw = a * w;
-    *bw = b * w;
-    *wt = w;
 }
 
 #define LINE_N (2 * RI_LINE_R + 1)
@@ -206,63 +190,6 @@ __kernel void ri_chroma_laplacians(__global const RAW_T *restrict raw, const int
                              - RAW(raw, ra + 2 * raw_w);
 }
 
-/* ri_chroma_fit: the weighted MLRI fit of one colour from G over its sites in the CHROMA_N x
- * CHROMA_N window of every output pixel of one class: the pixels (2 gy + sy, 2 gx + sx), whose
- * offsets to the colour's lattice are the program's RI_OFF_Y, RI_OFF_X (0: the pixel is on the
- * colour's rows / columns), so that the window's sites are known when compiling: 9, 6 or 4 taps
- * instead of 25 masked ones. Written as (a w, b w, w) to planes base..base + 2 of the 6-plane image
- * (R: 0, B: 3): slope a = (sum(L g L x) / n) / max(sum (L g)^2 / n, RI_MLRI_FLOOR) over the n sites
- * (laps: L g, L x), plus reg_shot mean g + reg_floor (the host's CHROMA_NOISE_K 20 sigma^2 of G's noise at
- * the window's mean G, 8-bit units; 0 when noiseless), b = mean x - a mean g, the weight from that
- * fit's RMSE; moments centred on the
- * centre's G and on the colour's sample next to the centre. One colour per launch (two are alike:
- * SLP). Halo RI_CHROMA_R. */
-__kernel void ri_chroma_fit(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
-                            __global const float *restrict g, const int g_w, const int g_m,
-                            __global const float *restrict laps, const int laps_w, const int laps_plane,
-                            const int laps_m, __global float *restrict out, const int w, const int h,
-                            const int sy, const int sx, const int base, const float reg_shot,
-                            const float reg_floor)
-{
-    const int x = 2 * get_global_id(0) + sx, y = 2 * get_global_id(1) + sy;
-    const int ra = (y + raw_m) * raw_w + x + raw_m;
-    const float cx = RAW(raw, ra + RI_OFF_Y * raw_w + RI_OFF_X);     /* the colour's sample next to the centre */
-    const float cg = g[(y + g_m) * g_w + x + g_m];
-    gf_moments m = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-    float ll = 0.0f, gg = 0.0f;
-#pragma unroll
-    for (int i = -RI_CHROMA_R; i <= RI_CHROMA_R; ++i)
-#pragma unroll
-        for (int j = -RI_CHROMA_R; j <= RI_CHROMA_R; ++j) {
-            if (((i + RI_OFF_Y) & 1) == 0 && ((j + RI_OFF_X) & 1) == 0) {
-                const float d = g[(y + g_m + i) * g_w + x + g_m + j] - cg;
-                const float e = RAW(raw, ra + i * raw_w + j) - cx;
-                const int la = (y + laps_m + i) * laps_w + x + laps_m + j;
-                const float lg = laps[la], lx = laps[laps_plane + la];
-                m.n += 1.0f;
-                m.s1x += d;
-                m.s1y += e;
-                m.s2x += d * d;
-                m.s2y += e * e;
-                m.sxy += d * e;
-                ll += lg * lx;
-                gg += lg * lg;
-            }
-        }
-    const float inv = 1.0f / m.n;
-    float md, me, vg, vx, cv;
-    gf_centred_stats(&m, inv, &md, &me, &vg, &vx, &cv);
-    float aw, bw, wt;
-    const float mg = cg + md;
-    const float reg = reg_shot * (mg > 0.0f ? mg : 0.0f) + reg_floor;     /* K 20 sigma^2 at the mean G */
-    ri_weighted_fit((ll * inv) / ((gg * inv > RI_MLRI_FLOOR ? gg * inv : RI_MLRI_FLOOR) + reg), mg, cx + me, vg, vx,
-                    cv, &aw, &bw, &wt);
-    const int o = y * w + x, p = w * h;
-    out[base * p + o] = aw;
-    out[(base + 1) * p + o] = bw;
-    out[(base + 2) * p + o] = wt;
-}
-
 /* ri_chroma_apply: the tentative R and B (2 planes), A g + B with A, B the 1 / RMSE-weighted means
  * of the fits (6 planes) over the CHROMA_N x CHROMA_N window. Halo RI_CHROMA_R. */
 __kernel void ri_chroma_apply(__global const float *restrict fits, const int fits_w, const int fits_plane,
@@ -270,20 +197,24 @@ __kernel void ri_chroma_apply(__global const float *restrict fits, const int fit
                               __global float *restrict out, const int w, const int h)
 {
     const int x = get_global_id(0), y = get_global_id(1);
-    float s[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    /* scalar sums (an array indexed in the unrolled loop took PoCL 10 s to compile) */
+    float ar = 0.0f, br = 0.0f, wr = 0.0f, ab = 0.0f, bb = 0.0f, wb = 0.0f;
+    __global const float *f = fits + (y + fits_m) * fits_w + x + fits_m;
 #pragma unroll
     for (int i = -RI_CHROMA_R; i <= RI_CHROMA_R; ++i)
 #pragma unroll
         for (int j = -RI_CHROMA_R; j <= RI_CHROMA_R; ++j) {
-            const int at = (y + fits_m + i) * fits_w + x + fits_m + j;
-#pragma unroll
-            for (int q = 0; q < 6; ++q)
-                s[q] += fits[q * fits_plane + at];
+            const int at = i * fits_w + j;
+            ar += f[at];
+            br += f[fits_plane + at];
+            wr += f[2 * fits_plane + at];
+            ab += f[3 * fits_plane + at];
+            bb += f[4 * fits_plane + at];
+            wb += f[5 * fits_plane + at];
         }
     const float gv = g[(y + g_m) * g_w + x + g_m];
-    const float inv_r = 1.0f / (s[2] + RI_WEIGHT_REG), inv_b = 1.0f / (s[5] + RI_WEIGHT_REG);
-    out[y * w + x] = (s[0] * gv + s[1]) * inv_r;
-    out[w * h + y * w + x] = (s[3] * gv + s[4]) * inv_b;
+    out[y * w + x] = (ar * gv + br) / (wr + RI_WEIGHT_REG);
+    out[w * h + y * w + x] = (ab * gv + bb) / (wb + RI_WEIGHT_REG);
 }
 
 /* ri_complete_rgb: R, G, B (3 planes, or H x W x 3 with INTERLEAVED) times the 3 x 3 matrix m

@@ -51,10 +51,21 @@ def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]
     """The defines of demosaic_ri.cl: the reference's constants (8-bit units) and radii, the input
     type and the output layout."""
     taps = "{" + ",".join(f"{float(v)!r}f" for v in smooth_taps()) + "}"
-    return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "RI_SCALE": SCALE,
-            "RI_EPS": EPS, "RI_RMSE_FLOOR": RMSE_FLOOR, "RI_WEIGHT_REG": WEIGHT_REG, "RI_MLRI_FLOOR": MLRI_FLOOR,
-            "RI_MERGE_REG": MERGE_REG, "RI_LINE_R": LINE_RADIUS, "RI_CHROMA_R": CHROMA_RADIUS, "RI_SMOOTH": taps,
-            "INTERLEAVED": int(interleaved), "RI_OFF_Y": 0, "RI_OFF_X": 0}
+    return {"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_EPS": EPS, "RI_RMSE_FLOOR": RMSE_FLOOR,
+            "RI_WEIGHT_REG": WEIGHT_REG, "RI_MERGE_REG": MERGE_REG, "RI_LINE_R": LINE_RADIUS,
+            "RI_CHROMA_R": CHROMA_RADIUS, "RI_SMOOTH": taps, "INTERLEAVED": int(interleaved)}
+
+
+def chroma_fit_defines(raw_dtype: np.dtype, off_y: int, off_x: int) -> dict[str, object]:
+    """The defines of demosaic_ri_chroma_fit.cl for one pixel class: its offsets (0 or 1) to the
+    fitted colour's rows and columns, the constants and the window radius."""
+    return {"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_RMSE_FLOOR": RMSE_FLOOR,
+            "RI_MLRI_FLOOR": MLRI_FLOOR, "RI_CHROMA_R": CHROMA_RADIUS, "RI_OFF_Y": off_y, "RI_OFF_X": off_x}
+
+
+def raw_type(dtype: np.dtype) -> str:
+    """The kernels' mosaic type: ushort when the demosaic is the first stage of a uint16 raw."""
+    return "ushort" if np.dtype(dtype) == np.uint16 else "float"
 
 
 @dataclass
@@ -179,7 +190,7 @@ class DemosaicRI(Stage):
         laps = image("chroma_laplacians", green, 2)
         run("chroma_laplacians", laps, plane("g", green, STEP_RADII["chroma_laplacians"]))
         cfits = image("chroma_fit", laps, 6)
-        self._chroma_fits(rt, src, green, laps, cfits, origin, margins, defines)
+        self._chroma_fits(rt, src, green, laps, cfits, origin, margins)
         rt.release(laps)
         tent = image("chroma_apply", cfits, 2)
         run("chroma_apply", tent, {**planes("fits", cfits, STEP_RADII["chroma_apply"]),
@@ -195,11 +206,10 @@ class DemosaicRI(Stage):
         return rgb
 
     def _chroma_fits(self, rt: Runtime, src: DeviceImage, green: DeviceImage, laps: DeviceImage,
-                     out: DeviceImage, origin: tuple[int, int], margins: dict[str, int],
-                     defines: dict[str, object]) -> None:
-        """ri_chroma_fit over the four pixel classes of the output grid, R then B: a class's
-        offsets to the colour's lattice are compile-time (RI_OFF_Y, RI_OFF_X), one launch covers
-        its pixels (2 gy + sy, 2 gx + sx)."""
+                     out: DeviceImage, origin: tuple[int, int], margins: dict[str, int]) -> None:
+        """ri_chroma_fit (its own program, demosaic_ri_chroma_fit.cl) over the four pixel classes of
+        the output grid, R then B: a class's offsets to the colour's lattice are compile-time
+        (RI_OFF_Y, RI_OFF_X: four small programs), one launch covers its pixels (2 gy + sy, 2 gx + sx)."""
         m = margins["chroma_fit"]
         ry, rx = self.r_parity(origin, m)                # R rows: y + ry even
         shot, floor = self.green_noise()
@@ -215,9 +225,9 @@ class DemosaicRI(Stage):
                     n_y, n_x = (out.height - sy + 1) // 2, (out.width - sx + 1) // 2
                     if n_y == 0 or n_x == 0:
                         continue
-                    off = {"RI_OFF_Y": (sy + py) % 2, "RI_OFF_X": (sx + px) % 2}
-                    rt.launch_named("demosaic_ri", "ri_chroma_fit", n_x, n_y,
-                                    {**args, "sy": sy, "sx": sx, "base": base}, {**defines, **off})
+                    defines = chroma_fit_defines(src.dtype, (sy + py) % 2, (sx + px) % 2)
+                    rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", n_x, n_y,
+                                    {**args, "sy": sy, "sx": sx, "base": base}, defines)
 
     def fuse(self, following: Stage) -> Stage | None:
         """A following colour matrix runs inside the last kernel (same maths, one pass fewer)."""
