@@ -1,5 +1,6 @@
-"""Test scenes for the Bayer demosaics' kernel-vs-reference tests (test_demosaic_ari_cl.py,
-test_demosaic_ri.py): small linear RGB scenes with the hard cases, and their Bayer mosaics."""
+"""Test scenes and shared checks of the Bayer demosaics' device tests (test_demosaic_ari_cl.py,
+test_demosaic_ri.py): small linear RGB scenes with the hard cases, their Bayer mosaics, and the
+device-memory check of a stage's declared bytes_per_pixel."""
 from __future__ import annotations
 
 import numpy as np
@@ -36,3 +37,14 @@ def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
 def mosaic(rgb: np.ndarray, phase: str, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
     ch = bayer_cfa(phase).channel_map(rgb.shape[0], rgb.shape[1], origin)
     return np.take_along_axis(rgb, ch[..., None].astype(np.intp), axis=-1)[..., 0].astype(np.float32)
+
+
+def assert_memory_within_declared(rt, stage, shapes: tuple[tuple[int, int], ...]) -> None:
+    """bytes_per_pixel covers what one enqueue creates from an empty pool (Runtime.metering), on a
+    zero mosaic of every (h, w) of ``shapes``."""
+    for h, w in shapes:
+        src = rt.upload(np.zeros((h, w), dtype=np.float32))
+        with rt.metering() as pool:
+            stage.enqueue(rt, src, (0, 0))
+        rt.release(src)
+        assert pool.created <= stage.bytes_per_pixel * h * w, (h, w, pool.created / (h * w))
