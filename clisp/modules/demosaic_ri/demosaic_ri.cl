@@ -150,8 +150,8 @@ __attribute__((always_inline)) inline float ri_gradient_sum(__global const float
  * the gradient sums read 3). */
 __kernel void ri_green_merge(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
                              __global const float *restrict dif, const int dif_w, const int dif_plane,
-                             const int dif_m, __global float *restrict out, const int w, const int ry,
-                             const int rx)
+                             const int dif_m, __global float *restrict out, const int w, const int h,
+                             const int ry, const int rx)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     const int a = (y + dif_m) * dif_w + x + dif_m;

@@ -32,20 +32,18 @@ Example: a flat mosaic stays flat::
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from itertools import accumulate
 
 import numpy as np
 
 from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
+from ...sim.noise import ChannelNoise
 from ..colour.stage import ColourMatrix
 from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_REG
 from ..demosaic_malvar.stage import check_bayer
-from ...sim.noise import ChannelNoise
 from .reference import CHROMA_NOISE_K, CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
-
-R_CHANNEL = 0
-
 
 def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]:
     """The defines of demosaic_ri.cl: the reference's constants (8-bit units) and radii, the input
@@ -121,7 +119,7 @@ class DemosaicRI(Stage):
     def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
         pixel (y, x) is an R site when y + ry and x + rx are even."""
-        ys, xs = np.nonzero(self.cfa.pattern == R_CHANNEL)
+        ys, xs = np.nonzero(self.cfa.pattern == self.cfa.channels.index("R"))
         return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
@@ -135,11 +133,7 @@ class DemosaicRI(Stage):
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         defines = program_defines(src.dtype, self.interleaved)
         matrix = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
-        margins = {}                        # step -> its output grid's margin inside the window
-        at = 0
-        for step, r in STEP_RADII.items():
-            at += r
-            margins[step] = at
+        margins = dict(zip(STEP_RADII, accumulate(STEP_RADII.values())))   # step -> its output's margin
 
         def image(step: str, prev: DeviceImage, channels: int) -> DeviceImage:
             r = STEP_RADII[step]
@@ -150,11 +144,9 @@ class DemosaicRI(Stage):
             and the site parities of the step's grid."""
             m = margins[step]
             ry, rx = self.r_parity(origin, m)
-            args = {"out": out, "w": out.width, **args}
+            args = {"out": out, "w": out.width, "h": out.height, **args}
             if mosaic:
                 args.update(raw=src, raw_w=src.width, raw_m=m, ry=ry, rx=rx)
-            if step != "green_merge":
-                args["h"] = out.height
             rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines)
 
         def planes(name: str, img: DeviceImage, margin: int) -> dict[str, object]:
