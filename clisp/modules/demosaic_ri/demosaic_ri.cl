@@ -13,7 +13,7 @@
  *  - No branch on per-pixel data: where the work depends on the site, both candidates are computed
  *    and one is selected, so that PoCL vectorises across work-items along x.
  *
- * Defines, all from the host (stage.py, RI_DEFINES; none has a default here): RAW_T, RI_SCALE,
+ * Defines, all from the host (stage.py, program_defines; none has a default here): RAW_T, RI_SCALE,
  * RI_EPS, RI_RMSE_FLOOR, RI_WEIGHT_REG (ARI's constants), RI_MERGE_REG, RI_LINE_R
  * (the G fits' window radius along the line), RI_CHROMA_R (the chroma fits' window radius),
  * RI_SMOOTH (the merge's one-sided Gaussian taps, offsets 0..4), INTERLEAVED. ri_chroma_fit is a
