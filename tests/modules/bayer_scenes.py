@@ -1,11 +1,16 @@
 """Test scenes and shared checks of the Bayer demosaics' device tests (test_demosaic_ari_cl.py,
 test_demosaic_ri.py): small linear RGB scenes with the hard cases, their Bayer mosaics, and the
-device-memory check of a stage's declared bytes_per_pixel."""
+device-memory check of a stage's declared bytes_per_pixel and the tiling check in a pipeline."""
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from clisp.cfa import bayer_cfa
+from clisp.modules.colour.stage import ColourMatrix
+from clisp.modules.raw_scale.stage import normalize, white_balance1
+from clisp.pipeline import Pipeline
+from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 
 
 def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
@@ -48,3 +53,18 @@ def assert_memory_within_declared(rt, stage, shapes: tuple[tuple[int, int], ...]
             stage.enqueue(rt, src, (0, 0))
         rt.release(src)
         assert pool.created <= stage.bytes_per_pixel * h * w, (h, w, pool.created / (h * w))
+
+
+def assert_tiled_equals_whole(make_stage, shape: tuple[int, int]) -> None:
+    """A GBRG pipeline (normalise, WB pass 1, ``make_stage(cfa)``, colour matrix) on a smooth noisy
+    uint16 raw of ``shape``: tiles of 48 and 96 px give exactly the whole image's output."""
+    cfa = bayer_cfa("GBRG")
+    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER),
+                              make_stage(cfa), ColourMatrix(B_BAYER)])
+    rng = np.random.default_rng(5)
+    sc = ndimage.gaussian_filter(rng.random(shape), 2.0) * 600 + 100
+    raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)
+    whole = pipeline.run(raw, tile=0)
+    assert whole.shape == shape + (3,)
+    for tile in (48, 96):
+        np.testing.assert_array_equal(pipeline.run(raw, tile=tile), whole, err_msg=f"tile {tile}")

@@ -22,17 +22,13 @@ import re
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from clisp.cfa import BAYER_PHASES, bayer_cfa
-from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.errors import ClispError
 from clisp.engine.runtime import kernel_path
-from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline
-from clisp.modules.colour.stage import ColourMatrix
+from clisp.pipeline import DEMOSAICS, PRESETS
 from clisp.modules.demosaic_ari.stage import MODES, DemosaicARI, ari_halo, program_defines
-from clisp.modules.raw_scale.stage import normalize, white_balance1
-from bayer_scenes import assert_memory_within_declared, mosaic, scene
+from bayer_scenes import assert_memory_within_declared, assert_tiled_equals_whole, mosaic, scene
 
 TOL_MAX = 1e-3
 TOL_MEAN = 1e-5
@@ -141,15 +137,4 @@ def test_device_memory_within_declared(rt):
 # ------------------------------------------------------------------------------------ tiling
 
 def test_tiled_equals_whole():
-    cfa = bayer_cfa("GBRG")
-    stage = DemosaicARI(cfa, 2, 1)
-    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER), stage,
-                              ColourMatrix(B_BAYER)])
-    rng = np.random.default_rng(5)
-    sc = ndimage.gaussian_filter(rng.random((150, 170)), 2.0) * 600 + 100
-    raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)
-    whole = pipeline.run(raw, tile=0)
-    assert whole.shape == (150, 170, 3)
-    for tile in (48, 96):
-        tiled = pipeline.run(raw, tile=tile)
-        np.testing.assert_array_equal(tiled, whole, err_msg=f"tile {tile}")
+    assert_tiled_equals_whole(lambda cfa: DemosaicARI(cfa, 2, 1), (150, 170))

@@ -24,11 +24,10 @@ from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.demosaic_ari import reference as ari
 from clisp.modules.demosaic_ri.reference import HALO, STEP_RADII, demosaic
 from clisp.modules.demosaic_ri.stage import DemosaicRI, chroma_fit_defines, program_defines
-from clisp.modules.raw_scale.stage import normalize, white_balance1
-from clisp.pipeline import DEMOSAICS, PRESETS, Pipeline, resolve_options
-from clisp.sim.colorimetry import B_BAYER, WB_BAYER
+from clisp.pipeline import DEMOSAICS, PRESETS, resolve_options
+from clisp.sim.colorimetry import B_BAYER
 from clisp.sim.noise import ChannelNoise
-from bayer_scenes import assert_memory_within_declared, mosaic, scene
+from bayer_scenes import assert_memory_within_declared, assert_tiled_equals_whole, mosaic, scene
 
 TOL_MAX = 2e-4
 TOL_MEAN = 2e-6
@@ -174,16 +173,7 @@ def test_device_memory_within_declared(rt):
 
 
 def test_tiled_equals_whole():
-    cfa = bayer_cfa("GBRG")
-    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER),
-                              DemosaicRI(cfa), ColourMatrix(B_BAYER)])
-    rng = np.random.default_rng(5)
-    sc = ndimage.gaussian_filter(rng.random((150, 171)), 2.0) * 600 + 100
-    raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)
-    whole = pipeline.run(raw, tile=0)
-    assert whole.shape == (150, 171, 3)
-    for tile in (48, 96):
-        np.testing.assert_array_equal(pipeline.run(raw, tile=tile), whole, err_msg=f"tile {tile}")
+    assert_tiled_equals_whole(DemosaicRI, (150, 171))
 
 
 # ------------------------------------------------------------------------------------ presets
