@@ -36,7 +36,7 @@ Example: a flat mosaic is returned flat::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -45,7 +45,7 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from ...engine.stage import Stage, as_f32
-from ..colour.stage import ColourMatrix
+from ..common.fused_matrix import FusedColourMatrix
 from ..demosaic_malvar.stage import check_bayer
 
 R, G, B = 0, 1, 2
@@ -165,7 +165,7 @@ def complete_rgb(x: np.ndarray, delta: np.ndarray, channel: np.ndarray) -> np.nd
 # -------------------------------------------------------------------------------------- stage
 
 @dataclass
-class DemosaicDLMMSE(Stage):
+class DemosaicDLMMSE(FusedColourMatrix, Stage):
     """H x W white-balanced Bayer mosaic -> (H-24) x (W-24) x 3 camera RGB (Zhang-Wu DLMMSE).
 
     local_mean  mu of the LMMSE estimate: 'centre' (the smoothed difference at the pixel, Zhang's
@@ -209,9 +209,7 @@ class DemosaicDLMMSE(Stage):
         core = crop(channel, r1 + r2 + r3)
         delta = lmmse_fuse(s_h, s_v, d_h, d_v, core != G, self.local_mean)
         out = complete_rgb(crop(x, r1 + r2 + r3), delta, core)
-        if self.matrix is not None:
-            out = np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), out)
-        return out
+        return self.apply_output_matrix(out)
 
     # -- OpenCL ----------------------------------------------------------------------------
     def defines(self, origin: tuple[int, int], raw_dtype: np.dtype) -> dict[str, object]:
@@ -236,7 +234,7 @@ class DemosaicDLMMSE(Stage):
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         defines = self.defines(origin, src.dtype)
-        matrix = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
+        matrix = self.output_matrix()
 
         def step(name: str, prev: DeviceImage, channels: int) -> tuple[object, DeviceImage]:
             """The step's kernel and its output image: ``prev`` shrunk by the step's radius."""
@@ -264,13 +262,3 @@ class DemosaicDLMMSE(Stage):
         rt.release(delta)
         rgb.interleaved = self.interleaved
         return rgb
-
-    def fuse(self, following: Stage) -> Stage | None:
-        """A following colour matrix runs inside the last kernel (same maths, one pass fewer)."""
-        if isinstance(following, ColourMatrix) and not self.interleaved:
-            current = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
-            return replace(self, matrix=np.asarray(following.matrix, dtype=np.float64) @ current)
-        return None
-
-    def with_interleaved_output(self) -> "DemosaicDLMMSE":
-        return replace(self, interleaved=True)

@@ -31,7 +31,7 @@ Example: a flat mosaic stays flat::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from itertools import accumulate
 
 import numpy as np
@@ -40,7 +40,7 @@ from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ...sim.noise import ChannelNoise
-from ..colour.stage import ColourMatrix
+from ..common.fused_matrix import FusedColourMatrix
 from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_REG
 from ..demosaic_malvar.stage import check_bayer
 from .reference import CHROMA_NOISE_K, CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
@@ -67,7 +67,7 @@ def raw_type(dtype: np.dtype) -> str:
 
 
 @dataclass
-class DemosaicRI(Stage):
+class DemosaicRI(FusedColourMatrix, Stage):
     """H x W white-balanced Bayer mosaic -> (H - 38) x (W - 38) x 3 camera RGB (module doc).
 
     noise        the raw's noise (white-balanced units; None or zero: noiseless): regularises the
@@ -125,14 +125,12 @@ class DemosaicRI(Stage):
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.channel_map(2, 2, (0, 0)), origin,
                        self.green_noise())
-        if self.matrix is not None:
-            out = np.einsum("ij,hwj->hwi", np.asarray(self.matrix, dtype=np.float64), out)
-        return out
+        return self.apply_output_matrix(out)
 
     # -- OpenCL ------------------------------------------------------------------------------
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         defines = program_defines(src.dtype, self.interleaved)
-        matrix = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
+        matrix = self.output_matrix()
         margins = dict(zip(STEP_RADII, accumulate(STEP_RADII.values())))   # step -> its output's margin
 
         def image(step: str, prev: DeviceImage, channels: int) -> DeviceImage:
@@ -220,13 +218,3 @@ class DemosaicRI(Stage):
                     defines = chroma_fit_defines(src.dtype, (sy + py) % 2, (sx + px) % 2)
                     rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", n_x, n_y,
                                     {**args, "sy": sy, "sx": sx, "base": base}, defines)
-
-    def fuse(self, following: Stage) -> Stage | None:
-        """A following colour matrix runs inside the last kernel (same maths, one pass fewer)."""
-        if isinstance(following, ColourMatrix) and not self.interleaved:
-            current = np.eye(3) if self.matrix is None else np.asarray(self.matrix, dtype=np.float64)
-            return replace(self, matrix=np.asarray(following.matrix, dtype=np.float64) @ current)
-        return None
-
-    def with_interleaved_output(self) -> "DemosaicRI":
-        return replace(self, interleaved=True)
