@@ -65,10 +65,22 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("process", help="process a raw (ours or a camera's) into an image",
-                       description="OUT by extension: .exr linear sRGB float; .tif/.tiff/.png 16-bit sRGB-encoded.")
-    p.add_argument("raw", help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy)")
-    p.add_argument("-o", "--output", required=True, help="output image (.exr, .tif, .tiff, .png)")
+    from .batch import FORMATS                  # loaded by _add_batch anyway
+    p = sub.add_parser("process", help="process raws (ours or a camera's) into images, in this process",
+                       description="One RAW and -o OUT: OUT by extension, .exr linear sRGB float; .tif/.tiff/.png "
+                                   "16-bit sRGB-encoded. Several RAWs, folders, --format or an existing folder "
+                                   "as -o: OUTDIR/<raw stem>.<format>, one after the other in one process "
+                                   "(the OpenCL context and kernels are shared); a bad file is reported on "
+                                   "one line and the others are processed (exit status 1 when any failed). "
+                                   "clisp batch runs files in parallel, on Dask.")
+    p.add_argument("raw", nargs="+", metavar="RAW",
+                   help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy); several, or "
+                        "folders of them (not recursive), with -o OUTDIR")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="output image (.exr, .tif, .tiff, .png), or the output folder OUTDIR (created if "
+                        "missing) for several inputs")
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="with OUTDIR: exr (default; linear sRGB float), tif or png (16-bit sRGB-encoded)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
@@ -236,26 +248,45 @@ def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | N
 
 def cmd_process(args: argparse.Namespace) -> int:
     from .io.imageio import check_compression, output_kind      # deferred: 2 ms of start-up
-    output_kind(args.output)
+    many = is_many(args.raw, args.output, args.format)
+    if not many:
+        output_kind(args.output)
     resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
     if args.compression:
-        check_compression(args.output, args.compression)
+        check_compression(f"x.{args.format or 'exr'}" if many else args.output, args.compression)
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
-    denoise = _denoise_option(args)
+    if many:
+        return _process_many(args)
+    _process_one(args, args.raw[0], args.output)
+    return 0
+
+
+OUTPUT_SUFFIXES = (".exr", ".tif", ".tiff", ".png")
+"""Extensions of an output image: -o with one of them is never taken as a new output folder."""
+
+
+def is_many(inputs: Sequence[str], output: str, fmt: str | None) -> bool:
+    """Whether ``clisp process`` writes into an output folder: several inputs, a folder among
+    them, --format, or an existing folder as -o."""
+    return len(inputs) > 1 or fmt is not None or Path(output).is_dir() or any(Path(p).is_dir() for p in inputs)
+
+
+def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
+    """Read ``path``, process it into ``output`` and print its line (and --explain/--profile)."""
     profile = _start_profile() if (args.profile or args.explain) and args.backend == "opencl" else None
     with host_timer("decode raw file (header, camera raw pixels)"):
-        raw = read_raw(args.raw, lazy=True)
+        raw = read_raw(path, lazy=True)
     skip = (False if args.explain else None) if args.no_skip else True
     explained: dict = {}
-    (height, width), stats = process_file(raw, args.output, tile=args.tile, budget=args.mem, backend=args.backend,
+    (height, width), stats = process_file(raw, output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
-                                          demosaic=args.demosaic, denoise=denoise, wb2=args.wb2, skip=skip,
-                                          highlights=args.highlights,
+                                          demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
+                                          skip=skip, highlights=args.highlights,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
-    print(f"{args.output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
-          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})")
+    print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
+          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})", flush=True)
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         print(explain_run(explained.get("pipeline"), stats, profile))
@@ -263,7 +294,36 @@ def cmd_process(args: argparse.Namespace) -> int:
         wall = _process_seconds()
         print(profile.report(stats.megapixels, wall))
         print(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
-    return 0
+
+
+def _process_many(args: argparse.Namespace) -> int:
+    """Every input into OUTDIR/<stem>.<format>, one after the other in this process. A file that
+    fails gets one line on stderr naming it; the others go on. Exit status 1 when any failed."""
+    from .batch import collect_inputs, error_line as file_error, plan_jobs   # loaded by the parser anyway
+    outdir = Path(args.output)
+    if (outdir.exists() and not outdir.is_dir()) or (not outdir.exists() and outdir.suffix.lower() in OUTPUT_SUFFIXES):
+        raise ClispError(f"{outdir}: several inputs need an output folder (-o OUTDIR), not a file")
+    inputs = collect_inputs(args.raw)
+    if not inputs:
+        raise ClispError(f"no raw files in {', '.join(args.raw)}")
+    jobs = plan_jobs(inputs, outdir, args.format or "exr")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ClispError(f"{outdir}: cannot create the output folder ({exc.strerror or exc})") from None
+    start, failed = time.perf_counter(), 0
+    for job in jobs:
+        try:
+            _process_one(args, job.input, job.output)
+        except (ClispError, MemoryError) as exc:
+            failed += 1
+            print(error_line(file_error(job.input, exc)), file=sys.stderr, flush=True)
+    done = len(jobs) - failed
+    seconds = time.perf_counter() - start
+    print(f"{done} of {len(jobs)} file{'s' if len(jobs) != 1 else ''} written to {outdir} in {seconds:.1f} s"
+          + (f" ({done / seconds:.2f} files/s)" if done and seconds > 0 else "")
+          + (f"; {failed} failed" if failed else ""))
+    return 1 if failed else 0
 
 
 def cmd_batch(args: argparse.Namespace) -> int:

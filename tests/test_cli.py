@@ -224,3 +224,38 @@ def test_cli_import_leaves_heavy_libraries_out() -> None:
     code = f"import sys, clisp.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert loaded == "", f"importing clisp.cli loads {loaded}"
+
+
+def test_process_many_inputs_into_a_folder(tmp_path: Path, scene_png: Path, capsys) -> None:
+    """Several raws (files and a folder) in one process: OUTDIR/<stem>.<format>, each as a process
+    of that file alone would write it; a bad file gets one line naming it and the others go on
+    (exit 1); -o a file name with several inputs fails before anything is written."""
+    folder = tmp_path / "raws"
+    folder.mkdir()
+    for name, cfa in (("a", "lms"), ("b", "bayer")):
+        assert run(["simulate", scene_png, "-o", folder / f"{name}.dng", "--cfa", cfa, "--gain", "4"], capsys)[0] == 0
+    lone = tmp_path / "c.dng"
+    assert run(["simulate", scene_png, "-o", lone, "--cfa", "lms", "--gain", "16"], capsys)[0] == 0
+    (folder / "bad.dng").write_bytes(b"not a raw")
+    (folder / "notes.txt").write_text("skipped: not a raw suffix")
+    out = tmp_path / "out"
+    code, text, err = run(["process", folder, lone, "-o", out, "--format", "tif"], capsys)
+    assert code == 1
+    assert sorted(p.name for p in out.iterdir()) == ["a.tif", "b.tif", "c.tif"]
+    assert "3 of 4 files written" in text and "1 failed" in text
+    assert err.count("\n") == 1 and "bad.dng" in err
+    for name, path in (("a", folder / "a.dng"), ("c", lone)):
+        single = tmp_path / f"{name}-single.tif"
+        assert run(["process", path, "-o", single], capsys)[0] == 0
+        np.testing.assert_array_equal(read_image(out / f"{name}.tif")[0], read_image(single)[0])
+    code, _, err = run(["process", folder / "a.dng", lone, "-o", tmp_path / "x.tif"], capsys)
+    assert code == 2 and "output folder" in err and not (tmp_path / "x.tif").exists()
+
+
+def test_process_one_input_into_an_existing_folder(tmp_path: Path, scene_png: Path, capsys) -> None:
+    raw_path = tmp_path / "r.dng"
+    assert run(["simulate", scene_png, "-o", raw_path], capsys)[0] == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    code, text, _ = run(["process", raw_path, "-o", out], capsys)
+    assert code == 0 and (out / "r.exr").is_file() and "1 of 1 file written" in text

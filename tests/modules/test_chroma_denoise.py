@@ -455,3 +455,23 @@ def test_range_metric_is_the_mahalanobis_distance() -> None:
     faded = ChromaDenoise(space, random_table(space, seed=3), ChromaDenoiseParams(
         range_joint=2.0, range_joint_sigma=(1.0, 2.0)))
     assert faded.range_joint(1) == 0.0 and faded.range_metric(1) is None
+
+
+def test_calibration_is_remembered_for_the_same_inputs_only():
+    """A second pipeline for a raw of the same camera and gain reuses the noise table (the same
+    object, read-only); another gain or demosaic calibrates anew."""
+    from clisp.pipeline import build_pipeline
+    from clisp.sim.simulate import simulate
+    from clisp.modules.chroma_denoise.stage import ChromaDenoise
+
+    def table(gain, demosaic=None):
+        raw = simulate(np.full((64, 64, 3), 0.3), "lms", gain=gain, seed=1).raw
+        stage = next(s for s in build_pipeline(raw, demosaic=demosaic).stages if isinstance(s, ChromaDenoise))
+        return stage.noise
+
+    first = table(4.0)
+    assert table(4.0) is first
+    assert not first.approx.flags.writeable
+    other = table(16.0)
+    assert other is not first and not np.allclose(other.approx, first.approx)
+    assert table(4.0, "hybrid") is not first

@@ -806,9 +806,48 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, rt: Runtime | None = None)
     return (out if dst.interleaved else np.moveaxis(out, 0, -1)).astype(np.float64)
 
 
+CALIBRATION_CACHE_SIZE = 16
+"""Noise tables kept per process (:func:`calibrate_noise`): a folder of raws from one camera at one
+gain calibrates once (``clisp process`` with several inputs, a batch worker)."""
+_CALIBRATIONS: dict[bytes, "NoiseTable"] = {}
+
+
+def calibration_key(*inputs: object) -> bytes | None:
+    """SHA-256 of the pickled inputs of a calibration (exact: arrays by value, floats by bits); None
+    when something in them does not pickle (then nothing is cached)."""
+    import hashlib
+    import pickle
+    try:
+        return hashlib.sha256(pickle.dumps(inputs, protocol=4)).digest()
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+
+
 def calibrate_noise(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels: int = 3,
                     size: int = CALIBRATION_SIZE, gray: Sequence[float] = CALIBRATION_LEVELS,
                     seed: int = CALIBRATION_SEED, rt: Runtime | None = None) -> NoiseTable:
+    """:func:`measure_calibration`, remembered per process for the same inputs (the same demosaic
+    configuration, CFA, space, raw noise, levels, fields and seed, and reference or device): the
+    calibration is deterministic, so a repeat returns the same table without running it (0.13 s per
+    1 MP LMS raw at gain 4 on 2 CPU cores)."""
+    key = calibration_key(type(demosaic).__qualname__, demosaic, cfa, space, raw_noise, levels, size,
+                          tuple(gray), seed, rt is None)
+    if key is not None and key in _CALIBRATIONS:
+        return _CALIBRATIONS[key]
+    table = measure_calibration(demosaic, cfa, space, raw_noise, levels, size, gray, seed, rt)
+    for array in (table.approx, table.detail, table.corr):
+        if array is not None:
+            array.flags.writeable = False          # shared between pipelines: never changed in place
+    if key is not None:
+        if len(_CALIBRATIONS) >= CALIBRATION_CACHE_SIZE:
+            _CALIBRATIONS.pop(next(iter(_CALIBRATIONS)))
+        _CALIBRATIONS[key] = table
+    return table
+
+
+def measure_calibration(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels: int = 3,
+                        size: int = CALIBRATION_SIZE, gray: Sequence[float] = CALIBRATION_LEVELS,
+                        seed: int = CALIBRATION_SEED, rt: Runtime | None = None) -> NoiseTable:
     """Noise table of ``space`` after ``demosaic`` for the raw noise ``raw_noise`` (a ChannelNoise).
 
     ``raw_noise``: per-channel noise with ``shot``, ``floor`` and ``variance(channel, level)``
