@@ -152,6 +152,10 @@ def _add_info(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="describe a raw file, or the OpenCL device with --device")
     p.add_argument("raw", nargs="?", help="raw file to describe")
     p.add_argument("--device", action="store_true", help="show the OpenCL platforms and the device clisp uses")
+    p.add_argument("--warm", nargs="?", const="default", default=None, metavar="PRESETS",
+                   help="with --device: build the OpenCL kernels ahead of the first run (compiled once per "
+                        "machine, device and clisp version), for the default and fast presets, or for "
+                        "PRESETS (comma-separated, or 'all')")
     p.add_argument("--json", action="store_true", help="print the raw's description as JSON")
     p.set_defaults(func=cmd_info)
 
@@ -381,8 +385,15 @@ def _denoise_option(args: argparse.Namespace) -> "bool | None | object":
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    if args.warm is not None and not args.device:
+        raise ClispError("--warm builds the kernels of the device: use clisp info --device --warm")
+    presets = _warm_presets(args.warm) if args.warm is not None else ()
     if args.device:
         _print_devices()
+    if presets:
+        from .warm import warm_kernels                 # deferred: only --warm runs it
+        print(f"building the OpenCL kernels of presets {', '.join(presets)} (LMS and Bayer):", flush=True)
+        print(f"kernels ready in {warm_kernels(presets, report=lambda line: print(line, flush=True)):.1f} s")
     if args.raw:
         info = raw_info(args.raw)
         if args.json:
@@ -393,6 +404,18 @@ def cmd_info(args: argparse.Namespace) -> int:
     elif not args.device:
         raise ClispError("info needs a RAW file or --device")
     return 0
+
+
+def _warm_presets(text: str) -> tuple[str, ...]:
+    """The presets --warm names: 'default' (the default preset and fast), 'all', or a list."""
+    if text == "default":
+        from .warm import DEFAULT_WARM_PRESETS         # deferred: only --warm needs it
+        return tuple(DEFAULT_WARM_PRESETS)
+    names = tuple(PRESETS) if text == "all" else tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in PRESETS]
+    if unknown or not names:
+        raise ClispError(f"--warm {text!r}: presets are {', '.join(PRESETS)}, or 'all'")
+    return names
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -259,3 +259,14 @@ def test_process_one_input_into_an_existing_folder(tmp_path: Path, scene_png: Pa
     out.mkdir()
     code, text, _ = run(["process", raw_path, "-o", out], capsys)
     assert code == 0 and (out / "r.exr").is_file() and "1 of 1 file written" in text
+
+
+def test_info_device_warm(capsys) -> None:
+    code, text, _ = run(["info", "--device", "--warm", "fast"], capsys)
+    assert code == 0 and "kernels ready in" in text
+    assert [line.split()[:2] for line in text.splitlines() if line.endswith(" s") and "ready" not in line] == \
+        [["lms", "fast"], ["bayer", "fast"]]
+    code, _, err = run(["info", "--warm"], capsys)
+    assert code == 2 and "--device" in err
+    code, _, err = run(["info", "--device", "--warm", "fastest"], capsys)
+    assert code == 2 and "presets are" in err

@@ -11,8 +11,10 @@ Device choice (``CLISP_DEVICE``):
 from __future__ import annotations
 
 import bisect
+import hashlib
 import os
 import re
+import sys
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -23,6 +25,7 @@ import numpy as np
 
 from . import profile
 from ..errors import ClispError
+from ..version import __version__
 
 LOCAL_SIZE = (32, 4)
 """Work-group shape (x, y) for 2-D image kernels; global sizes are rounded up to it and kernels
@@ -133,6 +136,19 @@ def _define_flags(defines: Mapping[str, Any]) -> list[str]:
 
 
 BUILD_OPTIONS = ["-cl-std=CL1.2", "-cl-kernel-arg-info"]
+
+FIRST_BUILD_NOTICE = "clisp: compiling OpenCL kernels for {device} (first run only)..."
+"""Printed once per process (on a terminal's stderr) when a program is built that this machine has not
+built before for this device and clisp version (:meth:`Runtime.program`): the compiler's cost, seconds
+per program on a CPU device, is then the run's largest part."""
+
+
+def cache_dir() -> Path:
+    """clisp's cache folder: $CLISP_CACHE_DIR, else $XDG_CACHE_HOME/clisp, else ~/.cache/clisp."""
+    if os.environ.get("CLISP_CACHE_DIR"):
+        return Path(os.environ["CLISP_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "clisp"
 """Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
 the parameters' names kept for :meth:`Runtime.launch_named` (no effect on the code)."""
 
@@ -195,6 +211,9 @@ class Runtime:
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
         self.host_unified = bool(self.device.host_unified_memory)
+        self.notice_stream: Any = sys.stderr
+        """Where the first-build notice goes (only when it is a terminal); None: nowhere."""
+        self._noticed = False
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -242,14 +261,43 @@ class Runtime:
                 source = "\n".join([kernel_path("common.h").read_text(), generated, with_headers(path.read_text())])
             except OSError as exc:
                 raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
+            marker = self._build_marker(source, flags)
+            if marker is not None and not marker.exists():
+                self._first_build_notice()
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
                     prg = self.cl.Program(self.context, source).build(options=list(flags) + BUILD_OPTIONS)
             except self.cl.RuntimeError as exc:
                 raise ClispError(f"OpenCL build of {path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
+            if marker is not None:
+                try:
+                    marker.parent.mkdir(parents=True, exist_ok=True)
+                    marker.touch()
+                except OSError:
+                    pass                                  # a read-only cache only costs the notice
             self._programs[key] = prg
         return self._programs[key]
+
+    def _build_marker(self, source: str, flags: tuple[str, ...]) -> Path | None:
+        """The file in :func:`cache_dir` that records that this program was built here before:
+        named by the SHA-256 of the device, its driver, clisp's version, the source and the flags
+        (the compiler's own cache, e.g. PoCL's, holds the binary). None without a home folder."""
+        d = self.device
+        text = "\0".join([self.platform.name, self.platform.version, d.name, d.version, d.driver_version,
+                          __version__, source, *flags])
+        try:
+            return cache_dir() / "built" / hashlib.sha256(text.encode()).hexdigest()
+        except RuntimeError:                               # Path.home() without a home
+            return None
+
+    def _first_build_notice(self) -> None:
+        """:data:`FIRST_BUILD_NOTICE`, once per runtime, when ``notice_stream`` is a terminal."""
+        stream = self.notice_stream
+        if self._noticed or stream is None or not getattr(stream, "isatty", lambda: False)():
+            return
+        self._noticed = True
+        print(FIRST_BUILD_NOTICE.format(device=self.device.name.strip()), file=stream, flush=True)
 
     def header(self, name: str) -> str:
         """Text of the header ``name`` (e.g. ``srgb.h``, for host-generated program text)."""

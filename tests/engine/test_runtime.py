@@ -117,6 +117,65 @@ def test_program_cache(rt):
     assert rt.kernel("raw_scale", "cfa_affine", {"CFA_PERIOD": 4, "RAW_T": "float"}) is k1
 
 
+class _Terminal(list):
+    """A stream that says it is a terminal and keeps what is written."""
+
+    def isatty(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        self.append(text)
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+def test_first_build_notice_once_per_machine(rt, tmp_path, monkeypatch):
+    """A program this cache has not seen built prints the notice once per runtime; the record it
+    leaves keeps the next process (a fresh runtime) quiet; a pipe (not a terminal) never gets it."""
+    import uuid
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    stream = _Terminal()
+    monkeypatch.setattr(rt, "notice_stream", stream)
+    monkeypatch.setattr(rt, "_noticed", False)
+    tag = uuid.uuid4().hex
+    defines = {"RAW_T": "float", "CFA_PERIOD": 4}
+    rt.program("raw_scale", defines, generated=f"/* {tag} a */")
+    rt.program("raw_scale", defines, generated=f"/* {tag} b */")
+    text = "".join(stream)
+    assert text.count("compiling OpenCL kernels") == 1 and rt.device.name.strip() in text
+    assert len(list((tmp_path / "built").iterdir())) == 2
+    fresh = Runtime("cpu")
+    quiet = _Terminal()
+    fresh.notice_stream = quiet
+    fresh.program("raw_scale", defines, generated=f"/* {tag} a */")
+    assert not quiet
+    fresh.program("raw_scale", defines, generated=f"/* {tag} c */")
+    assert "".join(quiet).count("compiling") == 1
+    piped = Runtime("cpu")
+    piped.program("raw_scale", defines, generated=f"/* {tag} d */")     # sys.stderr: captured, not a tty
+    assert not piped._noticed
+
+
+def test_warm_builds_what_a_run_needs(tmp_path):
+    """After warming a preset for a CFA kind, processing another raw of that kind with that preset
+    (other gain, size and content) builds no program the warm-up did not."""
+    from clisp.pipeline import process_file
+    from clisp.sim.charts import dead_leaves
+    from clisp.sim.simulate import simulate
+    from clisp.warm import warm_kernels
+
+    rt = get_runtime()
+    warm_kernels(("quality",), ("bayer",), report=None)
+    built = set(rt._programs)
+    scene = dead_leaves(128, seed=2)
+    scene[:24, :24] = 3.0
+    raw = simulate(scene[:, :112], "bayer", gain=16, seed=3).raw
+    process_file(raw, tmp_path / "x.tif", preset="quality", skip=True)
+    assert set(rt._programs) == built
+
+
 # ------------------------------------------------------------------------------------------
 # buffers and transfers
 # ------------------------------------------------------------------------------------------
