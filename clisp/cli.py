@@ -271,9 +271,12 @@ OUTPUT_SUFFIXES = (".exr", ".tif", ".tiff", ".png")
 
 
 def is_many(inputs: Sequence[str], output: str, fmt: str | None) -> bool:
-    """Whether ``clisp process`` writes into an output folder: several inputs, a folder among
-    them, --format, or an existing folder as -o."""
-    return len(inputs) > 1 or fmt is not None or Path(output).is_dir() or any(Path(p).is_dir() for p in inputs)
+    """Whether ``clisp process`` writes into an output folder: several inputs, --format, an existing
+    folder as -o, or a folder as the input with an -o that does not name an image (a folder with
+    ``-o x.exr`` stays the one-file form, whose error says the input is a folder)."""
+    if len(inputs) > 1 or fmt is not None or Path(output).is_dir():
+        return True
+    return Path(inputs[0]).is_dir() and Path(output).suffix.lower() not in OUTPUT_SUFFIXES
 
 
 def _process_one(args: argparse.Namespace, path: str, output: str) -> None:

@@ -263,6 +263,8 @@ def test_process_one_input_into_an_existing_folder(tmp_path: Path, scene_png: Pa
     out.mkdir()
     code, text, _ = run(["process", raw_path, "-o", out], capsys)
     assert code == 0 and (out / "r.exr").is_file() and "1 of 1 file written" in text
+    code, _, _ = run(["process", tmp_path, "-o", tmp_path / "new", "--preset", "fast"], capsys)   # a folder in
+    assert code == 0 and (tmp_path / "new" / "r.exr").is_file()
 
 
 def test_info_device_warm(capsys) -> None:

@@ -815,8 +815,8 @@ _CALIBRATIONS: dict[bytes, "NoiseTable"] = {}
 def calibration_key(*inputs: object) -> bytes | None:
     """SHA-256 of the pickled inputs of a calibration (exact: arrays by value, floats by bits); None
     when something in them does not pickle (then nothing is cached)."""
-    import hashlib
-    import pickle
+    import hashlib  # deferred: only pipelines with a chroma denoiser and noise calibrate
+    import pickle   # deferred: as hashlib
     try:
         return hashlib.sha256(pickle.dumps(inputs, protocol=4)).digest()
     except (pickle.PicklingError, TypeError, AttributeError):
