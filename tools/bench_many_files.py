@@ -13,13 +13,11 @@ Printed: seconds, files/s and the ratio of the throughputs, and the CPU.
 from __future__ import annotations
 
 import argparse
-import platform
 import shutil
 import statistics
 import sys
 from pathlib import Path
 
-import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
 
@@ -39,16 +37,6 @@ def make_raws(folder: Path, count: int, width: int, height: int, cfa: str, gain:
     return paths
 
 
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--count", type=int, default=100)
@@ -66,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         raws_dir = work / "raws"
         raws_dir.mkdir(exist_ok=True)
         raws = make_raws(raws_dir, args.count, width, height, args.cfa, args.gain)
-        print(f"{args.count} {args.cfa} raws of {width}x{height} at gain {args.gain:g}; CPU: {cpu_name()}", flush=True)
+        print(f"{args.count} {args.cfa} raws of {width}x{height} at gain {args.gain:g}; CPU: {toolkit.cpu_model()}", flush=True)
 
         def one_process() -> float:
             out = work / "one"

@@ -77,3 +77,4 @@ def test_bench_lms_demosaic_runs(capsys):
     assert bench_lms_demosaic.main(["--shape", "96x128", "--repeat", "1", "--methods", "guided,bilinear"]) == 0
     out = capsys.readouterr().out
     assert "DemosaicLMSGuided" in out and "DemosaicBilinear" in out and out.count("MP/s") == 2
+
