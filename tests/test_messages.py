@@ -147,6 +147,13 @@ MESSAGES = {
     "scene-not-finite": (lambda f, t: ["simulate", f["nan.exr"], "-o", t / "r.dng"],
                          r".*nan\.exr: scene contains NaN or infinite values"),
     "info-needs-file": (lambda f, t: ["info"], r"info needs a RAW file or --device"),
+    "outdir-is-a-file": (lambda f, t: ["process", f["good"], f["float"], "-o", t / "o.exr"],
+                         r".*o\.exr: several inputs need an output folder \(-o OUTDIR\), not a file"),
+    "no-raws-in-folder": (lambda f, t: ["process", t, "-o", t / "out"], r"no raw files in .*"),
+    "warm-without-device": (lambda f, t: ["info", "--warm"],
+                            r"--warm builds the kernels of the device: use clisp info --device --warm"),
+    "warm-unknown-preset": (lambda f, t: ["info", "--device", "--warm", "fastest"],
+                            r"--warm 'fastest': presets are fast, balanced, quality, best, or 'all'"),
 }
 
 # Messages of failures that need the system to misbehave: provoked by monkeypatching (below).
