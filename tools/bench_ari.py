@@ -50,16 +50,13 @@ import importlib.util
 import os
 import platform
 import tempfile
-import time
 from typing import Callable
 
 import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
 
-from clisp.engine import profile
 from clisp.cfa import bayer_cfa
-from clisp.pipeline import Pipeline
 from clisp.engine.runtime import get_runtime
 from clisp.modules.demosaic_ari.stage import DemosaicARI
 from clisp.modules.demosaic_dlmmse.stage import DemosaicDLMMSE
@@ -128,20 +125,7 @@ def main() -> None:
         raise SystemExit(f"unknown --methods {unknown}; choose from {sorted(makers)}")
     stages = [makers[m]() for m in methods]
     for stage in stages:
-        pipeline = Pipeline(cfa, [stage])
-        plan = pipeline.plan(mos.shape, mos.dtype, None, 2**30, "opencl")
-        pipeline.run(mos[:2 * stage.halo + 64, :2 * stage.halo + 64])          # build the programs
-        _, best = toolkit.best_of(lambda: pipeline.run(mos), args.repeat)
-        mp = h * w / 1e6
-        print(f"{type(stage).__name__:16s} halo {stage.halo:3d}  window {plan.window_shape}  "
-              f"{best:7.2f} s  {mp / best:6.2f} MP/s", flush=True)
-        if args.profile:
-            prof = profile.start()
-            t0 = time.perf_counter()
-            pipeline.run(mos)
-            wall = time.perf_counter() - t0
-            print(prof.report(mp, wall), flush=True)
-            profile._ACTIVE = None
+        toolkit.time_demosaic(stage, cfa, mos, args.repeat, profiled=args.profile)
     if not args.no_dht:
         if importlib.util.find_spec("rawpy") is None:
             print("rawpy DHT: absent (pip install rawpy)")

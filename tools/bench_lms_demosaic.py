@@ -18,16 +18,14 @@ import argparse
 import os
 import platform
 import sys
-import time
 
 import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
 
 from clisp.cfa import lms_cfa
-from clisp.engine import profile
 from clisp.engine.runtime import get_runtime
-from clisp.pipeline import DEMOSAICS, Pipeline
+from clisp.pipeline import DEMOSAICS
 from clisp.sim.simulate import simulate
 
 LMS_METHODS = ("guided", "hybrid", "bilinear")
@@ -71,20 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     cfa = lms_cfa()
     mos = synthetic_lms_mosaic(h, w)
     for name in methods:
-        stage = DEMOSAICS[name].for_raw(raw)
-        pipeline = Pipeline(cfa, [stage])
-        plan = pipeline.plan(mos.shape, mos.dtype, None, 2**30, "opencl")
-        pipeline.run(mos[:2 * stage.halo + 64, :2 * stage.halo + 64])          # build the programs
-        _, best = toolkit.best_of(lambda: pipeline.run(mos), args.repeat)
-        mp = h * w / 1e6
-        print(f"{type(stage).__name__:20s} halo {stage.halo:3d}  window {plan.window_shape}  "
-              f"{best:7.2f} s  {mp / best:7.2f} MP/s", flush=True)
-        if args.profile:
-            prof = profile.start()
-            t0 = time.perf_counter()
-            pipeline.run(mos)
-            print(prof.report(mp, time.perf_counter() - t0), flush=True)
-            profile._ACTIVE = None
+        toolkit.time_demosaic(DEMOSAICS[name].for_raw(raw), cfa, mos, args.repeat, 20, args.profile)
     return 0
 
 

@@ -94,12 +94,9 @@ class LinearBank:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     toolkit.add_data_option(parser)
-    parser.add_argument("--sets", default="kodak,mcmaster,deadleaves")
-    parser.add_argument("--subset", type=int, default=None, help="first N images of each file set")
-    parser.add_argument("--dead-leaves", type=int, default=8)
+    toolkit.add_scene_set_options(parser)
     parser.add_argument("--train", type=int, default=12, help="dead-leaves training charts (512 px)")
     parser.add_argument("--support", type=int, default=13, help="filter side K (odd)")
-    parser.add_argument("--csv", default=None)
     args = parser.parse_args(argv)
     if args.support % 2 == 0 or args.support < 3:
         raise SystemExit("--support must be odd and >= 3")

@@ -120,11 +120,8 @@ def matrix_gains() -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     toolkit.add_data_option(parser)
-    parser.add_argument("--sets", default="kodak,mcmaster,deadleaves")
-    parser.add_argument("--subset", type=int, default=None, help="first N images of each file set")
-    parser.add_argument("--dead-leaves", type=int, default=8)
+    toolkit.add_scene_set_options(parser)
     parser.add_argument("--settings", default="noiseless,4,16,64")
-    parser.add_argument("--csv", default=None)
     args = parser.parse_args(argv)
     settings = args.settings.split(",")
     for s in settings:

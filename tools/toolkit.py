@@ -127,6 +127,38 @@ def add_repeat_option(parser: argparse.ArgumentParser, default: int, what: str =
     parser.add_argument("--repeat", type=int, default=default, metavar="N", help=f"{what} (default {default})")
 
 
+def add_scene_set_options(parser: argparse.ArgumentParser) -> None:
+    """``--sets``, ``--subset``, ``--dead-leaves`` and ``--csv`` of the tools that score demosaics on
+    Kodak, McMaster and dead leaves (bench_demosaic_quality.load_scenes reads the first three)."""
+    parser.add_argument("--sets", default="kodak,mcmaster,deadleaves")
+    parser.add_argument("--subset", type=int, default=None, help="first N images of each file set")
+    parser.add_argument("--dead-leaves", type=int, default=8, help="dead-leaves charts (512 px, seeds 0..N-1)")
+    parser.add_argument("--csv", default=None, help="write one row per result")
+
+
+def time_demosaic(stage: object, cfa: object, mosaic: np.ndarray, repeat: int, label_width: int = 16,
+                  profiled: bool = False) -> float:
+    """Device speed of one demosaic stage alone through clisp's tiler (default 1 GiB budget), warm
+    (a small run first builds the programs), best of ``repeat``; prints its line (and, with
+    ``profiled``, one more run's device time per kernel). Returns the best seconds."""
+    from clisp.engine import profile
+    from clisp.pipeline import Pipeline
+    pipeline = Pipeline(cfa, [stage])
+    plan = pipeline.plan(mosaic.shape, mosaic.dtype, None, 2**30, "opencl")
+    pipeline.run(mosaic[:2 * stage.halo + 64, :2 * stage.halo + 64])
+    _, best = best_of(lambda: pipeline.run(mosaic), repeat)
+    mp = mosaic.size / 1e6
+    print(f"{type(stage).__name__:{label_width}s} halo {stage.halo:3d}  window {plan.window_shape}  "
+          f"{best:7.2f} s  {mp / best:7.2f} MP/s", flush=True)
+    if profiled:
+        prof = profile.start()
+        t0 = time.perf_counter()
+        pipeline.run(mosaic)
+        print(prof.report(mp, time.perf_counter() - t0), flush=True)
+        profile._ACTIVE = None
+    return best
+
+
 def add_out_option(parser: argparse.ArgumentParser, default: str, what: str) -> None:
     """``--out DIR``: where a tool writes its files, default ``default`` relative to the repository."""
     parser.add_argument("--out", type=Path, default=REPO / default, metavar="DIR",
