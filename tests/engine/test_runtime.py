@@ -160,19 +160,25 @@ def test_first_build_notice_once_per_machine(rt, tmp_path, monkeypatch):
 
 def test_warm_builds_what_a_run_needs(tmp_path):
     """After warming a preset for a CFA kind, processing another raw of that kind with that preset
-    (other gain, size and content) builds no program the warm-up did not."""
+    (other gain, size and content; read from its file as the CLI does, and from an aligned copy in
+    memory in several tiles, where the device gathers the windows) builds no program the warm-up
+    did not."""
+    from dataclasses import replace
+    from clisp.io.rawfile import read_raw, write_raw
     from clisp.pipeline import process_file
     from clisp.sim.charts import dead_leaves
     from clisp.sim.simulate import simulate
-    from clisp.warm import warm_kernels
+    from clisp.warm import aligned, warm_kernels
 
     rt = get_runtime()
     warm_kernels(("quality",), ("bayer",), report=None)
     built = set(rt._programs)
     scene = dead_leaves(128, seed=2)
     scene[:24, :24] = 3.0
-    raw = simulate(scene[:, :112], "bayer", gain=16, seed=3).raw
+    write_raw(tmp_path / "r.dng", simulate(scene[:, :112], "bayer", gain=16, seed=3).raw)
+    raw = read_raw(tmp_path / "r.dng", lazy=True)
     process_file(raw, tmp_path / "x.tif", preset="quality", skip=True)
+    process_file(replace(raw, data=aligned(raw.data)), tmp_path / "x.tif", tile=64, preset="quality", skip=True)
     assert set(rt._programs) == built
 
 
