@@ -1,11 +1,19 @@
-"""Shared fixtures: the process-wide OpenCL runtime (PoCL on a machine without a GPU), and a
-fixed resident-set figure for the whole-process memory budget."""
+"""Shared fixtures: the process-wide OpenCL runtime (PoCL on a machine without a GPU), a
+fixed resident-set figure for the whole-process memory budget, and a fresh clisp cache folder."""
 from __future__ import annotations
+
+import os
+import tempfile
 
 import pytest
 
 import clisp.engine.memory
 from clisp.engine.runtime import get_runtime
+
+os.environ.setdefault("CLISP_CACHE_DIR", tempfile.mkdtemp(prefix="clisp-test-cache-"))
+"""clisp's records of built programs start empty in every test run (unless the caller set the
+folder), as on a fresh machine: the first-build path runs in the tests, not only on users'
+machines. The compiler's own cache (PoCL's) is shared, so nothing is compiled twice."""
 
 TEST_PROCESS_RSS = 200 * 2**20
 """What the memory planner is told the process holds. ``--mem`` budgets a clisp process; the

@@ -156,6 +156,10 @@ built before for this device and clisp version (:meth:`Runtime.program`): the co
 per program on a CPU device, is then the run's largest part."""
 
 
+STDERR = object()
+"""Runtime.notice_stream's default: whatever ``sys.stderr`` is when a notice is due."""
+
+
 def cache_dir() -> Path:
     """clisp's cache folder: $CLISP_CACHE_DIR, else $XDG_CACHE_HOME/clisp, else ~/.cache/clisp."""
     if os.environ.get("CLISP_CACHE_DIR"):
@@ -224,8 +228,9 @@ class Runtime:
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
         self.host_unified = bool(self.device.host_unified_memory)
-        self.notice_stream: Any = sys.stderr
-        """Where the first-build notice goes (only when it is a terminal); None: nowhere."""
+        self.notice_stream: Any = STDERR
+        """Where the first-build notice goes (only when it is a terminal): STDERR (the process's
+        stderr when the notice is due, which may have been replaced since), a stream, or None."""
         self._noticed = False
 
     def enable_profiling(self) -> None:
@@ -305,12 +310,17 @@ class Runtime:
             return None
 
     def _first_build_notice(self) -> None:
-        """:data:`FIRST_BUILD_NOTICE`, once per runtime, when ``notice_stream`` is a terminal."""
-        stream = self.notice_stream
-        if self._noticed or stream is None or not getattr(stream, "isatty", lambda: False)():
+        """:data:`FIRST_BUILD_NOTICE`, once per runtime, when ``notice_stream`` is an open terminal."""
+        stream = sys.stderr if self.notice_stream is STDERR else self.notice_stream
+        if self._noticed or stream is None:
             return
-        self._noticed = True
-        print(FIRST_BUILD_NOTICE.format(device=self.device.name.strip()), file=stream, flush=True)
+        try:
+            if not stream.isatty():
+                return
+            self._noticed = True
+            print(FIRST_BUILD_NOTICE.format(device=self.device.name.strip()), file=stream, flush=True)
+        except (AttributeError, ValueError, OSError):      # no isatty, a closed or broken stream
+            return
 
     def header(self, name: str) -> str:
         """Text of the header ``name`` (e.g. ``srgb.h``, for host-generated program text)."""

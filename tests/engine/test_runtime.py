@@ -146,16 +146,21 @@ def test_first_build_notice_once_per_machine(rt, tmp_path, monkeypatch):
     text = "".join(stream)
     assert text.count("compiling OpenCL kernels") == 1 and rt.device.name.strip() in text
     assert len(list((tmp_path / "built").iterdir())) == 2
-    fresh = Runtime("cpu")
+    fresh = Runtime()
     quiet = _Terminal()
     fresh.notice_stream = quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} a */")
     assert not quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} c */")
     assert "".join(quiet).count("compiling") == 1
-    piped = Runtime("cpu")
+    piped = Runtime()
     piped.program("raw_scale", defines, generated=f"/* {tag} d */")     # sys.stderr: captured, not a tty
     assert not piped._noticed
+    closed = _Terminal()
+    closed.isatty = lambda: (_ for _ in ()).throw(ValueError("I/O operation on closed file."))
+    piped.notice_stream = closed
+    piped.program("raw_scale", defines, generated=f"/* {tag} e */")     # a closed stream: no notice, no error
+    assert not piped._noticed and not closed
 
 
 def test_warm_builds_what_a_run_needs(tmp_path):
