@@ -6,16 +6,16 @@ version; the compiler caches the binary (PoCL: ~/.cache/pocl) and clisp records 
 otherwise spends most of its time compiling. Warming runs, for each CFA kind and preset, the path
 ``clisp process`` takes on small raws simulated in code: a noisy chart with a light whose samples
 clip (demosaic, highlights, colour and chroma denoiser with its noise calibration, tone curve to
-16-bit and linear output; one tile, and several) and a flat field (the skip planner's flat path), so that every program a
-default run of those presets builds is in the caches. Camera raws whose CFA phase or noise the
+16-bit and linear output; one tile, and several) and a flat field (the skip planner's flat path),
+so that every program a default run of those presets builds is in the caches. Camera raws whose CFA phase or noise the
 small raws do not have may still build a program or two of their own.
 """
 from __future__ import annotations
 
 import tempfile
 import time
-from dataclasses import replace
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

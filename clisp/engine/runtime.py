@@ -149,6 +149,9 @@ def _define_flags(defines: Mapping[str, Any]) -> list[str]:
 
 
 BUILD_OPTIONS = ["-cl-std=CL1.2", "-cl-kernel-arg-info"]
+"""Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
+the parameters' names kept for :meth:`Runtime.launch_named` (no effect on the code)."""
+
 
 FIRST_BUILD_NOTICE = "clisp: compiling OpenCL kernels for {device} (first run only)..."
 """Printed once per process (on a terminal's stderr) when a program is built that this machine has not
@@ -166,8 +169,7 @@ def cache_dir() -> Path:
         return Path(os.environ["CLISP_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "clisp"
-"""Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
-the parameters' names kept for :meth:`Runtime.launch_named` (no effect on the code)."""
+
 
 SCALARS = {"int": np.int32, "uint": np.uint32, "float": np.float32, "short": np.int16, "ushort": np.uint16,
            "char": np.int8, "uchar": np.uint8, "long": np.int64, "ulong": np.uint64}
