@@ -7,7 +7,6 @@
  *                    y + S_Y is even and x - y + S_D is a multiple of 4; M otherwise (image coordinates;
  *                    at_l, at_s in common.h)
  *   NOISY            0: noiseless, every LMMSE gain is 1 and no noise term is computed
- *   DIRECTIONAL      1 in the program of the pass-2 m_at_s_combine (edge-directed estimate mixed in)
  *   TONE_POWER       exponent of the tonality in tonal() (clisp TONE_POWER)
  *   D_RADIUS, PRE_RADIUS, COMBINE_RADIUS, RI_RADIUS, BP_RADIUS, HP_RADIUS, S_ALIAS_RADIUS
  *                    the radii of the steps (stage.py's constants of the same names): the diamond D,
@@ -94,34 +93,24 @@ __kernel void m_keep(__global const float *restrict p, __global float *restrict 
 inline int s_rel(const int dy, const int dx) { return (dy & 1) == 0 && ((dx - dy) & 3) == 0; }
 inline int l_rel(const int dy, const int dx) { return ((dy + dx) & 1) != 0; }
 
-/* m_at_s_combine: M at the S sites of m (the other pixels are m_keep's p), one work-item per S site:
- * work-item (gx, gy) takes the S site in output row 2 gy + (row parity) and columns 4 gx .. 4 gx + 3;
- * items past the window's edge return. At S sites M = Mfit + gamma (p - Sfit), gamma = 1
- * (noiseless) or sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0), E_M = mean over the M
- * sites of the 5 x 5 of (p - Mfit)^2. DIRECTIONAL: mixed with the edge-directed estimate yd - c by
- * w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2, err_d the mean squared error of
- * the 2-tap predictor along d at the non-S pixels of the 3 x 3, yd = sum_d E_d / (eps + err_d) /
- * sum_d 1 / (eps + err_d); then alias suppression toward the neutral mn = m_from_s p: dev = est - mn,
- * est = mn + alias_gain(dev^2, alias_m E_sig) dev, E_sig = max(hf / kappa - blend_k vn, 0), vn =
- * lum_shot max(ylp, 0) + lum_floor. mfit, sfit on the kernel's window (width in_w); p, y and c, ylp
- * on windows larger by p_off, y_off, l_off (widths p_w, y_w, l_w); dst (out_w x out_h) is the window
- * shrunk by R; (oy, ox): image coordinates of the kernel's window pixel (0, 0). R = 2. */
-__kernel void m_at_s_combine(__global const float *restrict p, __global const float *restrict mfit, __global const float *restrict sfit,
-                             __global const float *restrict yg, __global const float *restrict cg, __global const float *restrict ylpg,
-                             __global float *restrict dst, const int in_w, const int p_w, const int p_off,
-                             const int y_w, const int y_off, const int l_w, const int l_off,
-                             const int out_w, const int oy, const int ox,
-                             const float shot_m, const float floor_m, const float shot_s, const float floor_s,
-                             const float kappa, const float dir_eps, const float blend_k,
-                             const float lum_shot, const float lum_floor, const float alias_m,
-                             const float m_from_s, const int out_h)
+/* The S site of work-item (gx, gy) of m_at_s_combine and m_at_s_combine_dir, in output coordinates
+ * (*y, *x; image row y + COMBINE_RADIUS + oy): the item takes the S site in output row 2 gy + (row
+ * parity) and columns 4 gx .. 4 gx + 3. 0 for an item past the window's edge (out_w x out_h). */
+inline int s_site(const int oy, const int ox, const int out_w, const int out_h, int *y, int *x)
 {
-    /* the S site of this work-item's 2 x 4 cell, in output coordinates (image row yc + oy) */
-    const int y = 2 * get_global_id(1) + ((COMBINE_RADIUS + oy + S_Y) & 1);
-    const int x = 4 * get_global_id(0) + ((y + COMBINE_RADIUS + oy - S_D - COMBINE_RADIUS - ox) & 3);
-    if (y >= out_h || x >= out_w)
-        return;
-    const int yc = y + COMBINE_RADIUS, xc = x + COMBINE_RADIUS;
+    *y = 2 * get_global_id(1) + ((COMBINE_RADIUS + oy + S_Y) & 1);
+    *x = 4 * get_global_id(0) + ((*y + COMBINE_RADIUS + oy - S_D - COMBINE_RADIUS - ox) & 3);
+    return *y < out_h && *x < out_w;
+}
+
+/* M at the S site (yc, xc) of the fits' window (width in_w): M = Mfit + gamma (p - Sfit), gamma = 1
+ * (noiseless) or sig / (sig + var_S(Sfit)), sig = max(E_M - var_M(Mfit), 0), E_M = mean over the M
+ * sites of the 5 x 5 of (p - Mfit)^2; p on a window larger by p_off (width p_w). */
+inline float m_at_s_lmmse(__global const float *restrict p, __global const float *restrict mfit,
+                          __global const float *restrict sfit, const int yc, const int xc, const int in_w,
+                          const int p_w, const int p_off, const float shot_m, const float floor_m,
+                          const float shot_s, const float floor_s)
+{
     const int ic = yc * in_w + xc;
     const float pc = p[(yc + p_off) * p_w + xc + p_off];
     const float mf = mfit[ic], sf = sfit[ic];
@@ -140,11 +129,53 @@ __kernel void m_at_s_combine(__global const float *restrict p, __global const fl
     }
     const float sig = max_f(e / cnt - (shot_m * max_f(mf, 0.0f) + floor_m), 0.0f);
     const float gamma = sig / (sig + shot_s * max_f(sf, 0.0f) + floor_s);
-    float est = mf + gamma * (pc - sf);
+    return mf + gamma * (pc - sf);
 #else
-    float est = mf + (pc - sf);
+    return mf + (pc - sf);
 #endif
-#if DIRECTIONAL
+}
+
+/* m_at_s_combine (pass 1): M at the S sites of m (the other pixels are m_keep's p), one work-item per
+ * S site (s_site), by m_at_s_lmmse. mfit, sfit on the kernel's window (width in_w); p on a window
+ * larger by p_off (width p_w); dst (out_w x out_h) is the window shrunk by R; (oy, ox): image
+ * coordinates of the kernel's window pixel (0, 0). R = 2. */
+__kernel void m_at_s_combine(__global const float *restrict p, __global const float *restrict mfit, __global const float *restrict sfit,
+                             __global float *restrict dst, const int in_w, const int p_w, const int p_off,
+                             const int out_w, const int oy, const int ox,
+                             const float shot_m, const float floor_m, const float shot_s, const float floor_s,
+                             const int out_h)
+{
+    int y, x;
+    if (!s_site(oy, ox, out_w, out_h, &y, &x))
+        return;
+    dst[y * out_w + x] = m_at_s_lmmse(p, mfit, sfit, y + COMBINE_RADIUS, x + COMBINE_RADIUS, in_w, p_w, p_off,
+                                      shot_m, floor_m, shot_s, floor_s);
+}
+
+/* m_at_s_combine_dir (pass 2): m_at_s_combine's estimate mixed with the edge-directed estimate yd - c
+ * by w = hf / (hf + min_d err_d), hf = kappa * 5 x 5 mean of (y - ylp)^2, err_d the mean squared error
+ * of the 2-tap predictor along d at the non-S pixels of the 3 x 3, yd = sum_d E_d / (eps + err_d) /
+ * sum_d 1 / (eps + err_d); then alias suppression toward the neutral mn = m_from_s p: dev = est - mn,
+ * est = mn + alias_gain(dev^2, alias_m E_sig) dev, E_sig = max(hf / kappa - blend_k vn, 0), vn =
+ * lum_shot max(ylp, 0) + lum_floor. Windows as m_at_s_combine's; y and c, ylp on windows larger by
+ * y_off, l_off (widths y_w, l_w). R = 2. */
+__kernel void m_at_s_combine_dir(__global const float *restrict p, __global const float *restrict mfit,
+                                 __global const float *restrict sfit, __global const float *restrict yg,
+                                 __global const float *restrict cg, __global const float *restrict ylpg,
+                                 __global float *restrict dst, const int in_w, const int p_w, const int p_off,
+                                 const int y_w, const int y_off, const int l_w, const int l_off,
+                                 const int out_w, const int oy, const int ox,
+                                 const float shot_m, const float floor_m, const float shot_s, const float floor_s,
+                                 const float kappa, const float dir_eps, const float blend_k,
+                                 const float lum_shot, const float lum_floor, const float alias_m,
+                                 const float m_from_s, const int out_h)
+{
+    int y, x;
+    if (!s_site(oy, ox, out_w, out_h, &y, &x))
+        return;
+    const int yc = y + COMBINE_RADIUS, xc = x + COMBINE_RADIUS;
+    const float pc = p[(yc + p_off) * p_w + xc + p_off];
+    float est = m_at_s_lmmse(p, mfit, sfit, yc, xc, in_w, p_w, p_off, shot_m, floor_m, shot_s, floor_s);
     const int iy0 = (yc + y_off) * y_w + xc + y_off;
     const int il0 = (yc + l_off) * l_w + xc + l_off;
     float num = 0.0f, den = 0.0f, err_min = INFINITY;
@@ -189,7 +220,6 @@ __kernel void m_at_s_combine(__global const float *restrict p, __global const fl
     const float mn = m_from_s * pc;
     const float dev = est - mn;
     est = mn + alias_gain(dev * dev, alias_m * e_sig) * dev;
-#endif
     dst[y * out_w + x] = est;
 }
 

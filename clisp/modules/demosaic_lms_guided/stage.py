@@ -573,11 +573,11 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
     # Windows: every intermediate lives on a window of the input shrunk by an offset (o_*, px on each
     # side); a kernel reads inputs on larger windows through offsets relative to its own window.
 
-    def defines(self, directional: bool = False) -> dict[str, int]:
+    def defines(self) -> dict[str, int]:
         """Compile-time constants of clisp/modules/demosaic_lms_guided/demosaic_lms_guided.cl (see its header). No CFA phase among
         them: it is folded into the origin (``_origin``), so all phases share the programs. The guided
         filters' kernels (clisp/modules/common/guided_filter.cl) get LATTICE and their radius instead."""
-        return {**LATTICE, "NOISY": int(self.noise is not None), "DIRECTIONAL": int(directional),
+        return {**LATTICE, "NOISY": int(self.noise is not None),
                 "TONE_POWER": TONE_POWER, "D_RADIUS": D_RADIUS, "PRE_RADIUS": PRE_RADIUS,
                 "COMBINE_RADIUS": COMBINE_RADIUS, "RI_RADIUS": RI_RADIUS, "BP_RADIUS": BP_RADIUS,
                 "HP_RADIUS": AXIAL_HP.shape[0] // 2, "S_ALIAS_RADIUS": S_ALIAS_RADIUS}
@@ -609,17 +609,15 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
                 f"#define D_TAPS {d}\n#define TENT_TAPS {tent}\n#define D_SUM(P) ({d_sum})\n"
                 f"#define B5_SUM(P) ({b_sum})\n")
 
-    def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object,
-                directional: bool = False) -> None:
+    def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object) -> None:
         """Enqueue ``kernel_name`` of clisp/modules/demosaic_lms_guided/demosaic_lms_guided.cl over exactly width x height outputs
         (``runtime.launch_exact``)."""
-        kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(directional), self.generated_source())
+        kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(), self.generated_source())
         launch_exact(rt, kernel, width, height, *args)
 
-    def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object],
-                      directional: bool = False) -> None:
+    def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object]) -> None:
         """Enqueue ``kernel_name`` with its arguments by name (``Runtime.launch_named``)."""
-        rt.launch_named("demosaic_lms_guided", kernel_name, width, height, args, self.defines(directional),
+        rt.launch_named("demosaic_lms_guided", kernel_name, width, height, args, self.defines(),
                         self.generated_source())
 
     def enqueue_l_guide(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
@@ -643,20 +641,20 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         o_fit = o_guide + 2 * r
         h, w = fits[0].height - 2 * COMBINE_RADIUS, fits[0].width - 2 * COMBINE_RADIUS
         dst = rt.acquire(1, h, w)
-        if directional is None:
-            y, c, ylp, o_y, o_l = fits[0], fits[0], fits[0], o_fit, o_fit          # unread placeholders
-        else:
-            y, c, ylp, o_y, o_l = directional
         self._launch(rt, "m_keep", w, h, p.buffer, dst.buffer, i32(p.width), i32(o_fit + COMBINE_RADIUS), i32(w))
         oy, ox = self._origin((origin[0] + o_fit, origin[1] + o_fit))
-        lum_shot, lum_floor = self._lum_noise()
-        self._launch_named(rt, "m_at_s_combine", (w + 3) // 4, (h + 1) // 2, dict(
-            p=p, mfit=fits[0], sfit=fits[1], yg=y, cg=c, ylpg=ylp, dst=dst, in_w=fits[0].width, p_w=p.width,
-            p_off=o_fit, y_w=y.width, y_off=o_fit - o_y, l_w=ylp.width, l_off=o_fit - o_l, out_w=w, oy=oy, ox=ox,
-            shot_m=noise.shot[self.ch_m], floor_m=noise.floor[self.ch_m], shot_s=noise.shot[self.ch_s],
-            floor_s=noise.floor[self.ch_s], kappa=prm.dir_kappa, dir_eps=prm.dir_eps, blend_k=prm.blend_k,
-            lum_shot=lum_shot, lum_floor=lum_floor, alias_m=prm.alias_m, m_from_s=self.m_from_s, out_h=h),
-            directional=directional is not None)
+        args = dict(p=p, mfit=fits[0], sfit=fits[1], dst=dst, in_w=fits[0].width, p_w=p.width, p_off=o_fit,
+                    out_w=w, out_h=h, oy=oy, ox=ox, shot_m=noise.shot[self.ch_m], floor_m=noise.floor[self.ch_m],
+                    shot_s=noise.shot[self.ch_s], floor_s=noise.floor[self.ch_s])
+        if directional is None:
+            self._launch_named(rt, "m_at_s_combine", (w + 3) // 4, (h + 1) // 2, args)
+        else:
+            y, c, ylp, o_y, o_l = directional
+            lum_shot, lum_floor = self._lum_noise()
+            self._launch_named(rt, "m_at_s_combine_dir", (w + 3) // 4, (h + 1) // 2, dict(
+                args, yg=y, cg=c, ylpg=ylp, y_w=y.width, y_off=o_fit - o_y, l_w=ylp.width, l_off=o_fit - o_l,
+                kappa=prm.dir_kappa, dir_eps=prm.dir_eps, blend_k=prm.blend_k, lum_shot=lum_shot,
+                lum_floor=lum_floor, alias_m=prm.alias_m, m_from_s=self.m_from_s))
         for fit in fits:
             rt.release(fit)
         return dst
