@@ -4,8 +4,10 @@
  *   gf_ab_strip (the NumPy gf_row_moments, then gf_coefficients) -> gf_apply_strip (box_rows of a, b,
  *   then gf_apply).
  *
- * Defines from the host: GF_R (the radius r); GF_MASK (the pixels of the statistics: 0 every pixel,
- * 1 the M sites, 2 the S sites); GF_LEVEL_GUIDE (1: the noise term of eps at the level mu_I, 0: at
+ * Defines from the host, the same for both kernels (a fit builds one program and runs both of its
+ * kernels): GF_R (the radius r); GF_STRIP and GF_APPLY_STRIP (the output rows per work-item of
+ * gf_ab_strip and gf_apply_strip); GF_MASK (the pixels of the statistics: 0 every pixel, 1 the M
+ * sites, 2 the S sites, 3 the M and S pair); GF_LEVEL_GUIDE (1: the noise term of eps at the level mu_I, 0: at
  * mu_v); L_PAR, S_Y, S_D (the LMS CFA in closed form, at_l and at_s in common.h; the CFA phase is folded
  * into the image coordinates (oy, ox) by lattice_shift). Mask and level are compile-time so that the
  * selections fold away (as kernel arguments they cost the row-moment step 30% and the coefficients 10%).
@@ -119,19 +121,22 @@ __kernel void gf_ab_strip(__global const float *restrict guide, __global const f
  * (ab_w - 2r) = out_h x out_w, written from element d_base of dst. Output (y, x) <-> ab (y + r, x + r),
  * the own window's (y + 2r, x + 2r), the guide's (y + 2r + g_off, x + 2r + g_off). Halo: reads
  * +2r along x and y of ab. GF_MASK 3 (two fits): planes 2, 3 of ab give the second q, written from
- * element d_base2 of dst2. */
+ * element d_base2 of dst2 (other masks: one fit). Strips of GF_APPLY_STRIP rows (two sums per row
+ * leave room for longer strips than gf_ab_strip's). */
+#define GF_APPLY_NR (GF_APPLY_STRIP + 2 * GF_R)
 __kernel void gf_apply_strip(__global const float *restrict ab, __global const float *restrict guide, __global float *restrict dst,
                              __global float *restrict dst2, const int ab_w, const int ab_h, const int g_base,
                              const int g_w, const int g_off, const int out_w, const int out_h, const int d_base,
                              const int d_base2)
 {
     const int x = get_global_id(0);
-    const int y_s = (int)get_global_id(1) * GF_STRIP, y0 = y_s < out_h - GF_STRIP ? y_s : out_h - GF_STRIP;
+    const int y_s = (int)get_global_id(1) * GF_APPLY_STRIP;
+    const int y0 = y_s < out_h - GF_APPLY_STRIP ? y_s : out_h - GF_APPLY_STRIP;
     const int plane = ab_w * ab_h;
     const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));
-    float ra[GF_FITS][GF_NR], rb[GF_FITS][GF_NR];
+    float ra[GF_FITS][GF_APPLY_NR], rb[GF_FITS][GF_APPLY_NR];
     #pragma unroll
-    for (int i = 0; i < GF_NR; ++i) {
+    for (int i = 0; i < GF_APPLY_NR; ++i) {
         __global const float *rowp = ab + (y0 + i) * ab_w + x;
         #pragma unroll
         for (int f = 0; f < GF_FITS; ++f) {

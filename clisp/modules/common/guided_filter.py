@@ -26,7 +26,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...errors import ClispError
-from ...engine.runtime import DeviceImage, Runtime, launch_exact
+from ...engine.runtime import DeviceImage, Runtime
 from .lms import LATTICE, correlate_valid, valid
 
 MASK_ALL, MASK_M, MASK_S, MASK_PAIR = 0, 1, 2, 3
@@ -125,21 +125,14 @@ def guided_filter(guide: np.ndarray, v: np.ndarray, mask: np.ndarray | None, r: 
 # pixel (g_off, g_off), resp. (v_off, v_off), is own-window pixel (0, 0). ``origin``: image coordinates
 # of own-window pixel (0, 0); ``shift``: clisp.modules.common.lms.lattice_shift of the CFA.
 
-def _kernel(rt: Runtime, name: str, r: int, mask: int = MASK_ALL, level_from_guide: bool = False) -> object:
-    """Kernel ``name`` of clisp/modules/common/guided_filter.cl built for radius r, ``mask`` and the eps level (one
-    program per combination; the kernels that do not read mask or level get the defaults)."""
-    return rt.kernel("guided_filter", name,
-                     {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide)})
-
-
 def _plane_base(image: DeviceImage, plane: int) -> np.int32:
     """Element offset of plane ``plane`` of a planar device image."""
     return i32(plane * image.height * image.width)
 
 
 GF_STRIP = 8
-"""Output rows per work-item of the fused strip kernels (gf_ab_strip, gf_apply_strip): each strip
-recomputes 2r rows of sums along x, so longer strips save work but cost registers."""
+"""Output rows per work-item of gf_ab_strip (GF_STRIP): each strip recomputes 2r rows of sums along
+x, so longer strips save work but cost registers."""
 
 
 @lru_cache(maxsize=64)
@@ -163,7 +156,8 @@ def chi_rows(w: int, ox: int, mask: int, rows: int, r: int = 0) -> np.ndarray:
 
 
 APPLY_STRIP = 16
-"""GF_STRIP of gf_apply_strip (two sums per row: registers allow longer strips)."""
+"""Output rows per work-item of gf_apply_strip (GF_APPLY_STRIP; two sums per row: registers allow
+longer strips)."""
 
 
 def _strip(h: int, strip: int = GF_STRIP) -> int:
@@ -206,18 +200,18 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     ab_h, ab_w = h - 2 * r, w - 2 * r
     fits = len(noises)
     ab = rt.acquire(2 * fits, ab_h, ab_w)
-    strip = _strip(ab_h)
+    q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
+    strip, apply_strip = _strip(ab_h), _strip(q_h, APPLY_STRIP)
     ox = origin[1] + shift[1]
     masks = [MASK_M, MASK_S] if mask == MASK_PAIR else [mask]
     chi = rt.constant(np.concatenate([chi_rows(w, ox, m, strip + 2 * r, r).ravel() for m in masks]))
     defines = {**LATTICE, "GF_R": int(r), "GF_MASK": int(mask), "GF_LEVEL_GUIDE": int(level_from_guide),
-               "GF_STRIP": strip}
+               "GF_STRIP": strip, "GF_APPLY_STRIP": apply_strip}      # one program for both kernels
     n2 = noises[-1]
     rt.launch_named("guided_filter", "gf_ab_strip", ab_w, -(-ab_h // strip), dict(
         guide=guide, v=v, ab=ab, chi_rows=chi, chi_w=w, g_base=_plane_base(guide, g_plane), g_w=guide.width,
         g_off=g_off, v_w=v.width, v_off=v_off, out_w=ab_w, out_h=ab_h, oy=origin[0] + shift[0], ox=ox, eps0=eps0,
         shot=noises[0][0], floor_=noises[0][1], shot2=n2[0], floor2=n2[1]), defines)
-    q_h, q_w = ab_h - 2 * r, ab_w - 2 * r
     dsts = []
     for out in outs:
         dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
@@ -225,11 +219,8 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
             raise ClispError(f"guided filter output: plane {plane} of {dst.channels} x {dst.height} x {dst.width} "
                              f"cannot take {q_h} x {q_w}")
         dsts.append((dst, plane))
-    strip = _strip(q_h, APPLY_STRIP)
-    defines = {**LATTICE, "GF_R": int(r), "GF_MASK": MASK_PAIR if fits == 2 else 0, "GF_LEVEL_GUIDE": 0,
-               "GF_STRIP": strip}
     (d1, p1), (d2, p2) = dsts[0], dsts[-1]
-    rt.launch_named("guided_filter", "gf_apply_strip", q_w, -(-q_h // strip), dict(
+    rt.launch_named("guided_filter", "gf_apply_strip", q_w, -(-q_h // apply_strip), dict(
         ab=ab, guide=guide, dst=d1, dst2=d2, ab_w=ab_w, ab_h=ab_h, g_base=_plane_base(guide, g_plane),
         g_w=guide.width, g_off=g_off, out_w=q_w, out_h=q_h, d_base=_plane_base(d1, p1), d_base2=_plane_base(d2, p2)),
         defines)
