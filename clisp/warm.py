@@ -2,7 +2,7 @@
 
 A program is compiled the first time a process on this machine builds it for a device and clisp
 version; the compiler caches the binary (PoCL: ~/.cache/pocl) and clisp records that it was built
-(:func:`clisp.engine.runtime.cache_dir`), so later processes only load it. A first run of a 24 MP raw
+(:func:`clisp.engine.disk_cache.cache_dir`), so later processes only load it. A first run of a 24 MP raw
 otherwise spends most of its time compiling. Warming runs, for each CFA kind and preset, the path
 ``clisp process`` takes on small raws simulated in code: a noisy chart with a light whose samples
 clip (demosaic, highlights, colour and chroma denoiser with its noise calibration, tone curve to

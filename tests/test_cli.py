@@ -182,10 +182,12 @@ def test_compression_option(tmp_path: Path, scene_png: Path, capsys) -> None:
 
 def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png: Path, capsys, monkeypatch) -> None:
     """``--profile`` prints the device time of the run's stages and kernels and the host activities
-    (as a fresh process: the noise calibration, whose upload the profile shows, is not yet
-    remembered by an earlier test of this process)."""
+    (as a fresh process on a machine that has not calibrated this noise yet: the noise calibration,
+    whose upload the profile shows, is neither remembered by an earlier test of this process nor
+    kept in the cache folder)."""
     from clisp.modules.chroma_denoise import stage as chroma_stage
     monkeypatch.setattr(chroma_stage, "_CALIBRATIONS", {})
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path / "cache"))
     raw_path = tmp_path / "r.dng"
     assert run(["simulate", scene_png, "-o", raw_path, "--cfa", "bayer", "--gain", "4"], capsys)[0] == 0
     code, out, err = run(["process", raw_path, "-o", tmp_path / "o.tif", "--profile"], capsys)

@@ -24,6 +24,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from . import profile
+from .disk_cache import cache_dir
 from ..errors import ClispError
 from ..version import __version__
 
@@ -161,14 +162,6 @@ per program on a CPU device, is then the run's largest part."""
 
 STDERR = object()
 """Runtime.notice_stream's default: whatever ``sys.stderr`` is when a notice is due."""
-
-
-def cache_dir() -> Path:
-    """clisp's cache folder: $CLISP_CACHE_DIR, else $XDG_CACHE_HOME/clisp, else ~/.cache/clisp."""
-    if os.environ.get("CLISP_CACHE_DIR"):
-        return Path(os.environ["CLISP_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "clisp"
 
 
 SCALARS = {"int": np.int32, "uint": np.uint32, "float": np.float32, "short": np.int16, "ushort": np.uint16,

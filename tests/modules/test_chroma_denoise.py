@@ -475,3 +475,37 @@ def test_calibration_is_remembered_for_the_same_inputs_only():
     other = table(16.0)
     assert other is not first and not np.allclose(other.approx, first.approx)
     assert table(4.0, "hybrid") is not first
+
+
+def test_calibration_is_kept_on_disk_per_code_and_device(tmp_path, monkeypatch):
+    """A calibration measured once is read back by a later process (the in-process memory emptied)
+    from the cache folder, equal to the last bit; damaged, it is measured again; a change of the
+    clisp code (its fingerprint) or of the device (reference against OpenCL) never reads it."""
+    from clisp.engine import disk_cache
+    chroma_stage = cd
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(chroma_stage, "_CALIBRATIONS", {})
+    cfa, sp = cfa_from_name("lms"), SPACES["lms"]
+    noise = ChannelNoise.from_model(NoiseModel(), 8.0, np.array([1.0, 1.2191, 3.1397]) / 0.98951)
+    dem = DemosaicBilinear(cfa)
+    rt = get_runtime()
+    measured = calibrate_noise(dem, cfa, sp, noise, size=64, rt=rt)
+    (kept,) = (tmp_path / "calibration").iterdir()
+    monkeypatch.setattr(chroma_stage, "_CALIBRATIONS", {})
+    calls = []
+    real = chroma_stage.measure_calibration
+    monkeypatch.setattr(chroma_stage, "measure_calibration", lambda *a, **k: calls.append(1) or real(*a, **k))
+    again = calibrate_noise(dem, cfa, sp, noise, size=64, rt=rt)
+    assert not calls and again is not measured
+    for a, b in ((again.approx, measured.approx), (again.detail, measured.detail), (again.corr, measured.corr)):
+        assert (a is None and b is None) or np.array_equal(a, b)
+    kept.write_bytes(b"not a table")
+    monkeypatch.setattr(chroma_stage, "_CALIBRATIONS", {})
+    calibrate_noise(dem, cfa, sp, noise, size=64, rt=rt)
+    assert len(calls) == 1
+    monkeypatch.setattr(chroma_stage, "_CALIBRATIONS", {})
+    monkeypatch.setattr(disk_cache, "_FINGERPRINT", "edited code")
+    calibrate_noise(dem, cfa, sp, noise, size=64, rt=rt)
+    assert len(calls) == 2 and len(list((tmp_path / "calibration").iterdir())) == 2
+    calibrate_noise(dem, cfa, sp, noise, size=64)                 # the NumPy reference: its own entry
+    assert len(calls) == 3 and len(list((tmp_path / "calibration").iterdir())) == 3
