@@ -24,7 +24,7 @@ from .version import __version__
 from .errors import ClispError, clip, error_line
 from .engine import profile as engine_profile
 from .engine.profile import host_timer
-from .engine.runtime import get_runtime, list_devices
+from .engine.runtime import get_runtime, list_devices, save_built_programs
 from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import raw_band_writer, raw_info, read_raw, write_raw
@@ -481,7 +481,10 @@ def _format_value(value: object) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``clisp`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    return run_command(args.func, args)
+    try:
+        return run_command(args.func, args)
+    finally:
+        save_built_programs()      # later processes load these programs' binaries instead of compiling
 
 
 def run_command(func: "Callable[[argparse.Namespace], int | None]", args: argparse.Namespace) -> int:

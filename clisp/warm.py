@@ -1,8 +1,8 @@
 """Build the OpenCL programs of the presets ahead of the first real run (``clisp info --device --warm``).
 
 A program is compiled the first time a process on this machine builds it for a device and clisp
-version; the compiler caches the binary (PoCL: ~/.cache/pocl) and clisp records that it was built
-(:func:`clisp.engine.disk_cache.cache_dir`), so later processes only load it. A first run of a 24 MP raw
+version; clisp keeps the binary (clisp.engine.programs, in :func:`clisp.engine.disk_cache.cache_dir`),
+so later processes only load it. A first run of a 24 MP raw
 otherwise spends most of its time compiling. Warming runs, for each CFA kind and preset, the path
 ``clisp process`` takes on small raws simulated in code: a noisy chart with a light whose samples
 clip (demosaic, highlights, colour and chroma denoiser with its noise calibration, tone curve to
@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .engine.runtime import get_runtime
 from .io.rawfile import read_raw, write_raw
 from .pipeline import DEFAULT_PRESET, process_file
 from .sim.simulate import simulate
@@ -75,4 +76,8 @@ def warm_kernels(presets: Sequence[str] = DEFAULT_WARM_PRESETS, kinds: Sequence[
                                  preset=preset, skip=True)
                 if report is not None:
                     report(f"  {kind:5s} {preset:8s} {time.perf_counter() - t0:6.1f} s")
+    t0 = time.perf_counter()
+    kept = get_runtime().save_programs()
+    if report is not None and kept:
+        report(f"  binaries of {kept} programs kept ({time.perf_counter() - t0:.1f} s)")
     return time.perf_counter() - start

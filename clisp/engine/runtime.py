@@ -11,69 +11,29 @@ Device choice (``CLISP_DEVICE``):
 from __future__ import annotations
 
 import bisect
-import hashlib
 import os
-import re
-import sys
-import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 import numpy as np
 
 from . import profile
-from .disk_cache import cache_dir
+from .programs import Programs, kernel_path
 from ..errors import ClispError
-from ..version import __version__
 
 LOCAL_SIZE = (32, 4)
 """Work-group shape (x, y) for 2-D image kernels; global sizes are rounded up to it and kernels
 bounds-check. 32 along x keeps reads coalesced on GPUs and gives PoCL a vectorisable inner loop."""
 
 
-def kernel_sources() -> dict[str, Path]:
-    """Every OpenCL source file of the package by file name: the programs ``<name>.cl`` and the
-    headers ``*.h`` of the stage folders ``clisp/modules/<module>/`` and of ``clisp/engine/``
-    (``common.h`` is in ``clisp/modules/common/``). A program is named by its file's stem, which is
-    its module's name, e.g. ``highlights`` -> ``clisp/modules/highlights/highlights.cl``."""
-    global _SOURCES
-    if _SOURCES is None:
-        package = Path(__file__).resolve().parents[1]             # clisp/ (this file is clisp/engine/)
-        found = [*package.glob("modules/*/*.cl"), *package.glob("modules/*/*.h"), *package.glob("engine/*.cl")]
-        _SOURCES = {path.name: path for path in sorted(found)}
-        if "common.h" not in _SOURCES:
-            raise ClispError(f"OpenCL kernel sources not found in {package}; reinstall clisp")
-    return _SOURCES
-
-
-_SOURCES: dict[str, Path] | None = None
-
-
-def with_headers(text: str) -> str:
-    """``text`` with each line ``#include "name.h"`` replaced by that header's text (kernel_path), so
-    that the program cache and PoCL's own cache see every source they compile (no -I path)."""
-    return _INCLUDE.sub(lambda m: kernel_path(m.group(1)).read_text(), text)
-
-
-_INCLUDE = re.compile(r'^#include "([\w.]+\.h)"[ \t]*$', re.MULTILINE)
-
-
-def kernel_path(file_name: str) -> Path:
-    """Path of the OpenCL source ``file_name`` (``highlights.cl``, ``srgb.h``); ClispError if none."""
-    sources = kernel_sources()
-    if file_name not in sources:
-        raise ClispError(f"kernel source {file_name} not found in clisp/modules/*/ or clisp/engine/")
-    return sources[file_name]
-
-
 POCL_DEFAULTS = {"POCL_WORK_GROUP_SPECIALIZATION": "0"}
 """PoCL settings clisp sets unless the environment already has them (read when OpenCL starts).
 
-``POCL_WORK_GROUP_SPECIALIZATION=0``: PoCL compiles one work-group function per kernel and
-work-group size, not one more per global offset (launch_exact launches a kernel's main block at
-offset 0 and its ragged strips at other offsets). On 2 Intel Xeon cores with empty caches the
+``POCL_WORK_GROUP_SPECIALIZATION=0``: PoCL compiles one generic work-group function per kernel (any
+work-group size and global offset), not one per work-group size and one more per global offset
+(launch_exact launches a kernel's main block at offset 0 and its ragged strips at other offsets);
+it is also the function a program's binary holds (clisp.engine.programs). On 2 Intel Xeon cores with empty caches the
 first ``clisp process`` of a 24 MP Bayer DNG (quality) took 12.4 s against 20.3 s, a 0.26 MP one
 6.6 s against 13.1 s; warm runs of the same DNG 4.36-4.65 s against 4.46-4.55 s, of a 24 MP LMS
 DNG 6.6-7.2 s against 6.4-6.8 s (docs/RESULTS.md, issue 29)."""
@@ -149,21 +109,6 @@ def _define_flags(defines: Mapping[str, Any]) -> list[str]:
     return flags
 
 
-BUILD_OPTIONS = ["-cl-std=CL1.2", "-cl-kernel-arg-info"]
-"""Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
-the parameters' names kept for :meth:`Runtime.launch_named` (no effect on the code)."""
-
-
-FIRST_BUILD_NOTICE = "clisp: compiling OpenCL kernels for {device} (first run only)..."
-"""Printed once per process (on a terminal's stderr) when a program is built that this machine has not
-built before for this device and clisp version (:meth:`Runtime.program`): the compiler's cost, seconds
-per program on a CPU device, is then the run's largest part."""
-
-
-STDERR = object()
-"""Runtime.notice_stream's default: whatever ``sys.stderr`` is when a notice is due."""
-
-
 SCALARS = {"int": np.int32, "uint": np.uint32, "float": np.float32, "short": np.int16, "ushort": np.uint16,
            "char": np.int8, "uchar": np.uint8, "long": np.int64, "ulong": np.uint64}
 """NumPy types of the OpenCL scalar parameter types a launch converts to."""
@@ -215,7 +160,7 @@ class Runtime:
         self.profiling = profiling
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
         self.queue = cl.CommandQueue(self.context, properties=props)
-        self._programs: dict[tuple[str, tuple[str, ...]], Any] = {}
+        self.programs = Programs(cl, self.context, self.platform, self.device)
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
         self._signatures: dict[tuple[str, tuple[str, ...], str], tuple[Parameter, ...]] = {}
         self._flag_cache: dict[tuple, tuple[str, ...]] = {}
@@ -223,10 +168,6 @@ class Runtime:
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
         self.host_unified = bool(self.device.host_unified_memory)
-        self.notice_stream: Any = STDERR
-        """Where the first-build notice goes (only when it is a terminal): STDERR (the process's
-        stderr when the notice is due, which may have been replaced since), a stream, or None."""
-        self._noticed = False
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -261,61 +202,18 @@ class Runtime:
         return flags
 
     def program(self, name: str, defines: Mapping[str, Any] | None = None, generated: str = "") -> Any:
-        """Build the program ``<name>.cl`` (:func:`kernel_path`) with ``-D`` defines once per process and cache it.
+        """The program ``<name>.cl`` (clisp.engine.programs.kernel_path) with ``-D`` defines, built once
+        per process, loaded from disk when an earlier process built it (clisp.engine.programs).
 
         ``generated``: host-generated source (e.g. a filter's weights as literals) placed before
-        the file's text; part of the cache key.
+        the file's text; part of the cache key. None during a metering run for a program that is
+        only noted (built when the metering run ends).
         """
-        flags = self._flags(defines)
-        key = (name, flags + (generated,))
-        if key not in self._programs:
-            path = kernel_path(f"{name}.cl")
-            try:
-                source = "\n".join([kernel_path("common.h").read_text(), generated, with_headers(path.read_text())])
-            except OSError as exc:
-                raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
-            marker = self._build_marker(source, flags)
-            if marker is not None and not marker.exists():
-                self._first_build_notice()
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")  # pyopencl warns on non-empty build logs
-                    prg = self.cl.Program(self.context, source).build(options=list(flags) + BUILD_OPTIONS)
-            except self.cl.RuntimeError as exc:
-                raise ClispError(f"OpenCL build of {path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
-            if marker is not None:
-                try:
-                    marker.parent.mkdir(parents=True, exist_ok=True)
-                    marker.touch()
-                except OSError:
-                    pass                                  # a read-only cache only costs the notice
-            self._programs[key] = prg
-        return self._programs[key]
+        return self.programs.get(name, self._flags(defines), generated)
 
-    def _build_marker(self, source: str, flags: tuple[str, ...]) -> Path | None:
-        """The file in :func:`cache_dir` that records that this program was built here before:
-        named by the SHA-256 of the device, its driver, clisp's version, the source and the flags
-        (the compiler's own cache, e.g. PoCL's, holds the binary). None without a home folder."""
-        d = self.device
-        text = "\0".join([self.platform.name, self.platform.version, d.name, d.version, d.driver_version,
-                          __version__, source, *flags])
-        try:
-            return cache_dir() / "built" / hashlib.sha256(text.encode()).hexdigest()
-        except RuntimeError:                               # Path.home() without a home
-            return None
-
-    def _first_build_notice(self) -> None:
-        """:data:`FIRST_BUILD_NOTICE`, once per runtime, when ``notice_stream`` is an open terminal."""
-        stream = sys.stderr if self.notice_stream is STDERR else self.notice_stream
-        if self._noticed or stream is None:
-            return
-        try:
-            if not stream.isatty():
-                return
-            self._noticed = True
-            print(FIRST_BUILD_NOTICE.format(device=self.device.name.strip()), file=stream, flush=True)
-        except (AttributeError, ValueError, OSError):      # no isatty, a closed or broken stream
-            return
+    def save_programs(self) -> int:
+        """Keep the binaries of the programs this process compiled (clisp.engine.programs.Programs.save)."""
+        return self.programs.save()
 
     def header(self, name: str) -> str:
         """Text of the header ``name`` (e.g. ``srgb.h``, for host-generated program text)."""
@@ -331,11 +229,13 @@ class Runtime:
         flags = self._flags(defines)
         key = (name, flags + (generated,), kernel_name)
         if key not in self._kernels:
-            kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
             if self._meter is not None:
+                self.program(name, defines, generated)          # built or noted: nothing launches
                 kernel = _skipped_launch
-            elif self.profiling:
-                kernel = _ProfiledKernel(kernel, kernel_name)
+            else:
+                kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+                if self.profiling:
+                    kernel = _ProfiledKernel(kernel, kernel_name)
             self._kernels[key] = kernel
         return self._kernels[key]
 
@@ -346,12 +246,8 @@ class Runtime:
         flags = self._flags(defines)
         key = (name, flags + (generated,), kernel_name)
         if key not in self._signatures:
-            kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
-            info, qualifier = self.cl.kernel_arg_info, self.cl.kernel_arg_address_qualifier
-            self._signatures[key] = tuple(
-                Parameter(kernel.get_arg_info(i, info.NAME), kernel.get_arg_info(i, info.TYPE_NAME),
-                          kernel.get_arg_info(i, info.ADDRESS_QUALIFIER) != qualifier.PRIVATE)
-                for i in range(kernel.get_info(self.cl.kernel_info.NUM_ARGS)))
+            self._signatures[key] = tuple(Parameter(*p) for p in
+                                          self.programs.signature(name, key[1][:-1], generated, kernel_name))
         return self._signatures[key]
 
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
@@ -367,6 +263,9 @@ class Runtime:
             rt.launch_named("highlights", "hl_near", w1, h1, dict(rows=rows, dst=near, w1=w1, h1=h1,
                             reach=reach, nbx=nbx, nby=nby), defines)
         """
+        if self._meter is not None:
+            self.program(name, defines, generated)              # built or noted: nothing launches
+            return
         params = self.signature(name, kernel_name, defines, generated)
         names = [p.name for p in params]
         missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
@@ -406,15 +305,17 @@ class Runtime:
         """Within the block nothing is allocated or run: acquire/release act on a simulated pool
         (empty at the start, same policy as the real one) and every kernel launch is skipped. A
         pipeline's tile enqueued here measures exactly the device buffers that tile would create
-        from an empty pool (.created, .largest); programs are built as usual, so a metered run
-        also compiles what the real one needs."""
+        from an empty pool (.created, .largest). The programs it asks for that are not built yet
+        are noted and built when the block ends, all at once (in parallel on PoCL,
+        clisp.engine.programs), so a metered run also builds what the real one needs."""
         if self._meter is not None:
             raise RuntimeError("metering runs do not nest")
         self._meter = BufferPool(lambda n: object())
         saved = self._kernels
         self._kernels = {}
         try:
-            yield self._meter
+            with self.programs.collecting():
+                yield self._meter
         finally:
             self._meter = None
             self._kernels = saved
@@ -647,6 +548,12 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
 
 
 _RUNTIME: Runtime | None = None
+
+
+def save_built_programs() -> None:
+    """:meth:`Runtime.save_programs` of the process-wide runtime, if one was created."""
+    if _RUNTIME is not None:
+        _RUNTIME.save_programs()
 
 
 def get_runtime(profiling: bool = False) -> Runtime:

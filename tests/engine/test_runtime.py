@@ -1,6 +1,8 @@
 """The OpenCL runtime: device choice, build errors, program cache, buffer pool, transfers."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -131,36 +133,102 @@ class _Terminal(list):
         pass
 
 
-def test_first_build_notice_once_per_machine(rt, tmp_path, monkeypatch):
+def test_first_build_notice_once_per_machine(tmp_path, monkeypatch):
     """A program this cache has not seen built prints the notice once per runtime; the record it
-    leaves keeps the next process (a fresh runtime) quiet; a pipe (not a terminal) never gets it."""
+    keeps (when the runtime saves its programs, as the CLI does when a command ends) keeps the next
+    process (a fresh runtime) quiet; a pipe (not a terminal) never gets it."""
     import uuid
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    first = Runtime()
     stream = _Terminal()
-    monkeypatch.setattr(rt, "notice_stream", stream)
-    monkeypatch.setattr(rt, "_noticed", False)
+    first.programs.notice_stream = stream
     tag = uuid.uuid4().hex
     defines = {"RAW_T": "float", "CFA_PERIOD": 4}
-    rt.program("raw_scale", defines, generated=f"/* {tag} a */")
-    rt.program("raw_scale", defines, generated=f"/* {tag} b */")
+    first.program("raw_scale", defines, generated=f"/* {tag} a */")
+    first.program("raw_scale", defines, generated=f"/* {tag} b */")
     text = "".join(stream)
-    assert text.count("compiling OpenCL kernels") == 1 and rt.device.name.strip() in text
-    assert len(list((tmp_path / "built").iterdir())) == 2
+    assert text.count("compiling OpenCL kernels") == 1 and first.device.name.strip() in text
+    assert first.save_programs() == 2 and len(list((tmp_path / "programs").iterdir())) == 2
     fresh = Runtime()
     quiet = _Terminal()
-    fresh.notice_stream = quiet
+    fresh.programs.notice_stream = quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} a */")
     assert not quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} c */")
     assert "".join(quiet).count("compiling") == 1
     piped = Runtime()
     piped.program("raw_scale", defines, generated=f"/* {tag} d */")     # sys.stderr: captured, not a tty
-    assert not piped._noticed
+    assert not piped.programs.noticed
     closed = _Terminal()
     closed.isatty = lambda: (_ for _ in ()).throw(ValueError("I/O operation on closed file."))
-    piped.notice_stream = closed
+    piped.programs.notice_stream = closed
     piped.program("raw_scale", defines, generated=f"/* {tag} e */")     # a closed stream: no notice, no error
-    assert not piped._noticed and not closed
+    assert not piped.programs.noticed and not closed
+
+
+def _scale_twice(runtime: Runtime, tag: str) -> np.ndarray:
+    """A tiny program of our own (generated text only, tagged so no cache has it) run on 0..7."""
+    source = (f"/* {tag} */\n__kernel void twice(__global const float *src, __global float *dst, const float k)"
+              "\n{ const int i = get_global_id(0); dst[i] = k * src[i]; }\n")
+    src = runtime.upload(np.arange(8, dtype=np.float32).reshape(1, 8))
+    dst = runtime.acquire(1, 1, 8)
+    params = runtime.signature("layout", "twice", {"NCH": 1}, source)
+    assert [p.name for p in params] == ["src", "dst", "k"] and [p.pointer for p in params] == [True, True, False]
+    runtime.kernel("layout", "twice", {"NCH": 1}, source)(runtime.queue, (8,), None, src.buffer, dst.buffer,
+                                                    np.float32(2.0))
+    return runtime.download(dst).ravel()
+
+
+def test_program_binary_kept_and_loaded(tmp_path, monkeypatch):
+    """A program compiled here is kept as a record (binary and kernel parameters); a later runtime
+    loads it instead of compiling (no notice) and its kernels run the same, their parameters known
+    without asking the driver; a damaged record is rebuilt from source, not an error."""
+    import uuid
+    from clisp.engine import program_store
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    tag = uuid.uuid4().hex
+    first = Runtime()
+    first.programs.notice_stream = None
+    expected = np.arange(8, dtype=np.float32) * 2
+    assert np.array_equal(_scale_twice(first, tag), expected)
+    assert first.save_programs() == 1
+    (record,) = (tmp_path / "programs").iterdir()
+    binary, kernels = program_store.read_record(record)
+    assert binary and [p[0] for p in kernels["twice"]] == ["src", "dst", "k"]
+    later = Runtime()
+    stream = _Terminal()
+    later.programs.notice_stream = stream
+    assert np.array_equal(_scale_twice(later, tag), expected)
+    assert not stream and later.save_programs() == 0                  # loaded: nothing to keep
+    record.write_bytes(record.read_bytes()[:100])                      # damaged
+    assert program_store.read_record(record) is None
+    again = Runtime()
+    again.programs.notice_stream = None
+    assert np.array_equal(_scale_twice(again, tag), expected) and again.save_programs() == 1
+
+
+def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
+    """Programs a metering run asks for are noted, not built, inside it, and built when it ends (on
+    PoCL shared out with helper processes, whose records this process then loads): every one is then
+    built, kept on disk and runs."""
+    import uuid
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    fresh = Runtime()
+    fresh.programs.notice_stream = None
+    tags = [uuid.uuid4().hex for _ in range(3)]
+    with fresh.metering():
+        for tag in tags:
+            fresh.launch_named("raw_scale", "cfa_affine", 8, 4, {}, {"RAW_T": "float", "CFA_PERIOD": 4},
+                               generated=f"/* {tag} */")
+        assert not fresh.programs.built
+    assert len(fresh.programs.built) == 3
+    if not fresh.programs.cheap_binaries and (os.cpu_count() or 1) > 1:     # built in parallel: kept at once
+        assert len(list((tmp_path / "programs").iterdir())) == 3
+    fresh.save_programs()
+    assert len(list((tmp_path / "programs").iterdir())) == 3
+    for tag in tags:
+        params = fresh.signature("raw_scale", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4}, f"/* {tag} */")
+        assert params and params[0].pointer
 
 
 def test_warm_builds_what_a_run_needs(tmp_path):
@@ -177,14 +245,14 @@ def test_warm_builds_what_a_run_needs(tmp_path):
 
     rt = get_runtime()
     warm_kernels(("quality",), ("bayer",), report=None)
-    built = set(rt._programs)
+    built = set(rt.programs.built)
     scene = dead_leaves(128, seed=2)
     scene[:24, :24] = 3.0
     write_raw(tmp_path / "r.dng", simulate(scene[:, :112], "bayer", gain=16, seed=3).raw)
     raw = read_raw(tmp_path / "r.dng", lazy=True)
     process_file(raw, tmp_path / "x.tif", preset="quality", skip=True)
     process_file(replace(raw, data=aligned(raw.data)), tmp_path / "x.tif", tile=64, preset="quality", skip=True)
-    assert set(rt._programs) == built
+    assert set(rt.programs.built) == built
 
 
 # ------------------------------------------------------------------------------------------

@@ -805,6 +805,8 @@ def run_demosaic(demosaic: Stage, mosaic: np.ndarray, rt: Runtime | None = None)
     if rt is None:
         return demosaic.reference(mosaic, (0, 0))
     stage_label("noise calibration (pipeline set-up)")
+    with rt.metering():        # the demosaic's programs, built at once (in parallel on PoCL) before it runs
+        rt.release(demosaic.enqueue(rt, rt.acquire(1, *mosaic.shape), (0, 0)))
     src = rt.upload(np.ascontiguousarray(mosaic, dtype=np.float32))
     dst = demosaic.enqueue(rt, src, (0, 0))
     out = rt.download(dst)
