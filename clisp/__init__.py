@@ -9,12 +9,22 @@ Array API (rawpy users ask for arrays)::
 """
 from __future__ import annotations
 
-# The public API, imported eagerly (OpenCL itself starts only on first use). The layers below it:
-# clisp.engine (runtime, tiling, streaming), clisp.io (raw files, EXIF, image writers), clisp.sim
-# (the simulator), clisp.modules (the processing stages), clisp.pipeline (stages into a run).
-from .io.rawfile import read_raw, write_raw
-from .pipeline import process
-from .sim.simulate import simulate
+# The public API, imported on first use (PEP 562), so that `import clisp.<module>` (a helper process
+# of the program builder, clisp.engine.program_builder) does not pay for the whole package. The
+# layers below it: clisp.engine (runtime, tiling, streaming), clisp.io (raw files, EXIF, image
+# writers), clisp.sim (the simulator), clisp.modules (the processing stages), clisp.pipeline
+# (stages into a run).
 from .version import __version__
 
+_PUBLIC = {"read_raw": "io.rawfile", "write_raw": "io.rawfile", "process": "pipeline", "simulate": "sim.simulate"}
+
 __all__ = ["simulate", "process", "read_raw", "write_raw", "__version__"]
+
+
+def __getattr__(name: str) -> object:
+    if name in _PUBLIC:
+        from importlib import import_module   # here: only on the first use of a public name
+        value = getattr(import_module(f".{_PUBLIC[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'clisp' has no attribute {name!r}")
