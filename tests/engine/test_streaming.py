@@ -23,7 +23,7 @@ from clisp.errors import ClispError
 from clisp.io.imageio import ImageWriter, read_image
 import clisp.engine.memory
 from clisp.engine.memory import RSS_MARGIN
-from clisp.pipeline import PRESETS, Pipeline, build_pipeline, process_file
+from clisp.pipeline import PRESETS, build_pipeline, process_file
 from clisp.engine.runtime import get_runtime
 from clisp.io.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.io.rawimage import RawImage
@@ -54,47 +54,39 @@ def make_raw(kind: str, shape: tuple[int, int] = SHAPE, dtype: type = np.uint16,
                     wb=wb, colour_matrix=matrix, exposure=1.0 / 0.98951)
 
 
-def preset_pipelines(raw_by_kind: dict[str, RawImage]) -> list[tuple[str, str, Pipeline]]:
-    """(preset, CFA kind, pipeline) for every preset and every CFA kind it accepts."""
-    found = []
-    for name in PRESETS:
-        usable = []
-        for kind, raw in raw_by_kind.items():
-            try:
-                usable.append((name, kind, build_pipeline(raw, preset=name)))
-            except ClispError:
-                continue                                  # a preset for the other CFA kind
-        assert usable, f"preset {name} builds for no CFA"
-        found += usable
-    return found
-
-
 # ------------------------------------------------------------------------------------------
 # tiled == whole image, every preset
 # ------------------------------------------------------------------------------------------
 
-SLOW_PRESETS = {"best": ((300, 322), (96, 200), 96 * 2**20)}
+SLOW_PRESETS = {("best", "bayer"): ((300, 322), (96, 200), 96 * 2**20)}
 """Presets with a slow, wide demosaic (best's Bayer ARI: about 0.5 MP/s, halo 121): a smaller raw,
 tiles and the budget of the automatic plan scaled to its halo (16 MiB cannot hold one of its tiles).
-tests/modules/test_demosaic_ari_cl.py tests the stage's own tiling."""
+Under the stress marker: ARI's 138 programs take about 4 minutes to compile on 2 cores with an
+empty PoCL cache, half the suite's time; tests/modules/test_demosaic_ari_cl.py tests the stage's
+own tiling in the fast subset."""
 
 
-def test_every_preset_tiled_equals_whole() -> None:
-    raws = {"lms": make_raw("lms"), "bayer": make_raw("bayer")}
-    small = {"lms": make_raw("lms", SLOW_PRESETS["best"][0]), "bayer": make_raw("bayer", SLOW_PRESETS["best"][0])}
-    for name, kind, pipeline in preset_pipelines(raws):
-        slow = name in SLOW_PRESETS and kind == "bayer"
-        _, tiles, budget = SLOW_PRESETS[name] if slow else (SHAPE, (64, 256, 1024), 16 * 2**20)
-        data = (small if slow else raws)[kind].data
-        whole = pipeline.run(data, tile=0)
-        assert pipeline.stats.tiles == 1
-        for tile in tiles:
-            tiled = pipeline.run(data, tile=tile)
-            assert pipeline.stats.tiles > 1
-            assert_close(tiled, whole, f"{name}/{kind} tile {tile}")
-        auto = pipeline.run(data, budget=budget)              # tiles chosen from a small budget
-        assert pipeline.stats.tiles > 1                       # bands or squares, by the stages' needs
-        assert_close(auto, whole, f"{name}/{kind} automatic tiles")
+def preset_cases() -> list:
+    """(preset, CFA kind) for every preset and kind (every preset serves both); the slow ones under
+    the stress marker."""
+    return [pytest.param(name, kind, marks=[pytest.mark.stress] if (name, kind) in SLOW_PRESETS else [])
+            for name in PRESETS for kind in ("lms", "bayer")]
+
+
+@pytest.mark.parametrize("name,kind", preset_cases())
+def test_every_preset_tiled_equals_whole(name: str, kind: str) -> None:
+    shape, tiles, budget = SLOW_PRESETS.get((name, kind), (SHAPE, (64, 256, 1024), 16 * 2**20))
+    raw = make_raw(kind, shape)
+    pipeline = build_pipeline(raw, preset=name)
+    whole = pipeline.run(raw.data, tile=0)
+    assert pipeline.stats.tiles == 1
+    for tile in tiles:
+        tiled = pipeline.run(raw.data, tile=tile)
+        assert pipeline.stats.tiles > 1
+        assert_close(tiled, whole, f"{name}/{kind} tile {tile}")
+    auto = pipeline.run(raw.data, budget=budget)              # tiles chosen from a small budget
+    assert pipeline.stats.tiles > 1                           # bands or squares, by the stages' needs
+    assert_close(auto, whole, f"{name}/{kind} automatic tiles")
 
 
 @pytest.mark.parametrize("kind", ["lms", "bayer"])
