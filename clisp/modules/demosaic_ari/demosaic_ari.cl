@@ -26,7 +26,9 @@
  * direction), ARI_REGION (step 2's criterion over the chroma sites), ARI_KNOWN, ARI_TARGET (the chroma
  * kernels' sites), ARI_R (the window radius of the box kernels), ARI_P, ARI_Q, ARI_LS, ARI_KNOWN (the
  * diagonal kernels' lattice radii, direction and Laplacian sites). Radii and modes are compile-time so
- * that every kernel body is straight-line code, which PoCL vectorises across work-items (README.md). */
+ * that every kernel body is straight-line code, which PoCL vectorises across work-items (README.md).
+ * ARI_WITH_<kernel>: the kernels a program holds (those that read the same modes as the launched
+ * one), so that a program compiles only what can run with its modes. */
 
 #if !defined(ARI_EPS) || !defined(ARI_RMSE_FLOOR) || !defined(ARI_WEIGHT_REG) || !defined(ARI_CRIT_REG) \
     || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) || !defined(ARI_DIR) \
@@ -67,15 +69,18 @@ __attribute__((always_inline)) inline void ari_fit_values(const float a, const f
 }
 
 /* ari_scale: out = src * scale (the mosaic in 8-bit units). Halo 0. */
+#ifdef ARI_WITH_ari_scale
 __kernel void ari_scale(__global const float *restrict src, const int src_base, const int src_pitch,
                         __global float *restrict out, const int w, const float scale)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     out[y * w + x] = src[src_base + y * src_pitch + x] * scale;
 }
+#endif
 
 /* ari_green_start: the lines of ARI step 1 before the iterations, along d = (sy, sx): m = mean of the
  * two neighbours along d; planes g0 = G sites ? raw : m, c0 = G sites ? m : raw. Halo 1 along d. */
+#ifdef ARI_WITH_ari_green_start
 __kernel void ari_green_start(__global const float *restrict raw, const int raw_base, const int raw_pitch,
                               __global float *restrict out, const int w, const int h, const int sy, const int sx,
                               const int py, const int px)
@@ -87,6 +92,7 @@ __kernel void ari_green_start(__global const float *restrict raw, const int raw_
     out[y * w + x] = g ? v : m;
     out[w * h + y * w + x] = g ? m : v;
 }
+#endif
 
 /* ari_along_moments: first (separable) pass of the window statistics of guide x and target y, along
  * the lines (ARI_DIR 0: x axis, 1: y axis), radius r = ARI_R: for output (y, x) the sums over k = -r..r of
@@ -96,6 +102,7 @@ __kernel void ari_green_start(__global const float *restrict raw, const int raw_
  * sites sum L(x) L(y), sum L(x)^2, count, then over chroma sites sum L(x) L(y), sum L(y)^2, count
  * (12 planes); else (step 3) over chroma sites sum L(x) L(y), sum L(x)^2, count (9 planes); plain: 6
  * planes. Halo r along the line (r + 2 with ARI_MLRI). */
+#ifdef ARI_WITH_ari_along_moments
 __kernel void ari_along_moments(__global const float *restrict xs, const int xs_base, const int xs_pitch,
                                 __global const float *restrict ys, const int ys_base, const int ys_pitch,
                                 __global float *restrict out, const int w, const int h, const int py, const int px)
@@ -164,6 +171,7 @@ __kernel void ari_along_moments(__global const float *restrict xs, const int xs_
     out[8 * plane + i] = c_n;
 #endif
 }
+#endif
 
 /* Accumulator of centred window moments: gf_moments of clisp/modules/common/guided.h. */
 typedef gf_moments ari_moments;
@@ -216,6 +224,7 @@ __attribute__((always_inline)) inline float ari_lap_slope(const float s_xy, cons
  * SLP-packed into <2 x float> operations, which keeps PoCL from vectorising across work-items; the
  * host launches the 4 (set, fit) programs into planes 0-2, 3-5, 6-8, 9-11). Else (step 3): every
  * line, the fit of y from x, 3 planes. Halo r across the lines. */
+#ifdef ARI_WITH_ari_across_coefficients
 __kernel void ari_across_coefficients(__global const float *restrict rows, const int rows_pitch, const int rows_plane,
                                       __global const float *restrict xs, const int xs_base, const int xs_pitch,
                                       __global const float *restrict ys, const int ys_base, const int ys_pitch,
@@ -323,6 +332,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
     out[out_base + 2 * plane + i] = f[2];
 #endif
 }
+#endif
 
 /* ari_box_apply: the coefficient sums across the lines (radius r = ARI_R; the shared box filter has
  * summed them along the lines: along x for ARI_DIR 0, along y for 1) and the tentative estimates. coef: the along-summed coefficient planes
@@ -330,6 +340,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
  * t_g = (A_g c + B_g) / (W_g + reg), t_c = (A_c g + B_c) / (W_c + reg), guides c (xs view) and g
  * (ys view); out planes t_g, t_c. Else (3 planes): t = (A x + B) / (W + reg), out 1 plane.
  * Halo r across the lines. */
+#ifdef ARI_WITH_ari_box_apply
 __kernel void ari_box_apply(__global const float *restrict coef, const int coef_base, const int coef_pitch,
                             const int coef_plane,
                             __global const float *restrict xs, const int xs_base, const int xs_pitch,
@@ -372,10 +383,12 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int coef_
     out[y * w + x] = (a * xv + b) / (wt + ARI_WEIGHT_REG);
 #endif
 }
+#endif
 
 /* ari_green_residual: the new lines of one step-1 iteration along d = (sy, sx): residuals
  * raw - t at the G (chroma) sites interpolated with [1/2, 1, 1/2] along d and added to the tentative
  * estimate; out planes g = G sites ? raw : t_g + r_g, c = G sites ? t_c + r_c : raw. Halo 1 along d. */
+#ifdef ARI_WITH_ari_green_residual
 __kernel void ari_green_residual(__global const float *restrict raw, const int raw_base, const int raw_pitch,
                                  __global const float *restrict tg, const int tg_base, const int tg_pitch,
                                  __global const float *restrict tc, const int tc_base, const int tc_pitch,
@@ -396,10 +409,12 @@ __kernel void ari_green_residual(__global const float *restrict raw, const int r
     out[y * w + x] = green ? raw[ra] : tg[ga] + r_g;
     out[w * h + y * w + x] = green ? tc[ca] + r_c : raw[ra];
 }
+#endif
 
 /* ari_err_terms: the unsmoothed criterion terms of two fits, errors e_k = u_k - t_k (times the chroma
  * site mask with ARI_REGION: step 2): plane 0 = |e_1| + |e_2|, plane 1 = |e_1(+d) - e_1(-d)| +
  * |e_2(+d) - e_2(-d)| (the [-1, 0, 1] gradient along d = (ARI_SY, ARI_SX)). Halo 1 along d. */
+#ifdef ARI_WITH_ari_err_terms
 __kernel void ari_err_terms(__global const float *restrict u1, const int u1_base, const int u1_pitch,
                             __global const float *restrict t1, const int t1_base, const int t1_pitch,
                             __global const float *restrict u2, const int u2_base, const int u2_pitch,
@@ -422,10 +437,12 @@ __kernel void ari_err_terms(__global const float *restrict u1, const int u1_base
     out[y * w + x] = __builtin_fabsf(e1[1]) + __builtin_fabsf(e2[1]);
     out[w * h + y * w + x] = __builtin_fabsf(e1[2] - e1[0]) + __builtin_fabsf(e2[2] - e2[0]);
 }
+#endif
 
 /* ari_gauss_x: the criterion's 5-tap Gaussian (weights k0 centre, k1, k2) along x of the 2 planes of
  * the view src (with a plane stride). ARI_REGION (step 2): a third plane, the same smoothing of
  * the chroma site mask. Halo 2 along x. */
+#ifdef ARI_WITH_ari_gauss_x
 __kernel void ari_gauss_x(__global const float *restrict src, const int src_base, const int src_pitch,
                           const int src_plane,
                           __global float *restrict out, const int w, const int h, const float k0, const float k1,
@@ -442,10 +459,12 @@ __kernel void ari_gauss_x(__global const float *restrict src, const int src_base
     out[2 * w * h + y * w + x] = 2.0f * k2 * mc + 2.0f * k1 * mo + k0 * mc;
 #endif
 }
+#endif
 
 /* ari_gauss_y: the same along y, then (ARI_REGION) each plane divided by the smoothed mask and
  * multiplied by the mask (reference._criterion's normalisation). Out planes: smoothed c, smoothed g.
  * Halo 2 along y. */
+#ifdef ARI_WITH_ari_gauss_y
 __kernel void ari_gauss_y(__global const float *restrict src, const int src_base, const int src_pitch,
                           const int src_plane,
                           __global float *restrict out, const int w, const int h, const float k0, const float k1,
@@ -465,11 +484,13 @@ __kernel void ari_gauss_y(__global const float *restrict src, const int src_base
     out[y * w + x] = a0;
     out[w * h + y * w + x] = a1;
 }
+#endif
 
 /* ari_select: one iteration's selection: criterion c^2 g from the smoothed terms (planes c, g of the
  * view crit); where it is below the best so far (always on the ``first`` iteration) the estimates
  * become the new values n1, n2 (views), else the previous ones (planes estimate 1, estimate 2, best
  * criterion of the view prev). Out planes estimate 1, estimate 2, best criterion. Halo 0. */
+#ifdef ARI_WITH_ari_select
 __kernel void ari_select(__global const float *restrict crit, const int crit_base, const int crit_pitch,
                          const int crit_plane,
                          __global const float *restrict n1, const int n1_base, const int n1_pitch,
@@ -497,6 +518,7 @@ __kernel void ari_select(__global const float *restrict crit, const int crit_bas
         out[2 * plane + i] = better ? cr : best;
     }
 }
+#endif
 
 /* The four (direction, kind) estimates of a merge: ARI_EST_ARGS(k) declares the view est<k> (est<k>,
  * est<k>_base, est<k>_pitch, est<k>_plane) of one ari_select output (planes: estimate 1, estimate 2,
@@ -512,6 +534,7 @@ __kernel void ari_select(__global const float *restrict crit, const int crit_bas
 
 /* ari_green_merge: G = raw at G sites, else the criterion-weighted mean of the four (direction, kind)
  * G estimates (plane 0 of est0..est3). Halo 0. */
+#ifdef ARI_WITH_ari_green_merge
 __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
                               __global const float *restrict raw, const int raw_base, const int raw_pitch,
                               __global float *restrict out, const int w, const int py, const int px)
@@ -520,9 +543,11 @@ __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2),
     ARI_MEAN4(g, 0)
     out[y * w + x] = ari_is_green(y, x, py, px) ? raw[raw_base + y * raw_pitch + x] : g;
 }
+#endif
 
 /* ari_chroma_start: the start of one plane of steps 2 / 3 along d = (sy, sx): values v = ARI_KNOWN sites
  * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
+#ifdef ARI_WITH_ari_chroma_start
 __kernel void ari_chroma_start(__global const float *restrict src, const int src_base, const int src_pitch,
                                __global float *restrict out, const int w, const int sy, const int sx, const int py,
                                const int px)
@@ -534,10 +559,12 @@ __kernel void ari_chroma_start(__global const float *restrict src, const int src
     const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
     out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? 0.5f * vm + 0.5f * vp : v;
 }
+#endif
 
 /* ari_chroma_residual: one plane's new values of a step 2 / 3 iteration: residual (v - t) at the ARI_KNOWN
  * sites (v = known ? src : 0) interpolated with [1/2, 0, 1/2] along d; out = ARI_TARGET ? t + residual : v.
  * Halo 1 along d. */
+#ifdef ARI_WITH_ari_chroma_residual
 __kernel void ari_chroma_residual(__global const float *restrict src, const int src_base, const int src_pitch,
                                   __global const float *restrict t, const int t_base, const int t_pitch,
                                   __global float *restrict out, const int w, const int sy, const int sx, const int py,
@@ -551,12 +578,14 @@ __kernel void ari_chroma_residual(__global const float *restrict src, const int 
     const float v = ari_site(ARI_KNOWN, y, x, py, px) * src[at];
     out[y * w + x] = ari_site(ARI_TARGET, y, x, py, px) != 0.0f ? t[ta] + (0.5f * rm + 0.5f * rpl) : v;
 }
+#endif
 
 /* ari_diag_coefficients: the weighted fit of target y (view) from guide x (view) over the chroma
  * sites of the diagonal window {(i + j, i - j): |i| <= p = ARI_P, |j| <= q = ARI_Q} (step 2): centred moments summed
  * directly (the window's sites are all chroma sites or all G sites, the latter giving the empty fit
  * a = b = 0, w = 1 / floor), ARI_MLRI: slope from the Laplacians along d = (1, ARI_LS) ([-1, 0, 2, 0, -1])
  * over the ARI_KNOWN sites. Out planes a w, b w, w. Halo p + q (+ 2 with ARI_MLRI). */
+#ifdef ARI_WITH_ari_diag_coefficients
 __kernel void ari_diag_coefficients(__global const float *restrict xs, const int xs_base, const int xs_pitch,
                                     __global const float *restrict ys, const int ys_base, const int ys_pitch,
                                     __global float *restrict out, const int w, const int h, const int py, const int px)
@@ -612,9 +641,11 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
     out[w * h + y * w + x] = f[1];
     out[2 * w * h + y * w + x] = f[2];
 }
+#endif
 
 /* ari_diag_apply: t = (A x + B) / (W + reg), A, B, W the sums of the 3 coefficient planes (the view
  * coef) over the diagonal window (ARI_P, ARI_Q); x the guide (the view xs). Halo p + q. */
+#ifdef ARI_WITH_ari_diag_apply
 __kernel void ari_diag_apply(__global const float *restrict coef, const int coef_base, const int coef_pitch,
                              const int coef_plane,
                              __global const float *restrict xs, const int xs_base, const int xs_pitch,
@@ -634,10 +665,12 @@ __kernel void ari_diag_apply(__global const float *restrict coef, const int coef
         }
     out[y * w + x] = (a * xs[xs_base + y * xs_pitch + x] + b) / (wt + ARI_WEIGHT_REG);
 }
+#endif
 
 /* ari_rb_merge: R and B after step 2: red = R sites ? raw : B sites ? the criterion-weighted mean of
  * the four R estimates (plane 0 of est0..est3) : 0; blue likewise (plane 1, R and B swapped). Out planes
  * red, blue. Halo 0. */
+#ifdef ARI_WITH_ari_rb_merge
 __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
                            __global const float *restrict raw, const int raw_base, const int raw_pitch,
                            __global float *restrict out, const int w, const int h, const int py, const int px)
@@ -650,10 +683,12 @@ __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), AR
     out[y * w + x] = is_r != 0.0f ? v : is_b != 0.0f ? r_at_b : 0.0f;
     out[w * h + y * w + x] = is_b != 0.0f ? v : is_r != 0.0f ? b_at_r : 0.0f;
 }
+#endif
 
 /* ari_final: the stage's output planes R, G, B (times ``scale``, back to the mosaic's units): at G
  * sites R and B are the criterion-weighted means of the four step-3 estimates (planes 0, 1 of
  * est0..est3), elsewhere the step-2 planes (the view rb); G from the view green. Halo 0. */
+#ifdef ARI_WITH_ari_final
 __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
                         __global const float *restrict rb, const int rb_base, const int rb_pitch, const int rb_plane,
                         __global const float *restrict green, const int green_base, const int green_pitch,
@@ -669,3 +704,4 @@ __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_E
     out[w * h + y * w + x] = green[green_base + y * green_pitch + x] * scale;
     out[2 * w * h + y * w + x] = (g_site ? b_at_g : rb[rb_plane + at]) * scale;
 }
+#endif
