@@ -1,15 +1,19 @@
 """clisp's cache folder on disk and the fingerprint of the code that fills it.
 
 What is kept there can always be recomputed: the binaries of built OpenCL programs
-(clisp.engine.program_store) and the chroma denoiser's noise calibrations
-(clisp.modules.chroma_denoise.stage.calibrate_noise). A missing, damaged or unwritable cache only
-costs time.
+(clisp.engine.program_store), the chroma denoiser's noise calibrations
+(clisp.modules.chroma_denoise.stage.calibrate_noise) and the device bytes of a pipeline's tiles
+(clisp.engine.executor.Pipeline.tile_cost), each for one device and one clisp code. A missing,
+damaged or unwritable cache only costs time.
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import tempfile
 from pathlib import Path
+from typing import Any
 
 _FINGERPRINT: str | None = None
 
@@ -41,3 +45,43 @@ def code_fingerprint() -> str:
                     digest.update(f"{os.path.relpath(path, package)}\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
         _FINGERPRINT = digest.hexdigest()
     return _FINGERPRINT
+
+
+def device_identity(platform: Any, device: Any) -> str:
+    """The OpenCL platform and device as results kept for them are named: platform name and version,
+    device name and version, driver version (a driver update invalidates them)."""
+    return "\0".join([platform.name, platform.version, device.name, device.version, device.driver_version])
+
+
+def entry_name(*parts: bytes | str) -> str:
+    """A kept result's file name: the SHA-256 (hex) of ``parts`` and :func:`code_fingerprint`.
+
+    >>> entry_name("a", b"b") == entry_name("a", b"b") != entry_name("ab")
+    True
+    """
+    digest = hashlib.sha256(code_fingerprint().encode())
+    for part in parts:
+        digest.update(b"\0" + (part.encode() if isinstance(part, str) else part))
+    return digest.hexdigest()
+
+
+def read_json(kind: str, name: str) -> Any | None:
+    """The JSON value kept as ``<cache>/<kind>/<name>.json``; None if missing, damaged or unreadable."""
+    try:
+        return json.loads((cache_dir() / kind / f"{name}.json").read_text())
+    except (OSError, RuntimeError, ValueError):
+        return None
+
+
+def write_json(kind: str, name: str, value: Any) -> None:
+    """Keep ``value`` as ``<cache>/<kind>/<name>.json`` (written to a temporary file and renamed, so a
+    reader never sees half of it); an unwritable cache folder is skipped (it only costs time)."""
+    try:
+        folder = cache_dir() / kind
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".partial-", suffix=".json")
+        with os.fdopen(fd, "w") as out:
+            json.dump(value, out)
+        os.replace(tmp, folder / f"{name}.json")
+    except (OSError, RuntimeError, TypeError, ValueError):
+        pass

@@ -166,6 +166,33 @@ def test_whole_process_budget_plans_counted_bytes(tmp_path: Path, preset: str,
     assert not (tmp_path / "o2.exr").exists()
 
 
+def test_metered_tiles_are_kept_per_pipeline_and_code(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A tile's metered bytes are kept on disk: a later plan of the same pipeline (same stages and
+    parameters, device, raw dtype) reads them without a metering run and gets the same costs; other
+    parameters, or an edited clisp (its code fingerprint), meter anew."""
+    from clisp.engine import disk_cache
+    from clisp.engine.executor import Pipeline
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    raw = make_raw("lms", shape=(301, 517))
+    rt = get_runtime()
+    limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
+    pipeline = build_pipeline(raw, preset="fast")
+    first = pipeline.tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
+    costs = [first(64, 517), first(32, 64)]
+    assert len(list((tmp_path / "metering").iterdir())) == 1
+    metered = []
+    real = Pipeline.metered_tile
+    monkeypatch.setattr(Pipeline, "metered_tile", lambda self, *a: metered.append(a) or real(self, *a))
+    again = build_pipeline(raw, preset="fast").tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
+    assert [again(64, 517), again(32, 64)] == costs and not metered
+    other = build_pipeline(raw, preset="fast", highlights="off").tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
+    other(64, 517)
+    assert len(metered) == 1
+    monkeypatch.setattr(disk_cache, "_FINGERPRINT", "edited code")
+    edited = build_pipeline(raw, preset="fast").tile_cost(raw.data.dtype, 517, limits, sink_bands=True)
+    assert edited(64, 517) == costs[0] and len(metered) == 2
+
+
 def test_metering_run_counts_what_the_tile_creates() -> None:
     """A metering run creates nothing and predicts the pool of a real tile exactly."""
     raw = make_raw("lms", shape=(301, 517))

@@ -70,7 +70,7 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import ClispError
-from ...engine.disk_cache import cache_dir, code_fingerprint
+from ...engine.disk_cache import cache_dir, device_identity, entry_name
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
@@ -864,12 +864,7 @@ def calibration_path(key: bytes, rt: Runtime | None) -> Path | None:
     clisp code (:func:`clisp.engine.disk_cache.code_fingerprint`) on ``rt``'s device (the
     reference when None: float32 kernels and the float64 reference differ in rounding); None
     without a home folder."""
-    if rt is None:
-        device = "numpy reference"
-    else:
-        d = rt.device
-        device = "\0".join([rt.platform.name, rt.platform.version, d.name, d.version, d.driver_version])
-    name = hashlib.sha256(key + b"\0" + code_fingerprint().encode() + b"\0" + device.encode()).hexdigest()
+    name = entry_name(key, "numpy reference" if rt is None else device_identity(rt.platform, rt.device))
     try:
         return cache_dir() / "calibration" / f"{name}.npz"
     except RuntimeError:                               # Path.home() without a home
