@@ -185,3 +185,23 @@ def test_blackmagic_default_crop(tmp_path: Path, capsys) -> None:
     assert raw.shape == (2176, 4128) and crop_of(raw) == (8, 16, 2160, 4096)
     run(["process", path, "-o", tmp_path / "bm.tif", "--preset", "fast"], capsys)
     assert header(tmp_path / "bm.tif")["size"] == (4096, 2160)
+
+
+def test_srgb_profile_kept_in_the_cache_folder(tmp_path, monkeypatch):
+    """The sRGB ICC profile is made by Pillow once and then read from the cache folder, without
+    importing Pillow; a damaged copy is made again."""
+    import sys
+    from clisp.io import imageio
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    imageio.srgb_icc_profile.cache_clear()
+    made = imageio.srgb_icc_profile()
+    (kept,) = (tmp_path / "icc").iterdir()
+    assert kept.read_bytes() == made and made[36:40] == b"acsp"
+    imageio.srgb_icc_profile.cache_clear()
+    monkeypatch.setitem(sys.modules, "PIL", None)                    # importing Pillow would fail
+    assert imageio.srgb_icc_profile() == made
+    kept.write_bytes(b"damaged")
+    imageio.srgb_icc_profile.cache_clear()
+    monkeypatch.delitem(sys.modules, "PIL")
+    assert imageio.srgb_icc_profile() == made and kept.read_bytes() == made
+    imageio.srgb_icc_profile.cache_clear()
