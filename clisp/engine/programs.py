@@ -22,19 +22,21 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
 import sys
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 from . import program_store
 from .disk_cache import cache_dir
 from .program_builder import build_and_keep, keep, kernel_parameters
 from ..errors import ClispError
 from ..version import __version__
+
+if TYPE_CHECKING:
+    import subprocess
 
 BUILD_OPTIONS = ["-cl-std=CL1.2", "-cl-kernel-arg-info"]
 """Every program's build options besides its defines: OpenCL 1.2 (PoCL and GPU drivers alike), and
@@ -210,6 +212,7 @@ class Programs:
 
     def _start_helper(self, share: list[tuple[Key, Wanted]]) -> subprocess.Popen | None:
         """A helper process building ``share`` (None when it cannot start: this process builds it)."""
+        import subprocess      # here: only a first build starts helpers (3 ms of every start-up otherwise)
         pi, di = _device_index(self.cl, self.platform, self.device)
         job = {"platform": pi, "device": di, "device_name": self.device.name,
                "programs": [{"record": str(w.record), "source": w.source, "options": list(w.flags) + BUILD_OPTIONS}
