@@ -35,7 +35,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from .version import __version__
 from .errors import ClispError
-from .engine.runtime import get_runtime
+from .engine.runtime import get_runtime, save_built_programs
 from .io.rawfile import read_raw
 from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, process_file, resolve_options
 # clisp.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
@@ -167,6 +167,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
                       sha256=file_sha256(job.output))
     except Exception as exc:  # noqa: BLE001 - one bad file must not stop the batch
         record.update(status="error", error=error_line(job.input, exc))
+    save_built_programs()          # a worker's compiled programs kept for later processes (nothing new: no cost)
     record["seconds"] = round(time.perf_counter() - start, 4)
     return record
 
