@@ -329,3 +329,26 @@ def test_launch_named_orders_checks_and_converts_arguments(rt):
         ("src", "float*", True), ("dst", "float*", True), ("width", "int", False), ("height", "int", False)]
     with pytest.raises(ClispError, match=r"missing arguments \['height'\], unknown \['hieght'\]"):
         rt.launch_named("layout", "interleave", 7, 5, dict(src=src, dst=dst, width=7, hieght=5), {"NCH": 3})
+
+
+@pytest.mark.parametrize("helper", ["/nonexistent/python", "/bin/false"])
+def test_parallel_build_survives_a_helper_that_fails(tmp_path, monkeypatch, helper):
+    """A helper that cannot start, or exits without building, costs only time: the runtime builds
+    what it left out, and every program runs."""
+    import sys
+    import uuid
+    from clisp.engine import programs
+    monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(sys, "executable", helper)
+    monkeypatch.setattr(programs.os, "cpu_count", lambda: 4)         # helpers even on a 1-core machine
+    fresh = Runtime()
+    fresh.programs.notice_stream = None
+    fresh.programs.cheap_binaries = False                             # the parallel path, whatever the driver
+    defines = {"RAW_T": "float", "CFA_PERIOD": 4}
+    tags = [uuid.uuid4().hex for _ in range(3)]
+    with fresh.metering():
+        for tag in tags:
+            fresh.launch_named("raw_scale", "cfa_affine", 8, 4, {}, defines, generated=f"/* {tag} */")
+    assert len(fresh.programs.built) == 3
+    for tag in tags:
+        assert fresh.signature("raw_scale", "cfa_affine", defines, f"/* {tag} */")[0].pointer
