@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 from . import program_store
-from .disk_cache import cache_dir
+from .disk_cache import cache_dir, device_identity
 from .program_builder import build_and_keep, keep, kernel_parameters
 from ..errors import ClispError
 from ..version import __version__
@@ -100,11 +100,14 @@ ParameterInfo = tuple[str, str, bool]
 
 @dataclass(frozen=True)
 class Wanted:
-    """A program noted during a metering run: its file, full source, flags and record."""
+    """A program noted during a metering run: its name, flags and generated text (what
+    :meth:`Programs.get` takes), its file, full source and record."""
 
+    name: str
+    flags: tuple[str, ...]
+    generated: str
     path: Path
     source: str
-    flags: tuple[str, ...]
     record: Path
 
 
@@ -140,9 +143,9 @@ class Programs:
             return prg
         path, source = _program_source(name, generated)
         record = self.record_path(source, flags)
-        prg = self._load(record, key) if record is not None else None
+        prg = self._load(record, key, flags) if record is not None else None
         if prg is None and self._wanted is not None and record is not None:
-            self._wanted.setdefault(key, Wanted(path, source, flags, record))
+            self._wanted.setdefault(key, Wanted(name, flags, generated, path, source, record))
             return None
         if prg is None:
             if record is None or not record.exists():
@@ -185,10 +188,10 @@ class Programs:
         if not todo:
             return
         self.first_build_notice()
-        helpers = min(MAX_HELPERS, (os.cpu_count() or 1) - 1, len(todo) - 1)
+        helpers = min(MAX_HELPERS, _usable_cores() - 1, len(todo) - 1)
         if self.cheap_binaries or helpers < 1:
-            for key, w in todo:
-                self.get(key[0], w.flags, key[1][-1])
+            for _, w in todo:
+                self.get(w.name, w.flags, w.generated)
             return
         shares: list[list[tuple[Key, Wanted]]] = [[] for _ in range(helpers + 1)]
         loads = [0] * (helpers + 1)
@@ -197,18 +200,25 @@ class Programs:
             shares[i].append((key, w))
             loads[i] += len(w.source)
         started = [self._start_helper(share) for share in shares[1:] if share]
-        for key, w in shares[0]:
-            try:
-                prg = build_and_keep(self.cl, self.context, w.source, list(w.flags) + BUILD_OPTIONS, w.record)
-            except self.cl.Error as exc:
-                raise ClispError(f"OpenCL build of {w.path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
-            self.built[key] = prg
-        for process in started:
-            if process is not None:
-                process.wait()
+        try:
+            for key, w in shares[0]:
+                try:
+                    prg = build_and_keep(self.cl, self.context, w.source, list(w.flags) + BUILD_OPTIONS, w.record)
+                except self.cl.Error as exc:
+                    raise ClispError(f"OpenCL build of {w.path.name} failed on {self.device.name.strip()}:\n{exc}") from exc
+                self.built[key] = prg
+        except BaseException:
+            for process in started:                          # a failed build or Ctrl-C: no helper outlives it
+                if process is not None:
+                    process.kill()
+            raise
+        finally:
+            for process in started:
+                if process is not None:
+                    process.wait()
         for share in shares[1:]:
-            for key, w in share:
-                self.get(key[0], w.flags, key[1][-1])       # the helper's record, else built here
+            for _, w in share:
+                self.get(w.name, w.flags, w.generated)       # the helper's record, else built here
 
     def _start_helper(self, share: list[tuple[Key, Wanted]]) -> subprocess.Popen | None:
         """A helper process building ``share`` (None when it cannot start: this process builds it)."""
@@ -232,22 +242,21 @@ class Programs:
         """The file in :func:`cache_dir` that keeps this program's binary (clisp.engine.program_store):
         named by the device, its driver, clisp's version, the source and the flags. None without a
         home folder."""
-        d = self.device
-        name = program_store.record_name([self.platform.name, self.platform.version, d.name, d.version,
-                                          d.driver_version, __version__, source, *flags, *BUILD_OPTIONS])
+        name = program_store.record_name([device_identity(self.platform, self.device), __version__, source,
+                                          *flags, *BUILD_OPTIONS])
         try:
             return cache_dir() / "programs" / name
         except RuntimeError:                               # Path.home() without a home
             return None
 
-    def _load(self, record: Path, key: Key) -> Any | None:
+    def _load(self, record: Path, key: Key, flags: tuple[str, ...]) -> Any | None:
         """The program built from the binary in ``record``, its kernels' parameters noted; None when
         the record is missing, damaged or refused by the driver."""
         found = program_store.read_record(record)
         if found is None:
             return None
         binary, kernels = found
-        options = list(key[1][:-1]) + BUILD_OPTIONS
+        options = list(flags) + BUILD_OPTIONS
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -307,6 +316,14 @@ def _program_source(name: str, generated: str) -> tuple[Path, str]:
         return path, "\n".join([kernel_path("common.h").read_text(), generated, with_headers(path.read_text())])
     except OSError as exc:
         raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
+
+
+def _usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity, e.g. a container's share), else all."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):                       # not on Linux
+        return os.cpu_count() or 1
 
 
 def _device_index(cl: Any, platform: Any, device: Any) -> tuple[int, int]:

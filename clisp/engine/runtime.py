@@ -247,7 +247,7 @@ class Runtime:
         key = (name, flags + (generated,), kernel_name)
         if key not in self._signatures:
             self._signatures[key] = tuple(Parameter(*p) for p in
-                                          self.programs.signature(name, key[1][:-1], generated, kernel_name))
+                                          self.programs.signature(name, flags, generated, kernel_name))
         return self._signatures[key]
 
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],

@@ -1,8 +1,6 @@
 """The OpenCL runtime: device choice, build errors, program cache, buffer pool, transfers."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
@@ -212,6 +210,7 @@ def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
     PoCL shared out with helper processes, whose records this process then loads): every one is then
     built, kept on disk and runs."""
     import uuid
+    from clisp.engine import programs
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
     fresh = Runtime()
     fresh.programs.notice_stream = None
@@ -222,7 +221,7 @@ def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
                                generated=f"/* {tag} */")
         assert not fresh.programs.built
     assert len(fresh.programs.built) == 3
-    if not fresh.programs.cheap_binaries and (os.cpu_count() or 1) > 1:     # built in parallel: kept at once
+    if not fresh.programs.cheap_binaries and programs._usable_cores() > 1:    # built in parallel: kept at once
         assert len(list((tmp_path / "programs").iterdir())) == 3
     fresh.save_programs()
     assert len(list((tmp_path / "programs").iterdir())) == 3
@@ -340,7 +339,7 @@ def test_parallel_build_survives_a_helper_that_fails(tmp_path, monkeypatch, help
     from clisp.engine import programs
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(sys, "executable", helper)
-    monkeypatch.setattr(programs.os, "cpu_count", lambda: 4)         # helpers even on a 1-core machine
+    monkeypatch.setattr(programs, "_usable_cores", lambda: 4)         # helpers even on a 1-core machine
     fresh = Runtime()
     fresh.programs.notice_stream = None
     fresh.programs.cheap_binaries = False                             # the parallel path, whatever the driver
