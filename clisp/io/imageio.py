@@ -39,7 +39,10 @@ def output_kind(path: str | Path) -> str:
         return "linear"
     if ext in ENCODED_EXTENSIONS:
         return "srgb"
-    raise ClispError(f"{path}: unsupported output extension {ext or '(none)'!r}; use .exr, .tif, .tiff or .png")
+    if not ext:
+        raise ClispError(f"{path}: the output name has no extension; use .exr, .tif, .tiff or .png "
+                         f"(several raws go to an output folder)")
+    raise ClispError(f"{path}: unsupported output extension {ext!r}; use .exr, .tif, .tiff or .png")
 
 
 @contextmanager
@@ -296,6 +299,7 @@ class ImageWriter:
         self.next_row = 0
         self._stack = ExitStack()
         self._out = None
+        self._tmp: Path | None = None
 
     def __enter__(self) -> "ImageWriter":
         oiio = _oiio()
@@ -306,7 +310,7 @@ class ImageWriter:
         else:
             spec.attribute("compression", self.compression)
         _describe(spec, self.kind, self.attributes)
-        tmp = self._stack.enter_context(atomic_path(self.path))
+        tmp = self._tmp = self._stack.enter_context(atomic_path(self.path))
         out = oiio.ImageOutput.create(OIIO_FORMATS[self.path.suffix.lower()])
         if out is None or not out.open(str(tmp), spec):
             self._stack.close()
@@ -349,6 +353,22 @@ class ImageWriter:
                                  f"{self.next_row}..{self.next_row + pixels.shape[0] - 1}; nothing written")
             yield np.clip(pixels, 0.0, 1.0) if self.kind == "srgb" else pixels
 
+    def _photographers_rationals(self) -> None:
+        """The exposure time and f-number of a TIFF as cameras write them (1/203, 56/10), not as
+        libtiff converts OpenImageIO's floats (10578737/2147483648): clisp.io.tiff_rationals."""
+        from .tiff_rationals import (TAG_EXPOSURE_TIME, TAG_F_NUMBER, exposure_fraction,   # deferred: TIFF only
+                                     f_number_fraction, set_exif_rationals)
+        values = {}
+        if isinstance(self.attributes.get("ExposureTime"), (int, float)):
+            values[TAG_EXPOSURE_TIME] = exposure_fraction(float(self.attributes["ExposureTime"]))
+        if isinstance(self.attributes.get("FNumber"), (int, float)):
+            values[TAG_F_NUMBER] = f_number_fraction(float(self.attributes["FNumber"]))
+        if values:
+            try:
+                set_exif_rationals(self._tmp, values)
+            except OSError as exc:
+                raise ClispError(f"{self.path}: write failed ({exc.strerror or exc})") from None
+
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: object) -> None:
         out, self._out = self._out, None
         closed = out is not None and out.close()
@@ -357,6 +377,11 @@ class ImageWriter:
             error = ClispError(f"{self.path}: only {self.next_row} of {self.height} rows were written")
         elif error is None and not closed:
             error = ClispError(f"{self.path}: write failed ({_error_text(out)})")
+        if error is None and self.path.suffix.lower() in (".tif", ".tiff"):
+            try:
+                self._photographers_rationals()
+            except ClispError as failed:
+                error = failed
         if error is None:
             self._stack.close()                                   # rename into place
             return

@@ -22,7 +22,7 @@ from clisp.sim.charts import demo_chart
 from clisp.cli import main
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.io.exif import read_exif
-from clisp.io.imageio import SRGB_CHROMATICITIES, read_image
+from clisp.io.imageio import SRGB_CHROMATICITIES, read_image, write_image
 from clisp.pipeline import crop_of, process_file
 from clisp.io.rawfile import read_raw, write_raw
 from clisp.io.rawimage import RawImage
@@ -205,3 +205,22 @@ def test_srgb_profile_kept_in_the_cache_folder(tmp_path, monkeypatch):
     monkeypatch.delitem(sys.modules, "PIL")
     assert imageio.srgb_icc_profile() == made and kept.read_bytes() == made
     imageio.srgb_icc_profile.cache_clear()
+
+
+@pytest.mark.parametrize("seconds, f_number, expected", [(1 / 203.2, 11.3, ((1, 203), (113, 10))),
+                                                         (1 / 8000, 1.4, ((1, 8000), (14, 10))),
+                                                         (2.5, 22.0, ((5, 2), (220, 10)))])
+def test_tiff_exposure_as_a_camera_writes_it(tmp_path: Path, seconds: float, f_number: float, expected) -> None:
+    """A TIFF's ExposureTime and FNumber are the fractions a camera writes (1/203, 113/10), not
+    libtiff's conversion of OpenImageIO's floats (1/203 s was 10578737/2147483648); OpenImageIO
+    reads the same values back."""
+    import OpenImageIO as oiio
+    import tifffile
+    out = tmp_path / "o.tif"
+    write_image(out, np.full((8, 8, 3), 0.5), encoded=False,
+                attributes={"ExposureTime": seconds, "FNumber": f_number})
+    with tifffile.TiffFile(out) as tif:
+        exif = tif.pages[0].tags["ExifTag"].value
+    assert (tuple(exif["ExposureTime"]), tuple(exif["FNumber"])) == expected
+    spec = oiio.ImageInput.open(str(out)).spec()
+    assert spec.getattribute("ExposureTime") == pytest.approx(expected[0][0] / expected[0][1], rel=1e-6)
