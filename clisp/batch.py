@@ -36,17 +36,13 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 from .version import __version__
 from .errors import ClispError
 from .engine.runtime import get_runtime, save_built_programs
-from .io.rawfile import read_raw
+from .io.rawfile import RAW_SUFFIXES, read_raw
 from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, process_file, resolve_options
 # clisp.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
 # tqdm and clisp.io.imageio are imported where they are used.
 
 MANIFEST = "manifest.jsonl"
 FORMATS = ("exr", "tif", "png")
-RAW_SUFFIXES = frozenset(
-    ".dng .tif .tiff .cr2 .cr3 .crw .nef .nrw .arw .srf .sr2 .raf .orf .rw2 .pef .srw .x3f .3fr .erf "
-    ".kdc .dcr .mos .mrw .iiq .rwl .raw".split())
-"""Suffixes taken from a folder given as input (a file given by name is taken whatever its suffix)."""
 START_TIMEOUT = 60.0
 """Seconds to wait for a cluster to start or a scheduler to answer, and for a first worker."""
 

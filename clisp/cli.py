@@ -27,9 +27,10 @@ from .engine.profile import host_timer
 from .engine.runtime import get_runtime, list_devices, save_built_programs
 from .engine.streaming import progress_bar
 from .engine.tiling import Tile
-from .io.rawfile import raw_band_writer, raw_info, read_raw, write_raw
+from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS, denoise_params,
                        process_file, resolve_options)
+from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
 # they use them, to keep `import clisp.cli` light (issue 11).
@@ -184,10 +185,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
     gain = None if args.noiseless else (1.0 if args.gain is None else args.gain)
+    if gain is not None and not GAIN_MIN <= gain <= GAIN_MAX:      # also NaN
+        raise ClispError(f"--gain {gain:g} is outside the supported range {GAIN_MIN:g}..{GAIN_MAX:g}; "
+                         f"--noiseless simulates without noise")
     if (args.scene is None) == (args.spectral is None):
         raise ClispError("simulate needs a SCENE file or --spectral colorchecker (one of them)")
     if args.spectral:
         return _simulate_spectral(args, gain)
+    if is_raw_file(args.scene):
+        raise ClispError(f"{args.scene}: is a raw file, not a scene; simulate takes an sRGB PNG/TIFF or a "
+                         f"linear EXR (clisp process turns a raw into one)")
     scene = read_scene(args.scene)
     if args.size:
         return _simulate_large(args, scene, gain)
@@ -262,8 +269,21 @@ def cmd_process(args: argparse.Namespace) -> int:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
     if many:
         return _process_many(args)
-    _process_one(args, args.raw[0], args.output)
+    try:
+        _process_one(args, args.raw[0], args.output)
+    except ClispError as exc:
+        raise naming_a_file(exc, args.raw[0], args.output) from exc.__cause__
     return 0
+
+
+def naming_a_file(exc: ClispError, path: str, output: str) -> ClispError:
+    """``exc`` as it is when its text names the raw or the output (by path or file name), else with
+    the raw's path in front: every refusal names the file it is about (docs/messages.md), also
+    those raised deep in a stage that does not know the file (a demosaic for another CFA)."""
+    text = str(exc)
+    if any(name and name in text for name in (path, Path(path).name, output, Path(output).name)):
+        return exc
+    return ClispError(f"{path}: {text}")
 
 
 OUTPUT_SUFFIXES = (".exr", ".tif", ".tiff", ".png")
@@ -293,7 +313,8 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
-          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tiles of {tw}x{th})", flush=True)
+          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
+          f"of {tw}x{th})", flush=True)
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         print(explain_run(explained.get("pipeline"), stats, profile))

@@ -320,6 +320,39 @@ def _remove_quietly(name: str) -> None:
 # Reading
 # --------------------------------------------------------------------------------------------
 
+RAW_SUFFIXES = frozenset(
+    ".dng .tif .tiff .cr2 .cr3 .crw .nef .nrw .arw .srf .sr2 .raf .orf .rw2 .pef .srw .x3f .3fr .erf "
+    ".kdc .dcr .mos .mrw .iiq .rwl .raw".split())
+"""Suffixes of raw files: ours (.dng, .tif, .tiff) and cameras' (what LibRaw reads)."""
+
+PHOTOMETRIC_LINEAR_RAW = 34892
+TAG_DNG_VERSION = 50706
+
+
+def is_raw_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` holds a raw mosaic rather than an image: a camera raw's suffix (RAW_SUFFIXES
+    but .tif and .tiff), or a TIFF (also .dng) whose first page is a CFA or linear-raw image or
+    carries a DNG version (ours, a camera's DNG). A file that cannot be read is not called raw
+    (its reader then says what is wrong).
+
+    >>> is_raw_file("scene.png"), is_raw_file("shot.CR2")
+    (False, True)
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix in RAW_SUFFIXES and suffix not in (".tif", ".tiff", ".dng"):
+        return True
+    if suffix not in (".tif", ".tiff", ".dng"):
+        return False
+    try:
+        with library_output(), tifffile.TiffFile(p) as tif:
+            page = tif.pages[0]
+            return (int(page.photometric) in (PHOTOMETRIC_CFA, PHOTOMETRIC_LINEAR_RAW)
+                    or TAG_DNG_VERSION in page.tags)
+    except Exception:  # noqa: BLE001 - not a TIFF tifffile reads: not called raw here
+        return suffix == ".dng"
+
+
 def read_raw(path: str | os.PathLike[str], lazy: bool = False) -> RawImage:
     """Read a raw file: one of ours exactly (``source`` = str(path)), else a camera raw via rawpy.
 

@@ -39,7 +39,7 @@ def check_gain(gain: Any) -> float:
     value = float(gain)
     if not (math.isfinite(value) and GAIN_MIN <= value <= GAIN_MAX):
         raise ClispError(f"analog gain {value:g} is outside the supported range "
-                         f"[{GAIN_MIN:g}, {GAIN_MAX:g}]; simulate noiseless instead (--noiseless, gain=None)")
+                         f"[{GAIN_MIN:g}, {GAIN_MAX:g}]; gain=None simulates without noise")
     return value
 
 
