@@ -64,7 +64,8 @@ class Profile:
             by_stage[stage] += s
         for stage in sorted(by_stage, key=lambda k: -by_stage[k]):
             s = by_stage[stage]
-            lines.append(f"  {stage:<44}{s:8.3f}{s / total:8.1%}{megapixels / s if s else 0:9.1f}")
+            rate = f" {megapixels / s:8.1f}" if s >= RATE_MIN_SECONDS else f"{'-':>9}"
+            lines.append(f"  {stage:<44}{s:8.3f}{s / total:8.1%}{rate}")
             for (st, what), (ks, n) in sorted(device.items(), key=lambda kv: -kv[1][0]):
                 if st == stage and len([k for k in device if k[0] == stage]) > 1:
                     lines.append(f"    {what:<42}{ks:8.3f}{ks / total:8.1%}{'':9}{n:9d}")
@@ -76,6 +77,10 @@ class Profile:
             lines.append(f"  {activity:<44}{s:8.3f}  {rate}")
         return "\n".join(lines)
 
+
+RATE_MIN_SECONDS = 0.001
+"""A stage's MP/s is shown from this much device time on ('-' below: a download of a few bytes gave
+'1787345.5', which ran into the share column)."""
 
 _ACTIVE: Profile | None = None
 
