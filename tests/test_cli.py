@@ -5,6 +5,8 @@ a user's clone, which has no ../shared).
 """
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +180,35 @@ def test_compression_option(tmp_path: Path, scene_png: Path, capsys) -> None:
     assert zipped.stat().st_size < plain.stat().st_size
     code, _, err = run(["process", raw_path, "-o", tmp_path / "bad.exr", "--compression", "bogus"], capsys)
     assert code == 2 and "bogus" in err and not (tmp_path / "bad.exr").exists()
+
+
+def test_process_line_and_profile_read_as_english_and_columns(tmp_path: Path, scene_png: Path, capsys) -> None:
+    """One tile is '1 tile', not '1 tiles'; every row of --profile's device table has its columns
+    apart (a stage of almost no device time, the download, showed a rate of 1787345.5 MP/s that ran
+    into its share: '0.0%1787345.5')."""
+    raw_path = tmp_path / "r.dng"
+    assert run(["simulate", scene_png, "-o", raw_path, "--gain", "4"], capsys)[0] == 0
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "o.tif", "--preset", "fast", "--profile"], capsys)
+    assert code == 0, err
+    assert "(" in out and " 1 tile of 320x256)" in out.splitlines()[0]
+    table = out[out.index("device: stage / kernel"):out.index("host (")].splitlines()[1:]
+    assert table and not [line for line in table if re.search(r"%\S", line)]
+
+
+def test_profile_table_keeps_its_columns_apart() -> None:
+    """A stage of a few microseconds of device time (a download of a few bytes) shows '-' for its
+    rate, which printed as 1787345.5 ran into the share column; large rates keep a space."""
+    from types import SimpleNamespace
+    from clisp.engine.profile import Profile
+
+    def event(seconds: float) -> SimpleNamespace:
+        return SimpleNamespace(wait=lambda: None, profile=SimpleNamespace(start=0, end=int(seconds * 1e9)))
+    profile = Profile(events=[("demosaic", "k", event(0.5)), ("download", "copy", event(0.000014)),
+                              ("tone_curve", "t", event(0.0011))])
+    lines = profile.report(24.0, 1.0).splitlines()
+    rows = {line.split()[0]: line for line in lines if line.startswith("  ") and not line.startswith("    ")}
+    assert rows["download"].split()[-1] == "-" and not re.search(r"%\S", rows["download"])
+    assert rows["tone_curve"].split()[-1] == "21818.2" and not re.search(r"%\S", rows["tone_curve"])
 
 
 def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png: Path, capsys, monkeypatch) -> None:
