@@ -3,7 +3,8 @@
 Array API (rawpy users ask for arrays)::
 
     import clisp
-    sim = clisp.simulate(scene_linear_srgb, cfa="lms", gain=8, seed=1)   # -> SimResult(raw, truth)
+    scene = clisp.read_scene("photo.png")                              # H x W x 3 linear sRGB
+    sim = clisp.simulate(scene, cfa="lms", gain=8, seed=1)             # -> SimResult(raw, truth)
     rgb = clisp.process(sim.raw)                                         # -> H x W x 3 linear sRGB float32
     raw = clisp.read_raw("camera.dng"); clisp.write_raw("ours.dng", sim.raw)
 """
@@ -16,9 +17,10 @@ from __future__ import annotations
 # (stages into a run).
 from .version import __version__
 
-_PUBLIC = {"read_raw": "io.rawfile", "write_raw": "io.rawfile", "process": "pipeline", "simulate": "sim.simulate"}
+_PUBLIC = {"read_raw": "io.rawfile", "write_raw": "io.rawfile", "process": "pipeline", "simulate": "sim.simulate",
+           "read_scene": "io.imageio"}
 
-__all__ = ["simulate", "process", "read_raw", "write_raw", "__version__"]
+__all__ = ["simulate", "process", "read_raw", "write_raw", "read_scene", "__version__"]
 
 
 def __getattr__(name: str) -> object:
