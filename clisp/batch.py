@@ -42,7 +42,7 @@ from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, process_file, resolve_opti
 # tqdm and clisp.io.imageio are imported where they are used.
 
 MANIFEST = "manifest.jsonl"
-FORMATS = ("exr", "tif", "png")
+FORMATS = ("exr", "tif", "png", "jpg")
 START_TIMEOUT = 60.0
 """Seconds to wait for a cluster to start or a scheduler to answer, and for a first worker."""
 

@@ -286,7 +286,7 @@ def naming_a_file(exc: ClispError, path: str, output: str) -> ClispError:
     return ClispError(f"{path}: {text}")
 
 
-OUTPUT_SUFFIXES = (".exr", ".tif", ".tiff", ".png")
+OUTPUT_SUFFIXES = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
 """Extensions of an output image: -o with one of them is never taken as a new output folder."""
 
 

@@ -130,11 +130,13 @@ MESSAGES = {
                              r"\(corrupt float raw\); not processed"),
     "smaller-than-cfa": (lambda f, t: ["process", f["tiny.dng"], "-o", t / "o.exr"],
                          r".*tiny\.dng: raw of 1x1 is smaller than one 2x2 CFA tile"),
-    "output-extension": (lambda f, t: ["process", f["good"], "-o", t / "o.jpg"],
-                         r".*o\.jpg: unsupported output extension '\.jpg'; use \.exr, \.tif, \.tiff or \.png"),
+    "output-extension": (lambda f, t: ["process", f["good"], "-o", t / "o.bmp"],
+                         r".*o\.bmp: unsupported output extension '\.bmp'; use \.exr, \.tif, \.tiff, \.png or \.jpg"),
     "output-no-extension": (lambda f, t: ["process", f["good"], "-o", t / "picture"],
-                            r".*picture: the output name has no extension; use \.exr, \.tif, \.tiff or \.png "
+                            r".*picture: the output name has no extension; use \.exr, \.tif, \.tiff, \.png or \.jpg "
                             r"\(several raws go to an output folder\)"),
+    "jpeg-quality": (lambda f, t: ["process", f["good"], "-o", t / "o.jpg", "--compression", "jpeg:101"],
+                     r".*o\.jpg: JPEG quality '101' is not a whole number from 1 to 100 \(jpeg:N\)"),
     "output-folder-missing": (lambda f, t: ["process", f["good"], "-o", t / "nowhere" / "o.exr"],
                               r".*o\.exr: output folder .*nowhere does not exist"),
     "unknown-preset": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--preset", "nope"],

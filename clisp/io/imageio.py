@@ -23,8 +23,17 @@ from ..errors import ClispError, clip, library_output
 from ..engine.profile import host_timer
 
 LINEAR_EXTENSIONS = (".exr",)
-ENCODED_EXTENSIONS = (".tif", ".tiff", ".png")
-OIIO_FORMATS = {".exr": "openexr", ".tif": "tiff", ".tiff": "tiff", ".png": "png"}
+ENCODED_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg")
+OIIO_FORMATS = {".exr": "openexr", ".tif": "tiff", ".tiff": "tiff", ".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg"}
+JPEG_EXTENSIONS = (".jpg", ".jpeg")
+JPEG_QUALITY = 92
+"""JPEG quality when ``--compression`` does not give one ('jpeg:N', N 1..100): libjpeg's scale,
+where 90-95 is what cameras and raw converters save by default."""
+JPEG_SUBSAMPLING = "4:4:4"
+"""Chroma kept at full resolution. libjpeg's default 4:2:0 halves it both ways: on a 320 x 256 raw
+at gain 4 (fast preset) the JPEG differed from the 16-bit TIFF by 0.053 on average (99th
+percentile 0.31, colour edges) at quality 92 and 0.050 at 100; 4:4:4 at 92: 0.017 (0.063), for
+twice the file size."""
 
 
 def _oiio():  # imported lazily: OpenImageIO takes a moment to load
@@ -40,9 +49,9 @@ def output_kind(path: str | Path) -> str:
     if ext in ENCODED_EXTENSIONS:
         return "srgb"
     if not ext:
-        raise ClispError(f"{path}: the output name has no extension; use .exr, .tif, .tiff or .png "
+        raise ClispError(f"{path}: the output name has no extension; use .exr, .tif, .tiff, .png or .jpg "
                          f"(several raws go to an output folder)")
-    raise ClispError(f"{path}: unsupported output extension {ext!r}; use .exr, .tif, .tiff or .png")
+    raise ClispError(f"{path}: unsupported output extension {ext!r}; use .exr, .tif, .tiff, .png or .jpg")
 
 
 @contextmanager
@@ -189,6 +198,8 @@ COMPRESSIONS = {
     ".tif": ("none", "lzw", "zip", "packbits"),
     ".tiff": ("none", "lzw", "zip", "packbits"),
     ".png": ("none", "zip"),
+    ".jpg": ("jpeg",),
+    ".jpeg": ("jpeg",),
 }
 """Compression names accepted per output extension (OpenImageIO's; 'zip:N' / 'dwaa:N' set a level)."""
 
@@ -251,10 +262,15 @@ def _describe(spec: object, kind: str, attributes: dict | None) -> None:
 def check_compression(path: str | Path, compression: str) -> None:
     """ClispError naming ``path`` when ``compression`` is not one of its format's COMPRESSIONS."""
     ext = Path(path).suffix.lower()
+    if ext in JPEG_EXTENSIONS and compression == DEFAULT_COMPRESSION:
+        return                                                   # the default: JPEG_QUALITY
     allowed = COMPRESSIONS.get(ext, ())
-    if compression.split(":")[0] not in allowed:
+    name, _, level = compression.partition(":")
+    if name not in allowed:
         raise ClispError(f"{path}: compression {compression!r} is not available for {ext} "
                          f"(choose from {', '.join(allowed)})")
+    if ext in JPEG_EXTENSIONS and level and not (level.isdigit() and 1 <= int(level) <= 100):
+        raise ClispError(f"{path}: JPEG quality {level!r} is not a whole number from 1 to 100 (jpeg:N)")
 
 
 PNG_ZIP_LEVEL = 6
@@ -303,10 +319,15 @@ class ImageWriter:
 
     def __enter__(self) -> "ImageWriter":
         oiio = _oiio()
-        fmt = "float" if self.kind == "linear" else "uint16"
-        spec = oiio.ImageSpec(self.width, self.height, self.channels, fmt)
-        if self.path.suffix.lower() == ".png":
+        suffix = self.path.suffix.lower()
+        fmt = "float" if self.kind == "linear" else "uint8" if suffix in JPEG_EXTENSIONS else "uint16"
+        spec = oiio.ImageSpec(self.width, self.height, self.channels, fmt)     # rows are converted to fmt
+        if suffix == ".png":
             _png_compression(spec, self.compression)
+        elif suffix in JPEG_EXTENSIONS:
+            spec.attribute("compression", self.compression if self.compression.startswith("jpeg:")
+                           else f"jpeg:{JPEG_QUALITY}")
+            spec.attribute("jpeg:subsampling", JPEG_SUBSAMPLING)
         else:
             spec.attribute("compression", self.compression)
         _describe(spec, self.kind, self.attributes)
@@ -354,9 +375,9 @@ class ImageWriter:
             yield np.clip(pixels, 0.0, 1.0) if self.kind == "srgb" else pixels
 
     def _photographers_rationals(self) -> None:
-        """The exposure time and f-number of a TIFF as cameras write them (1/203, 56/10), not as
-        libtiff converts OpenImageIO's floats (10578737/2147483648): clisp.io.tiff_rationals."""
-        from .tiff_rationals import (TAG_EXPOSURE_TIME, TAG_F_NUMBER, exposure_fraction,   # deferred: TIFF only
+        """The exposure time and f-number of a TIFF or JPEG as cameras write them (1/203, 56/10), not
+        as OpenImageIO's floats are converted (10578737/2147483648, 4926/1000000): clisp.io.exif_rationals."""
+        from .exif_rationals import (TAG_EXPOSURE_TIME, TAG_F_NUMBER, exposure_fraction,   # deferred: TIFF and JPEG
                                      f_number_fraction, set_exif_rationals)
         values = {}
         if isinstance(self.attributes.get("ExposureTime"), (int, float)):
@@ -377,7 +398,7 @@ class ImageWriter:
             error = ClispError(f"{self.path}: only {self.next_row} of {self.height} rows were written")
         elif error is None and not closed:
             error = ClispError(f"{self.path}: write failed ({_error_text(out)})")
-        if error is None and self.path.suffix.lower() in (".tif", ".tiff"):
+        if error is None and self.path.suffix.lower() in (".tif", ".tiff", *JPEG_EXTENSIONS):
             try:
                 self._photographers_rationals()
             except ClispError as failed:

@@ -207,20 +207,24 @@ def test_srgb_profile_kept_in_the_cache_folder(tmp_path, monkeypatch):
     imageio.srgb_icc_profile.cache_clear()
 
 
+@pytest.mark.parametrize("ext", [".tif", ".jpg"])
 @pytest.mark.parametrize("seconds, f_number, expected", [(1 / 203.2, 11.3, ((1, 203), (113, 10))),
                                                          (1 / 8000, 1.4, ((1, 8000), (14, 10))),
                                                          (2.5, 22.0, ((5, 2), (220, 10)))])
-def test_tiff_exposure_as_a_camera_writes_it(tmp_path: Path, seconds: float, f_number: float, expected) -> None:
-    """A TIFF's ExposureTime and FNumber are the fractions a camera writes (1/203, 113/10), not
-    libtiff's conversion of OpenImageIO's floats (1/203 s was 10578737/2147483648); OpenImageIO
-    reads the same values back."""
+def test_exposure_as_a_camera_writes_it(tmp_path: Path, ext: str, seconds: float, f_number: float, expected) -> None:
+    """A TIFF's or JPEG's ExposureTime and FNumber are the fractions a camera writes (1/203, 113/10),
+    not the conversions of OpenImageIO's floats (1/203 s was 10578737/2147483648 in a TIFF,
+    4926/1000000 in a JPEG); Pillow and OpenImageIO read the same values back."""
     import OpenImageIO as oiio
-    import tifffile
-    out = tmp_path / "o.tif"
+    from PIL import Image
+    out = tmp_path / f"o{ext}"
     write_image(out, np.full((8, 8, 3), 0.5), encoded=False,
-                attributes={"ExposureTime": seconds, "FNumber": f_number})
-    with tifffile.TiffFile(out) as tif:
-        exif = tif.pages[0].tags["ExifTag"].value
-    assert (tuple(exif["ExposureTime"]), tuple(exif["FNumber"])) == expected
+                attributes={"Make": "Acme", "Model": "Tiny 1", "ExposureTime": seconds, "FNumber": f_number})
+    with Image.open(out) as im:
+        exif = im.getexif()
+        shot = exif.get_ifd(0x8769)
+        got = tuple((r.numerator, r.denominator) for r in (shot[0x829A], shot[0x829D]))
+        assert got == expected and (exif[271], exif[272]) == ("Acme", "Tiny 1")
     spec = oiio.ImageInput.open(str(out)).spec()
     assert spec.getattribute("ExposureTime") == pytest.approx(expected[0][0] / expected[0][1], rel=1e-6)
+    assert (spec.getattribute("Make"), spec.getattribute("Model")) == ("Acme", "Tiny 1")

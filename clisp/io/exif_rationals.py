@@ -1,11 +1,12 @@
-"""EXIF rationals of a TIFF written by OpenImageIO, set to the fractions a photographer reads.
+"""EXIF rationals of a TIFF or JPEG written by OpenImageIO, set to the fractions a photographer reads.
 
-OpenImageIO takes ExposureTime and FNumber as floats and libtiff stores a float as a RATIONAL with
-a denominator of 2^31: the Canon D30's 1/203 s came out as 10578737/2147483648 (exiftool and
-camera software print that). :func:`set_exif_rationals` rewrites those values in place in the
+OpenImageIO takes ExposureTime and FNumber as floats. libtiff stores a float as a RATIONAL with a
+denominator of 2^31 (the Canon D30's 1/203 s came out as 10578737/2147483648, as exiftool and
+camera software print it), OpenImageIO's JPEG writer over a power of ten (4926/1000000). :func:`set_exif_rationals` rewrites those values in place in the
 written file, before it is renamed into place (clisp.io.imageio.ImageWriter): same tags, same
 sizes, only the two 32-bit numbers of each RATIONAL change. Classic TIFF only (OpenImageIO writes
-no BigTIFF for our sizes); a file whose layout is not as expected is left as it is.
+no BigTIFF for our sizes), and the TIFF structure inside a JPEG's APP1 segment; a file whose
+layout is not as expected is left as it is.
 """
 from __future__ import annotations
 
@@ -47,30 +48,50 @@ def f_number_fraction(value: float) -> tuple[int, int]:
 
 def set_exif_rationals(path: str | Path, values: dict[int, tuple[int, int]]) -> int:
     """Rewrite the RATIONAL tags ``values`` ({tag: (numerator, denominator)}) of the EXIF directory
-    of the classic TIFF at ``path`` in place; returns how many were rewritten (0 when the file has
-    no EXIF directory or is not a classic TIFF)."""
+    of the classic TIFF, or the JPEG's EXIF block (APP1, a TIFF structure inside), at ``path`` in
+    place; returns how many were rewritten (0 when there is no EXIF directory or the layout is not
+    as expected)."""
     with open(path, "r+b") as f:
+        base = _jpeg_exif_base(f) if f.read(2) == b"\xff\xd8" else 0
+        if base is None:
+            return 0
+        f.seek(base)
         head = f.read(8)
         if len(head) < 8 or head[:2] not in (b"II", b"MM"):
             return 0
         order = "<" if head[:2] == b"II" else ">"
         if struct.unpack(order + "H", head[2:4])[0] != 42:
             return 0
-        exif = _entry_value(f, order, struct.unpack(order + "I", head[4:8])[0], TAG_EXIF_IFD)
+        exif = _entry_value(f, order, base, struct.unpack(order + "I", head[4:8])[0], TAG_EXIF_IFD)
         if exif is None:
             return 0
         done = 0
-        for offset, (tag, kind, count, value) in _entries(f, order, exif):
+        for tag, kind, count, value in _entries(f, order, base, exif):
             if tag in values and kind == RATIONAL and count == 1:
-                f.seek(value)
+                f.seek(base + value)
                 f.write(struct.pack(order + "II", *values[tag]))
                 done += 1
         return done
 
 
-def _entries(f, order: str, ifd: int) -> list[tuple[int, tuple[int, int, int, int]]]:
-    """(entry offset, (tag, type, count, value or offset)) of the IFD at byte ``ifd``."""
-    f.seek(ifd)
+def _jpeg_exif_base(f) -> int | None:
+    """Byte position of the TIFF header in a JPEG's ``Exif`` APP1 segment (f just past SOI); None
+    without one before the image data."""
+    while True:
+        marker = f.read(4)
+        if len(marker) < 4 or marker[0] != 0xFF or marker[1] in (0xDA, 0xD9):    # start of scan, end
+            return None
+        length = struct.unpack(">H", marker[2:])[0]
+        start = f.tell()
+        if marker[1] == 0xE1 and f.read(6) == b"Exif\0\0":
+            return start + 6
+        f.seek(start + length - 2)
+
+
+def _entries(f, order: str, base: int, ifd: int) -> list[tuple[int, int, int, int]]:
+    """(tag, type, count, value or offset) of the IFD at ``ifd`` (offsets from the TIFF header at
+    byte ``base``)."""
+    f.seek(base + ifd)
     raw = f.read(2)
     if len(raw) < 2:
         return []
@@ -80,13 +101,13 @@ def _entries(f, order: str, ifd: int) -> list[tuple[int, tuple[int, int, int, in
         entry = f.read(12)
         if len(entry) < 12:
             break
-        found.append((ifd + 2 + 12 * i, struct.unpack(order + "HHII", entry)))
+        found.append(struct.unpack(order + "HHII", entry))
     return found
 
 
-def _entry_value(f, order: str, ifd: int, tag: int) -> int | None:
-    """The LONG (or IFD) value of ``tag`` in the IFD at byte ``ifd``; None if absent."""
-    for _, (t, _, count, value) in _entries(f, order, ifd):
+def _entry_value(f, order: str, base: int, ifd: int, tag: int) -> int | None:
+    """The LONG (or IFD) value of ``tag`` in the IFD at ``ifd``; None if absent."""
+    for t, _, count, value in _entries(f, order, base, ifd):
         if t == tag and count == 1:
             return value
     return None
