@@ -30,6 +30,7 @@ from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS, denoise_params,
                        process_file, resolve_options)
+from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
@@ -161,6 +162,35 @@ def _add_info(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_info)
 
 
+def _add_thumb(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("thumb", help="extract the preview a camera embedded in its raw file",
+                       description="Write the preview a camera embedded in RAW (no demosaic): a JPEG preview "
+                                   "to -o x.jpg as stored, else decoded into OUT's format (.jpg, .png, .tif, "
+                                   ".tiff: sRGB; .exr: linear).")
+    p.add_argument("raw", metavar="RAW")
+    p.add_argument("-o", "--output", required=True, metavar="OUT")
+    p.set_defaults(func=cmd_thumb)
+
+
+def cmd_thumb(args: argparse.Namespace) -> int:
+    from .io.imageio import atomic_path, output_kind, write_image   # deferred: 2 ms of start-up
+    from .io.preview import read_preview               # deferred: rawpy only for camera raws
+    kind = output_kind(args.output)
+    preview = read_preview(args.raw)
+    if preview.jpeg is not None and Path(args.output).suffix.lower() in (".jpg", ".jpeg"):
+        with atomic_path(args.output) as tmp:
+            tmp.write_bytes(preview.jpeg)
+        how = "JPEG, as stored"
+    else:
+        pixels = preview.decoded()
+        if kind == "linear":
+            pixels = srgb_decode(pixels)
+        write_image(args.output, pixels)
+        how = ("JPEG" if preview.jpeg is not None else "bitmap") + ", decoded"
+    print(f"{args.output}: {preview.width}x{preview.height} preview embedded in {args.raw} ({how})")
+    return 0
+
+
 def _add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, process and score the built-in chart (no data files needed)")
     p.add_argument("--out", default="clisp-demo", help="folder for the images (default ./clisp-demo)")
@@ -175,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_process(sub)
     _add_batch(sub)
     _add_info(sub)
+    _add_thumb(sub)
     _add_demo(sub)
     return parser
 

@@ -207,6 +207,32 @@ def test_jpeg_output(tmp_path: Path, scene_png: Path, capsys) -> None:
     assert (tmp_path / "many" / "r.jpg").is_file()
 
 
+@pytest.mark.skipif(not CAMERA_RAWS.is_dir(), reason="no ../shared/data/raw (camera raws)")
+def test_thumb_extracts_the_embedded_preview(tmp_path: Path, capsys) -> None:
+    """clisp thumb: the D30's JPEG preview copied byte for byte to a .jpg, decoded into a PNG of the
+    same size (and linear in an EXR); the DC50's bitmap preview encoded; no preview is an error."""
+    import rawpy
+    from PIL import Image
+    d30 = CAMERA_RAWS / "RAW_CANON_D30_SRGB.CRW"
+    with rawpy.imread(str(d30)) as raw:
+        stored = bytes(raw.extract_thumb().data)
+    code, out, err = run(["thumb", d30, "-o", tmp_path / "t.jpg"], capsys)
+    assert code == 0 and (tmp_path / "t.jpg").read_bytes() == stored and "1440x960" in out, err
+    assert run(["thumb", d30, "-o", tmp_path / "t.png"], capsys)[0] == 0
+    with Image.open(tmp_path / "t.jpg") as jpg:
+        decoded = np.asarray(jpg.convert("RGB"), float) / 255.0
+    png = read_image(tmp_path / "t.png")[0]
+    assert png.shape == decoded.shape == (960, 1440, 3) and np.abs(png - decoded).max() < 1e-4
+    assert run(["thumb", d30, "-o", tmp_path / "t.exr"], capsys)[0] == 0
+    linear = read_image(tmp_path / "t.exr")[0]
+    assert linear.shape == (960, 1440, 3) and 0.0 <= linear.min() and linear.max() <= 1.0
+    code, out, _ = run(["thumb", CAMERA_RAWS / "RAW_KODAK_DC50.KDC", "-o", tmp_path / "k.jpg"], capsys)
+    assert code == 0 and "bitmap" in out and Image.open(tmp_path / "k.jpg").size == (96, 64)
+    code, _, err = run(["thumb", CAMERA_RAWS / "Canon_EOS550D_MagicLantern_colorchart.dng", "-o",
+                        tmp_path / "c.jpg"], capsys)
+    assert code == 2 and "no embedded preview" in err and not (tmp_path / "c.jpg").exists()
+
+
 def test_process_line_and_profile_read_as_english_and_columns(tmp_path: Path, scene_png: Path, capsys) -> None:
     """One tile is '1 tile', not '1 tiles'; every row of --profile's device table has its columns
     apart (a stage of almost no device time, the download, showed a rate of 1787345.5 MP/s that ran

@@ -156,6 +156,8 @@ MESSAGES = {
                        r"\(clisp process turns a raw into one\)"),
     "gain-out-of-range": (lambda f, t: ["simulate", f["scene"], "-o", t / "r.dng", "--gain", "100"],
                           r"--gain 100 is outside the supported range 1\.\.64; --noiseless simulates without noise"),
+    "no-preview": (lambda f, t: ["thumb", f["good"], "-o", t / "o.jpg"],
+                   r".*good\.dng: has no embedded preview \(clisp process --preset fast makes one\)"),
     "info-needs-file": (lambda f, t: ["info"], r"info needs a RAW file or --device"),
     "outdir-is-a-file": (lambda f, t: ["process", f["good"], f["float"], "-o", t / "o.exr"],
                          r".*o\.exr: several inputs need an output folder \(-o OUTDIR\), not a file"),
