@@ -55,8 +55,9 @@ START_TIMEOUT = 60.0
 class BatchSettings:
     """What a batch does to each file. Everything but ``mem`` changes the output and is hashed.
 
-    ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif' or 'png';
-    ``compression``: EXR/TIFF/PNG compression (None = clisp's default); ``skip``: as ``process``
+    ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif', 'png' or 'jpg';
+    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``: EV, as
+    ``process --exposure``; ``skip``: as ``process``
     (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
@@ -67,11 +68,16 @@ class BatchSettings:
     compression: str | None = None
     mem: int | None = None
     skip: bool = True
+    exposure: float = 0.0
 
     def identity(self) -> dict[str, Any]:
-        """The hashed part: the resolved preset, the options that change an output, clisp's version."""
-        return {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
-                "format": self.format, "compression": self.compression, "skip": self.skip}
+        """The hashed part: the resolved preset, the options that change an output, clisp's version
+        (the exposure only when set, so that the batches run before it existed stay done)."""
+        identity = {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
+                    "format": self.format, "compression": self.compression, "skip": self.skip}
+        if self.exposure:
+            identity["exposure"] = self.exposure
+        return identity
 
     def digest(self) -> str:
         """16 hex digits of the SHA-256 of :meth:`identity` (canonical JSON)."""
@@ -157,7 +163,8 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
         raw = read_raw(job.input, lazy=True)
         (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
-                                          demosaic=settings.demosaic, skip=True if settings.skip else None)
+                                          demosaic=settings.demosaic, skip=True if settings.skip else None,
+                                          exposure=settings.exposure)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))

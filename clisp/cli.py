@@ -82,8 +82,12 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="output image (.exr, .tif, .tiff, .png), or the output folder OUTDIR (created if "
                         "missing) for several inputs")
     p.add_argument("--format", choices=FORMATS, default=None,
-                   help="with OUTDIR: exr (default; linear sRGB float), tif or png (16-bit sRGB-encoded)")
+                   help="with OUTDIR: exr (default; linear sRGB float), tif or png (16-bit sRGB-encoded), "
+                        "jpg (8-bit sRGB)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
+                   help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
+                        "1.0 = the raw's white); recorded in the output's description")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
@@ -135,6 +139,9 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="raw files, or folders of them (not recursive)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if missing)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
+                   help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
+                        "1.0 = the raw's white); recorded in the output's description")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--format", choices=FORMATS, default="exr",
                    help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
@@ -340,7 +347,7 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
     (height, width), stats = process_file(raw, output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
-                                          skip=skip, highlights=args.highlights,
+                                          skip=skip, highlights=args.highlights, exposure=args.exposure,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
@@ -392,7 +399,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if args.workers is not None and args.scheduler:
         raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
-                             compression=args.compression, mem=args.mem, skip=not args.no_skip)
+                             compression=args.compression, mem=args.mem, skip=not args.no_skip,
+                             exposure=args.exposure)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:

@@ -62,6 +62,8 @@ mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstru
 raw with clipping spread over a fifth of it). Explicit options override."""
 
 DEFAULT_PRESET = "quality"
+EXPOSURE_LIMIT = 10.0
+"""Largest ``--exposure`` in EV either way (a gain of 1024: past it a raw's quantisation shows)."""
 OUTPUTS = ("linear", "srgb", "srgb16")
 
 
@@ -96,7 +98,7 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | None = None,
-                   highlights: str | None = None) -> Pipeline:
+                   highlights: str | None = None, exposure: float = 0.0) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -112,10 +114,14 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     pipeline without a chroma denoiser (preset fast) has nothing to skip: no analysis (it would
     cost 10-30 ms/MP for nothing). ``highlights``: 'clip', 'reconstruct' or 'off'
     (clisp.modules.highlights.stage), None = the preset's; the stage is left out of raws without clipped
-    samples.
+    samples. ``exposure``: EV applied to linear sRGB after the colour conversion (2^EV, within
+    +-EXPOSURE_LIMIT; 0: colorimetric, 1.0 = the raw's white), with white balance pass 2's gains, so
+    highlight reconstruction and the denoiser's noise model see the raw as it is.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
+    if not -EXPOSURE_LIMIT <= exposure <= EXPOSURE_LIMIT:          # also NaN
+        raise ClispError(f"--exposure {exposure:g}: EV must be within -{EXPOSURE_LIMIT:g}..+{EXPOSURE_LIMIT:g}")
     check_raw(raw)
     cfa = raw.cfa
     options = resolve_options(preset, demosaic, cfa.kind)
@@ -136,8 +142,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
-    if not np.allclose(gains2, 1.0, rtol=0, atol=0):
-        stages.append(WhiteBalance2(gains2))
+    output_gains = gains2 * 2.0 ** exposure
+    if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
+        stages.append(WhiteBalance2(output_gains))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
     pipeline = Pipeline(cfa, stages)
@@ -314,6 +321,9 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     compression = compression or DEFAULT_COMPRESSION
     region = crop_of(raw) if crop else None
     attributes = output_attributes(raw)
+    if options.get("exposure"):
+        note = f"exposure {options['exposure']:+g} EV (clisp)"
+        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), note]))
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
     if explain is not None:                       # the caller reads the plan after the run

@@ -233,6 +233,26 @@ def test_thumb_extracts_the_embedded_preview(tmp_path: Path, capsys) -> None:
     assert code == 2 and "no embedded preview" in err and not (tmp_path / "c.jpg").exists()
 
 
+def test_exposure_scales_linear_output_and_is_recorded(tmp_path: Path, scene_png: Path, capsys) -> None:
+    """--exposure EV multiplies the linear output by 2^EV (after the colour conversion: the same
+    pixels otherwise), says so in the output's description; the batch hashes it only when set."""
+    import OpenImageIO as oiio
+    from clisp.batch import BatchSettings
+    raw_path = tmp_path / "r.dng"
+    assert run(["simulate", scene_png, "-o", raw_path, "--gain", "4"], capsys)[0] == 0
+    images = {}
+    for ev in ("0", "1", "-1.5"):
+        assert run(["process", raw_path, "-o", tmp_path / f"e{ev}.exr", "--exposure", ev], capsys)[0] == 0
+        images[ev] = read_image(tmp_path / f"e{ev}.exr")[0]
+    np.testing.assert_allclose(images["1"], 2.0 * images["0"], rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(images["-1.5"], 2.0 ** -1.5 * images["0"], rtol=1e-5, atol=1e-7)
+    description = oiio.ImageInput.open(str(tmp_path / "e1.exr")).spec().getattribute("ImageDescription")
+    assert description.endswith("exposure +1 EV (clisp)")
+    assert "exposure" not in (oiio.ImageInput.open(str(tmp_path / "e0.exr")).spec().getattribute("ImageDescription")
+                              or "").split(";")[-1]
+    assert BatchSettings().digest() == BatchSettings(exposure=0.0).digest() != BatchSettings(exposure=1.0).digest()
+
+
 def test_process_line_and_profile_read_as_english_and_columns(tmp_path: Path, scene_png: Path, capsys) -> None:
     """One tile is '1 tile', not '1 tiles'; every row of --profile's device table has its columns
     apart (a stage of almost no device time, the download, showed a rate of 1787345.5 MP/s that ran

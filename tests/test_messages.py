@@ -143,6 +143,8 @@ MESSAGES = {
                        r"unknown preset 'nope'; available: fast, balanced, quality, best"),
     "demosaic-for-cfa": (lambda f, t: ["process", f["float"], "-o", t / "o.exr", "--demosaic", "ari"],
                          r".*float\.dng: demosaic 'ari' works on bayer CFAs, not lms"),
+    "exposure-range": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--exposure", "12"],
+                       r".*good\.dng: --exposure 12: EV must be within -10\.\.\+10"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
                        r"--tile 4: tiles must be at least 16 pixels"),
     "mem-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--mem", "1M"],
