@@ -56,8 +56,8 @@ class BatchSettings:
     """What a batch does to each file. Everything but ``mem`` changes the output and is hashed.
 
     ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif', 'png' or 'jpg';
-    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``: EV, as
-    ``process --exposure``; ``skip``: as ``process``
+    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``:
+    as ``process --exposure``, ``--auto-exposure``; ``skip``: as ``process``
     (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
@@ -69,6 +69,7 @@ class BatchSettings:
     mem: int | None = None
     skip: bool = True
     exposure: float = 0.0
+    auto_exposure: bool = False
 
     def identity(self) -> dict[str, Any]:
         """The hashed part: the resolved preset, the options that change an output, clisp's version
@@ -77,6 +78,8 @@ class BatchSettings:
                     "format": self.format, "compression": self.compression, "skip": self.skip}
         if self.exposure:
             identity["exposure"] = self.exposure
+        if self.auto_exposure:
+            identity["auto_exposure"] = True
         return identity
 
     def digest(self) -> str:
@@ -164,7 +167,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
         (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
                                           demosaic=settings.demosaic, skip=True if settings.skip else None,
-                                          exposure=settings.exposure)
+                                          exposure=settings.exposure, auto_exposure=settings.auto_exposure)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))

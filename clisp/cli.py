@@ -88,6 +88,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
                         "1.0 = the raw's white); recorded in the output's description")
+    p.add_argument("--auto-exposure", action="store_true",
+                   help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
+                        "exceed in the brightest channel goes to white (never darker); adds to --exposure")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
@@ -142,6 +145,9 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
                         "1.0 = the raw's white); recorded in the output's description")
+    p.add_argument("--auto-exposure", action="store_true",
+                   help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
+                        "exceed in the brightest channel goes to white (never darker); adds to --exposure")
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--format", choices=FORMATS, default="exr",
                    help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
@@ -348,6 +354,7 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
+                                          auto_exposure=args.auto_exposure,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
@@ -400,7 +407,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
                              compression=args.compression, mem=args.mem, skip=not args.no_skip,
-                             exposure=args.exposure)
+                             exposure=args.exposure, auto_exposure=args.auto_exposure)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:

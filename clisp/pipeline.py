@@ -98,7 +98,7 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | None = None,
-                   highlights: str | None = None, exposure: float = 0.0) -> Pipeline:
+                   highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -117,6 +117,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     samples. ``exposure``: EV applied to linear sRGB after the colour conversion (2^EV, within
     +-EXPOSURE_LIMIT; 0: colorimetric, 1.0 = the raw's white), with white balance pass 2's gains, so
     highlight reconstruction and the denoiser's noise model see the raw as it is.
+    ``auto_exposure``: add LibRaw's auto-bright exposure, estimated from the raw (clisp.exposure).
+    The pipeline's ``exposure_ev`` says what was applied.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -142,12 +144,16 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
+    if auto_exposure:
+        from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
+        exposure = float(np.clip(exposure + auto_exposure_ev(raw, gains2, EXPOSURE_LIMIT),
+                                 -EXPOSURE_LIMIT, EXPOSURE_LIMIT))
     output_gains = gains2 * 2.0 ** exposure
     if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(output_gains))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
-    pipeline = Pipeline(cfa, stages)
+    pipeline = Pipeline(cfa, stages, exposure_ev=exposure)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper          # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
@@ -321,11 +327,12 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     compression = compression or DEFAULT_COMPRESSION
     region = crop_of(raw) if crop else None
     attributes = output_attributes(raw)
-    if options.get("exposure"):
-        note = f"exposure {options['exposure']:+g} EV (clisp)"
-        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), note]))
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
+    if options.get("exposure") or options.get("auto_exposure"):          # what was applied, in the file
+        how = ", auto" if options.get("auto_exposure") else ""
+        note = f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})"
+        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), note]))
     if explain is not None:                       # the caller reads the plan after the run
         explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)

@@ -247,7 +247,7 @@ def test_exposure_scales_linear_output_and_is_recorded(tmp_path: Path, scene_png
     np.testing.assert_allclose(images["1"], 2.0 * images["0"], rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(images["-1.5"], 2.0 ** -1.5 * images["0"], rtol=1e-5, atol=1e-7)
     description = oiio.ImageInput.open(str(tmp_path / "e1.exr")).spec().getattribute("ImageDescription")
-    assert description.endswith("exposure +1 EV (clisp)")
+    assert description.endswith("exposure +1.00 EV (clisp)")
     assert "exposure" not in (oiio.ImageInput.open(str(tmp_path / "e0.exr")).spec().getattribute("ImageDescription")
                               or "").split(";")[-1]
     assert BatchSettings().digest() == BatchSettings(exposure=0.0).digest() != BatchSettings(exposure=1.0).digest()

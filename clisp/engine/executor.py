@@ -74,6 +74,8 @@ class Pipeline:
     """A clisp.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
     skip_plan: Any = None
     """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
+    exposure_ev: float = 0.0
+    """The exposure (EV) build_pipeline applied, manual and automatic together."""
 
     @property
     def halo(self) -> int:
