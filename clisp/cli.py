@@ -85,12 +85,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="with OUTDIR: exr (default; linear sRGB float), tif or png (16-bit sRGB-encoded), "
                         "jpg (8-bit sRGB)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
-                   help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
-                        "1.0 = the raw's white); recorded in the output's description")
-    p.add_argument("--auto-exposure", action="store_true",
-                   help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
-                        "exceed in the brightest channel goes to white (never darker); adds to --exposure")
+    _add_exposure_options(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
@@ -132,6 +127,16 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_process)
 
 
+def _add_exposure_options(p: argparse.ArgumentParser) -> None:
+    """--exposure and --auto-exposure (process and batch alike)."""
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
+                   help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
+                        "1.0 = the raw's white); recorded in the output's description")
+    p.add_argument("--auto-exposure", action="store_true",
+                   help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
+                        "exceed in the brightest channel goes to white (never darker); adds to --exposure")
+
+
 def _add_batch(sub: argparse._SubParsersAction) -> None:
     from .batch import FORMATS                  # deferred: clisp.batch (hashlib, uuid) costs 9 ms of start-up
     p = sub.add_parser("batch", help="process many raws (files or folders) in parallel on Dask, resumably",
@@ -142,12 +147,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="raw files, or folders of them (not recursive)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if missing)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
-                   help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
-                        "1.0 = the raw's white); recorded in the output's description")
-    p.add_argument("--auto-exposure", action="store_true",
-                   help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
-                        "exceed in the brightest channel goes to white (never darker); adds to --exposure")
+    _add_exposure_options(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--format", choices=FORMATS, default="exr",
                    help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
