@@ -70,7 +70,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     from .batch import FORMATS                  # loaded by _add_batch anyway
     p = sub.add_parser("process", help="process raws (ours or a camera's) into images, in this process",
                        description="One RAW and -o OUT: OUT by extension, .exr linear sRGB float; .tif/.tiff/.png "
-                                   "16-bit sRGB-encoded. Several RAWs, folders, --format or an existing folder "
+                                   "16-bit sRGB-encoded; .jpg/.jpeg 8-bit sRGB. Several RAWs, folders, --format or an existing folder "
                                    "as -o: OUTDIR/<raw stem>.<format>, one after the other in one process "
                                    "(the OpenCL context and kernels are shared); a bad file is reported on "
                                    "one line and the others are processed (exit status 1 when any failed). "
@@ -79,7 +79,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="a clisp DNG or a camera raw (DNG, CR2, NEF, CRW, ... through rawpy); several, or "
                         "folders of them (not recursive), with -o OUTDIR")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output image (.exr, .tif, .tiff, .png), or the output folder OUTDIR (created if "
+                   help="output image (.exr, .tif, .tiff, .png, .jpg), or the output folder OUTDIR (created if "
                         "missing) for several inputs")
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="with OUTDIR: exr (default; linear sRGB float), tif or png (16-bit sRGB-encoded), "
@@ -186,11 +186,11 @@ def _add_thumb(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_thumb(args: argparse.Namespace) -> int:
-    from .io.imageio import atomic_path, output_kind, write_image   # deferred: 2 ms of start-up
+    from .io.imageio import JPEG_EXTENSIONS, atomic_path, output_kind, write_image   # deferred: 2 ms of start-up
     from .io.preview import read_preview               # deferred: rawpy only for camera raws
     kind = output_kind(args.output)
     preview = read_preview(args.raw)
-    if preview.jpeg is not None and Path(args.output).suffix.lower() in (".jpg", ".jpeg"):
+    if preview.jpeg is not None and Path(args.output).suffix.lower() in JPEG_EXTENSIONS:
         with atomic_path(args.output) as tmp:
             tmp.write_bytes(preview.jpeg)
         how = "JPEG, as stored"

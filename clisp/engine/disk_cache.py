@@ -74,14 +74,23 @@ def read_json(kind: str, name: str) -> Any | None:
 
 
 def write_json(kind: str, name: str, value: Any) -> None:
-    """Keep ``value`` as ``<cache>/<kind>/<name>.json`` (written to a temporary file and renamed, so a
-    reader never sees half of it); an unwritable cache folder is skipped (it only costs time)."""
+    """Keep ``value`` as ``<cache>/<kind>/<name>.json`` (:func:`keep_bytes`)."""
     try:
-        folder = cache_dir() / kind
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".partial-", suffix=".json")
-        with os.fdopen(fd, "w") as out:
-            json.dump(value, out)
-        os.replace(tmp, folder / f"{name}.json")
-    except (OSError, RuntimeError, TypeError, ValueError):
+        keep_bytes(cache_dir() / kind / f"{name}.json", json.dumps(value).encode())
+    except (RuntimeError, TypeError, ValueError):
         pass
+
+
+def keep_bytes(path: Path, data: bytes) -> bool:
+    """Write ``data`` to ``path`` in the cache, atomically (a temporary file beside it, renamed into
+    place, so a reader never sees half of it); False when the folder cannot be written (a cache that
+    cannot keep a result only costs time)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".partial-")
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        os.replace(tmp, path)
+        return True
+    except OSError:
+        return False

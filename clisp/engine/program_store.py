@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import struct
-import tempfile
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
+
+from .disk_cache import keep_bytes
 
 MAGIC = b"CLSPPRG1"
 
@@ -46,15 +46,7 @@ def write_record(path: Path, binary: bytes, kernels: KernelParameters) -> bool:
     not writable (a read-only cache only costs the next process a build)."""
     header = json.dumps({"binary": len(binary),
                          "kernels": {k: [list(p) for p in ps] for k, ps in kernels.items()}}).encode()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".partial-")
-        with os.fdopen(fd, "wb") as out:
-            out.write(MAGIC + struct.pack("<Q", len(header)) + header + binary)
-        os.replace(tmp, path)
-        return True
-    except OSError:
-        return False
+    return keep_bytes(path, MAGIC + struct.pack("<Q", len(header)) + header + binary)
 
 
 def read_record(path: Path) -> tuple[bytes, dict[str, tuple[tuple[str, str, bool], ...]]] | None:

@@ -215,11 +215,11 @@ ATTRIBUTE_TYPES = {"Orientation": "int", "Exif:PhotographicSensitivity": "int", 
 
 @lru_cache(maxsize=1)
 def srgb_icc_profile() -> bytes:
-    """An sRGB ICC profile (LittleCMS's built-in sRGB, through Pillow's ImageCms), for TIFF/PNG; kept
+    """An sRGB ICC profile (LittleCMS's built-in sRGB, through Pillow's ImageCms), for TIFF, PNG and JPEG; kept
     in clisp's cache folder, since importing Pillow for these 588 bytes took 17 ms of every TIFF or
     PNG output's start (clisp.engine.disk_cache: a folder that cannot be read or written only costs
     that time)."""
-    from ..engine.disk_cache import cache_dir, entry_name    # deferred: only TIFF/PNG outputs need it
+    from ..engine.disk_cache import cache_dir, entry_name, keep_bytes    # deferred: only TIFF/PNG outputs need it
     try:
         path: Path | None = cache_dir() / "icc" / f"{entry_name('sRGB ICC profile')}.icc"
     except RuntimeError:                                        # Path.home() without a home
@@ -233,13 +233,7 @@ def srgb_icc_profile() -> bytes:
     from PIL import ImageCms     # deferred: Pillow only when the profile is not kept
     profile = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
     if path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            partial = path.with_name(f".partial-{os.getpid()}-{path.name}")
-            partial.write_bytes(profile)
-            os.replace(partial, path)
-        except OSError:
-            pass
+        keep_bytes(path, profile)
     return profile
 
 

@@ -59,9 +59,8 @@ equals whole-image output for tiles at any origin (multiples of ``align`` waste 
 from __future__ import annotations
 
 import hashlib
-import os
+import io
 import pickle
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,7 +69,7 @@ from typing import Sequence
 import numpy as np
 
 from ...errors import ClispError
-from ...engine.disk_cache import cache_dir, device_identity, entry_name
+from ...engine.disk_cache import cache_dir, device_identity, entry_name, keep_bytes
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
@@ -885,19 +884,14 @@ def read_calibration(path: Path) -> NoiseTable | None:
 
 
 def write_calibration(path: Path, table: NoiseTable) -> None:
-    """Keep ``table`` at ``path`` (written to a temporary file and renamed, so a reader never sees
-    half a file); an unwritable cache folder is silently skipped (it only costs time)."""
+    """Keep ``table`` at ``path`` (clisp.engine.disk_cache.keep_bytes: atomic, skipped where the
+    cache folder cannot be written)."""
     arrays = {"approx": table.approx, "detail": table.detail}
     if table.corr is not None:
         arrays["corr"] = table.corr
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".partial-", suffix=".npz")
-        with os.fdopen(fd, "wb") as out:
-            np.savez(out, **arrays)
-        os.replace(tmp, path)
-    except OSError:
-        pass
+    data = io.BytesIO()
+    np.savez(data, **arrays)
+    keep_bytes(path, data.getvalue())
 
 
 def measure_calibration(demosaic: Stage, cfa, space: ChromaSpace, raw_noise, levels: int = 3,
