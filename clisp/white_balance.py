@@ -1,15 +1,34 @@
-"""White-balance estimation on the raw mosaic (pass 1, docs/model.md section 4).
+"""White balance pass 1 on the raw mosaic: the choice (``--wb``) and the estimates
+(docs/model.md section 4).
 
-Gray world: gain_c = mean(reference channel) / mean(channel c), over the CFA blocks that hold no
-clipped pixel (a clipped pixel's block is dropped with it, so clipping cannot bias a channel).
+``--wb`` picks the pass-1 multipliers per CFA channel (:func:`with_white_balance`):
+
+``camera``      as shot: the camera's multipliers where the raw has them; a raw without them (the
+                Canon D30 CRW) was given the ``auto`` estimate when read (clisp.io.camera), and
+                clisp's simulated raws carry their known illuminant (D65).
+``auto``        the scene's grey pixels (:func:`grey_pixel_gains`).
+``daylight``    the camera's daylight multipliers (LibRaw's ``pre_mul``, what rawpy's default
+                postprocess uses); clisp's simulations are all lit by D65, so theirs is the known one.
+``R,G,B``       multipliers in the CFA's channel order (R, G, B or L, M, S), scaled so the
+                reference channel's is 1.
+
+Gray world (:func:`gray_world_gains`, the fallback of a scene without grey pixels):
+gain_c = mean(reference channel) / mean(channel c), over the CFA blocks that hold no clipped
+pixel (a clipped pixel's block is dropped with it, so clipping cannot bias a channel).
 The reference channel is G for Bayer and L for LMS, whose gain is therefore 1.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
 from .cfa import CFA
 from .errors import ClispError
+from .io.rawimage import MAX_GAIN, RawImage
+
+WB_CHOICES = ("camera", "auto", "daylight")
+"""The named ``--wb`` choices; anything else is read as multipliers."""
 
 CLIP_FRACTION = 0.98
 """A pixel at or above black + 0.98 (white - black) counts as clipped."""
@@ -39,3 +58,164 @@ def gray_world_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     if np.any(means <= 0):
         raise ClispError("gray-world white balance: a channel has no signal above black")
     return means[reference_channel(cfa)] / means
+
+
+# --------------------------------------------------------------------------------------------
+# Grey pixels (``--wb auto``)
+# --------------------------------------------------------------------------------------------
+
+GREY_SHARE = 0.01
+"""Share of the thumbnail's pixels taken as grey-pixel candidates (the 1 % greyest)."""
+GREY_MIN_PIXELS = 64
+"""At least this many candidates (small raws), when that many are usable."""
+GREY_SIGMA = 0.5
+"""Gaussian derivative scale of the log-contrast, thumbnail pixels (Yang et al.'s GPedge)."""
+GREY_WINDOW = 7
+"""Side of the box that averages the greyness index (Yang et al.)."""
+GREY_MIN_CONTRAST = 1e-3
+"""Log-contrast below this in any channel carries no information (flat): not a candidate."""
+GREY_DARK_FRACTION = 0.01
+"""Pixels darker than this fraction of the 99th percentile are noise: not candidates."""
+GREY_BANDWIDTH = 0.2
+"""Mean-shift bandwidth on the candidates' log chromaticities (0.2: about 20 % in a gain)."""
+GREY_SHIFT_STEPS = 30
+"""Most mean-shift steps (it converges in under 10 on the raws tried)."""
+
+
+def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
+                     share: float = GREY_SHARE) -> tuple[np.ndarray, str]:
+    """Pass-1 multipliers per CFA channel from the scene's grey pixels, reference channel = 1, and
+    the method's name.
+
+    1. Grey pixels, after K.-F. Yang, S.-B. Gao, Y.-J. Li, "Efficient illuminant estimation for
+       color constancy using grey pixels", CVPR 2015. On a raw thumbnail (one camera triplet per
+       CFA tile, clisp.white_balance2.raw_thumbnail) the illuminant-invariant measure of each
+       channel is the local contrast of its logarithm, |grad log I_c| (Gaussian derivative,
+       GREY_SIGMA): the edge between two grey surfaces changes every channel in the same
+       proportion under any illuminant, an edge involving a coloured surface changes them
+       unequally. The greyness index is the three contrasts' relative standard deviation,
+       averaged over GREY_WINDOW x GREY_WINDOW; the ``share`` greyest pixels (at least
+       GREY_MIN_PIXELS) among those with contrast in every channel, no clipped sample nearby and
+       above the dark end are the candidates.
+    2. Their dominant colour, after Y. Qian, K. Chen, J. Nikkanen, J.-K. Kamarainen, J. Matas,
+       "Revisiting gray pixel for statistical illumination estimation", VISAPP 2019: shading on
+       one coloured surface also changes the channels in proportion, so some candidates are not
+       grey; the true grey ones agree on one colour. A brightness-weighted mean shift on the
+       candidates' log chromaticities (log(c / reference), Gaussian kernel of GREY_BANDWIDTH,
+       from their median) finds that colour, and the candidates within GREY_BANDWIDTH of it,
+       summed, are the illuminant.
+
+    Unlike gray world this needs no assumption on the scene's average colour: a dominant coloured
+    surface (wood, foliage, sky) does not pull the estimate; edges of neutral objects (metal,
+    paper, greys, black frames against white) drive it. A scene without such pixels (a flat
+    field) falls back to gray world (:func:`gray_world_gains`), and says so in the name.
+    """
+    from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
+    from .white_balance2 import raw_thumbnail
+    thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
+    candidates = _grey_candidates(thumb, ok, share, ndimage)
+    if candidates is None:
+        return gray_world_gains(data, cfa, black_level, white_level), "gray world (no grey pixels found)"
+    ref = reference_channel(cfa)
+    illuminant = _dominant_colour(candidates, ref)
+    return illuminant[ref] / illuminant, "auto (grey pixels)"
+
+
+def _grey_candidates(thumb: np.ndarray, ok: np.ndarray, share: float, ndimage) -> np.ndarray | None:
+    """The greyest pixels of ``thumb`` (R x C x 3, camera units), shape (n, 3), or None when
+    fewer than GREY_MIN_PIXELS are usable (step 1 of :func:`grey_pixel_gains`)."""
+    logs = np.log(np.maximum(thumb, 1e-6))
+    contrast = np.stack([ndimage.gaussian_gradient_magnitude(logs[..., c], GREY_SIGMA, mode="nearest")
+                         for c in range(thumb.shape[-1])], axis=-1)
+    mean = contrast.mean(axis=-1)
+    index = np.sqrt(((contrast - mean[..., None]) ** 2).mean(axis=-1)) / np.maximum(mean, 1e-12)
+    if not ok.any():
+        return None
+    level = thumb.mean(axis=-1)
+    usable = (ndimage.binary_erosion(ok, iterations=2, border_value=1)
+              & (level > GREY_DARK_FRACTION * np.percentile(level[ok], 99))
+              & np.all(contrast > GREY_MIN_CONTRAST, axis=-1) & np.all(thumb > 0, axis=-1))
+    if usable.sum() < GREY_MIN_PIXELS:
+        return None
+    index = ndimage.uniform_filter(np.where(usable, index, 1.0), GREY_WINDOW, mode="nearest")
+    candidates = np.flatnonzero(usable)
+    n = min(candidates.size, max(GREY_MIN_PIXELS, int(share * usable.size)))
+    chosen = candidates[np.argpartition(index.ravel()[candidates], n - 1)[:n]]
+    return thumb.reshape(-1, thumb.shape[-1])[chosen]
+
+
+def _dominant_colour(pixels: np.ndarray, ref: int) -> np.ndarray:
+    """Sum of the ``pixels`` (n x 3) near the mode of their log chromaticity against channel
+    ``ref`` (step 2 of :func:`grey_pixel_gains`), shape (3,)."""
+    others = [c for c in range(pixels.shape[1]) if c != ref]
+    chroma = np.log(pixels[:, others] / pixels[:, [ref]])
+    weight = pixels.sum(axis=1)
+    mode = np.median(chroma, axis=0)
+    for _ in range(GREY_SHIFT_STEPS):
+        kernel = weight * np.exp(-0.5 * ((chroma - mode) ** 2).sum(axis=1) / GREY_BANDWIDTH ** 2)
+        new = (kernel[:, None] * chroma).sum(axis=0) / kernel.sum()
+        done = np.allclose(new, mode, rtol=0, atol=1e-6)
+        mode = new
+        if done:
+            break
+    near = ((chroma - mode) ** 2).sum(axis=1) <= GREY_BANDWIDTH ** 2
+    return pixels[near].sum(axis=0) if near.any() else pixels.sum(axis=0)
+
+
+# --------------------------------------------------------------------------------------------
+# The choice (``--wb``)
+# --------------------------------------------------------------------------------------------
+
+def with_white_balance(raw: RawImage, choice: str = "camera") -> RawImage:
+    """``raw`` with the pass-1 multipliers ``choice`` picks (module docstring), and
+    ``metadata['wb_source']`` saying which; ``raw`` itself for ``camera``. ClispError naming the
+    raw for a choice it cannot serve (no daylight multipliers, unusable multipliers)."""
+    if choice == "camera":
+        return raw
+    if choice == "auto":
+        gains, source = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level)
+    elif choice == "daylight":
+        gains, source = daylight_gains(raw), "daylight"
+    else:
+        gains, source = parse_multipliers(choice, raw.cfa, raw.source), "multipliers (--wb)"
+    return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source})
+
+
+def daylight_gains(raw: RawImage) -> np.ndarray:
+    """The raw's daylight pass-1 multipliers (reference channel = 1): a camera raw's
+    ``metadata['daylight_multipliers']`` (clisp.io.camera), a clisp simulation's own (D65)
+    multipliers; ClispError naming the raw when it has neither."""
+    md = raw.metadata or {}
+    if md.get("daylight_multipliers") is not None:
+        gains = np.asarray(md["daylight_multipliers"], dtype=np.float64).reshape(-1)
+    elif md.get("simulator"):
+        gains = np.asarray(raw.wb, dtype=np.float64)
+    else:
+        raise ClispError(f"{raw.source}: has no daylight white balance (try --wb auto or --wb camera)")
+    if gains.shape != (raw.cfa.n_channels,) or not np.all(np.isfinite(gains)) or np.any(gains <= 0):
+        raise ClispError(f"{raw.source}: its daylight white balance is unusable (try --wb auto)")
+    return gains / gains[reference_channel(raw.cfa)]
+
+
+def parse_multipliers(text: str, cfa: CFA, source: str = "") -> np.ndarray:
+    """``--wb`` multipliers 'a,b,c' in the CFA's channel order, scaled so the reference channel's
+    is 1, shape (n_channels,). ClispError naming ``source`` unless there is one positive finite
+    number per channel within 1e-4..1e4 of each other.
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> parse_multipliers("2,1,1.5", bayer_cfa()).tolist()
+    [2.0, 1.0, 1.5]
+    """
+    names = ",".join(cfa.channels)
+    try:
+        values = np.array([float(v) for v in text.split(",")], dtype=np.float64)
+    except ValueError:
+        values = np.array([])
+    if values.size != cfa.n_channels or not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise ClispError(f"{source}: --wb {text!r} is neither camera, auto, daylight nor {cfa.n_channels} "
+                         f"positive multipliers {names}")
+    gains = values / values[reference_channel(cfa)]
+    if np.any(gains > MAX_GAIN) or np.any(gains < 1.0 / MAX_GAIN):
+        raise ClispError(f"{source}: --wb {text!r}: multipliers must lie within a factor {MAX_GAIN:g} "
+                         f"of the {cfa.channels[reference_channel(cfa)]} one")
+    return gains

@@ -1,12 +1,15 @@
-"""Gray-world white balance on the raw mosaic (pass 1 fallback)."""
+"""White balance pass 1 on the raw mosaic: gray world, grey pixels (``--wb auto``), the choice."""
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from clisp.cfa import bayer_cfa, lms_cfa
 from clisp.errors import ClispError
-from clisp.white_balance import gray_world_gains
+from clisp.sim.simulate import simulate
+from clisp.white_balance import gray_world_gains, grey_pixel_gains, reference_channel, with_white_balance
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa("GRBG"), lms_cfa()], ids=lambda c: c.name)
@@ -24,3 +27,83 @@ def test_gray_world_recovers_channel_gains(cfa) -> None:
 def test_all_clipped_is_an_error() -> None:
     with pytest.raises(ClispError, match="clipped"):
         gray_world_gains(np.full((8, 8), 1023.0), bayer_cfa(), np.zeros(3), 1023)
+
+
+# --------------------------------------------------------------------------------------------
+# --wb: grey pixels (auto), daylight, multipliers
+# --------------------------------------------------------------------------------------------
+
+def _wood_and_steel(height: int = 192, width: int = 256) -> np.ndarray:
+    """A scene gray world gets wrong (linear sRGB, H x W x 3): a textured orange surface over
+    three quarters of the frame (grain: shading that changes all channels in proportion) and a
+    neutral object with edges (grey and white bars on black) on the rest."""
+    rng = np.random.default_rng(7)
+    y, x = np.mgrid[0:height, 0:width]
+    grain = 0.75 + 0.25 * np.sin(x / 5.0 + 2.0 * np.sin(y / 23.0)) + 0.03 * rng.standard_normal((height, width))
+    scene = grain[..., None] * np.array([0.45, 0.22, 0.08])
+    steel = x >= 3 * width // 4
+    bars = np.where((y // 12) % 2 == 0, 0.02, 0.2 + 0.6 * ((y // 24) % 3) / 2.0)
+    scene[steel] = bars[steel][:, None] * np.ones(3)
+    return scene
+
+
+def _angle(gains: np.ndarray, truth: np.ndarray) -> float:
+    """Angle in degrees between the illuminants (1 / gains) two sets of multipliers imply."""
+    a, b = 1.0 / np.asarray(gains), 1.0 / np.asarray(truth)
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
+
+
+@pytest.mark.parametrize("kind", ["bayer", "lms"])
+def test_grey_pixels_find_the_light_where_gray_world_does_not(kind) -> None:
+    """The simulated raw's multipliers are the known (D65) ones: grey pixels come within 2 degrees
+    of them on the wood-and-steel scene, gray world (pulled by the orange) is off by more than 5."""
+    raw = simulate(_wood_and_steel(), kind, gain=4, optics="none", seed=3).raw
+    gains, how = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level)
+    assert how == "auto (grey pixels)"
+    assert gains[reference_channel(raw.cfa)] == 1.0
+    assert _angle(gains, raw.wb) < 2.0
+    assert _angle(gray_world_gains(raw.data, raw.cfa, raw.black_level, raw.white_level), raw.wb) > 5.0
+
+
+def test_a_flat_field_falls_back_to_gray_world() -> None:
+    raw = simulate(np.full((64, 64, 3), 0.3), "bayer", gain=None, optics="none").raw
+    gains, how = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level)
+    assert how.startswith("gray world")
+    assert np.allclose(gains, gray_world_gains(raw.data, raw.cfa, raw.black_level, raw.white_level))
+
+
+def test_with_white_balance_choices() -> None:
+    raw = simulate(_wood_and_steel(64, 96), "bayer", gain=4, optics="none").raw
+    assert with_white_balance(raw, "camera") is raw
+    daylight = with_white_balance(raw, "daylight")                # a simulation: its own D65 multipliers
+    assert np.allclose(daylight.wb, raw.wb) and daylight.metadata["wb_source"] == "daylight"
+    chosen = with_white_balance(raw, "4,2,3")
+    assert np.allclose(chosen.wb, [2.0, 1.0, 1.5]) and chosen.metadata["wb_source"] == "multipliers (--wb)"
+    assert np.array_equal(chosen.data, raw.data) and raw.metadata.get("wb_source") is None   # raw untouched
+    auto = with_white_balance(raw, "auto")
+    assert auto.metadata["wb_source"] == "auto (grey pixels)" and not np.allclose(auto.wb, raw.wb, rtol=1e-6)
+    camera_like = replace(raw, metadata={"daylight_multipliers": [2.2, 1.0, 1.4]})
+    assert np.allclose(with_white_balance(camera_like, "daylight").wb, [2.2, 1.0, 1.4])
+    with pytest.raises(ClispError, match="has no daylight white balance"):
+        with_white_balance(replace(raw, metadata={}), "daylight")
+    for bad in ("2,1", "a,b,c", "2,0,1", "1e9,1,1", "nan,1,1", "autp"):
+        with pytest.raises(ClispError, match="--wb"):
+            with_white_balance(raw, bad)
+
+
+def test_wb_reaches_the_pipeline_and_the_output(tmp_path) -> None:
+    """--wb changes pass 1's gains (the output's colour) and the output's description says so."""
+    from clisp.cli import main
+    from clisp.io.imageio import read_image
+    from clisp.io.rawfile import write_raw
+    import OpenImageIO as oiio
+    raw = simulate(_wood_and_steel(64, 96), "bayer", gain=4, optics="none").raw
+    write_raw(tmp_path / "r.dng", raw)
+    outputs = {}
+    for wb in ("camera", "2,1,1"):
+        out = tmp_path / f"{wb}.tif"
+        assert main(["process", str(tmp_path / "r.dng"), "-o", str(out), "--wb", wb, "--preset", "fast"]) == 0
+        outputs[wb] = read_image(out)[0].reshape(-1, 3).mean(axis=0)
+        note = oiio.ImageInput.open(str(out)).spec().getattribute("ImageDescription") or ""
+        assert ("white balance multipliers (--wb)" in note) == (wb != "camera")
+    assert outputs["2,1,1"][0] > outputs["camera"][0] * 1.02        # R multiplier 2 against the camera's

@@ -26,7 +26,7 @@ from ..errors import ClispError, clip, library_output, one_line
 from .exif import ISO, read_exif
 from .rawimage import RawImage
 from ..engine.streaming import aligned_copy
-from ..white_balance import gray_world_gains
+from ..white_balance import grey_pixel_gains
 
 CFA_LETTERS = "RGB"
 """Our CFA channel order for Bayer raws."""
@@ -99,10 +99,10 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
     wb, wb_source = pick_wb(raw.camera_whitebalance, pattern, colours, cfa)
     if wb is None:
         try:
-            wb = gray_world_gains(data, cfa, black, float(raw.white_level))
+            wb, how = grey_pixel_gains(data, cfa, black, float(raw.white_level))
         except ClispError as exc:
             raise ClispError(f"cannot read raw file '{p}': no camera white balance, and {exc}") from exc
-        wb_source = "gray world (file has no camera WB)"
+        wb_source = f"{how}, file has no camera WB"
     matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
                                                np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
     if matrix_source.startswith("identity"):
@@ -110,6 +110,9 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
         if probed is not None:
             matrix, matrix_source = probed, "probed from LibRaw (not exposed by rawpy)"
     metadata = _camera_metadata(raw, p, wb_source, matrix_source)
+    daylight = _wb_candidate(raw.daylight_whitebalance, pattern, colours, cfa)
+    if daylight is not None:
+        metadata["daylight_multipliers"] = [float(v) for v in daylight]
     linear_max = _linear_max(raw, pattern, colours, cfa)
     if linear_max is not None:
         metadata["linear_max"] = linear_max
@@ -180,8 +183,9 @@ def pick_wb(camera: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> tuple[n
     (None, reason) when the file has none usable.
 
     A candidate is rejected when any value for a colour index used by the pattern is <= 0 or not
-    finite (the Canon D30 CRW reports R = -1); the caller then estimates gray-world gains, as
-    LibRaw does (its "auto WB" fallback), rather than guess daylight for an unknown scene.
+    finite (the Canon D30 CRW reports R = -1); the caller then estimates the white balance from
+    the scene's grey pixels (clisp.white_balance.grey_pixel_gains, ``--wb auto``), as LibRaw
+    falls back to its auto WB, rather than guess daylight for an unknown scene.
     LibRaw stores 0 for the second green when it equals the first, so index 3 falls back to index 1.
     """
     wb = _wb_candidate(camera, pattern, colours, cfa)
