@@ -128,13 +128,18 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_exposure_options(p: argparse.ArgumentParser) -> None:
-    """--exposure and --auto-exposure (process and batch alike)."""
+    """--exposure, --auto-exposure and --wb (process and batch alike)."""
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help="exposure in EV on linear sRGB, after the colour conversion (default 0: colorimetric, "
                         "1.0 = the raw's white); recorded in the output's description")
     p.add_argument("--auto-exposure", action="store_true",
                    help="brighten as LibRaw's auto-bright does: the level the brightest 1%% of the pixels "
                         "exceed in the brightest channel goes to white (never darker); adds to --exposure")
+    p.add_argument("--wb", default="camera", metavar="{camera,auto,daylight,R,G,B}",
+                   help="white balance (pass 1, on the raw): camera = as shot (default; a raw without it gets "
+                        "auto), auto = the scene's grey pixels, daylight = the camera's daylight multipliers "
+                        "(rawpy's default), or multipliers in the CFA's channel order, e.g. 2.1,1,1.6; recorded "
+                        "in the output's description when not camera")
 
 
 def _add_batch(sub: argparse._SubParsersAction) -> None:
@@ -354,7 +359,7 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
-                                          auto_exposure=args.auto_exposure,
+                                          auto_exposure=args.auto_exposure, wb=args.wb,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
@@ -407,7 +412,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
                              compression=args.compression, mem=args.mem, skip=not args.no_skip,
-                             exposure=args.exposure, auto_exposure=args.auto_exposure)
+                             exposure=args.exposure, auto_exposure=args.auto_exposure, wb=args.wb)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:

@@ -36,6 +36,7 @@ from .modules.demosaic_malvar.stage import DemosaicMalvar
 from .modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from .modules.raw_scale.stage import normalize, white_balance1
 from .noise_estimate import NoiseEstimateError, raw_noise
+from .white_balance import with_white_balance
 from .white_balance2 import estimate_wb2
 
 DEMOSAICS: dict[str, type[Stage]] = {
@@ -98,7 +99,8 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | None = None,
-                   highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False) -> Pipeline:
+                   highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
+                   wb: str = "camera") -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -118,13 +120,15 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     +-EXPOSURE_LIMIT; 0: colorimetric, 1.0 = the raw's white), with white balance pass 2's gains, so
     highlight reconstruction and the denoiser's noise model see the raw as it is.
     ``auto_exposure``: add LibRaw's auto-bright exposure, estimated from the raw (clisp.exposure).
-    The pipeline's ``exposure_ev`` says what was applied.
+    The pipeline's ``exposure_ev`` says what was applied. ``wb``: white balance pass 1, 'camera'
+    (as shot), 'auto' (grey pixels), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
     if not -EXPOSURE_LIMIT <= exposure <= EXPOSURE_LIMIT:          # also NaN
         raise ClispError(f"--exposure {exposure:g}: EV must be within -{EXPOSURE_LIMIT:g}..+{EXPOSURE_LIMIT:g}")
     check_raw(raw)
+    raw = with_white_balance(raw, wb)
     cfa = raw.cfa
     options = resolve_options(preset, demosaic, cfa.kind)
     demosaic_stage = make_demosaic(options["demosaic"], raw)
@@ -153,7 +157,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         stages.append(WhiteBalance2(output_gains))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
-    pipeline = Pipeline(cfa, stages, exposure_ev=exposure)
+    pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")))
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper          # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
@@ -329,10 +333,14 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     attributes = output_attributes(raw)
     kind = output_kind(path)
     pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
-    if options.get("exposure") or options.get("auto_exposure"):          # what was applied, in the file
+    notes = []                                                           # what was applied, in the file
+    if options.get("wb", "camera") != "camera":
+        notes.append(f"white balance {pipeline.wb_source} (clisp)")
+    if options.get("exposure") or options.get("auto_exposure"):
         how = ", auto" if options.get("auto_exposure") else ""
-        note = f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})"
-        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), note]))
+        notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
+    if notes:
+        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
     if explain is not None:                       # the caller reads the plan after the run
         explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)

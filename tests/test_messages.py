@@ -6,6 +6,8 @@ The catalogue and MESSAGES must list the same ids: test_catalogue_lists_every_me
 """
 from __future__ import annotations
 
+import dataclasses
+
 import errno
 import re
 import signal
@@ -68,6 +70,8 @@ def files(tmp_path_factory) -> dict[str, Path]:
     tiny.data = tiny.data[:1, :1].copy()
     f["tiny.dng"] = d / "tiny.dng"
     write_raw(f["tiny.dng"], tiny)
+    f["nodaylight.dng"] = d / "nodaylight.dng"     # one of our raws that is no simulation: no known light
+    write_raw(f["nodaylight.dng"], dataclasses.replace(raw, metadata={}))
     import OpenImageIO as oiio
     buf = oiio.ImageBuf(oiio.ImageSpec(4, 4, 3, "float"))
     oiio.ImageBufAlgo.fill(buf, (float("nan"), 0.0, 0.0))
@@ -145,6 +149,10 @@ MESSAGES = {
                          r".*float\.dng: demosaic 'ari' works on bayer CFAs, not lms"),
     "exposure-range": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--exposure", "12"],
                        r".*good\.dng: --exposure 12: EV must be within -10\.\.\+10"),
+    "wb-multipliers": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--wb", "2,1"],
+                       r".*good\.dng: --wb '2,1' is neither camera, auto, daylight nor 3 positive multipliers R,G,B"),
+    "no-daylight-wb": (lambda f, t: ["process", f["nodaylight.dng"], "-o", t / "o.exr", "--wb", "daylight"],
+                       r".*nodaylight\.dng: has no daylight white balance \(try --wb auto or --wb camera\)"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
                        r"--tile 4: tiles must be at least 16 pixels"),
     "mem-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--mem", "1M"],

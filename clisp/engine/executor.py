@@ -76,6 +76,8 @@ class Pipeline:
     """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
     exposure_ev: float = 0.0
     """The exposure (EV) build_pipeline applied, manual and automatic together."""
+    wb_source: str = "camera"
+    """Where white balance pass 1's multipliers came from (``--wb``; clisp.white_balance)."""
 
     @property
     def halo(self) -> int:
