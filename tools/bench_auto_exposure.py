@@ -2,9 +2,11 @@
 
     python tools/bench_auto_exposure.py [--data DIR] [--preset quality]
 
-For every camera raw in ``--data``/raw: rawpy's default ``postprocess()`` (camera white balance,
-LibRaw's auto-bright, BT.709 gamma 2.222/4.5, 8 bits), clisp's default (colorimetric) and clisp
-with ``--auto-exposure``, both to 16-bit TIFF from the command line. Each output is decoded with its
+For every camera raw in ``--data``/raw: rawpy's default ``postprocess()`` (the camera's daylight
+multipliers, not its as-shot white balance: rawpy's ``use_camera_wb`` is False by default;
+LibRaw's auto-bright, BT.709 gamma 2.222/4.5, 8 bits), clisp's default (colorimetric), clisp with
+``--auto-exposure``, and with ``--auto-exposure --wb daylight`` (rawpy's white balance), all to
+16-bit TIFF from the command line. Each output is decoded with its
 own curve to linear, and the mean luminance (Rec. 709 weights) compared: EV = log2(clisp / rawpy).
 Printed: one row per raw, the EV clisp applied (from the output's description), and the EV
 LibRaw's auto-bright applies to its own image (the same rule on LibRaw's colours: where the two EVs
@@ -74,9 +76,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"no camera raws in {args.data / 'raw'}")
     print(f"CPU: {toolkit.cpu_model()}; preset {args.preset or 'default'}")
     print("| raw | rawpy default Y | clisp default (EV vs rawpy) | clisp --auto-exposure (EV vs rawpy) | "
-          "applied | LibRaw's auto-bright on its own image |")
-    print("|---|---:|---:|---:|---|---:|")
-    worst = 0.0
+          "applied | --auto-exposure --wb daylight (EV vs rawpy) | applied | LibRaw's auto-bright on its own image |")
+    print("|---|---:|---:|---:|---|---:|---|---:|")
+    worst = worst_day = 0.0
     with tempfile.TemporaryDirectory(prefix="clisp-ae-") as tmp:
         for path in raws:
             ref = mean_luminance(rawpy_default(path))
@@ -84,10 +86,13 @@ def main(argv: list[str] | None = None) -> int:
             auto, note = clisp_tif(path, Path(tmp) / "auto.tif", args.preset, "--auto-exposure")
             ev_plain = math.log2(mean_luminance(plain) / ref)
             ev_auto = math.log2(mean_luminance(auto) / ref)
+            day, day_note = clisp_tif(path, Path(tmp) / "day.tif", args.preset, "--auto-exposure", "--wb", "daylight")
+            ev_day = math.log2(mean_luminance(day) / ref)
             worst = max(worst, abs(ev_auto))
-            print(f"| {path.name} | {ref:.3f} | {ev_plain:+.2f} | {ev_auto:+.2f} | {note} | "
-                  f"{libraw_auto_bright_ev(path):+.2f} EV |", flush=True)
-    print(f"largest |EV| with --auto-exposure: {worst:.2f}")
+            worst_day = max(worst_day, abs(ev_day))
+            print(f"| {path.name} | {ref:.3f} | {ev_plain:+.2f} | {ev_auto:+.2f} | {note} | {ev_day:+.2f} | "
+                  f"{day_note} | {libraw_auto_bright_ev(path):+.2f} EV |", flush=True)
+    print(f"largest |EV| with --auto-exposure: {worst:.2f}; with --auto-exposure --wb daylight: {worst_day:.2f}")
     return 0
 
 
