@@ -14,6 +14,8 @@ the pattern's RMS (AMPLITUDE / sqrt 2), in dB, over the output less a border of 
 
 * **alias** q >= STOP (1.25): beyond any filter's transition band, where an ideal output is flat;
   what is left there is aliasing (the pattern folded back below Nyquist) and leakage;
+* **alias, input < 0.7 Nyq**: the same, less the corners, where the pattern is past INPUT_HIGH (0.7)
+  of the input's own Nyquist (end to end, a Bayer demosaic's false colour is there, before any resize);
 * **transition** 1 <= q < STOP: just past Nyquist, where a realisable filter still passes part of it;
 * **passband** q < PASS (0.8), and q < 0.5: detail the output can hold; the error is blur (and ringing).
 
@@ -55,6 +57,9 @@ ALIAS_TARGET_DB = -30.0
 """Largest alias residual (dB relative to the pattern) the tool reports as met."""
 BORDER = 3
 """Output pixels left out at each edge (the Lanczos-3 kernel's reach, in output pixels)."""
+INPUT_HIGH = 0.7
+"""Column 'alias, input < 0.7 Nyq': the alias band without the corners, where the pattern is within
+30 % of the input's Nyquist (a Bayer demosaic's false colour lives there, before any resize)."""
 
 
 def zone_plate(height: int, width: int, mean: float = MEAN, amplitude: float = AMPLITUDE) -> np.ndarray:
@@ -69,11 +74,13 @@ def _chirp(height: int, width: int) -> float:
     return np.pi / (2.0 * np.hypot(height / 2.0, width / 2.0))
 
 
-def output_grid(in_hw: tuple[int, int], out_hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ideal output, band q, inner mask) on the output grid, out_h x out_w each (see the module
-    docstring): the pattern at the output pixels' centres where its local frequency lies inside the
-    output's Nyquist square, the mean elsewhere; q = the local frequency in units of that Nyquist;
-    the mask leaves BORDER pixels out at each edge."""
+def output_grid(in_hw: tuple[int, int],
+                out_hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(ideal output, band q, inner mask, input band) on the output grid, out_h x out_w each (see
+    the module docstring): the pattern at the output pixels' centres where its local frequency lies
+    inside the output's Nyquist square, the mean elsewhere; q = the local frequency in units of
+    that Nyquist; the mask leaves BORDER pixels out at each edge; the input band = the local
+    frequency in units of the input's Nyquist, max(|fx|, |fy|) / 0.5."""
     (h, w), (oh, ow) = in_hw, out_hw
     y = (np.arange(oh, dtype=np.float64)[:, None] + 0.5) * h / oh - h / 2.0
     x = (np.arange(ow, dtype=np.float64)[None, :] + 0.5) * w / ow - w / 2.0
@@ -83,16 +90,18 @@ def output_grid(in_hw: tuple[int, int], out_hw: tuple[int, int]) -> tuple[np.nda
     ideal = np.where(q < 1.0, MEAN + AMPLITUDE * np.cos(k * (x * x + y * y)), MEAN)
     inner = np.zeros((oh, ow), dtype=bool)
     inner[BORDER:oh - BORDER, BORDER:ow - BORDER] = True
-    return ideal, q, inner
+    return ideal, q, inner, np.maximum(fx, fy) / 0.5
 
 
 def figures(out: np.ndarray, in_hw: tuple[int, int]) -> dict[str, float]:
-    """{'alias', 'transition', 'passband', 'low' (q < 0.5)}: RMS(out - ideal) in each band, dB relative to the
-    pattern's RMS; ``out`` an out_h x out_w linear image of the zone plate."""
-    ideal, q, inner = output_grid(in_hw, out.shape[:2])
+    """{'alias', 'alias_mid' (alias where the input's own frequency is below INPUT_HIGH of its
+    Nyquist), 'transition', 'passband', 'low' (q < 0.5)}: RMS(out - ideal) in each band, dB
+    relative to the pattern's RMS; ``out`` an out_h x out_w linear image of the zone plate."""
+    ideal, q, inner, input_band = output_grid(in_hw, out.shape[:2])
     error = out.astype(np.float64) - ideal
     pattern = AMPLITUDE ** 2 / 2.0
-    bands = {"alias": q >= STOP, "transition": (q >= 1.0) & (q < STOP), "passband": q < PASS, "low": q < 0.5}
+    bands = {"alias": q >= STOP, "alias_mid": (q >= STOP) & (input_band < INPUT_HIGH),
+             "transition": (q >= 1.0) & (q < STOP), "passband": q < PASS, "low": q < 0.5}
     with np.errstate(divide="ignore"):                  # -inf dB: exact (nearest at a whole-number scale)
         return {name: float(10 * np.log10(np.mean(error[mask & inner] ** 2) / pattern))
                 for name, mask in bands.items()}
@@ -201,7 +210,7 @@ def corner_figure(outputs: dict, in_hw: tuple[int, int], path: Path, crop: int =
     from PIL import Image
     from clisp.sim.colorimetry import srgb_encode
     shape = next(iter(outputs.values())).shape
-    ideal, q, _ = output_grid(in_hw, shape)
+    ideal, q, _, _ = output_grid(in_hw, shape)
     middle = shape[0] // 2
     edge = int(np.argmax(q[middle] < 1.0))                   # first column inside Nyquist on the centre line
     y0, x0 = max(0, middle - crop // 2), max(0, edge - crop // 2)
@@ -218,11 +227,11 @@ def corner_figure(outputs: dict, in_hw: tuple[int, int], path: Path, crop: int =
 
 
 def table(rows: list[tuple[str, dict[str, float], float]]) -> list[str]:
-    lines = ["| resampler | alias (q >= 1.25) | transition (1 <= q < 1.25) | passband (q < 0.8) | q < 0.5 | seconds |",
-             "|---|---:|---:|---:|---:|---:|"]
+    lines = ["| resampler | alias (q >= 1.25) | alias, input < 0.7 Nyq | transition (1 <= q < 1.25) | "
+             "passband (q < 0.8) | q < 0.5 | seconds |", "|---|---:|---:|---:|---:|---:|---:|"]
     for name, f, seconds in rows:
         secs = "" if seconds != seconds else f"{seconds:.2f}"
-        cells = " | ".join(f"{f[band]:.1f} dB" for band in ("alias", "transition", "passband", "low"))
+        cells = " | ".join(f"{f[band]:.1f} dB" for band in ("alias", "alias_mid", "transition", "passband", "low"))
         lines.append(f"| {name} | {cells} | {secs} |")
     return lines
 
