@@ -71,6 +71,15 @@ def test_band_splits_are_bit_identical(image: np.ndarray) -> None:
         assert np.array_equal(resize_image(pixels, 97, 42, band=band), whole), band
 
 
+def test_uploaded_rows_as_on_a_discrete_gpu(image: np.ndarray, rt, monkeypatch) -> None:
+    """A device that does not share host memory gets each band uploaded (PoCL reads it in place):
+    the same pixels."""
+    pixels = np.tile(image, (6, 2, 1))[:301, :130].astype(np.float32)
+    in_place = resize_image(pixels, 97, 42, band=64)
+    monkeypatch.setattr(rt, "host_unified", False)
+    assert np.array_equal(resize_image(pixels, 97, 42, band=64), in_place)
+
+
 def test_sizes_never_enlarge_and_refusals() -> None:
     assert resized_size(4000, 6000, 2048) == (1365, 2048)
     assert resized_size(6000, 4000, 2048) == (2048, 1365)
