@@ -57,7 +57,8 @@ class BatchSettings:
 
     ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif', 'png' or 'jpg';
     ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``:
-    as ``process --exposure``, ``--auto-exposure``; ``wb``: as ``process --wb``; ``skip``: as ``process``
+    as ``process --exposure``, ``--auto-exposure``; ``wb``: as ``process --wb``; ``resize``: the long
+    edge, as ``process --resize`` (None: the raw's size); ``skip``: as ``process``
     (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
@@ -71,10 +72,12 @@ class BatchSettings:
     exposure: float = 0.0
     auto_exposure: bool = False
     wb: str = "camera"
+    resize: int | None = None
 
     def identity(self) -> dict[str, Any]:
         """The hashed part: the resolved preset, the options that change an output, clisp's version
-        (the exposure and white balance only when set, so that the batches run before it existed stay done)."""
+        (the exposure, white balance and resize only when set, so that the batches run before they
+        existed stay done)."""
         identity = {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
                     "format": self.format, "compression": self.compression, "skip": self.skip}
         if self.exposure:
@@ -83,6 +86,8 @@ class BatchSettings:
             identity["auto_exposure"] = True
         if self.wb != "camera":
             identity["wb"] = self.wb
+        if self.resize:
+            identity["resize"] = self.resize
         return identity
 
     def digest(self) -> str:
@@ -171,7 +176,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
                                           compression=settings.compression, preset=settings.preset,
                                           demosaic=settings.demosaic, skip=True if settings.skip else None,
                                           exposure=settings.exposure, auto_exposure=settings.auto_exposure,
-                                          wb=settings.wb)
+                                          wb=settings.wb, resize=settings.resize)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))

@@ -28,8 +28,9 @@ from .engine.runtime import get_runtime, list_devices, save_built_programs
 from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
+from .modules.resize.stage import check_long_edge, resize_note
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS, denoise_params,
-                       process_file, resolve_options)
+                       output_size, process_file, resolve_options)
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
@@ -86,6 +87,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                         "jpg (8-bit sRGB)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     _add_exposure_options(p)
+    _add_resize_option(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
@@ -127,6 +129,15 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_process)
 
 
+def _add_resize_option(p: argparse.ArgumentParser) -> None:
+    """--resize (process and batch alike); a string, checked by clisp.modules.resize.stage.check_long_edge
+    so that a bad value gets the one-line refusal (argparse's own error is a usage block)."""
+    p.add_argument("--resize", default=None, metavar="N",
+                   help="long edge of the output in pixels (at least 16), the short edge in proportion: a "
+                        "Lanczos-3 low-pass in linear light, on the device, after the crop and the camera's "
+                        "orientation; never enlarges")
+
+
 def _add_exposure_options(p: argparse.ArgumentParser) -> None:
     """--exposure, --auto-exposure and --wb (process and batch alike)."""
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
@@ -153,6 +164,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if missing)")
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     _add_exposure_options(p)
+    _add_resize_option(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--format", choices=FORMATS, default="exr",
                    help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
@@ -316,6 +328,8 @@ def cmd_process(args: argparse.Namespace) -> int:
         check_compression(f"x.{args.format or 'exr'}" if many else args.output, args.compression)
     if args.tile is not None and args.tile < 16:
         raise ClispError(f"--tile {args.tile}: tiles must be at least 16 pixels")
+    if args.resize is not None:
+        args.resize = check_long_edge(args.resize)
     if many:
         return _process_many(args)
     try:
@@ -359,10 +373,11 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           progress=True, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
-                                          auto_exposure=args.auto_exposure, wb=args.wb,
+                                          auto_exposure=args.auto_exposure, wb=args.wb, resize=args.resize,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
-    print(f"{output}: {width}x{height} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
+    size = resize_note(output_size(raw, not args.no_crop), (height, width), args.resize)
+    print(f"{output}: {width}x{height}{size} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
           f"of {tw}x{th})", flush=True)
     if args.explain:
@@ -410,9 +425,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
         raise ClispError(f"--workers {args.workers}: at least 1")
     if args.workers is not None and args.scheduler:
         raise ClispError("--workers sizes a local cluster; an existing cluster (--scheduler) has its own workers")
+    resize = check_long_edge(args.resize) if args.resize is not None else None
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
                              compression=args.compression, mem=args.mem, skip=not args.no_skip,
-                             exposure=args.exposure, auto_exposure=args.auto_exposure, wb=args.wb)
+                             exposure=args.exposure, auto_exposure=args.auto_exposure, wb=args.wb,
+                             resize=resize)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:

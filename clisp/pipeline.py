@@ -35,6 +35,8 @@ from .modules.demosaic_lms_guided.stage import DemosaicLMSGuided
 from .modules.demosaic_malvar.stage import DemosaicMalvar
 from .modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from .modules.raw_scale.stage import normalize, white_balance1
+from .modules.resize.stage import (ResizeSink, StreamingResize, check_long_edge, resize_image, resize_reference,
+                                   resized_size)
 from .noise_estimate import NoiseEstimateError, raw_noise
 from .white_balance import with_white_balance
 from .white_balance2 import estimate_wb2
@@ -277,6 +279,14 @@ def cropped_writes(write: Callable[[int, np.ndarray], None],
     return write_cropped
 
 
+def output_size(raw: RawImage, crop: bool = True) -> tuple[int, int]:
+    """(height, width) of the image :func:`process_file` makes of ``raw`` before any resize: the
+    crop the raw declares (:func:`crop_of`; with ``crop`` False the whole mosaic), turned upright."""
+    region = crop_of(raw) if crop else None
+    height, width = raw.shape if region is None else region[2:]
+    return (width, height) if int(raw.metadata.get("flip", 0) or 0) in (5, 6) else (height, width)
+
+
 def _crop_image(image: np.ndarray, crop: tuple[int, int, int, int] | None) -> np.ndarray:
     if crop is None:
         return image
@@ -310,7 +320,8 @@ def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = 
 
 def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budget: int = DEFAULT_BUDGET,
                  backend: str = "opencl", progress: bool = False, compression: str | None = None,
-                 explain: dict | None = None, crop: bool = True, **options: Any) -> tuple[tuple[int, int], RunStats]:
+                 explain: dict | None = None, crop: bool = True, resize: int | None = None,
+                 **options: Any) -> tuple[tuple[int, int], RunStats]:
     """Process ``raw`` into the image file ``path`` (EXR linear, TIFF/PNG sRGB-encoded), streaming.
 
     Tile windows are read as needed (from disk for ``read_raw(path, lazy=True)``) and results
@@ -323,8 +334,10 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     (the output kind follows the extension). ``explain``: a dict that receives the pipeline
     (key 'pipeline'), whose skipper and skip_plan describe the run. ``crop``: write only the crop
     the raw declares (:func:`crop_of`; the whole mosaic is processed, see :func:`cropped_writes`);
-    False writes the whole mosaic. The output carries the raw's metadata
-    (clisp.io.exif.output_attributes). Atomic: on failure no file.
+    False writes the whole mosaic. ``resize``: the output's long edge in pixels (``--resize``;
+    never enlarged, see clisp.modules.resize): the pipeline ends in linear light and the resizer
+    low-passes and samples the rows on the device, then applies the output's tone curve. The
+    output carries the raw's metadata (clisp.io.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
     from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image   # deferred: 2 ms of start-up
@@ -332,43 +345,75 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     region = crop_of(raw) if crop else None
     attributes = output_attributes(raw)
     kind = output_kind(path)
-    pipeline = build_pipeline(raw, output="srgb16" if kind == "srgb" else kind, **options)
+    encoding = "srgb16" if kind == "srgb" else kind
+    upright = output_size(raw, crop)
+    target = upright if resize is None else resized_size(*upright, check_long_edge(resize))
+    resized = target != upright
+    pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
     notes = []                                                           # what was applied, in the file
     if options.get("wb", "camera") != "camera":
         notes.append(f"white balance {pipeline.wb_source} (clisp)")
     if options.get("exposure") or options.get("auto_exposure"):
         how = ", auto" if options.get("auto_exposure") else ""
         notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
+    if resized:                                   # the size it had, in the file (no EXIF size is written)
+        notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
+                     f"(clisp, Lanczos-3 in linear light)")
     if notes:
         attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
     if explain is not None:                       # the caller reads the plan after the run
         explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)
-    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=bool(flip))
-    if flip:                    # rotated output rows are input columns: orient the whole result
+    in_memory = bool(flip) or (resized and backend != "opencl")
+    resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
+        if resized and not in_memory else None
+    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
+                               extra=2 * resizer.window_bytes if resizer else 0)
+    if in_memory:               # rotated output rows are input columns: orient the whole result
         image = np.empty(raw.shape + (pipeline.out_channels,), dtype=pipeline.out_dtype)
         with closing(window_source(raw.data)) as source:
             pipeline.stream(source, ArraySink(image), plan, backend)
         oriented = orient(_crop_image(image, region), flip)
-        write_image(path, oriented, compression=compression, attributes=attributes)
-        return oriented.shape[:2], pipeline.stats
+        if resized:
+            _write_resized(path, oriented, target, encoding, backend, compression, attributes)
+        else:
+            write_image(path, oriented, compression=compression, attributes=attributes)
+        return target, pipeline.stats
     (height, width), channels = raw.shape, pipeline.out_channels
-    out_h, out_w = (height, width) if region is None else region[2:]
+    out_h, out_w = target
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, \
+    with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
             ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
-            BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
-                     plan, width, channels, pipeline.out_dtype) as sink, bar as update:
+            (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
+             BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
+                      plan, width, channels, pipeline.out_dtype)) as sink, bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
     return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 
+def _write_resized(path: str | Path, image: np.ndarray, target: tuple[int, int], encoding: str, backend: str,
+                   compression: str, attributes: dict) -> None:
+    """Write the linear H x W x 3 ``image`` resized to ``target`` (height, width) in ``encoding``
+    ('linear', 'srgb16'): on the device, band by band into the file; the NumPy reference (and
+    ToneCurve's) for ``backend`` 'reference'."""
+    from .io.imageio import ImageWriter, write_image   # deferred, as in process_file
+    if backend != "opencl":
+        pixels = resize_reference(image, *target)
+        if encoding != "linear":
+            pixels = ToneCurve(quantize=encoding == "srgb16").reference(pixels, (0, 0))
+        write_image(path, pixels, compression=compression, attributes=attributes)
+        return
+    with ImageWriter(path, target[1], target[0], 3, compression, attributes) as writer:
+        resize_image(image, *target, output=encoding, write=writer.write_rows)
+
+
 def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, tile: int | None, budget: int,
-                        backend: str, in_memory: bool) -> TilePlan:
+                        backend: str, in_memory: bool, extra: int = 0) -> TilePlan:
     """The plan of :func:`process_file` for a whole-process ``budget`` (see clisp.engine.memory): the
     tiles get what the process does not already hold. ``in_memory``: the whole output is held
-    (oriented raws) and counts too. ClispError naming the minimum when nothing fits."""
+    (oriented raws) and counts too; ``extra``: bytes held besides (the resizer's device window).
+    ClispError naming the minimum when nothing fits."""
     from .engine.memory import RSS_MARGIN, format_bytes, resident_bytes   # deferred: 0.6 ms (with resource)
     shape, dtype = raw.shape, raw.data.dtype
     if backend != "opencl":
@@ -376,7 +421,7 @@ def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, til
     limits = device_limits(backend)
     cost = pipeline.tile_cost(dtype, shape[1], limits, sink_bands=not in_memory)
     smallest = cost(min(shape[0], MIN_TILE), min(shape[1], MIN_TILE))   # also builds the programs
-    held = resident_bytes() + RSS_MARGIN
+    held = resident_bytes() + RSS_MARGIN + extra
     if in_memory:
         held += shape[0] * shape[1] * pipeline.out_channels * pipeline.out_dtype.itemsize
     if budget - held < smallest:

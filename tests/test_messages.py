@@ -155,6 +155,8 @@ MESSAGES = {
                        r".*nodaylight\.dng: has no daylight white balance \(try --wb auto or --wb camera\)"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
                        r"--tile 4: tiles must be at least 16 pixels"),
+    "resize-size": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--resize", "8"],
+                    r"--resize 8: the long edge must be a whole number of pixels, at least 16"),
     "mem-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--mem", "1M"],
                       r".*o\.exr: --mem 1M is below the minimum of \d+M for this 48x32 raw .*"),
     "scene-unreadable": (lambda f, t: ["simulate", f["scene_bad.png"], "-o", t / "r.dng"],
