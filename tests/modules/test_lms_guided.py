@@ -106,6 +106,29 @@ def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
     assert not np.allclose(plain.reference(x.astype(np.float64), ORIGINS[1]), ref)
 
 
+@pytest.mark.parametrize("noisy", [False, True])
+def test_one_pass_matches_reference(rt, noisy):
+    """passes=1 (the high-noise choice, clisp.stage_choice): kernel against reference, a halo 16 px
+    smaller, and an output that differs from the two-pass one (pass 2 is really left out)."""
+    cfa = lms_cfa()
+    noise, neutral = (NOISE, NEUTRAL) if noisy else (None, (1.0, 1.0, 1.0))
+    stage = DemosaicLMSGuided(cfa, LMSGuidedParams(passes=1), noise=noise, neutral=neutral)
+    two = DemosaicLMSGuided(cfa, noise=noise, neutral=neutral)
+    assert stage.halo == two.halo - 16
+    x = mosaic(cfa, 8.0 if noisy else None)
+    src = rt.upload(x)
+    for origin in ORIGINS[:2]:
+        ref = stage.reference(x.astype(np.float64), origin)
+        out = stage.enqueue(rt, src, origin)
+        assert_close(download(rt, out), ref, f"one pass origin {origin} noisy {noisy}")
+        rt.release(out)
+        k = two.halo - stage.halo
+        assert not np.allclose(ref[k:-k, k:-k], two.reference(x.astype(np.float64), origin), atol=1e-4)
+    rt.release(src)
+    with pytest.raises(ClispError, match="passes"):
+        LMSGuidedParams(passes=3)
+
+
 def test_chroma_guide_fades_with_the_noise():
     """lambda in full at low noise, 0 at high noise (its PSNR cost there), linear in between."""
     from clisp.sim.noise import ChannelNoise
