@@ -38,6 +38,7 @@ from .modules.raw_scale.stage import normalize, white_balance1
 from .modules.resize.stage import (ResizeSink, StreamingResize, check_long_edge, resize_image, resize_reference,
                                    resized_size)
 from .noise_estimate import NoiseEstimateError, raw_noise
+from .stage_choice import alternative_for, choose_demosaic
 from .white_balance import with_white_balance
 from .white_balance2 import estimate_wb2
 
@@ -98,7 +99,7 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
     return DEMOSAICS[name].for_raw(raw)
 
 
-def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | None = None,
+def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Stage | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
@@ -107,14 +108,18 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     WB pass 2, tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
-    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``denoise``: None =
+    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``demosaic``: a name
+    (DEMOSAICS; None = the preset's) or a configured demosaic stage, used as given. ``denoise``: None =
     the preset's depth, False = off, True = on (the preset's depth, at least 1 level), or explicit
     ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
     raw. ``wb2``: white balance pass 2 from
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
     ``skip``: None = every stage on every tile, no scene analysis; True = analyse the raw and let
     each tile skip what it does not need (clisp.skip; the run's plan is ``Pipeline.skip_plan``);
-    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``). A
+    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``). With
+    True the demosaic is also chosen for the raw's noise (clisp.stage_choice: the cheapest whose
+    expected error there is within the budget of the preset's; ``Pipeline.stage_choice`` says
+    which and why). A
     pipeline without a chroma denoiser (preset fast) has nothing to skip: no analysis (it would
     cost 10-30 ms/MP for nothing). ``highlights``: 'clip', 'reconstruct' or 'off'
     (clisp.modules.highlights.stage), None = the preset's; the stage is left out of raws without clipped
@@ -132,17 +137,23 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
     check_raw(raw)
     raw = with_white_balance(raw, wb)
     cfa = raw.cfa
-    options = resolve_options(preset, demosaic, cfa.kind)
-    demosaic_stage = make_demosaic(options["demosaic"], raw)
+    given = demosaic if isinstance(demosaic, Stage) else None
+    options = resolve_options(preset, None if given else demosaic, cfa.kind)
+    demosaic_stage = given or make_demosaic(options["demosaic"], raw)
     params = denoise_params(denoise, options["denoise_levels"])
     colour: Stage = ColourMatrix(raw.colour_matrix)
-    if params is not None:
+    adapt = bool(skip) and given is None and alternative_for(demosaic_stage) is not None
+    noise = None
+    if params is not None or adapt:
         try:
             noise = raw_noise(raw)
         except NoiseEstimateError:
             noise = None        # a raw too small to estimate its noise is processed without chroma denoise
-        if noise is not None:
-            colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
+    choice = None
+    if adapt and noise is not None:                         # the cheapest demosaic its noise allows
+        demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
+    if params is not None and noise is not None:
+        colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
                            white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
@@ -159,7 +170,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Non
         stages.append(WhiteBalance2(output_gains))
     if output in ("srgb", "srgb16"):
         stages.append(ToneCurve(quantize=output == "srgb16"))
-    pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")))
+    pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
+                        stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper          # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))

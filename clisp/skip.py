@@ -323,6 +323,9 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     if skipper is None:
         return "explain: no scene analysis (nothing to skip: this pipeline has no chroma denoiser)"
     lines.append(skipper.analysis.summary())
+    choice = getattr(pipeline, "stage_choice", None)
+    if choice is not None:
+        lines.append(choice.explain())
     lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
     lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP (analysis "
                  f"{skipper.analysis.seconds:.3f} s before it)")

@@ -4,6 +4,7 @@
                                    [--sky 2048x1536] [--tile N] [--repeat 2] [--data DIR]
     python tools/calibrate_skip.py --levels      # predicted visible chroma noise on grey fields
     python tools/calibrate_skip.py --cost        # analysis cost, ms per MP
+    python tools/calibrate_skip.py --choice      # the noise-adaptive choice's calibration (clisp.stage_choice)
     python tools/calibrate_skip.py --cli [--work DIR] [--scenes sky,kodak,mcm] [--repeat 3]
         # issue 13's acceptance: whole process (`clisp process X.dng -o Y.exr` against
         # `--no-skip`), 12 MP scenes: the sky, a 5 x 6 collage of Kodak and a 8 x 6 collage of
@@ -65,6 +66,21 @@ def sky(h: int, w: int, seed: int = 0) -> np.ndarray:
     return img.astype(np.float32)
 
 
+def striped_sky(h: int, w: int, period: int = 1000, seed: int = 0) -> np.ndarray:
+    """Issue 30's sky: the gradient of :func:`sky` with a textured strip of period / 8 rows in the
+    middle of every ``period`` rows (7/8 flat), so every full-width band of a plan holds some texture."""
+    from scipy.ndimage import gaussian_filter
+    img = sky(h, w, seed)
+    img[int(0.8 * h):int(0.9 * h)] = sky(h, w, seed)[:int(0.9 * h) - int(0.8 * h)]   # no strip of sky()'s own
+    rng = np.random.default_rng(seed)
+    strip = period // 8
+    for y0 in range((period - strip) // 2, h, period):
+        y1 = min(y0 + strip, h)
+        tex = gaussian_filter(rng.random((y1 - y0, w, 3)).astype(np.float32), (1.5, 1.5, 0))
+        img[y0:y1] = 0.1 + 0.5 * (tex - tex.min()) / (tex.max() - tex.min())
+    return img
+
+
 def compare(name: str, scene: np.ndarray, cfa: str, gain: float, tile: int | None, repeat: int) -> dict:
     sim = simulate(scene, cfa=cfa, gain=gain, seed=1)
     row = {"scene": name, "cfa": cfa, "gain": gain, "mp": sim.raw.data.size / 1e6}
@@ -115,7 +131,10 @@ def cli_acceptance(data: Path, work: Path, scenes: list[str], cfas: list[str], g
     print(f"{'scene':<7}{'cfa':<6}{'gain':>5}{'default s':>11}{'no-skip s':>11}{'ratio':>7}{'dB default':>12}"
           f"{'dB no-skip':>12}{'loss':>8}  plan")
     for name in scenes:
-        scene, regions = (sky(3000, 4000), [(10, 2990, 10, 3990)]) if name == "sky" else collage(name, data)
+        if name in ("sky", "striped"):
+            scene, regions = (sky if name == "sky" else striped_sky)(3000, 4000), [(10, 2990, 10, 3990)]
+        else:
+            scene, regions = collage(name, data)
         for cfa in cfas:
             for gain in gains:
                 raw_path, truth_path = work / f"{name}_{cfa}_g{gain}.dng", work / f"{name}_{cfa}_truth_g{gain}.npy"
@@ -148,7 +167,7 @@ def main() -> int:
     ap.add_argument("--cli", action="store_true", help="issue 13's acceptance: whole process, 12 MP scenes")
     toolkit.add_work_option(ap, "--cli: raws and outputs", default=Path("/tmp/calibrate_skip"))
     toolkit.add_data_option(ap)
-    ap.add_argument("--scenes", default="sky,kodak,mcm", help="--cli: sky, kodak, mcm")
+    ap.add_argument("--scenes", default="sky,kodak,mcm", help="--cli: sky, striped (issue 30's), kodak, mcm")
     ap.add_argument("--gains", default="1,64")
     ap.add_argument("--cfas", default="lms,bayer")
     ap.add_argument("--kodak", default="5,23")
@@ -156,12 +175,16 @@ def main() -> int:
     ap.add_argument("--sky", default="2048x1536", help="WxH of the flat sky scene ('' to leave out)")
     ap.add_argument("--tile", type=int, default=None)
     toolkit.add_repeat_option(ap, 2, "timed runs, best kept (--cli: the median)")
+    ap.add_argument("--choice", action="store_true",
+                    help="the noise-adaptive choice's calibration (clisp.stage_choice), on scenes made in code")
     ap.add_argument("--levels", action="store_true")
     ap.add_argument("--cost", action="store_true")
     args = ap.parse_args()
     if args.cli:
         return cli_acceptance(args.data, args.work.resolve(), args.scenes.split(","), args.cfas.split(","), args.gains.split(","),
                               args.repeat)
+    if args.choice:
+        return choice_calibration([float(g) for g in (args.gains if args.gains != "1,64" else CHOICE_GAINS).split(",")])
     if args.levels:
         return levels()
     if args.cost:
@@ -192,6 +215,61 @@ def main() -> int:
                 print(f"mean natural {cfa} gain {gain:g}: time ratio "
                       f"{np.mean([r['t_skip'] for r in sel]) / np.mean([r['t_full'] for r in sel]):.2f}, "
                       f"PSNR loss {np.mean([r['psnr_full'] - r['psnr_skip'] for r in sel]):.3f} dB")
+    return 0
+
+
+CHOICE_GAINS = "1,4,8,16,24,32,48,64"
+"""Gains of ``--choice``'s rows."""
+
+
+def choice_scenes() -> list[tuple[str, np.ndarray]]:
+    """The calibration scenes of the noise-adaptive choice, made in code (Kodak and McMaster judge
+    the choice, so they tune none of it): four dead-leaves charts, clisp's demo chart and a sky with
+    its textured strip, 512 x 512."""
+    from clisp.sim.charts import dead_leaves, demo_chart
+    scenes = [(f"dead leaves {seed}", dead_leaves(512, seed=seed)) for seed in range(4)]
+    scenes.append(("demo chart", demo_chart().image[:512, :512]))
+    scenes.append(("sky", sky(640, 512)[128:640]))
+    return scenes
+
+
+def choice_candidates(raw: object) -> dict[str, object]:
+    """The preset's demosaic and each alternative considered for ``raw`` (clisp.stage_choice; the
+    Bayer one, bilinear in place of RI, is measured but not in ALTERNATIVES)."""
+    from clisp.pipeline import make_demosaic
+    from clisp.stage_choice import ALTERNATIVES
+    if raw.cfa.kind == "lms":
+        full = make_demosaic("guided", raw)
+        return {"full": full, **{a.name: a.make(full) for a in ALTERNATIVES if a.stage == type(full).__name__}}
+    return {"full": make_demosaic("ri", raw), "bilinear": make_demosaic("bilinear", raw)}
+
+
+def choice_calibration(gains: list[float]) -> int:
+    """Rows (kind, alternative, gain, sigma, mean dB, worst dB) of PSNR(alternative) - PSNR(full),
+    the quality preset otherwise, on :func:`choice_scenes`; the sigma (clisp.stage_choice.noise_sigma)
+    is what clisp.stage_choice.ALTERNATIVES' calibration rows hold."""
+    from clisp.noise_estimate import raw_noise
+    from clisp.stage_choice import noise_sigma
+    from clisp.white_balance import reference_channel
+    scenes = choice_scenes()
+    print("| CFA | alternative | gain | sigma at 18 % | mean dB | worst dB | worst scene |")
+    print("|---|---|---:|---:|---:|---:|---|")
+    for kind in ("lms", "bayer"):
+        for gain in gains:
+            deltas: dict[str, list[tuple[float, str]]] = {}
+            sigma = 0.0
+            for j, (name, scene) in enumerate(scenes):
+                sim = simulate(scene, cfa=kind, gain=gain, seed=j)
+                sigma = noise_sigma(raw_noise(sim.raw), reference_channel(sim.raw.cfa))
+                scores = {k: psnr(build_pipeline(sim.raw, demosaic=stage, output="linear").run(sim.raw.data), sim.truth)
+                          for k, stage in choice_candidates(sim.raw).items()}
+                for k, v in scores.items():
+                    if k != "full":
+                        deltas.setdefault(k, []).append((v - scores["full"], name))
+            for k, d in deltas.items():
+                worst = min(d)
+                print(f"| {kind} | {k} | {gain:g} | {sigma:.4f} | {np.mean([v for v, _ in d]):+.3f} | "
+                      f"{worst[0]:+.3f} | {worst[1]} |", flush=True)
     return 0
 
 

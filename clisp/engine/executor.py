@@ -78,6 +78,8 @@ class Pipeline:
     """The exposure (EV) build_pipeline applied, manual and automatic together."""
     wb_source: str = "camera"
     """Where white balance pass 1's multipliers came from (``--wb``; clisp.white_balance)."""
+    stage_choice: Any = None
+    """The noise-adaptive choice build_pipeline made (clisp.stage_choice.Choice), None without one."""
 
     @property
     def halo(self) -> int:
