@@ -217,8 +217,8 @@ class LMSGuidedParams:
     (``axial_tonal_energy``: periodic luminance at (pi, 0), (0, pi), carriers of the S lattice)."""
     passes: int = 2
     """2: both passes (M at S and chroma refined against the pass-1 luminance); 1: the luminance
-    blend, S and the alias suppression straight from pass 1 (halo 16 px less, about a third less
-    device time). Where noise hides what pass 2 refines, 1 costs nothing (clisp.stage_choice)."""
+    blend, S and the alias suppression straight from pass 1 (halo 16 px less, a quarter less device
+    time). Where noise hides what pass 2 refines, 1 costs nothing (clisp.stage_choice)."""
 
     def __post_init__(self) -> None:
         if self.passes not in (1, 2):
