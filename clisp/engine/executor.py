@@ -198,7 +198,7 @@ class Pipeline:
                                   host=np.empty(0, raw_dtype))   # read in place (Runtime.host_input)
             else:
                 src = rt.acquire(1, window[0], window[1], raw_dtype)
-            rt.release(self._enqueue_tile(rt, schedule, src, (0, 0)))
+            rt.release(self._enqueue_tile(rt, schedule, src, (-self.halo, -self.halo)))   # the first tile's origin
         return meter.created, meter.largest
 
     def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
