@@ -56,8 +56,8 @@ class BatchSettings:
     """What a batch does to each file. Everything but ``mem`` changes the output and is hashed.
 
     ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif', 'png' or 'jpg';
-    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``:
-    as ``process --exposure``, ``--auto-exposure``; ``skip``: as ``process``
+    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``,
+    ``half_size``: as ``process --exposure``, ``--auto-exposure``, ``--half-size``; ``skip``: as ``process``
     (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
@@ -70,16 +70,19 @@ class BatchSettings:
     skip: bool = True
     exposure: float = 0.0
     auto_exposure: bool = False
+    half_size: bool = False
 
     def identity(self) -> dict[str, Any]:
         """The hashed part: the resolved preset, the options that change an output, clisp's version
-        (the exposure only when set, so that the batches run before it existed stay done)."""
+        (the exposure and half size only when set, so that the batches run before them stay done)."""
         identity = {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
                     "format": self.format, "compression": self.compression, "skip": self.skip}
         if self.exposure:
             identity["exposure"] = self.exposure
         if self.auto_exposure:
             identity["auto_exposure"] = True
+        if self.half_size:
+            identity["half_size"] = True
         return identity
 
     def digest(self) -> str:
@@ -167,7 +170,8 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
         (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
                                           demosaic=settings.demosaic, skip=True if settings.skip else None,
-                                          exposure=settings.exposure, auto_exposure=settings.auto_exposure)
+                                          exposure=settings.exposure, auto_exposure=settings.auto_exposure,
+                                          half_size=settings.half_size)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))
@@ -456,7 +460,7 @@ def run_batch(inputs: Sequence[str | Path], outdir: str | Path, settings: BatchS
     running are recorded as errors. ``on_record``: called with each manifest record as written.
     """
     from .io.imageio import check_compression    # deferred: 2 ms of every CLI command's start-up
-    resolve_options(settings.preset, settings.demosaic)        # bad names fail before anything runs
+    resolve_options(settings.preset, settings.demosaic, half_size=settings.half_size)   # bad names fail before anything runs
     outdir = Path(outdir)
     if settings.compression:
         check_compression(f"x.{settings.format}", settings.compression)

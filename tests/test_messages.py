@@ -145,6 +145,12 @@ MESSAGES = {
                          r".*float\.dng: demosaic 'ari' works on bayer CFAs, not lms"),
     "exposure-range": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--exposure", "12"],
                        r".*good\.dng: --exposure 12: EV must be within -10\.\.\+10"),
+    "half-size-demosaic": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--half-size", "--demosaic", "malvar"],
+                           r"--half-size bins each 2x2 block into one pixel, without a demosaic: leave out "
+                           r"--demosaic malvar"),
+    "half-size-denoise": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--half-size", "--denoise-scale", "2"],
+                          r"--half-size runs no chroma denoise \(the binning averages the samples\): leave out "
+                          r"--denoise-scale and --chroma-strengths"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
                        r"--tile 4: tiles must be at least 16 pixels"),
     "mem-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--mem", "1M"],
