@@ -50,9 +50,9 @@ TARGET = 0.5
 FLOOR_SIZE = (512, 384)
 """The small raw of the floor row (W, H): 0.2 MP, so its time is the process's, not the pixels'."""
 
-CROP = (1200, 2000, 320, 320)
+CROP = (220, 1140, 360, 360)
 """(top, left, height, width) of the comparison crop on the full-size image (even, so that it
-halves exactly): a region of the D30's scene with edges and texture."""
+halves exactly): the D30 scene's lighter wheel and red cap (teeth, edges, saturated colour)."""
 
 RAWPY_HALF = """\
 import sys, rawpy, tifffile
