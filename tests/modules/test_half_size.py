@@ -167,7 +167,9 @@ def test_tiled_equals_whole(kind: str, highlights: str | None) -> None:
     assert pipeline.stats.tiles > 4
     assert_close(tiled, whole, f"{kind} tiled")
     reference = pipeline.run(raw.data, tile=16, backend="reference")
-    assert_close(whole, reference, f"{kind} reference")
+    np.testing.assert_array_equal(reference, pipeline.run(raw.data, tile=0, backend="reference"))
+    # the reconstruct kernels' own bound against their reference (tests/modules/test_highlights.py)
+    assert_close(whole, reference, f"{kind} reference", tol=1e-4 if highlights == "reconstruct" else 1e-5)
 
 
 class OriginProbe(Stage):
