@@ -56,9 +56,10 @@ class BatchSettings:
     """What a batch does to each file. Everything but ``mem`` changes the output and is hashed.
 
     ``preset``/``demosaic``: as ``clisp process``; ``format``: 'exr', 'tif', 'png' or 'jpg';
-    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``:
-    as ``process --exposure``, ``--auto-exposure``; ``wb``: as ``process --wb``; ``resize``: the long
-    edge, as ``process --resize`` (None: the raw's size); ``skip``: as ``process``
+    ``compression``: EXR/TIFF/PNG/JPEG compression (None = clisp's default); ``exposure``, ``auto_exposure``,
+    ``half_size``: as ``process --exposure``, ``--auto-exposure``, ``--half-size``; ``wb``: as
+    ``process --wb``; ``resize``: the long edge, as ``process --resize`` (None: the raw's size);
+    ``skip``: as ``process``
     (False = ``--no-skip``: every stage on every tile); ``mem``: peak resident
     memory of each worker's processing in bytes (``process --mem``), not hashed: it changes the
     tiling, not the pixels.
@@ -73,11 +74,12 @@ class BatchSettings:
     auto_exposure: bool = False
     wb: str = "camera"
     resize: int | None = None
+    half_size: bool = False
 
     def identity(self) -> dict[str, Any]:
         """The hashed part: the resolved preset, the options that change an output, clisp's version
-        (the exposure, white balance and resize only when set, so that the batches run before they
-        existed stay done)."""
+        (the exposure, white balance, resize and half size only when set, so that the batches run
+        before they existed stay done)."""
         identity = {"clisp": __version__, "preset": self.preset or DEFAULT_PRESET, "demosaic": self.demosaic,
                     "format": self.format, "compression": self.compression, "skip": self.skip}
         if self.exposure:
@@ -88,6 +90,8 @@ class BatchSettings:
             identity["wb"] = self.wb
         if self.resize:
             identity["resize"] = self.resize
+        if self.half_size:
+            identity["half_size"] = True
         return identity
 
     def digest(self) -> str:
@@ -176,7 +180,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
                                           compression=settings.compression, preset=settings.preset,
                                           demosaic=settings.demosaic, skip=True if settings.skip else None,
                                           exposure=settings.exposure, auto_exposure=settings.auto_exposure,
-                                          wb=settings.wb, resize=settings.resize)
+                                          wb=settings.wb, resize=settings.resize, half_size=settings.half_size)
         st = os.stat(job.output)
         record.update(width=width, height=height, tiles=stats.tiles, size=st.st_size, mtime_ns=st.st_mtime_ns,
                       sha256=file_sha256(job.output))
@@ -465,7 +469,7 @@ def run_batch(inputs: Sequence[str | Path], outdir: str | Path, settings: BatchS
     running are recorded as errors. ``on_record``: called with each manifest record as written.
     """
     from .io.imageio import check_compression    # deferred: 2 ms of every CLI command's start-up
-    resolve_options(settings.preset, settings.demosaic)        # bad names fail before anything runs
+    resolve_options(settings.preset, settings.demosaic, half_size=settings.half_size)   # bad names fail before anything runs
     outdir = Path(outdir)
     if settings.compression:
         check_compression(f"x.{settings.format}", settings.compression)

@@ -29,8 +29,8 @@ from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .modules.resize.stage import check_long_edge, resize_note
-from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, PRESETS, denoise_params,
-                       output_size, process_file, resolve_options)
+from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, HALF_SIZE_NO_DENOISE, PRESETS,
+                       denoise_params, output_size, process_file, resolve_options)
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
@@ -88,6 +88,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     _add_exposure_options(p)
     _add_resize_option(p)
+    _add_half_size_option(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--tile", type=int, default=None,
                    help="tile side in pixels (default: chosen from --mem and the device's limits)")
@@ -153,6 +154,16 @@ def _add_exposure_options(p: argparse.ArgumentParser) -> None:
                         "in the output's description when not camera")
 
 
+def _add_half_size_option(p: argparse.ArgumentParser) -> None:
+    """--half-size (process and batch alike)."""
+    p.add_argument("--half-size", action="store_true",
+                   help="the preview path: half the width and height, one pixel per 2x2 block of the mosaic "
+                        "(Bayer: its R, the mean of its two G, its B; LMS: each channel's mean over the 4x4 "
+                        "window around the block), no demosaic; the preset's demosaic and chroma denoise are "
+                        "not used (--demosaic, --denoise-scale, --chroma-strengths are refused), highlights "
+                        "clamp unless --highlights says otherwise")
+
+
 def _add_batch(sub: argparse._SubParsersAction) -> None:
     from .batch import FORMATS                  # deferred: clisp.batch (hashlib, uuid) costs 9 ms of start-up
     p = sub.add_parser("batch", help="process many raws (files or folders) in parallel on Dask, resumably",
@@ -165,6 +176,7 @@ def _add_batch(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default=None, help=f"parameter set: {', '.join(PRESETS)} (default {DEFAULT_PRESET})")
     _add_exposure_options(p)
     _add_resize_option(p)
+    _add_half_size_option(p)
     p.add_argument("--demosaic", default=None, help=f"demosaic: {', '.join(DEMOSAICS)} (default from the preset)")
     p.add_argument("--format", choices=FORMATS, default="exr",
                    help="exr: linear sRGB float (default); tif, png: 16-bit sRGB-encoded")
@@ -323,7 +335,9 @@ def cmd_process(args: argparse.Namespace) -> int:
     many = is_many(args.raw, args.output, args.format)
     if not many:
         output_kind(args.output)
-    resolve_options(args.preset, args.demosaic)   # fail on bad names before reading anything
+    resolve_options(args.preset, args.demosaic, half_size=args.half_size)   # fail on bad names before reading anything
+    if args.half_size:
+        _denoise_option(args, half_size=True)
     if args.compression:
         check_compression(f"x.{args.format or 'exr'}" if many else args.output, args.compression)
     if args.tile is not None and args.tile < 16:
@@ -374,14 +388,18 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
                                           auto_exposure=args.auto_exposure, wb=args.wb, resize=args.resize,
+                                          half_size=args.half_size,
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
-    size = resize_note(output_size(raw, not args.no_crop), (height, width), args.resize)
+    size = resize_note(output_size(raw, not args.no_crop, args.half_size), (height, width), args.resize)
     print(f"{output}: {width}x{height}{size} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
           f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
           f"of {tw}x{th})", flush=True)
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
+        if args.half_size:
+            print(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
+                  f"{explained['pipeline'].describe()}")
         print(explain_run(explained.get("pipeline"), stats, profile))
     if profile is not None and args.profile:
         wall = _process_seconds()
@@ -429,7 +447,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     settings = BatchSettings(preset=args.preset, format=args.format, demosaic=args.demosaic,
                              compression=args.compression, mem=args.mem, skip=not args.no_skip,
                              exposure=args.exposure, auto_exposure=args.auto_exposure, wb=args.wb,
-                             resize=resize)
+                             resize=resize, half_size=args.half_size)
     summary = run_batch(args.inputs, args.output, settings, workers=args.workers, scheduler=args.scheduler,
                         progress=True)
     for message in summary.failed:
@@ -460,12 +478,15 @@ def _start_profile() -> "object":
     return engine_profile.start()
 
 
-def _denoise_option(args: argparse.Namespace) -> "bool | None | object":
-    """build_pipeline's ``denoise`` from --no-denoise, --denoise-scale and --chroma-strengths."""
+def _denoise_option(args: argparse.Namespace, half_size: bool = False) -> "bool | None | object":
+    """build_pipeline's ``denoise`` from --no-denoise, --denoise-scale and --chroma-strengths.
+    ``half_size``: refuse the two that would turn a denoiser on (--half-size runs none)."""
     if args.no_denoise:
         return False
     if args.denoise_scale == 1.0 and args.chroma_strengths is None:
         return None                                   # the preset decides
+    if half_size:
+        raise ClispError(HALF_SIZE_NO_DENOISE)
     if args.denoise_scale < 0:
         raise ClispError(f"--denoise-scale {args.denoise_scale:g}: must be >= 0")
     try:

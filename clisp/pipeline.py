@@ -33,6 +33,7 @@ from .modules.demosaic_dlmmse.stage import DemosaicDLMMSE
 from .modules.demosaic_lms.stage import DemosaicLMSHybrid
 from .modules.demosaic_lms_guided.stage import DemosaicLMSGuided
 from .modules.demosaic_malvar.stage import DemosaicMalvar
+from .modules.half_size.stage import HalfSize
 from .modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from .modules.raw_scale.stage import normalize, white_balance1
 from .modules.resize.stage import (ResizeSink, StreamingResize, check_long_edge, resize_image, resize_reference,
@@ -69,23 +70,39 @@ DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
 """Largest ``--exposure`` in EV either way (a gain of 1024: past it a raw's quantisation shows)."""
 OUTPUTS = ("linear", "srgb", "srgb16")
+HALF_SIZE_DOWNSCALE = 2
+"""Raw pixels per output pixel along each axis with ``--half-size``."""
+HALF_SIZE_HIGHLIGHTS = "clamp"
+"""The highlight mode of ``--half-size`` whatever the preset (an explicit ``--highlights`` wins): the
+per-pixel clamp, as LibRaw's default, in keeping with a preview (reconstruct's radii and rim are
+tuned to a demosaic's full-resolution false colour)."""
+HALF_SIZE_NO_DENOISE = ("--half-size runs no chroma denoise (the binning averages the samples): "
+                        "leave out --denoise-scale and --chroma-strengths")
+"""The refusal of an explicit chroma denoiser with ``--half-size`` (docs/messages.md)."""
 
 
-def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None) -> dict[str, Any]:
+def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None,
+                    half_size: bool = False) -> dict[str, Any]:
     """The options for CFA ``kind`` ('lms' or 'bayer'): the preset's, overridden by explicit ones.
 
     Raises ClispError on unknown names, and on a demosaic that does not support ``kind``
     (a stage class may declare ``cfa_kinds``; without it, it supports every CFA). With
-    ``kind=None`` only the names are checked.
+    ``kind=None`` only the names are checked. ``half_size``: the preview path (no demosaic, no
+    chroma denoise, highlights HALF_SIZE_HIGHLIGHTS); an explicit demosaic is refused.
     """
     name = preset or DEFAULT_PRESET
     if name not in PRESETS:
         raise ClispError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
     if demosaic and demosaic not in DEMOSAICS:
         raise ClispError(f"unknown demosaic {demosaic!r}; available: {', '.join(DEMOSAICS)}")
+    if half_size and demosaic:
+        raise ClispError(f"--half-size bins each 2x2 block into one pixel, without a demosaic: "
+                         f"leave out --demosaic {demosaic}")
     if kind is None:
         return {}
     options = {key: value[kind] if isinstance(value, dict) else value for key, value in PRESETS[name].items()}
+    if half_size:
+        return {**options, "demosaic": None, "denoise_levels": 0, "highlights": HALF_SIZE_HIGHLIGHTS}
     if demosaic:
         options["demosaic"] = demosaic
     kinds = DEMOSAICS[options["demosaic"]].cfa_kinds or (kind,)
@@ -103,7 +120,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera") -> Pipeline:
+                   wb: str = "camera", half_size: bool = False) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -129,6 +146,11 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     ``auto_exposure``: add LibRaw's auto-bright exposure, estimated from the raw (clisp.exposure).
     The pipeline's ``exposure_ev`` says what was applied. ``wb``: white balance pass 1, 'camera'
     (as shot), 'auto' (grey pixels), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
+    ``half_size``: the preview path (``--half-size``): normalise, WB pass 1 and a 2 x 2 binning in
+    one stage (clisp.modules.half_size), then highlights, colour, WB pass 2 and tone curve at half
+    the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
+    ``demosaic`` or ``denoise`` is refused: the binning averages the samples), its highlight mode
+    is HALF_SIZE_HIGHLIGHTS unless ``highlights`` says otherwise.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -138,9 +160,11 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     raw = with_white_balance(raw, wb)
     cfa = raw.cfa
     given = demosaic if isinstance(demosaic, Stage) else None
-    options = resolve_options(preset, None if given else demosaic, cfa.kind)
-    demosaic_stage = given or make_demosaic(options["demosaic"], raw)
+    options = resolve_options(preset, None if given else demosaic, cfa.kind, half_size)
     params = denoise_params(denoise, options["denoise_levels"])
+    if half_size and params is not None:
+        raise ClispError(HALF_SIZE_NO_DENOISE)
+    demosaic_stage = HalfSize.for_raw(raw) if half_size else (given or make_demosaic(options["demosaic"], raw))
     colour: Stage = ColourMatrix(raw.colour_matrix)
     adapt = bool(skip) and given is None and alternative_for(demosaic_stage) is not None
     noise = None
@@ -155,8 +179,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if params is not None and noise is not None:
         colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
     gains2 = _wb2_gains(raw, wb2)
-    stages: list[Stage] = [normalize(cfa, raw.black_level, raw.white_level),
-                           white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+    stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
+                                                              white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
     if highlight is not None:
         stages.append(highlight)
@@ -276,6 +300,35 @@ def crop_of(raw: RawImage) -> tuple[int, int, int, int] | None:
     return None if (top, left, height, width) == (0, 0, h, w) else (top, left, height, width)
 
 
+def output_crop(crop: tuple[int, int, int, int] | None, pipeline: Pipeline,
+                shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """``crop`` (:func:`crop_of`, in the mosaic of ``shape``) on ``pipeline``'s output: the same for a
+    pipeline that keeps the grid; with ``--half-size`` (downscale 2) the output pixels whose blocks
+    hold any of it (an even crop, the usual, halves exactly).
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> output_crop((12, 8, 100, 61), Pipeline(bayer_cfa(), [HalfSize(bayer_cfa(), [0] * 3, [1] * 3)]), (200, 100))
+    (6, 4, 50, 31)
+    """
+    return scaled_crop(crop, pipeline.downscale, shape)
+
+
+def scaled_crop(crop: tuple[int, int, int, int] | None, s: int,
+                shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """``crop`` in the mosaic of ``shape`` on an output ``s`` times smaller (rounded up, as
+    Pipeline.output_shape): the output pixels whose blocks hold any of it.
+
+    >>> scaled_crop((12, 8, 100, 61), 2, (200, 100))
+    (6, 4, 50, 31)
+    """
+    if crop is None or s == 1:
+        return crop
+    top, left, height, width = crop
+    out_h, out_w = -(-int(shape[0]) // s), -(-int(shape[1]) // s)
+    bottom, right = min(-(-(top + height) // s), out_h), min(-(-(left + width) // s), out_w)
+    return top // s, left // s, bottom - top // s, right - left // s
+
+
 def cropped_writes(write: Callable[[int, np.ndarray], None],
                    crop: tuple[int, int, int, int]) -> Callable[[int, np.ndarray], None]:
     """``write(y0, rows)`` of a band sink for the whole mosaic's rows, passing on only the crop's
@@ -291,11 +344,13 @@ def cropped_writes(write: Callable[[int, np.ndarray], None],
     return write_cropped
 
 
-def output_size(raw: RawImage, crop: bool = True) -> tuple[int, int]:
+def output_size(raw: RawImage, crop: bool = True, half_size: bool = False) -> tuple[int, int]:
     """(height, width) of the image :func:`process_file` makes of ``raw`` before any resize: the
-    crop the raw declares (:func:`crop_of`; with ``crop`` False the whole mosaic), turned upright."""
-    region = crop_of(raw) if crop else None
-    height, width = raw.shape if region is None else region[2:]
+    crop the raw declares (:func:`crop_of`; with ``crop`` False the whole mosaic), halved with
+    ``half_size`` (:func:`scaled_crop`), turned upright."""
+    s = HALF_SIZE_DOWNSCALE if half_size else 1
+    region = scaled_crop(crop_of(raw) if crop else None, s, raw.shape)
+    height, width = (-(-raw.shape[0] // s), -(-raw.shape[1] // s)) if region is None else region[2:]
     return (width, height) if int(raw.metadata.get("flip", 0) or 0) in (5, 6) else (height, width)
 
 
@@ -311,7 +366,7 @@ def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "o
     """:func:`process` for a RawImage, also returning the run's timing."""
     pipeline = build_pipeline(raw, **options)
     image = pipeline.run(raw.data, tile=tile, backend=backend)
-    image = _crop_image(image, crop_of(raw) if crop else None)
+    image = _crop_image(image, output_crop(crop_of(raw), pipeline, raw.shape) if crop else None)
     image = np.ascontiguousarray(orient(image, int(raw.metadata.get("flip", 0) or 0)))
     return image, pipeline.stats
 
@@ -323,7 +378,8 @@ def process(raw: RawImage | str | Path, tile: int | None = None, backend: str = 
     ``options`` are :func:`build_pipeline`'s: preset, demosaic, output ('linear': scene-linear
     sRGB, white 1.0, unclipped; 'srgb': sRGB-encoded in [0, 1]), denoise, wb2.
     ``crop``: keep only the crop the raw declares (:func:`crop_of`, a DNG's DefaultCrop); False
-    keeps the whole mosaic. Orientation from camera metadata is applied last.
+    keeps the whole mosaic. Orientation from camera metadata is applied last. ``half_size=True``:
+    half the width and height, one pixel per 2 x 2 block, no demosaic (:func:`build_pipeline`).
     """
     if not isinstance(raw, RawImage):
         raw = read_raw(raw)
@@ -354,11 +410,12 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     """
     from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image   # deferred: 2 ms of start-up
     compression = compression or DEFAULT_COMPRESSION
-    region = crop_of(raw) if crop else None
     attributes = output_attributes(raw)
     kind = output_kind(path)
     encoding = "srgb16" if kind == "srgb" else kind
-    upright = output_size(raw, crop)
+    scale = HALF_SIZE_DOWNSCALE if options.get("half_size") else 1
+    region = scaled_crop(crop_of(raw), scale, raw.shape) if crop else None
+    upright = output_size(raw, crop, options.get("half_size", False))
     target = upright if resize is None else resized_size(*upright, check_long_edge(resize))
     resized = target != upright
     pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
@@ -382,7 +439,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
                                extra=2 * resizer.window_bytes if resizer else 0)
     if in_memory:               # rotated output rows are input columns: orient the whole result
-        image = np.empty(raw.shape + (pipeline.out_channels,), dtype=pipeline.out_dtype)
+        image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
         with closing(window_source(raw.data)) as source:
             pipeline.stream(source, ArraySink(image), plan, backend)
         oriented = orient(_crop_image(image, region), flip)
@@ -391,7 +448,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
         else:
             write_image(path, oriented, compression=compression, attributes=attributes)
         return target, pipeline.stats
-    (height, width), channels = raw.shape, pipeline.out_channels
+    (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
     out_h, out_w = target
     bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
     start = time.perf_counter()
@@ -431,11 +488,12 @@ def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, til
     if backend != "opencl":
         return pipeline.plan(shape, dtype, tile, budget, backend)
     limits = device_limits(backend)
-    cost = pipeline.tile_cost(dtype, shape[1], limits, sink_bands=not in_memory)
-    smallest = cost(min(shape[0], MIN_TILE), min(shape[1], MIN_TILE))   # also builds the programs
+    out_h, out_w = pipeline.output_shape(shape)           # the tiles' (the raw's unless --half-size)
+    cost = pipeline.tile_cost(dtype, out_w, limits, sink_bands=not in_memory)
+    smallest = cost(min(out_h, MIN_TILE), min(out_w, MIN_TILE))   # also builds the programs
     held = resident_bytes() + RSS_MARGIN + extra
     if in_memory:
-        held += shape[0] * shape[1] * pipeline.out_channels * pipeline.out_dtype.itemsize
+        held += out_h * out_w * pipeline.out_channels * pipeline.out_dtype.itemsize
     if budget - held < smallest:
         raise ClispError(f"{path}: --mem {format_bytes(budget)} is below the minimum of "
                          f"{format_bytes(held + smallest)} for this {shape[1]}x{shape[0]} raw and these "
@@ -443,6 +501,6 @@ def _whole_process_plan(pipeline: Pipeline, raw: RawImage, path: str | Path, til
                          f"{format_bytes(smallest)} for the smallest tile)")
     needs = replace(pipeline.needs(dtype), cost=cost)
     try:
-        return make_plan(shape[0], shape[1], needs, tile, budget - held, limits)
+        return make_plan(out_h, out_w, needs, tile, budget - held, limits)
     except ClispError as exc:
         raise ClispError(f"{path}: {exc}") from exc

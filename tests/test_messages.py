@@ -153,6 +153,12 @@ MESSAGES = {
                        r".*good\.dng: --wb '2,1' is neither camera, auto, daylight nor 3 positive multipliers R,G,B"),
     "no-daylight-wb": (lambda f, t: ["process", f["nodaylight.dng"], "-o", t / "o.exr", "--wb", "daylight"],
                        r".*nodaylight\.dng: has no daylight white balance \(try --wb auto or --wb camera\)"),
+    "half-size-demosaic": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--half-size", "--demosaic", "malvar"],
+                           r"--half-size bins each 2x2 block into one pixel, without a demosaic: leave out "
+                           r"--demosaic malvar"),
+    "half-size-denoise": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--half-size", "--denoise-scale", "2"],
+                          r"--half-size runs no chroma denoise \(the binning averages the samples\): leave out "
+                          r"--denoise-scale and --chroma-strengths"),
     "tile-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--tile", "4"],
                        r"--tile 4: tiles must be at least 16 pixels"),
     "resize-size": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--resize", "8"],

@@ -83,13 +83,31 @@ class Pipeline:
 
     @property
     def halo(self) -> int:
-        """Total input border one output pixel needs (sum of the stage halos)."""
-        return sum(stage.halo for stage in self.stages)
+        """Total input border one output pixel needs, in input (raw) pixels: the sum of the stage
+        halos, each times the input pixels per pixel of its own input (after a stage of downscale 2,
+        a halo of 1 is 2 raw pixels)."""
+        total, scale = 0, 1
+        for stage in self.stages:
+            total += stage.halo * scale
+            scale *= stage.downscale
+        return total
+
+    @property
+    def downscale(self) -> int:
+        """Input pixels per output pixel along each axis: 1, or 2 with the half-size binning."""
+        return math.prod(stage.downscale for stage in self.stages)
 
     @property
     def align(self) -> int:
-        """Tile-origin multiple: the CFA period and every stage's alignment."""
+        """Tile-origin multiple, in output pixels: the CFA period and every stage's alignment (with
+        ``downscale`` > 1 the windows then start ``downscale`` times further apart: still on the period)."""
         return math.lcm(self.cfa.period, *(stage.align for stage in self.stages))
+
+    def output_shape(self, shape: tuple[int, int]) -> tuple[int, int]:
+        """The output (H, W) for an H x W raw: the raw's, divided by :attr:`downscale` and rounded up (a
+        last odd row or column is binned with its CFA-mirrored padding, as LibRaw's half_size)."""
+        s = self.downscale
+        return -(-int(shape[0]) // s), -(-int(shape[1]) // s)
 
     @property
     def out_channels(self) -> int:
@@ -110,25 +128,31 @@ class Pipeline:
         the fused schedule) and an interleaved result. Host: TILES_IN_FLIGHT windows and results.
         """
         raw_bytes = float(np.dtype(raw_dtype).itemsize)
-        out_bytes = float(self.out_dtype.itemsize * self.out_channels)
-        stage_bytes = [float(stage.bytes_per_pixel) for stage in self.stages]
+        area = float(self.downscale ** 2)                 # output pixels are this many raw pixels
+        out_bytes = float(self.out_dtype.itemsize * self.out_channels) / area
+        stage_bytes, scale = [], 1
+        for stage in self.stages:                        # declared per pixel of its own input: per raw pixel
+            stage_bytes.append(float(stage.bytes_per_pixel) / scale ** 2)
+            scale *= stage.downscale
         return TileNeeds(halo=self.halo, align=self.align,
                          device_bytes=raw_bytes + sum(stage_bytes) + out_bytes,
                          host_bytes=TILES_IN_FLIGHT * (raw_bytes + out_bytes),
-                         largest_bytes=max(stage_bytes + [raw_bytes, out_bytes]))
+                         largest_bytes=max(stage_bytes + [raw_bytes, out_bytes]), downscale=self.downscale)
 
     def plan(self, shape: tuple[int, int], raw_dtype: Any, tile: int | None = None,
              budget: int = DEFAULT_BUDGET, backend: str = "opencl", sink_bands: bool = False) -> TilePlan:
         """Tiles for an H x W raw: ``tile`` None = from ``budget`` (bytes for the tiles in flight)
-        and the device's limits, 0 = the whole image, N = N x N (see tiling.make_plan).
+        and the device's limits, 0 = the whole image, N = N x N (see tiling.make_plan); tiles are
+        in output pixels (:meth:`output_shape`).
 
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
         limits = device_limits(backend)
         needs = self.needs(raw_dtype)
+        out_h, out_w = self.output_shape(shape)
         if backend == "opencl":
-            needs = replace(needs, cost=self.tile_cost(raw_dtype, shape[1], limits, sink_bands))
-        return make_plan(shape[0], shape[1], needs, tile, budget, limits)
+            needs = replace(needs, cost=self.tile_cost(raw_dtype, out_w, limits, sink_bands))
+        return make_plan(out_h, out_w, needs, tile, budget, limits)
 
     def tile_cost(self, raw_dtype: Any, image_width: int, limits: DeviceLimits,
                   sink_bands: bool) -> Callable[[int, int], float]:
@@ -137,18 +161,19 @@ class Pipeline:
         whatever the stages allocate), counted as host memory when the device shares it (a CPU
         device: PoCL's buffers are resident pages of this process); READ_WINDOWS raw windows; with
         ``sink_bands`` SINK_BANDS output bands of the image's width and the writer's converted rows.
-        inf past DEVICE_SHARE of the device's memory or its largest allocation."""
+        inf past DEVICE_SHARE of the device's memory or its largest allocation. ``image_width``:
+        the output's (:meth:`output_shape`)."""
         rt = get_runtime()
         schedule = self.schedule()
         shared = rt.host_unified or bool(rt.device.type & rt.cl.device_type.CPU)
         raw_item = np.dtype(raw_dtype).itemsize
         out_px = self.out_channels * self.out_dtype.itemsize
-        halo = self.halo
+        halo, scale = self.halo, self.downscale
         kept = _kept_metering_name(rt, schedule, raw_dtype)
         metered: dict[str, list[int]] = (read_json("metering", kept) if kept else None) or {}
 
         def cost(rows: int, cols: int) -> float:
-            window = (rows + 2 * halo, cols + 2 * halo)
+            window = (rows * scale + 2 * halo, cols * scale + 2 * halo)
             at = f"{window[0]}x{window[1]}"
             if at not in metered:
                 metered[at] = list(self.metered_tile(schedule, window, raw_dtype))
@@ -177,13 +202,14 @@ class Pipeline:
                                   host=np.empty(0, raw_dtype))   # read in place (Runtime.host_input)
             else:
                 src = rt.acquire(1, window[0], window[1], raw_dtype)
-            rt.release(self._enqueue_tile(rt, schedule, src, (0, 0)))
+            rt.release(self._enqueue_tile(rt, schedule, src, (-self.halo, -self.halo)))   # the first tile's origin
         return meter.created, meter.largest
 
     def run(self, data: np.ndarray, tile: int | None = None, backend: str = "opencl",
             fuse: bool = True, budget: int = DEFAULT_BUDGET) -> np.ndarray:
         """Process an H x W raw mosaic (DN, uint16 or float32) into H x W x 3 float32 (uint16
-        for a pipeline built with output 'srgb16').
+        for a pipeline built with output 'srgb16'); with ``downscale`` 2 (half size) into
+        :meth:`output_shape` x 3.
 
         ``tile``: output tile side in pixels; None (default) chooses tiles from ``budget`` (bytes)
         and the device's limits, 0 runs the whole image as one tile.
@@ -193,7 +219,7 @@ class Pipeline:
         A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
         """
         self._check(data.shape, backend)
-        out = np.empty((data.shape[0], data.shape[1], self.out_channels), dtype=self.out_dtype)
+        out = np.empty(self.output_shape(data.shape) + (self.out_channels,), dtype=self.out_dtype)
         plan = self.plan(data.shape, data.dtype, tile, budget, backend)
         with closing(window_source(data)) as source:
             self.stream(source, ArraySink(out), plan, backend, fuse)
@@ -205,16 +231,15 @@ class Pipeline:
         :attr:`stats`."""
         self._check(source.shape, backend)
         image = (int(source.shape[0]), int(source.shape[1]))     # the planner's alone; stages get it per window
-        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        win_h, win_w = plan.window_shape
         whole = self._device_source(source) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
             get_runtime().trim_pool()                # the pool holds what this plan's tiles need
-            compute = partial(self._compute_opencl, self.schedule(fuse), halo, whole=whole,
-                              window_shape=(win_h, win_w), image=image)
+            compute = partial(self._compute_opencl, self.schedule(fuse), plan, whole=whole, image=image)
         else:
-            compute = partial(self._compute_reference, halo, image=image)
+            compute = partial(self._compute_reference, plan, image=image)
 
-        if self.skipper is not None:                 # per-tile paths (clisp.skip)
+        if self.skipper is not None:                 # per-tile paths (clisp.skip), on the raw's grid
             compute = self._path_compute(plan, backend, fuse, whole, compute, image)
 
         windows = WindowPool()
@@ -223,7 +248,7 @@ class Pipeline:
             if whole is not None:                    # the device gathers the window itself
                 return None
             with host_timer("read tile windows"):
-                return source.read(t.y0 - halo, t.x0 - halo, win_h, win_w, self.cfa.period,
+                return source.read(*plan.window_origin(t), win_h, win_w, self.cfa.period,
                                    windows.take((win_h, win_w), source.window_dtype))
 
         start = time.perf_counter()
@@ -244,17 +269,18 @@ class Pipeline:
         window (its origin moves in by the difference), so every path sees the image's pixels
         at the same coordinates and tiled equals whole per path."""
         skipper = self.skipper
+        assert plan.downscale == 1, "skip paths run on the raw's grid (no skipper with --half-size)"
         self.skip_plan = skip_plan = skipper.plan(plan)
-        halo, (win_h, win_w) = plan.halo, plan.window_shape
+        halo = plan.halo
         computes: dict[str, Callable[..., Any]] = {"full": full}
         for name in set(skip_plan.counts) - {"full"}:
             sub = Pipeline(self.cfa, skipper.paths[name])
-            d, h = halo - sub.halo, sub.halo
+            d = halo - sub.halo
+            sub_plan = replace(plan, halo=sub.halo)
             if backend == "opencl":
-                run = partial(sub._compute_opencl, sub.schedule(fuse), h, whole=whole,
-                              window_shape=(win_h - 2 * d, win_w - 2 * d), image=image)
+                run = partial(sub._compute_opencl, sub.schedule(fuse), sub_plan, whole=whole, image=image)
             else:
-                run = partial(sub._compute_reference, h, image=image)
+                run = partial(sub._compute_reference, sub_plan, image=image)
 
             def crop(t: Tile, window: np.ndarray | None, target: Any, run: Callable[..., Any] = run,
                      d: int = d) -> Any:
@@ -275,14 +301,15 @@ class Pipeline:
         if min(shape) < self.cfa.period:
             raise ClispError(f"raw of {shape[1]}x{shape[0]} is smaller than one CFA tile")
 
-    def _compute_reference(self, halo: int, t: Tile, window: np.ndarray,
+    def _compute_reference(self, plan: TilePlan, t: Tile, window: np.ndarray,
                            target: tuple[np.ndarray, int, int], image: tuple[int, int] | None = None) -> None:
         """The NumPy stages on the tile's own window (the plan's may reach past the image);
-        ``image``: the whole image's (H, W), passed to the stages with each window's Origin."""
-        x, origin = window[:t.h + 2 * halo, :t.w + 2 * halo], Origin(t.y0 - halo, t.x0 - halo, image)
+        ``image``: the whole (input) image's (H, W), passed to the stages with each window's Origin."""
+        s, halo = plan.downscale, plan.halo
+        x, origin = window[:t.h * s + 2 * halo, :t.w * s + 2 * halo], Origin(*plan.window_origin(t), image)
         for stage in self.stages:
             x = stage.reference(x, origin)
-            origin = advance(origin, stage.halo)
+            origin = advance(origin, stage.halo, stage.downscale)
         host, y, x0 = target
         host[y:y + t.h, x0:x0 + t.w] = x
         return None
@@ -310,7 +337,7 @@ class Pipeline:
                 out = Pipeline._host_output(rt, stage, src, *into)
             dst = stage.enqueue(rt, src, origin) if out is None else stage.enqueue(rt, src, origin, out=out)
             rt.release(src)
-            src, origin = dst, advance(origin, stage.halo)
+            src, origin = dst, advance(origin, stage.halo, stage.downscale)
         if not src.interleaved:
             planar, src = src, rt.interleave(src)
             rt.release(planar)
@@ -339,20 +366,20 @@ class Pipeline:
             return None
         return get_runtime().host_source(source.data)
 
-    def _compute_opencl(self, schedule: list[Stage], halo: int, t: Tile, window: np.ndarray | None,
+    def _compute_opencl(self, schedule: list[Stage], plan: TilePlan, t: Tile, window: np.ndarray | None,
                         target: tuple[np.ndarray, int, int], whole: Any = None,
-                        window_shape: tuple[int, int] = (0, 0), image: tuple[int, int] | None = None) -> Any:
+                        image: tuple[int, int] | None = None) -> Any:
         """Enqueue one window's upload (none where the device reads the window in place; where
-        ``window`` is None, the device gathers the ``window_shape`` window from ``whole``, its view
-        of the whole mosaic), every stage and the download of the kept pixels into ``target`` (or,
+        ``window`` is None, the device gathers the plan's window from ``whole``, its view of the
+        whole mosaic), every stage and the download of the kept pixels into ``target`` (or,
         where the last stage wrote into the target itself, what makes those pixels readable);
         returns that event, after which nothing reads the window (nothing waits here: no host
-        round trip). ``image``: the whole image's (H, W), passed with each window's Origin."""
+        round trip). ``image``: the whole (input) image's (H, W), passed with each window's Origin."""
         rt = get_runtime()
         stage_label("upload")
-        origin = Origin(t.y0 - halo, t.x0 - halo, image)
+        origin = Origin(*plan.window_origin(t), image)
         if window is None:
-            src = rt.gather_window(whole, *origin, *window_shape, self.cfa.period)
+            src = rt.gather_window(whole, *origin, *plan.window_shape, self.cfa.period)
         else:
             if window.dtype not in (np.uint16, np.float32):
                 window = window.astype(np.float32)

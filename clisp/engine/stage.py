@@ -1,7 +1,8 @@
 """The stage contract shared by every processing step.
 
 A stage maps an input window to an output window that is smaller by ``halo`` pixels on every
-side. It has two faces with the same meaning:
+side (and, for a stage of ``downscale`` > 1, the half-size binning, on a grid ``downscale`` times coarser).
+It has two faces with the same meaning:
 
 * ``reference(x, origin)``: NumPy, float64-capable, the definition of correct. Raw stages take and
   return H x W mosaics; RGB stages take and return H x W x 3.
@@ -44,10 +45,24 @@ class Origin(tuple):
         return origin
 
 
-def advance(origin: tuple[int, int], halo: int) -> tuple[int, int]:
+def advance(origin: tuple[int, int], halo: int, downscale: int = 1) -> tuple[int, int]:
     """The origin of a stage's output window: ``origin`` moved in by ``halo`` on both axes, keeping
-    the image an :class:`Origin` carries."""
-    return Origin(origin[0] + halo, origin[1] + halo, image_extent(origin))
+    the image an :class:`Origin` carries; for a stage of ``downscale`` > 1 (input pixels per output
+    pixel, :attr:`Stage.downscale`) divided by it, in the output's grid, whose image is the input's
+    divided by ``downscale`` and rounded up. The planner keeps ``origin + halo`` a multiple of ``downscale``.
+
+    >>> o = advance(Origin(-3, 5, image=(9, 20)), 1, downscale=2)
+    >>> (o, o.image)
+    ((-1, 3), (5, 10))
+    """
+    y, x = origin[0] + halo, origin[1] + halo
+    image = image_extent(origin)
+    s = downscale
+    if s == 1:
+        return Origin(y, x, image)
+    if y % s or x % s:
+        raise ValueError(f"origin {tuple(origin)} + halo {halo} is not on the grid of downscale {s}")
+    return Origin(y // s, x // s, None if image is None else (-(-image[0] // s), -(-image[1] // s)))
 
 
 def image_extent(origin: tuple[int, int]) -> tuple[int, int] | None:
@@ -74,6 +89,14 @@ class Stage(ABC):
         return 0
 
     @property
+    def downscale(self) -> int:
+        """Input pixels per output pixel along each axis: 1 for every stage that keeps the pixel
+        grid; 2 for the half-size binning (clisp.modules.half_size). Its ``halo`` is in input
+        pixels; output pixel (i, j) stands for the input's ``downscale`` x ``downscale`` block at
+        (halo + downscale i, halo + downscale j) of its window (see :func:`advance`)."""
+        return 1
+
+    @property
     def align(self) -> int:
         """Tile origins must be multiples of this (px). The planner always also aligns to the CFA
         period, so 1 means "the CFA period"; a multi-resolution stage (e.g. a 2x pyramid over a
@@ -90,7 +113,8 @@ class Stage(ABC):
 
     @abstractmethod
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        """NumPy reference on an input window; returns the window shrunk by ``halo`` on every side."""
+        """NumPy reference on an input window; returns the window shrunk by ``halo`` on every side
+        (and divided by ``downscale``: :meth:`output_shape`)."""
 
     writes_into = False
     """Whether :meth:`enqueue` takes ``out=``, an interleaved image of exactly its output shape to
@@ -127,8 +151,9 @@ class Stage(ABC):
         return None
 
     def output_shape(self, height: int, width: int) -> tuple[int, int]:
-        """Output window size for an input window of ``height x width``."""
-        return height - 2 * self.halo, width - 2 * self.halo
+        """Output window size for an input window of ``height x width``: less ``halo`` on every
+        side, divided by ``downscale``."""
+        return (height - 2 * self.halo) // self.downscale, (width - 2 * self.halo) // self.downscale
 
 
 def fuse_stages(stages: list[Stage]) -> list[Stage]:

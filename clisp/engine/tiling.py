@@ -59,6 +59,8 @@ class TileNeeds:
     cost           optional exact count: bytes that tiles of (rows, columns) output pixels take
                    (device buffers, host buffers in flight; inf past a device limit). When set,
                    the planner uses it instead of the per-pixel figures (Pipeline.tile_cost).
+    downscale      input pixels per output pixel along each axis (2: --half-size); tiles are
+                   planned in output pixels, ``halo`` and the windows are in input pixels
     """
 
     halo: int
@@ -67,6 +69,11 @@ class TileNeeds:
     host_bytes: float
     largest_bytes: float
     cost: Callable[[int, int], float] | None = None
+    downscale: int = 1
+
+    def window(self, rows: int, cols: int) -> tuple[int, int]:
+        """Input window (rows, columns) of a tile of ``rows x cols`` output pixels."""
+        return rows * self.downscale + 2 * self.halo, cols * self.downscale + 2 * self.halo
 
 
 @dataclass(frozen=True)
@@ -80,17 +87,25 @@ class DeviceLimits:
 @dataclass(frozen=True)
 class TilePlan:
     """Tiles in row-major order; each computes a ``tile_h x tile_w`` output (``halo`` more on
-    every side as input), of which ``Tile.h x Tile.w`` lie inside the image and are kept."""
+    every side as input), of which ``Tile.h x Tile.w`` lie inside the image and are kept.
+
+    ``downscale``: input pixels per output pixel (2: --half-size). Tiles are in output pixels; a
+    tile's window is in input pixels: ``downscale`` times the tile, plus ``halo`` on every side."""
 
     tiles: list[Tile]
     tile_h: int
     tile_w: int
     halo: int
+    downscale: int = 1
 
     @property
     def window_shape(self) -> tuple[int, int]:
         """Input window of every tile, (rows, columns)."""
-        return self.tile_h + 2 * self.halo, self.tile_w + 2 * self.halo
+        return self.tile_h * self.downscale + 2 * self.halo, self.tile_w * self.downscale + 2 * self.halo
+
+    def window_origin(self, tile: Tile) -> tuple[int, int]:
+        """The input image coordinate (y, x) of ``tile``'s window's pixel (0, 0)."""
+        return tile.y0 * self.downscale - self.halo, tile.x0 * self.downscale - self.halo
 
 
 def plan_tiles(height: int, width: int, tile: int | None, align: int = 1) -> list[Tile]:
@@ -110,7 +125,7 @@ def grid(height: int, width: int, step_h: int, step_w: int) -> list[Tile]:
 
 def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None,
               budget: int = 2**30, limits: DeviceLimits = DeviceLimits()) -> TilePlan:
-    """The tiles for an H x W image.
+    """The tiles for an H x W image (output pixels: the input's divided by ``needs.downscale``).
 
     ``tile``: None chooses the tile shape from ``budget`` (bytes) and the device ``limits``
     (:func:`auto_tile_shape`); 0 processes the whole image as one tile; N gives N x N tiles
@@ -125,7 +140,7 @@ def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None
     else:
         step_h = step_w = max(needs.align, tile // needs.align * needs.align)
     step_h, step_w = min(step_h, height), min(step_w, width)
-    return TilePlan(grid(height, width, step_h, step_w), step_h, step_w, needs.halo)
+    return TilePlan(grid(height, width, step_h, step_w), step_h, step_w, needs.halo, needs.downscale)
 
 
 def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
@@ -135,18 +150,18 @@ def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
     within ``budget``) squares. Sides are split evenly over the image (the last tile is no
     sliver) and aligned. Raises ClispError when not even a MIN_TILE square fits."""
     most = max_window_pixels(needs, budget, limits)
-    halo, align = needs.halo, needs.align
-    target = min(most, max(TARGET_TILE_PIXELS, halo_target_pixels(width, halo)))
-    if (height + 2 * halo) * (width + 2 * halo) <= target:
+    halo, align, s = needs.halo, needs.align, needs.downscale
+    target = min(most, max(TARGET_TILE_PIXELS, halo_target_pixels(width * s, halo)))
+    if math.prod(needs.window(height, width)) <= target:
         return height, width
-    row_pixels = width + 2 * halo
-    rows = max(target // row_pixels, min(MIN_BAND_ROWS + 2 * halo, most // row_pixels)) - 2 * halo
+    row_pixels = width * s + 2 * halo
+    rows = (max(target // row_pixels, min(MIN_BAND_ROWS * s + 2 * halo, most // row_pixels)) - 2 * halo) // s
     if rows >= MIN_TILE:
         return even_split(height, rows, align), width
-    side = math.isqrt(most) - 2 * halo
+    side = (math.isqrt(most) - 2 * halo) // s
     if side < MIN_TILE:
         per_px = needs.device_bytes + needs.host_bytes
-        need = (MIN_TILE + 2 * halo) ** 2 * per_px
+        need = (MIN_TILE * s + 2 * halo) ** 2 * per_px
         raise ClispError(f"memory budget of {budget / 2**20:.0f} MiB is too small: one "
                          f"{MIN_TILE}x{MIN_TILE} tile needs {need / 2**20:.1f} MiB ({per_px:.0f} B/px)")
     return even_split(height, side, align), even_split(width, side, align)
@@ -157,12 +172,12 @@ def costed_tile_shape(height: int, width: int, needs: TileNeeds, budget: float) 
     what fits ``budget``: the whole image if it fits the target size; else full-width bands of the
     target height (at least MIN_BAND_ROWS), or the tallest that fit; else the largest squares.
     Raises ClispError naming the smallest tile's bytes when not even a MIN_TILE square fits."""
-    cost, halo, align = needs.cost, needs.halo, needs.align
+    cost, halo, align, s = needs.cost, needs.halo, needs.align, needs.downscale
     assert cost is not None
-    target = max(TARGET_TILE_PIXELS, halo_target_pixels(width, halo))
-    if (height + 2 * halo) * (width + 2 * halo) <= target and cost(height, width) <= budget:
+    target = max(TARGET_TILE_PIXELS, halo_target_pixels(width * s, halo))
+    if math.prod(needs.window(height, width)) <= target and cost(height, width) <= budget:
         return height, width
-    want = max(target // (width + 2 * halo) - 2 * halo, MIN_BAND_ROWS)
+    want = max((target // (width * s + 2 * halo) - 2 * halo) // s, MIN_BAND_ROWS)
     rows = largest_fitting(lambda r: cost(r, width) <= budget, min(want, height))
     if rows >= MIN_TILE:
         return even_split(height, rows, align), width
@@ -195,7 +210,8 @@ speed; README.md)."""
 
 
 def halo_target_pixels(width: int, halo: int) -> int:
-    """Window pixels of a full-width band with HALO_ROWS_FACTOR x halo output rows."""
+    """Window pixels of a full-width band with HALO_ROWS_FACTOR x halo output rows (``width``:
+    the input window's, less its halo)."""
     return (HALO_ROWS_FACTOR + 2) * halo * (width + 2 * halo)
 
 

@@ -185,3 +185,19 @@ def test_batch_takes_resize(raw_path: Path, tmp_path: Path, capsys) -> None:
     record = process_one(Job(str(raw_path), str(tmp_path / "r.tif")), settings, settings.digest(), "run")
     assert record["status"] == "ok", record
     assert (record["height"], record["width"]) == (43, 64) == read_image(tmp_path / "r.tif")[0].shape[:2]
+
+
+def test_half_size_then_resize(raw_path: Path, tmp_path: Path, capsys) -> None:
+    """--half-size --resize: the long edge is measured on the half-size image (120 x 80 here), which is
+    then resized (64 x 43) or kept (--resize 500); tiled equals whole."""
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "h.tif", "--half-size", "--resize", "64"], capsys)
+    assert code == 0, err
+    assert "64x43 (resized from 120x80)" in out
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "t.tif", "--half-size", "--resize", "64",
+                          "--tile", "16"], capsys)
+    assert code == 0, err
+    assert np.array_equal(read_image(tmp_path / "h.tif")[0], read_image(tmp_path / "t.tif")[0])
+    code, out, err = run(["process", raw_path, "-o", tmp_path / "k.tif", "--half-size", "--resize", "500"], capsys)
+    assert code == 0, err
+    assert "120x80 (--resize 500: long edge 120 kept, never enlarged)" in out
+    assert read_image(tmp_path / "k.tif")[0].shape == (80, 120, 3)
