@@ -29,6 +29,7 @@ import numpy as np
 
 from .engine.stage import Stage
 from .io.rawimage import RawImage
+from .white_balance import reference_channel
 
 ERROR_BUDGET_DB = 0.02
 """Largest mean PSNR loss against the preset's stage the choice accepts (dB)."""
@@ -121,7 +122,6 @@ def choose_demosaic(stage: Stage, raw: RawImage, noise: Any) -> tuple[Stage, Cho
     alternative = alternative_for(stage)
     if alternative is None:
         return stage, None
-    from .white_balance import reference_channel
     sigma = noise_sigma(noise, reference_channel(raw.cfa))
     threshold = alternative.threshold()
     if sigma >= threshold * (1.0 - SIGMA_TOLERANCE):
