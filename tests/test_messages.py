@@ -141,6 +141,9 @@ MESSAGES = {
                             r"\(several raws go to an output folder\)"),
     "jpeg-quality": (lambda f, t: ["process", f["good"], "-o", t / "o.jpg", "--compression", "jpeg:101"],
                      r".*o\.jpg: JPEG quality '101' is not a whole number from 1 to 100 \(jpeg:N\)"),
+    "folder-takes-no-files": (lambda f, t: ["process", f["good"], "-o", "/proc/x.tif"],
+                              r"/proc/x\.tif: cannot write in /proc: it takes no new files \(a system folder such "
+                              r"as /proc or /sys\?\)"),
     "output-folder-missing": (lambda f, t: ["process", f["good"], "-o", t / "nowhere" / "o.exr"],
                               r".*o\.exr: output folder .*nowhere does not exist"),
     "unknown-preset": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--preset", "nope"],

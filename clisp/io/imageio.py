@@ -9,6 +9,7 @@ after it completed, so a failure never leaves a partial or corrupt output.
 """
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from contextlib import ExitStack, contextmanager
@@ -65,6 +66,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.partial-", suffix=path.suffix, dir=folder)
     except OSError as exc:
+        if exc.errno == errno.ENOENT:             # the folder is there (checked above) but takes no files
+            raise ClispError(f"{path}: cannot write in {folder}: it takes no new files (a system folder "
+                             f"such as /proc or /sys?)") from exc
         raise ClispError(f"{path}: cannot write in {folder} ({clip(exc.strerror or exc)})") from exc
     os.close(fd)
     tmp_path = Path(tmp)
