@@ -619,5 +619,25 @@ def run_command(func: "Callable[[argparse.Namespace], int | None]", args: argpar
     return EXIT_ERROR
 
 
+NORMAL_EXIT_COMMANDS = ("batch",)
+"""Commands that leave through the interpreter's teardown: ``batch`` owns a Dask cluster, whose
+worker processes are shut down by it."""
+
+
+def console(argv: Sequence[str] | None = None) -> None:
+    """The ``clisp`` console script (and ``python -m clisp``): :func:`main`, then out of the process
+    without the interpreter's teardown (module clean-up, the OpenCL context's release: 0.05 s of a
+    0.33 s small-raw run on the 2-core CI machine). By then every output file is closed and renamed,
+    the kept programs are saved (main) and the streams are flushed here; ``batch``
+    (NORMAL_EXIT_COMMANDS) exits normally."""
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    code = main(arguments)
+    if next((a for a in arguments if not a.startswith("-")), None) in NORMAL_EXIT_COMMANDS:
+        sys.exit(code)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()

@@ -380,3 +380,22 @@ def test_info_device_warm(capsys) -> None:
     assert code == 2 and "--device" in err
     code, _, err = run(["info", "--device", "--warm", "fastest"], capsys)
     assert code == 2 and "presets are" in err
+
+
+def test_console_script_leaves_fast_with_its_status_and_output(tmp_path: Path, scene_png: Path) -> None:
+    """``python -m clisp`` (the console entry, clisp.cli.console) ends the process without the
+    interpreter's teardown: the exit status, the printed line (to a pipe) and the output file are
+    all there; a failure still exits 2 with its one line and no file."""
+    import subprocess
+    import sys
+    raw = tmp_path / "r.dng"
+    assert main(["simulate", str(scene_png), "-o", str(raw), "--cfa", "bayer", "--optics", "none"]) == 0
+    out = tmp_path / "o.tif"
+    ok = subprocess.run([sys.executable, "-m", "clisp", "process", str(raw), "-o", str(out), "--preset", "fast"],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.startswith(f"{out}: ") and ok.stdout.endswith(")\n") and out.is_file()
+    bad = subprocess.run([sys.executable, "-m", "clisp", "process", str(tmp_path / "none.dng"), "-o",
+                          str(tmp_path / "n.tif")], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "no such file" in bad.stderr
+    assert not (tmp_path / "n.tif").exists()
