@@ -88,6 +88,14 @@ VISIBLE_NONE = 1.0e-3
 1/4 of an 8-bit code, 1/4 of the lowest gain-1 figure: in practice never on the simulated sensor
 (no denoising was measured to cost 0.1-0.7 dB at gain 1); left for cleaner sensors."""
 
+FLAT_LOSES_TO = ("DemosaicRI", "DemosaicARI")
+"""Full-path demosaics the flat path does not reach on flat fields, so a tile behind them never
+takes it: residual interpolation follows a smooth gradient almost exactly where the flat path's
+wide cell means blur it. Measured (issue 30; sky of tools/calibrate_skip.py, Bayer, PSNR of the
+flat path's run against --no-skip): RI -0.43, -0.53, -0.69, -0.82 dB at gains 1, 4, 16, 64
+(2048 x 1536); ARI -2.80 and -2.05 dB at gains 4 and 64 (1024 x 600), where DLMMSE gains +1.64
+and +1.72, Malvar +1.27 and +1.44, and the guided LMS demosaic +0.06 to +0.25 (gains 1-64)."""
+
 RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0}
 """Declared device time of each path's chroma stage per pixel, relative to ``full`` (J = 3),
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
@@ -247,7 +255,8 @@ class Skipper:
             paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
             flat = flat_demosaic(raw.cfa)
             d = demosaic_index(stages, i)
-            if flat is not None and d >= 0:       # the demosaic, then (highlights), then the denoiser
+            if flat is not None and d >= 0 and type(stages[d]).__name__ not in FLAT_LOSES_TO:
+                # the demosaic, then (highlights), then the denoiser
                 paths[PATH_FLAT] = stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
         return cls(analysis, list(stages), paths, denoiser, enabled,
                    image=(int(raw.shape[0]), int(raw.shape[1])))

@@ -48,11 +48,16 @@ def test_analysis_blocks_clipping_uniform_detail() -> None:
     assert "clipped samples" in text and "measured/model" in text
 
 
-def _skipper(gain: float, cfa: str = "lms", scene: np.ndarray | None = None) -> tuple:
+def _skipper(gain: float, cfa: str = "lms", scene: np.ndarray | None = None, demosaic: str | None = None) -> tuple:
     scene = smooth_scene() if scene is None else scene
     raw = simulate(scene, cfa=cfa, gain=gain, seed=2).raw
-    pipe = build_pipeline(raw, skip=True)
+    pipe = build_pipeline(raw, skip=True, demosaic=demosaic)
     return raw, pipe, pipe.skipper
+
+
+FLAT_DEMOSAIC = {"lms": None, "bayer": "dlmmse"}
+"""The demosaic of the flat-path tests: the preset's for LMS; for Bayer the balanced preset's
+DLMMSE, since the flat path is not offered behind RI, the quality preset's (skip.FLAT_LOSES_TO)."""
 
 
 def no_flat_path(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -85,16 +90,27 @@ def test_noisy_tiles_are_never_left_undenoised(gain: float) -> None:
 def test_flat_path_only_where_nothing_but_noise(cfa: str, gain: float) -> None:
     """The smooth gradient takes ``flat`` everywhere; texture (and every tile within the flat
     stage's reach of it) never does."""
-    _, _, sk = _skipper(gain, cfa, smooth_scene())
+    _, _, sk = _skipper(gain, cfa, smooth_scene(), FLAT_DEMOSAIC[cfa])
     assert {c.path for c in sk.plan(grid(256, 256, 64, 64)).choices} == {PATH_FLAT}
     scene = smooth_scene()
     scene[:, 192:] = textured_scene()[:, 192:]
-    _, _, sk = _skipper(gain, cfa, scene)
+    _, _, sk = _skipper(gain, cfa, scene, FLAT_DEMOSAIC[cfa])
     plan = sk.plan(grid(256, 256, 64, 64))
     paths = {(c.tile.y0, c.tile.x0): c.path for c in plan.choices}
     assert all(paths[(y, 192)] != PATH_FLAT for y in range(0, 256, 64)), plan.explain()
     assert all(paths[(y, 128)] != PATH_FLAT for y in range(0, 256, 64)), "the textured blocks are within reach"
     assert all(paths[(y, 0)] == PATH_FLAT for y in range(0, 256, 64)), plan.explain()
+
+
+@pytest.mark.parametrize("demosaic", ["ri", "ari"])
+def test_no_flat_path_behind_residual_interpolation(demosaic: str) -> None:
+    """Behind RI and ARI the flat path loses on flat fields (skip.FLAT_LOSES_TO): the smooth
+    gradient that takes ``flat`` behind DLMMSE takes the full path there."""
+    _, _, sk = _skipper(4, "bayer", smooth_scene(), demosaic)
+    assert PATH_FLAT not in sk.paths
+    assert PATH_FLAT not in {c.path for c in sk.plan(grid(256, 256, 64, 64)).choices}
+    _, _, sk = _skipper(4, "bayer", smooth_scene(), "dlmmse")
+    assert PATH_FLAT in sk.paths
 
 
 def test_clipped_tiles_never_take_the_flat_path() -> None:
@@ -230,7 +246,7 @@ def test_flat_and_full_tiles_meet_without_a_seam(cfa: str) -> None:
     scene[:, 160:] = textured_scene()[:, 160:]
     sim = simulate(scene, cfa=cfa, gain=1, seed=2)
     raw = sim.raw
-    pipe = build_pipeline(raw, skip=True)
+    pipe = build_pipeline(raw, skip=True, demosaic=FLAT_DEMOSAIC[cfa])
     sk = pipe.skipper
     out = pipe.run(raw.data, tile=64)
     plan = pipe.skip_plan
