@@ -4,19 +4,10 @@
  * Defines from the host: RAW_T (input mosaic type: ushort or float); HS_BLOCK (2: mosaic pixels per
  * output pixel); HS_SIDE (HS_BLOCK + 2 r: the window side, r the stage's halo); HS_PHASES (block
  * phases per axis: CFA period / HS_BLOCK); the fused per-pixel stages that follow (HalfSize.fuse):
- * HS_CAP (1: a highlight clamp), HS_TONE (1: the sRGB tone curve, with srgb.h and the SRGB_* defines
+ * HS_CAP (1: a highlight clamp), ENCODE_SRGB (1: the sRGB tone curve, with srgb.h and the SRGB_* defines
  * prepended by the host), QUANTIZE (1: 16-bit codes); INTERLEAVED (0: 3 planes, 1: H x W x 3). */
 
-#if HS_TONE && QUANTIZE
-typedef ushort out_t;
-#define STORE(v) quantize16(encode_srgb(v))
-#elif HS_TONE
-typedef float out_t;
-#define STORE(v) encode_srgb(v)
-#else
-typedef float out_t;
-#define STORE(v) (v)
-#endif
+#include "store.h"
 
 /* half_size_bin: output pixel (y, x) from the HS_SIDE x HS_SIDE window of raw at (HS_BLOCK y,
  * HS_BLOCK x) (its 2 x 2 block at (HS_BLOCK y + r, HS_BLOCK x + r)):
@@ -24,7 +15,7 @@ typedef float out_t;
  * (stage.phase_weights: 1 / count where sample p is of channel k, 0 elsewhere, so sum_p w_k(p) = 1
  * and out_k is the mean of channel k's normalised, white-balanced samples); then, fused: the clamp
  * out_k <- min(out_k, cap_k) (HS_CAP), dst = m out (a fused colour matrix, identity otherwise),
- * the tone curve (HS_TONE, QUANTIZE). weights: HS_PHASES^2 x 3 x HS_SIDE^2; (block_y, block_x):
+ * the tone curve (ENCODE_SRGB, QUANTIZE). weights: HS_PHASES^2 x 3 x HS_SIDE^2; (block_y, block_x):
  * the phase of output pixel (0, 0)'s block. Halo r; launched over exactly out_w x out_h
  * (launch_exact): no bounds check, so PoCL vectorises it. */
 __kernel void half_size_bin(__global const RAW_T *restrict raw, __global out_t *restrict dst,

@@ -226,7 +226,7 @@ class HalfSize(FusedColourMatrix, Stage):
         dst = out if out is not None else rt.acquire(3, out_h, out_w, self.out_dtype)
         defines = {"RAW_T": "ushort" if src.dtype == np.uint16 else "float", "HS_BLOCK": BLOCK,
                    "HS_SIDE": BLOCK + 2 * r, "HS_PHASES": phases, "HS_CAP": int(self.cap is not None),
-                   "HS_TONE": int(self.tone is not None), "QUANTIZE": int(self.tone == "uint16"),
+                   "ENCODE_SRGB": int(self.tone is not None), "QUANTIZE": int(self.tone == "uint16"),
                    "INTERLEAVED": int(self.interleaved)}
         generated = ""
         if self.tone is not None:

@@ -12,16 +12,7 @@
 
 /* With ENCODE_SRGB the host prepends clisp/modules/colour/srgb.h (encode_srgb, quantize16) and its table;
  * QUANTIZE (define) then writes 16-bit codes instead of float. */
-#if ENCODE_SRGB && QUANTIZE
-typedef ushort out_t;
-#define STORE(v) quantize16(encode_srgb(v))
-#elif ENCODE_SRGB
-typedef float out_t;
-#define STORE(v) encode_srgb(v)
-#else
-typedef float out_t;
-#define STORE(v) (v)
-#endif
+#include "store.h"
 
 /* phase_filter: out_c(y, x) = bias[k][c] + sum_t w[k][c][t] * src(y + dy_t, x + dx_t), k the CFA
  * phase of output pixel (y, x), taps t over the (2R+1)^2 window in row order. Halo RADIUS.
