@@ -11,8 +11,8 @@ Noise measure: ``sigma`` = the noise std of the white-balanced reference channel
 for LMS) at 18 % grey, white = 1 (:func:`noise_sigma`); the simulated sensor gives 0.0052 at gain 1,
 0.0209 at gain 16 and 0.0436 at gain 64.
 
-Each :class:`Alternative` (ALTERNATIVES) carries its calibration: the PSNR change (alternative minus the preset's
-stage, mean and worst over the calibration scenes) at measured noise levels. The rule: the
+Each :class:`Alternative` (ALTERNATIVES) carries its calibration: the PSNR change (alternative minus
+the preset's stage, mean and worst over the calibration scenes) at measured noise levels. The rule: the
 alternative is taken when the raw's sigma is at or above the alternative's threshold
 (:meth:`Alternative.threshold`): the lowest calibrated sigma from which on, at every calibrated
 sigma, the mean change is at least -ERROR_BUDGET_DB and the worst at least -WORST_BUDGET_DB.
