@@ -15,6 +15,27 @@ fast Bayer), shown on a line of its own in each cell with the LMS lead over it.
 
     python tools/reproduce_paper.py [--data ../shared/data] [--subset N] [--seeds S]
         [--bench-subset N] [--speed-shape HxW] [--repeat R] [--out docs] [--scheduler ADDRESS]
+        [--protocol linear|srgb-as-linear|both] [--table1-only] [--levels none,4,8,16,32,64]
+
+``--protocol`` (issue 32, item 4; ../shared/SPEC.md section 9) picks how Table 1's Kodak and
+McMaster rows read the image files:
+
+* ``linear`` (the default, docs/model.md): the file's sRGB-encoded values are decoded to linear sRGB
+  (IEC 61966-2-1), simulated, processed, and output and truth are scored tone-mapped (clip to
+  [0, 1], sRGB-encode) -- a physically consistent chain;
+* ``srgb-as-linear`` (SPEC section 9's reading of the paper's absolute figures): the file's
+  sRGB-ENCODED values in [0, 1] (k / 255 for 8-bit files, no decoding) are fed to the same simulator
+  as if they were linear sRGB (same optics, inverse colour matrix and white balance, exposure,
+  mosaic, noise), the same pipeline (its colour matrix included: SPEC's "with the CCM round trip")
+  processes the raw, and the output is scored against the same encoded, optics-blurred truth with
+  both clipped to [0, 1] and NOT encoded again (clisp.metrics.psnr, tone_mapped=False): the
+  values already are display values;
+* ``both``: Table 1 as under ``linear``, plus both protocols' Kodak and McMaster rows side by side
+  beside the paper's (printed, and a section of the markdown).
+
+``--table1-only`` computes just those Kodak and McMaster rows under ``--protocol`` (chroma denoise
+on, seed 0, noise levels ``--levels``), prints them (side by side for ``both``, with a markdown
+table) and writes nothing.
 
 ``--scheduler ADDRESS`` runs the sweeps (Table 2 per gain, CFA and seed; Table 1 per image and
 noise level; the chart and spectral rows per noise level) as a batch on that Dask cluster through
@@ -113,6 +134,125 @@ def spectral_rows(runner: pt.Runner, lms: str, bayer: str | list[str],
     return out, de
 
 
+PROTOCOLS = ("linear", "srgb-as-linear")
+"""Table 1's readings of an image file (module docstring; ../shared/SPEC.md section 9)."""
+
+
+def load_encoded_scene(path) -> np.ndarray:
+    """An image file's sRGB-ENCODED values as float64 H x W x 3 in [0, 1] (integer files: code /
+    full scale, no decoding; float files, which hold linear sRGB, are encoded with IEC 61966-2-1),
+    cropped at the bottom and right to multiples of 4 px as toolkit.load_scene: the scene the
+    ``srgb-as-linear`` protocol hands the simulator as if it were linear."""
+    from clisp.io.imageio import read_image
+    from clisp.sim.colorimetry import srgb_encode
+    pixels, is_float = read_image(path)
+    pixels = np.clip(pixels.astype(np.float64), 0.0, 1.0)
+    if is_float:
+        pixels = srgb_encode(pixels)
+    return pixels[:pixels.shape[0] // 4 * 4, :pixels.shape[1] // 4 * 4]
+
+
+def protocol_scene(path, protocol: str) -> np.ndarray:
+    """The simulator's input for ``path`` under ``protocol``: linear sRGB (``linear``) or the
+    encoded values taken as linear (``srgb-as-linear``)."""
+    if protocol == "linear":
+        return toolkit.load_scene(path)
+    if protocol == "srgb-as-linear":
+        return load_encoded_scene(path)
+    raise ValueError(f"unknown protocol {protocol!r}; known: {', '.join(PROTOCOLS)}")
+
+
+def protocol_psnr(image: np.ndarray, truth: np.ndarray, protocol: str) -> float:
+    """Table 1's PSNR (dB, 10 px border) under ``protocol``: tone-mapped for ``linear``; for
+    ``srgb-as-linear`` output and truth are already display values, so clipped to [0, 1] and
+    compared as they are (no second encoding)."""
+    return psnr(image, truth, border=toolkit.BORDER, tone_mapped=protocol == "linear")
+
+
+def protocol_item(item: tuple, runner: pt.Runner, lms: str, bayer: str | list[str]) -> tuple[float, ...]:
+    """One (image path, noise level, protocol) of Table 1: (Bayer, LMS, *other Bayers) PSNR,
+    chroma denoise on, seed 0 (as paper_tables.table1_item's ``with`` run)."""
+    path, gain, protocol = item
+    scene = protocol_scene(path, protocol)
+    scores = []
+    for kind, name in pipelines(lms, bayer):
+        sim = simulate(scene, kind, gain=gain, seed=0)
+        scores.append(protocol_psnr(runner.run(sim.raw, name, True), sim.truth, protocol))
+    return tuple(scores)
+
+
+def protocol_table1(runner: pt.Runner, data, subset: int | None, lms: str, bayer: str | list[str],
+                    protocols: tuple[str, ...], levels: list = LEVELS,
+                    mapper: pt.Mapper = pt.serial) -> dict[str, dict[str, dict]]:
+    """{protocol: {set: {gain: mean (Bayer, LMS, *other Bayers) PSNR}}} for Kodak and McMaster
+    (the first ``subset`` images of each by file name; None = all)."""
+    out: dict[str, dict[str, dict]] = {p: {} for p in protocols}
+    for set_name, image_set in pt.SETS.items():
+        paths = toolkit.image_files(data, image_set, subset)
+        items = [(path, gain, protocol) for protocol in protocols for path in paths for gain in levels]
+        scores = iter(mapper(protocol_item, items, runner, lms, bayer, progress=f"Table 1 {set_name} protocols"))
+        for protocol in protocols:
+            per = {gain: [] for gain in levels}
+            for _path in paths:
+                for gain in levels:
+                    per[gain].append(next(scores))
+            out[protocol][set_name] = {g: tuple(np.mean(v, axis=0)) for g, v in per.items()}
+    return out
+
+
+def md_protocols(side: dict[str, dict[str, dict]], levels: list, others: list[str] = ()) -> list[str]:
+    """Table 1 under both protocols, markdown: per set and noise level the paper's Bayer/LMS (LMS
+    lead), then per protocol ours (lead) and ours - paper for Bayer and LMS; the other Bayer
+    demosaics (``others``) last, per protocol."""
+    head = ("| set | noise | paper Bayer/LMS (lead) | linear: ours (lead) | linear - paper Bayer, LMS "
+            "| srgb-as-linear: ours (lead) | srgb-as-linear - paper Bayer, LMS |"
+            + "".join(f" {label(n)} linear / srgb-as-linear (LMS - {label(n)}) |" for n in others))
+    lines = [head, "|---|---|---|---|---|---|---|" + "---|" * len(others)]
+    for set_name in pt.SETS:
+        for g in levels:
+            pb, pl = pt.PAPER_T1[set_name][g]
+            cells = [f"{pb:.2f}/{pl:.2f} ({pl - pb:+.2f})"]
+            for protocol in PROTOCOLS:
+                b, lm, *_ = side[protocol][set_name][g]
+                cells += [f"{b:.2f}/{lm:.2f} ({lm - b:+.2f})", f"{b - pb:+.2f}, {lm - pl:+.2f}"]
+            for k, n in enumerate(others):
+                x = [side[p][set_name][g] for p in PROTOCOLS]
+                cells.append(" / ".join(f"{v[2 + k]:.2f} ({v[1] - v[2 + k]:+.2f})" for v in x))
+            name = "IMAX (McMaster)" if set_name == "McMaster" else set_name
+            lines.append(f"| {name} | {fmt_level(g)} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def print_protocols(side: dict[str, dict[str, dict]], levels: list, bayer: str, others: list[str] = ()) -> None:
+    """Table 1 under the protocols of ``side`` on stdout, beside the paper's (Bayer/LMS, LMS lead)."""
+    protocols = [p for p in PROTOCOLS if p in side]
+    print(f"\nTable 1 (PSNR dB, 10 px border, chroma denoise on), {label(bayer)}/LMS (LMS lead) by protocol:")
+    print(f"  {'set':9} {'noise':>8}  {'paper':>22}" + "".join(f"  {p:>22}  {'- paper':>13}" for p in protocols)
+          + "".join(f"  {label(n) + ' ' + p:>22}" for n in others for p in protocols))
+    for set_name in pt.SETS:
+        for g in levels:
+            pb, pl = pt.PAPER_T1[set_name][g]
+            line = f"  {set_name:9} {fmt_level(g):>8}  {f'{pb:.2f}/{pl:.2f} ({pl - pb:+.2f})':>22}"
+            for p in protocols:
+                b, lm, *_ = side[p][set_name][g]
+                line += f"  {f'{b:.2f}/{lm:.2f} ({lm - b:+.2f})':>22}  {f'{b - pb:+.2f},{lm - pl:+.2f}':>13}"
+            for k, _n in enumerate(others):
+                for p in protocols:
+                    v = side[p][set_name][g]
+                    line += f"  {f'{v[2 + k]:.2f} ({v[1] - v[2 + k]:+.2f})':>22}"
+            print(line)
+
+
+def parse_levels(text: str) -> list:
+    """``none,4,64`` -> [None, 4, 64]: Table 1's noise levels (``none`` = noiseless), each one of
+    the paper's (LEVELS)."""
+    levels = [None if t.strip().lower() in ("none", "0", "noiseless") else int(t) for t in text.split(",") if t.strip()]
+    bad = [g for g in levels if g not in LEVELS]
+    if bad or not levels:
+        raise argparse.ArgumentTypeError(f"noise levels must be among none,{','.join(map(str, pt.GAINS))}; got {text!r}")
+    return levels
+
+
 @contextmanager
 def sweep_mapper(scheduler: str | None) -> Iterator[pt.Mapper]:
     """The Mapper of the per-image/per-gain sweeps: this process, or with ``scheduler`` the Dask
@@ -207,6 +347,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="run the Table 1/2, chart and spectral sweeps (per image and gain) on the Dask "
                          "cluster at ADDRESS (clisp.batch); the speed benchmark stays in this process")
+    ap.add_argument("--protocol", choices=PROTOCOLS + ("both",), default="linear",
+                    help="how Table 1's Kodak and McMaster rows read the files: linear (default), "
+                         "srgb-as-linear (SPEC section 9: encoded values taken as linear), or both side by side")
+    ap.add_argument("--table1-only", action="store_true",
+                    help="only Table 1's Kodak and McMaster rows under --protocol, printed; writes nothing")
+    ap.add_argument("--levels", type=parse_levels, default=LEVELS, metavar="none,4,...",
+                    help="noise levels of --table1-only (default all: none,4,8,16,32,64)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     data = args.data
@@ -220,6 +367,17 @@ def main(argv: list[str] | None = None) -> int:
     times = {}
 
     subset = args.subset or None
+    protocols = PROTOCOLS if args.protocol == "both" else (args.protocol,)
+    if args.table1_only:
+        with sweep_mapper(args.scheduler) as mapper:
+            side = protocol_table1(runner, data, subset, lms, bayers, protocols, args.levels, mapper)
+        n_set = {s: len(toolkit.image_files(data, image_set, subset)) for s, image_set in pt.SETS.items()}
+        print(f"\n{', '.join(f'{n} {s} images' for s, n in n_set.items())} (the first by file name), "
+              f"{(time.perf_counter() - t0) / 60:.1f} min")
+        print_protocols(side, args.levels, bayer, others)
+        if len(protocols) == 2:
+            print("\n" + "\n".join(md_protocols(side, args.levels, others)))
+        return 0
     with sweep_mapper(args.scheduler) as mapper:
         t = time.perf_counter()
         t2 = pt.table2(runner, [lms], bayers, args.seeds, mapper)
@@ -227,6 +385,12 @@ def main(argv: list[str] | None = None) -> int:
         t = time.perf_counter()
         t1 = pt.table1(runner, data, subset, [lms], bayers, mapper)
         times["Table 1 (Kodak, McMaster)"] = time.perf_counter() - t
+        encoded = None
+        if args.protocol != "linear":
+            t = time.perf_counter()
+            encoded = protocol_table1(runner, data, subset, lms, bayers, ("srgb-as-linear",), LEVELS,
+                                      mapper)["srgb-as-linear"]
+            times["Table 1 (srgb-as-linear)"] = time.perf_counter() - t
         t = time.perf_counter()
         charts = chart_rows(runner, lms, bayers, mapper)
         spectral, delta_e = spectral_rows(runner, lms, bayers, mapper)
@@ -244,12 +408,31 @@ def main(argv: list[str] | None = None) -> int:
                 for g in LEVELS}
     n_all = {s: len(toolkit.image_files(data, image_set, required=False)) for s, image_set in pt.SETS.items()}
     n_set = {s: min(n_all[s], subset or n_all[s]) for s in pt.SETS}
+    table1_rows = ours if args.protocol != "srgb-as-linear" else (lambda set_name: encoded[set_name])
+    reading = "" if args.protocol != "srgb-as-linear" else ", srgb-as-linear protocol"
     rows = {
         "ISET (hyperspectral)": ("spectral ColorChecker, clisp.sim.spectral", spectral, PAPER_T1_EXTRA["ISET (hyperspectral)"]),
         "Charts (RGB)": ("clisp demo chart", charts, PAPER_T1_EXTRA["Charts (RGB)"]),
-        "Kodak (RGB)": (f"{n_set['Kodak']} of {n_all['Kodak']} Kodak images", ours("Kodak"), pt.PAPER_T1["Kodak"]),
-        "IMAX (RGB)": (f"{n_set['McMaster']} of {n_all['McMaster']} McMaster images", ours("McMaster"), pt.PAPER_T1["McMaster"]),
+        "Kodak (RGB)": (f"{n_set['Kodak']} of {n_all['Kodak']} Kodak images{reading}", table1_rows("Kodak"),
+                        pt.PAPER_T1["Kodak"]),
+        "IMAX (RGB)": (f"{n_set['McMaster']} of {n_all['McMaster']} McMaster images{reading}",
+                       table1_rows("McMaster"), pt.PAPER_T1["McMaster"]),
     }
+    side = None
+    if args.protocol == "both":
+        side = {"linear": {s: ours(s) for s in pt.SETS}, "srgb-as-linear": encoded}
+        print_protocols(side, LEVELS, bayer, others)
+    protocol_md = [] if side is None else [
+        "## Table 1 under both protocols (Kodak and IMAX/McMaster; `--protocol both`)",
+        "",
+        "linear: the files decoded to linear sRGB, scored tone-mapped (the table above); srgb-as-linear: "
+        "the files' encoded values fed to the simulator as if linear and scored against the encoded truth "
+        "without a second encoding (../shared/SPEC.md section 9; tools/reproduce_paper.py's docstring). "
+        f"{label(bayer)}/LMS (LMS lead) and ours - paper per CFA.",
+        "",
+        *md_protocols(side, LEVELS, others),
+        "",
+    ]
     argv_used = sys.argv[1:] if argv is None else argv
     command = "python tools/reproduce_paper.py " + " ".join(shlex.quote(a) for a in argv_used)
     md = [
@@ -287,10 +470,14 @@ def main(argv: list[str] | None = None) -> int:
                   for n in others)
         + ". The paper's ISET row used hyperspectral scenes, which are not "
         "available; ours is the spectral ColorChecker of clisp.spectral (Stockman-Sharpe cones / "
-        "Nikon D100 QE under D65). McMaster stands in for the paper's IMAX.",
+        "Nikon D100 QE under D65). McMaster stands in for the paper's IMAX."
+        + (" The Kodak and IMAX rows follow the srgb-as-linear protocol (the files' encoded values taken "
+           "as linear, scored against the encoded truth without a second encoding; ../shared/SPEC.md "
+           "section 9), the others the linear one." if args.protocol == "srgb-as-linear" else ""),
         "",
         *md_table1(rows, others),
         "",
+        *protocol_md,
         "## Spectral ColorChecker colour error (noiseless, CIEDE2000 over the 24 patches)",
         "",
         "| CFA (demosaic) | mean | max |",
