@@ -117,6 +117,28 @@ def _isetcam_reflectances(path: Path) -> np.ndarray:
     return np.stack([np.interp(WAVELENGTHS, wave, data[:, i]) for i in ISETCAM_ORDER])
 
 
+@lru_cache(maxsize=None)
+def mallett2019_basis() -> np.ndarray:
+    """Mallett & Yuksel (2019) sRGB basis reflectances at WAVELENGTHS, shape (3, n_lambda).
+
+    I. Mallett, C. Yuksel, "Spectral Primary Decomposition for Rendering with sRGB Reflectance",
+    EGSR 2019 (doi:10.2312/sr.20191216), as shipped by colour-science
+    (``colour.recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019``, 380..780 nm step 5, read here at
+    the 10 nm grid points). Each basis lies in [0, 1] and the three sum to 1 at every wavelength.
+    """
+    return _resample(_colour().recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019).T.copy()
+
+
+def srgb_to_reflectance(rgb: np.ndarray) -> np.ndarray:
+    """Reflectance spectra of linear sRGB colours by Mallett & Yuksel (2019), shape (..., n_lambda).
+
+    rgb: (..., 3) linear sRGB, clipped to [0, 1] (the method's domain, where the spectra are valid
+    reflectances in [0, 1]). R(lambda) = r B_r(lambda) + g B_g(lambda) + b B_b(lambda): what
+    ``colour.recovery.RGB_to_sd_Mallett2019`` computes, vectorised over pixels.
+    """
+    return np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0) @ mallett2019_basis()
+
+
 def camera_responses(refl: np.ndarray, kind: str) -> np.ndarray:
     """Photon-counting responses of reflectances (N, n_lambda) under D65, shape (N, 3), scaled so
     the brightest channel of a perfect white (R = 1) is 1."""
@@ -203,23 +225,40 @@ def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str |
     the chart's true linear sRGB through the same optics. Returns a SimResult.
     """
     cfa_obj = resolve_cfa(cfa)
-    noise = noise or NoiseModel()
     chart = spectral_colorchecker(cfa_obj.kind, source, data)
+    return simulate_responses(chart.camera, chart.truth, cfa_obj, chart.wb, chart.matrix, gain=gain,
+                              optics=optics, seed=seed, r0=r0, noise=noise,
+                              scene=f"spectral colorchecker ({source}, D65)")
+
+
+def simulate_responses(camera: np.ndarray, truth: np.ndarray, cfa, wb: np.ndarray, matrix: np.ndarray,
+                       gain: float | None = None, optics: str | None = "airy", seed: int | None = 0,
+                       r0: float = 1.0, noise=None, scene: str = "spectral scene (D65)"):
+    """Simulate a raw from an image of camera responses (the spectral path for any scene).
+
+    camera: H x W x 3 photon-counting responses (:func:`camera_responses`, brightest white channel
+    = 1); truth: H x W x 3 true linear sRGB of the same scene; wb (3,) and matrix (3 x 3) go into
+    the RawImage (e.g. those of :func:`spectral_colorchecker`). Optics, mosaic and noise as
+    :func:`simulate_spectral`; the truth goes through the same optics. Returns a SimResult.
+    """
+    cfa_obj = resolve_cfa(cfa)
+    noise = noise or NoiseModel()
     gain_value = None if gain is None else check_gain(gain)
     kernel = _optics_kernel(optics, r0)
     seed = _check_seed(seed)
     k_exp = 1.0   # responses are already scaled so the brightest channel of white is 1
-    _, raw = optics_and_mosaic(chart.camera, cfa_obj, kernel, np.eye(3) * k_exp)
-    truth = chart.truth.astype(np.float32) if kernel is None else apply_optics(chart.truth, kernel).astype(np.float32)
+    _, raw = optics_and_mosaic(camera, cfa_obj, kernel, np.eye(3) * k_exp)
+    truth = truth.astype(np.float32) if kernel is None else apply_optics(truth, kernel).astype(np.float32)
     if gain_value is None:
         mosaic = (raw * noise.range_dn + float(noise.black_level)).astype(np.float32)
     else:
         mosaic = noise.sample(raw, gain_value, np.random.default_rng(seed))
     metadata = _metadata(cfa_obj, gain_value, noise, kernel, r0, seed, k_exp)
-    metadata["scene"] = f"spectral colorchecker ({source}, D65)"
+    metadata["scene"] = scene
     image = RawImage(data=mosaic, cfa=cfa_obj, black_level=np.full(cfa_obj.n_channels, float(noise.black_level)),
-                     white_level=float(noise.white_level), wb=chart.wb, colour_matrix=chart.matrix,
-                     exposure=1.0 / k_exp, wb2=np.ones(3), metadata=metadata, source="simulated")
+                     white_level=float(noise.white_level), wb=np.asarray(wb, dtype=np.float64),
+                     colour_matrix=np.asarray(matrix, dtype=np.float64), exposure=1.0 / k_exp, wb2=np.ones(3),
+                     metadata=metadata, source="simulated")
     return SimResult(raw=image, truth=truth)
 
 
