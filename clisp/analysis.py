@@ -160,7 +160,7 @@ class SceneAnalysis:
 def _luma_chroma(raw: RawImage) -> tuple[np.ndarray, np.ndarray]:
     """(luma (n_ch,), chroma (k, n_ch)) weights on WB'd camera channels: the chroma denoiser's space."""
     try:
-        space = space_for(raw.cfa.kind, raw.colour_matrix)
+        space = space_for(raw.cfa.spectral, raw.colour_matrix)
         return space.luma, space.chroma
     except ClispError:                       # another CFA kind: plain mean and differences from it
         n = raw.cfa.n_channels

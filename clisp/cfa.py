@@ -14,6 +14,17 @@ The paper's LMS pattern (docs/model.md section 1), phase (0, 0)::
     3    M L M L
 
 L iff (x + y) even; S iff y even and (x - y) mod 4 == 3; else M.
+
+A CFA has two independent properties, and each stage reads the one it depends on:
+
+* ``spectral`` ('lms' or 'rgb', from the channel names): which filters the sensor has. It picks
+  the colour pipeline: the simulated camera's constants (colour matrix, white balance), the
+  chroma denoiser's space.
+* ``layout`` (from the pattern): 'bayer' (2 x 2 with one channel doubled on a diagonal, the other
+  two once each), 'lms' (the paper's 4 x 4, any phase) or 'other'. It picks the demosaic.
+
+``kind`` names the pair: 'lms' (LMS on the 4 x 4), 'bayer' (RGB on 2 x 2), 'lms-bayer' (L, M, S on
+the Bayer layout: L where R was, M where G was, S where B was), else '<spectral>-<layout>'.
 """
 from __future__ import annotations
 
@@ -32,13 +43,20 @@ LMS_TILE = np.array(
 
 BAYER_PHASES = ("RGGB", "GRBG", "GBRG", "BGGR")
 
+CHANNEL_SETS: dict[str, tuple[str, ...]] = {"lms": ("L", "M", "S"), "rgb": ("R", "G", "B")}
+"""The spectral kinds and their channels, in index order (index 1, M or G, is the Bayer layout's
+doubled channel)."""
+
+LAYOUTS = ("bayer", "lms", "other")
+"""The layouts a CFA's pattern can have (module doc)."""
+
 
 @dataclass(frozen=True)
 class CFA:
     """A periodic colour filter array.
 
-    ``pattern`` is a (p, p) int8 array of channel indices into ``channels``;
-    ``kind`` is ``"lms"`` or ``"bayer"`` and selects the colour pipeline.
+    ``pattern`` is a (p, p) int8 array of channel indices into ``channels``; ``kind`` names the
+    pair (``spectral``, ``layout``) (module doc): 'lms', 'bayer', 'lms-bayer', ...
     """
 
     name: str
@@ -54,6 +72,27 @@ class CFA:
     @property
     def n_channels(self) -> int:
         return len(self.channels)
+
+    @property
+    def spectral(self) -> str:
+        """'lms' or 'rgb' (the channel names, CHANNEL_SETS), else 'other': picks the colour pipeline."""
+        for name, channels in CHANNEL_SETS.items():
+            if tuple(self.channels) == channels:
+                return name
+        return "other"
+
+    @property
+    def layout(self) -> str:
+        """'bayer', 'lms' or 'other' (LAYOUTS): the arrangement of the pattern, which picks the demosaic."""
+        return layout_of(self.pattern)
+
+    def bayer_phase(self, origin: tuple[int, int] = (0, 0)) -> str:
+        """The Bayer phase name (RGGB, GRBG, GBRG or BGGR) of a window whose pixel (0, 0) is image pixel
+        ``origin``, channels 0, 1, 2 read as R, G, B (L, M, S on lms-bayer). ClispError unless the
+        layout is 'bayer'."""
+        if self.layout != "bayer":
+            raise ClispError(f"CFA {self.name} does not have the Bayer layout (2x2, channel 1 doubled on a diagonal)")
+        return "".join("RGB"[int(c)] for c in self.channel_map(2, 2, origin).ravel())
 
     def channel_map(self, height: int, width: int, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
         """Channel index of every pixel of an H x W window whose (0, 0) is image pixel ``origin``.
@@ -91,6 +130,33 @@ class CFA:
         return bytes(int(v) for v in self.pattern.ravel())
 
 
+def layout_of(pattern: np.ndarray) -> str:
+    """The layout of a (p, p) pattern of channel indices 0, 1, 2: 'bayer' (2 x 2, channel 1 twice on a
+    diagonal, 0 and 2 once: the Bayer demosaics read them as R, G, B), 'lms' (a translate of LMS_TILE:
+    channel 0 on half the pixels, 1 on 3/8, 2 on 1/8) or 'other' (any other pattern, such as L doubled
+    on 2 x 2: the any-CFA demosaic serves it)."""
+    pattern = np.asarray(pattern)
+    if pattern.shape == (2, 2):
+        counts = np.bincount(pattern.ravel().astype(np.int64), minlength=3)
+        diagonal = pattern[0, 0] == pattern[1, 1] == 1 or pattern[0, 1] == pattern[1, 0] == 1
+        return "bayer" if counts.tolist() == [1, 2, 1] and diagonal else "other"
+    if pattern.shape == (4, 4):
+        for dy in range(4):
+            for dx in range(4):
+                if np.array_equal(np.roll(LMS_TILE, (-dy, -dx), axis=(0, 1)), pattern):
+                    return "lms"
+    return "other"
+
+
+def make_kind(channels: tuple[str, ...], pattern: np.ndarray) -> str:
+    """The ``kind`` of a CFA with these channels and pattern (module doc): 'lms', 'bayer', 'lms-bayer',
+    else '<spectral>-<layout>'."""
+    spectral = next((name for name, names in CHANNEL_SETS.items() if tuple(channels) == names), "other")
+    layout = layout_of(pattern)
+    named = {("lms", "lms"): "lms", ("rgb", "bayer"): "bayer", ("lms", "bayer"): "lms-bayer"}
+    return named.get((spectral, layout), f"{spectral}-{layout}")
+
+
 def lms_cfa(phase: tuple[int, int] = (0, 0)) -> CFA:
     """The paper's 4x4 LMS CFA; ``phase=(dy, dx)`` shifts it so pixel (y, x) reads tile[(y+dy)%4][(x+dx)%4]."""
     dy, dx = (int(phase[0]) % 4, int(phase[1]) % 4)
@@ -110,9 +176,52 @@ def bayer_cfa(phase: str = "RGGB") -> CFA:
     return CFA(name=f"bayer-{phase.lower()}", kind="bayer", channels=("R", "G", "B"), pattern=pattern)
 
 
+def lms_bayer_cfa(phase: str = "RGGB") -> CFA:
+    """L, M, S on the 2 x 2 Bayer layout (kind 'lms-bayer'): L where the Bayer phase has R, M where it
+    has G, S where it has B. Named 'lms-bayer' for RGGB, else 'lms-bayer-<phase>'."""
+    phase = phase.upper()
+    if phase not in BAYER_PHASES:
+        raise ClispError(f"unsupported Bayer phase {phase!r}; expected one of {', '.join(BAYER_PHASES)}")
+    base = bayer_cfa(phase)
+    name = "lms-bayer" if phase == "RGGB" else f"lms-bayer-{phase.lower()}"
+    return CFA(name=name, kind="lms-bayer", channels=("L", "M", "S"), pattern=base.pattern.copy())
+
+
+def cfa_from_string(text: str) -> CFA:
+    """A CFA from a pattern string: the channel letters of each row, rows joined by '/' (``LMLS/MLML/LSLM/MLML``)
+    or written in one run when the pattern is square (``LMMS`` = 2 x 2, 16 letters = 4 x 4). The letters
+    are L, M, S or R, G, B, each of the three at least once. A pattern that is a named CFA returns that
+    CFA (``RGGB`` -> bayer-rggb, ``LMMS`` -> lms-bayer, the 4 x 4 LMS tile -> lms or lms@dy,dx); any other is
+    named by its string, upper case with '/' between rows."""
+    letters = text.strip().upper()
+    rows = letters.split("/") if "/" in letters else None
+    if rows is None:
+        side = int(round(len(letters) ** 0.5))
+        rows = [letters[i * side:(i + 1) * side] for i in range(side)] if side * side == len(letters) else []
+    spectral = next((name for name, names in CHANNEL_SETS.items() if set(letters.replace("/", "")) == set(names)), None)
+    if not rows or spectral is None or any(len(row) != len(rows) for row in rows):
+        raise ClispError(f"bad CFA pattern {text!r}: expected a square of L, M, S or of R, G, B letters, "
+                         f"rows joined by '/' (e.g. LMMS, RGGB, LMLS/MLML/LSLM/MLML)")
+    channels = CHANNEL_SETS[spectral]
+    pattern = np.array([[channels.index(c) for c in row] for row in rows], dtype=np.int8)
+    for candidate in ([bayer_cfa(p) for p in BAYER_PHASES] + [lms_bayer_cfa(p) for p in BAYER_PHASES]
+                      + [lms_cfa((dy, dx)) for dy in range(4) for dx in range(4)]):
+        if candidate.channels == channels and np.array_equal(candidate.pattern, pattern):
+            return candidate
+    name = "/".join(rows)
+    return CFA(name=name, kind=make_kind(channels, pattern), channels=channels, pattern=pattern)
+
+
 def cfa_from_name(name: str) -> CFA:
-    """Parse ``lms``, ``lms@dy,dx``, ``bayer`` (= RGGB) or ``bayer-<phase>``."""
+    """Parse ``lms``, ``lms@dy,dx``, ``bayer`` (= RGGB), ``bayer-<phase>``, ``lms-bayer`` (= L, M, S on
+    RGGB), ``lms-bayer-<phase>`` or a pattern string (:func:`cfa_from_string`)."""
     key = name.strip().lower()
+    if key == "lms-bayer":
+        return lms_bayer_cfa("RGGB")
+    if key.startswith("lms-bayer-"):
+        return lms_bayer_cfa(key[10:])
+    if key and set(key) <= set("lmsrgb/") and len(key.replace("/", "")) >= 4:
+        return cfa_from_string(name)
     if key == "lms":
         return lms_cfa()
     if key.startswith("lms@"):
@@ -125,7 +234,8 @@ def cfa_from_name(name: str) -> CFA:
         return bayer_cfa("RGGB")
     if key.startswith("bayer-"):
         return bayer_cfa(key[6:])
-    raise ClispError(f"unknown CFA {name!r}; expected lms, lms@dy,dx, bayer or bayer-<RGGB|GRBG|GBRG|BGGR>")
+    raise ClispError(f"unknown CFA {name!r}; expected lms, lms@dy,dx, bayer, bayer-<RGGB|GRBG|GBRG|BGGR>, "
+                     f"lms-bayer, lms-bayer-<phase> or a pattern string such as LMMS")
 
 
 def cfa_from_pattern(pattern: np.ndarray, colours: str) -> CFA:

@@ -53,7 +53,10 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reflectances", default=None, metavar="MAT",
                    help="with --spectral: ISETCam's macbethChart.mat instead of colour-science's spectra")
     p.add_argument("-o", "--output", required=True, help="raw file to write (.dng)")
-    p.add_argument("--cfa", default="lms", help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx)")
+    p.add_argument("--cfa", default="lms",
+                   help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx), lms-bayer (L, M, S on "
+                        "the RGGB layout; lms-bayer-grbg, ...) or a pattern string of L, M, S or R, G, B letters, "
+                        "rows joined by '/' (LMMS, LMLS/MLML/LSLM/MLML)")
     noise = p.add_mutually_exclusive_group()
     noise.add_argument("--gain", type=float, default=None, help="analog gain 1..64 (default 1)")
     noise.add_argument("--noiseless", action="store_true", help="no noise, no quantisation, no clipping (float raw)")

@@ -53,15 +53,22 @@ DEMOSAICS: dict[str, type[Stage]] = {
     "ri": DemosaicRI,
 }
 """Demosaic stages by CLI name, each built by its ``for_raw(raw)`` (Stage: from the raw's CFA;
-stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFAs it supports."""
+stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA layouts it supports."""
 
 PRESETS: dict[str, dict[str, Any]] = {
-    "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear"}, "denoise_levels": 0, "highlights": "clamp"},
-    "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse"}, "denoise_levels": 2, "highlights": "reconstruct"},
-    "quality": {"demosaic": {"lms": "guided", "bayer": "ri"}, "denoise_levels": 3, "highlights": "reconstruct"},
-    "best": {"demosaic": {"lms": "guided", "bayer": "ari"}, "denoise_levels": 3, "highlights": "reconstruct"},
+    "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear", "other": "bilinear"}, "denoise_levels": 0,
+             "highlights": "clamp"},
+    "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse", "other": "bilinear"}, "denoise_levels": 2,
+                 "highlights": "reconstruct"},
+    "quality": {"demosaic": {"lms": "guided", "bayer": "ri", "other": "bilinear"}, "denoise_levels": 3,
+                "highlights": "reconstruct"},
+    "best": {"demosaic": {"lms": "guided", "bayer": "ari", "other": "bilinear"}, "denoise_levels": 3,
+             "highlights": "reconstruct"},
 }
-"""Named parameter sets (``--preset``); an option is one value or a dict per CFA kind.
+"""Named parameter sets (``--preset``); an option is one value or a dict per CFA layout (clisp.cfa
+``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer takes the Bayer demosaics, the any-CFA bilinear
+serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
+channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
 raw with clipping spread over a fifth of it). Explicit options override."""
@@ -82,12 +89,14 @@ HALF_SIZE_NO_DENOISE = ("--half-size runs no chroma denoise (the binning average
 
 
 def resolve_options(preset: str | None, demosaic: str | None, kind: str | None = None,
-                    half_size: bool = False) -> dict[str, Any]:
-    """The options for CFA ``kind`` ('lms' or 'bayer'): the preset's, overridden by explicit ones.
+                    half_size: bool = False, cfa_kind: str | None = None) -> dict[str, Any]:
+    """The options for CFA layout ``kind`` ('lms', 'bayer' or 'other': ``CFA.layout``; for the LMS and
+    Bayer CFAs their kind): the preset's, overridden by explicit ones.
 
-    Raises ClispError on unknown names, and on a demosaic that does not support ``kind``
-    (a stage class may declare ``cfa_kinds``; without it, it supports every CFA). With
-    ``kind=None`` only the names are checked. ``half_size``: the preview path (no demosaic, no
+    Raises ClispError on unknown names, and on a demosaic that does not support the layout
+    (a stage class may declare ``cfa_kinds``, the layouts it serves; without it, it supports every
+    CFA). With ``kind=None`` only the names are checked. ``cfa_kind``: the CFA's kind, said in the
+    refusal when its layout is not its name (lms-bayer). ``half_size``: the preview path (no demosaic, no
     chroma denoise, highlights HALF_SIZE_HIGHLIGHTS); an explicit demosaic is refused.
     """
     name = preset or DEFAULT_PRESET
@@ -107,7 +116,8 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
         options["demosaic"] = demosaic
     kinds = DEMOSAICS[options["demosaic"]].cfa_kinds or (kind,)
     if kind not in kinds:
-        raise ClispError(f"demosaic {options['demosaic']!r} works on {' and '.join(kinds)} CFAs, not {kind}")
+        which = kind if cfa_kind in (None, kind) else f"{cfa_kind} (the {kind} layout)"
+        raise ClispError(f"demosaic {options['demosaic']!r} works on {' and '.join(kinds)} CFAs, not {which}")
     return options
 
 
@@ -160,7 +170,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     raw = with_white_balance(raw, wb)
     cfa = raw.cfa
     given = demosaic if isinstance(demosaic, Stage) else None
-    options = resolve_options(preset, None if given else demosaic, cfa.kind, half_size)
+    options = resolve_options(preset, None if given else demosaic, cfa.layout, half_size, cfa.kind)
     params = denoise_params(denoise, options["denoise_levels"])
     if half_size and params is not None:
         raise ClispError(HALF_SIZE_NO_DENOISE)
@@ -220,7 +230,7 @@ def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoisePara
     noise = raw_noise(raw) if noise is None else noise
     if is_noiseless(noise) or params.noise_scale == 0:
         return ColourMatrix(raw.colour_matrix)
-    space = space_for(raw.cfa.kind, raw.colour_matrix, params.strengths)
+    space = space_for(raw.cfa.spectral, raw.colour_matrix, params.strengths)
     table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, rt=rt)
     return ChromaDenoise(space, table, params)
 

@@ -233,7 +233,8 @@ def test_cfa_from_name(name, expected_name, pattern):
 
 
 @pytest.mark.parametrize("name, named", [
-    ("", "''"), ("xtrans", "'xtrans'"), ("rggb", "'rggb'"), ("bayer_rggb", "'bayer_rggb'"),
+    ("", "''"), ("xtrans", "'xtrans'"), ("rgbw", "'rgbw'"), ("bayer_rggb", "'bayer_rggb'"),
+    ("lmml", "'lmml'"), ("lmm/sl", "'lmm/sl'"), ("lms-bayer-lmms", "'LMMS'"),
     ("lms@1", "'lms@1'"), ("lms@a,b", "'lms@a,b'"), ("lms@1,2,3", "'lms@1,2,3'"), ("lms@", "'lms@'"),
     ("bayer-rgbg", "'RGBG'"), ("bayer-", "''"),
 ])

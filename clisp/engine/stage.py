@@ -125,7 +125,8 @@ class Stage(ABC):
     stages that can do both have it as a field."""
 
     cfa_kinds: ClassVar[tuple[str, ...] | None] = None
-    """The CFA kinds ('lms', 'bayer') a demosaic serves; None: any."""
+    """The CFA layouts ('lms', 'bayer': clisp.cfa ``CFA.layout``) a demosaic serves; None: any. lms-bayer
+    has the 'bayer' layout."""
 
     @classmethod
     def for_raw(cls, raw: Any) -> "Stage":

@@ -124,7 +124,8 @@ def simulated_model_name(cfa: CFA) -> str:
     >>> simulated_model_name(cfa_from_name("lms"))
     'clisp LMS simulated'
     """
-    return f"clisp {'LMS' if cfa.kind == 'lms' else 'Bayer'} simulated"
+    names = {"lms": "LMS", "bayer": "Bayer", "lms-bayer": "LMS-Bayer"}
+    return f"clisp {names.get(cfa.kind, cfa.kind)} simulated"
 
 
 def camera_make_model(raw: RawImage) -> tuple[str, str]:

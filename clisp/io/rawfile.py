@@ -563,9 +563,10 @@ def _rebuild_cfa(desc: dict[str, Any], p: Path) -> CFA:
     """The CFA named in the metadata, checked against the stored kind, channels and pattern."""
     if not isinstance(desc, dict):
         raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (cfa {clip(desc, 30)})")
-    name = clip(desc.get("name"), 30)
+    full = desc.get("name")
+    name = clip(full, 30)
     try:
-        cfa = cfa_from_name(name)
+        cfa = cfa_from_name(full if isinstance(full, str) and len(full) <= 200 else name)
     except ClispError as exc:
         raise ClispError(f"cannot read raw file '{p}': unsupported CFA {name!r}") from exc
     stored = np.asarray(desc.get("pattern", cfa.pattern.tolist()))

@@ -31,10 +31,12 @@ XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
 
 
 def camera_constants(kind: str) -> tuple[np.ndarray, np.ndarray]:
-    """(colour matrix, WB multipliers) of the paper's simulated sensor for ``kind`` 'lms' or 'bayer'."""
+    """(colour matrix, WB multipliers) of the paper's simulated sensor for the spectral kind ``kind``
+    (clisp.cfa ``CFA.spectral``): 'lms', or 'rgb' (also named 'bayer', the RGB Bayer CFA's kind). The
+    constants follow the filters, not their layout: L, M, S on the Bayer layout take the LMS ones."""
     if kind == "lms":
         return P_LMS, WB_LMS
-    if kind == "bayer":
+    if kind in ("rgb", "bayer"):
         return B_BAYER, WB_BAYER
     raise ValueError(f"unknown CFA kind {kind!r}")
 

@@ -54,7 +54,7 @@ def resolve_cfa(cfa: CFA | str) -> CFA:
 
 
 def inverse_isp_matrix(kind: str) -> tuple[np.ndarray, float]:
-    """(A, k_exp) for CFA kind 'lms' or 'bayer': A (3 x 3) maps linear sRGB to exposed raw channels.
+    """(A, k_exp) for spectral kind 'lms' or 'rgb' (or 'bayer'): A (3 x 3) maps linear sRGB to exposed raw channels.
 
     ``A = k_exp * diag(1/WB) @ inv(M)`` so that ``max_c (A @ [1, 1, 1])_c = 1``.
     k_exp is 0.98951 for LMS and 1.0 for Bayer.
@@ -62,7 +62,7 @@ def inverse_isp_matrix(kind: str) -> tuple[np.ndarray, float]:
     try:
         matrix, wb = camera_constants(kind)
     except ValueError as exc:
-        raise ClispError(f"no camera constants for CFA kind {kind!r}") from exc
+        raise ClispError(f"no camera constants for CFA channels {kind!r} (clisp simulates L, M, S or R, G, B)") from exc
     a = np.linalg.inv(matrix) / np.asarray(wb, dtype=np.float64)[:, None]
     k_exp = 1.0 / float(np.max(a @ np.ones(3)))
     return a * k_exp, k_exp
@@ -144,7 +144,8 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     """Simulate a raw capture of a linear sRGB scene (docs/model.md sections 2 and 3).
 
     scene  H x W x 3 linear sRGB, white = 1.0 (any real dtype; values above 1 are allowed).
-    cfa    a CFA or a name ('lms', 'lms@dy,dx', 'bayer', 'bayer-grbg', ...).
+    cfa    a CFA or a name ('lms', 'lms@dy,dx', 'bayer', 'bayer-grbg', 'lms-bayer', a pattern string
+           such as 'LMMS', ...); its channels pick the camera constants, its pattern the mosaic.
     gain   analog gain in [1, 64]; None = noiseless (float32 DN, unquantised, unclipped).
     optics 'airy' (pixel-integrated Airy PSF, first-zero radius r0 px) or 'none'.
     seed   seed of np.random.default_rng for the noise; the same seed gives identical data.
@@ -154,7 +155,7 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     """
     scene = _check_scene(scene)
     cfa, gain_value, kernel, seed = _check_options(cfa, gain, optics, r0, seed, noise)
-    a, k_exp = inverse_isp_matrix(cfa.kind)
+    a, k_exp = inverse_isp_matrix(cfa.spectral)
     truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
     data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))
     del raw
@@ -183,8 +184,8 @@ def _digitise(raw: np.ndarray, gain: float | None, noise: NoiseModel, rng: np.ra
 
 def _raw_image(data: np.ndarray, cfa: CFA, noise: NoiseModel, k_exp: float,
                metadata: dict[str, Any]) -> RawImage:
-    """The simulated RawImage around ``data`` (camera constants of the CFA kind)."""
-    matrix, wb = camera_constants(cfa.kind)
+    """The simulated RawImage around ``data`` (camera constants of the CFA's spectral kind)."""
+    matrix, wb = camera_constants(cfa.spectral)
     return RawImage(
         data=data, cfa=cfa,
         black_level=np.full(cfa.n_channels, float(noise.black_level)),
@@ -258,7 +259,7 @@ def simulate_large(scene: np.ndarray, size: tuple[int, int], cfa: CFA | str = "l
     height, width = (int(v) for v in size)
     if min(height, width) < cfa.period:
         raise ClispError(f"size {width}x{height} is smaller than one CFA tile ({cfa.period} px)")
-    a, k_exp = inverse_isp_matrix(cfa.kind)
+    a, k_exp = inverse_isp_matrix(cfa.spectral)
     rows = max(16, BAND_PIXELS // width // 16 * 16)
     bands = grid(height, width, rows, width)
     metadata = _metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp)

@@ -23,7 +23,7 @@ def mosaic(shape: tuple[int, int], seed: int) -> np.ndarray:
     return (0.3 + 0.05 * rng.standard_normal(shape)).astype(np.float32)
 
 
-@pytest.mark.parametrize("name", ["lms", "lms@1,2", "bayer-rggb", "bayer-gbrg"])
+@pytest.mark.parametrize("name", ["lms", "lms@1,2", "bayer-rggb", "bayer-gbrg", "lms-bayer", "LM/SL"])
 @pytest.mark.parametrize("cells", [1, 6])
 @pytest.mark.parametrize("edges", [False, True])
 def test_kernel_matches_reference(rt, name: str, cells: int, edges: bool) -> None:
@@ -59,7 +59,7 @@ def test_gradient_is_continued_past_the_image_edges(rt) -> None:
     assert np.abs(biased - exact).max() > 0.01
 
 
-@pytest.mark.parametrize("name", ["lms", "bayer-rggb"])
+@pytest.mark.parametrize("name", ["lms", "bayer-rggb", "lms-bayer-grbg", "LM/SL"])
 def test_constant_colour_is_reproduced(name: str) -> None:
     """A field of one colour (each channel constant) comes out as that colour exactly."""
     cfa = cfa_from_name(name)

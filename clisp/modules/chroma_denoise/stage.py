@@ -165,8 +165,9 @@ def yuv_space(matrix: np.ndarray, strengths: Sequence[float] = (1.5, 1.0)) -> Ch
 
 
 def space_for(kind: str, matrix: np.ndarray, strengths: Sequence[float] | None = None) -> ChromaSpace:
-    """The paper's space for a CFA kind: 'lms' -> :func:`lms_space`, 'bayer' -> :func:`yuv_space`."""
-    make = {"lms": lms_space, "bayer": yuv_space}.get(kind)
+    """The paper's space for a CFA's spectral kind (clisp.cfa ``CFA.spectral``): 'lms' -> :func:`lms_space`,
+    'rgb' -> :func:`yuv_space`; 'bayer' is accepted for 'rgb' (the kind of the RGB Bayer CFA)."""
+    make = {"lms": lms_space, "rgb": yuv_space, "bayer": yuv_space}.get(kind)
     if make is None:
         raise ClispError(f"no chroma space for CFA kind {kind!r}")
     return make(matrix) if strengths is None else make(matrix, strengths)

@@ -56,9 +56,9 @@ def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int,
     """(L, M, S) channel indices after checking the neighbourhood step A relies on (docs/model.md section 1):
     around every S site the 4-neighbours are L, the diagonals and (0, +-2), (+-2, 0) are M, the
     (+-2, +-2) are S; L and M+S fill the two quincunxes."""
-    if cfa.kind != "lms" or set(cfa.channels) != {"L", "M", "S"}:
+    if cfa.layout != "lms":     # the layout (clisp.cfa): channels 0, 1, 2 on 1/2, 3/8, 1/8 of the pixels
         raise ClispError(f"the {what} needs an LMS CFA, got {cfa.name}")
-    ch_l, ch_m, ch_s = (cfa.channels.index(c) for c in "LMS")
+    ch_l, ch_m, ch_s = 0, 1, 2
     p = cfa.period
     pat = cfa.pattern
     want = {ch_l: [(0, 1), (0, -1), (1, 0), (-1, 0)],

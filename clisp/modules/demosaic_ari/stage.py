@@ -256,9 +256,9 @@ class DemosaicARI(Stage):
         return 4.0 * 96
 
     def phase(self, origin: tuple[int, int]) -> str:
-        """The Bayer phase name of a window whose pixel (0, 0) is image pixel ``origin``."""
-        block = self.cfa.channel_map(2, 2, origin)
-        return "".join(self.cfa.channels[c] for c in block.ravel())
+        """The Bayer phase name of a window whose pixel (0, 0) is image pixel ``origin`` (channels 0, 1, 2
+        as R, G, B: L, M, S on lms-bayer)."""
+        return self.cfa.bayer_phase(origin)
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,

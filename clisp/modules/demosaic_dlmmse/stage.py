@@ -222,8 +222,7 @@ class DemosaicDLMMSE(FusedColourMatrix, Stage):
         window_pattern = np.roll(self.cfa.pattern, (-origin[0], -origin[1]), axis=(0, 1))
         return {
             "CFA_PERIOD": 2, "CFA_PATTERN": "{" + ",".join(str(int(v)) for v in window_pattern.ravel()) + "}",
-            "RED": self.cfa.channels.index("R"), "GREEN": self.cfa.channels.index("G"),
-            "BLUE": self.cfa.channels.index("B"),
+            "RED": R, "GREEN": G, "BLUE": B,          # channel indices by role (check_bayer): L, M, S on lms-bayer
             "RAW_T": "ushort" if raw_dtype == np.uint16 else "float",
             "INTERP_RADIUS": STEP_RADII["directional_differences"], "INTERP_WEIGHTS": floats(INTERPOLATION),
             "SMOOTH_RADIUS": STEP_RADII["smooth"], "SMOOTH_WEIGHTS": floats(SMOOTHING),

@@ -44,7 +44,8 @@ PLUS_CENTRE = 4.0
 """Centre weight of the 3 x 3 luminance-residual kernel."""
 
 AXIAL = {"lms": 2.0, "bayer": 0.5}
-"""Axial weight of the residual kernel per CFA kind (module doc: matches the full path's grain)."""
+"""Axial weight of the residual kernel per CFA layout (clisp.cfa: the flat path stands in for the layout's
+demosaic, so lms-bayer takes Bayer's; module doc: matches the full path's grain); other layouts 1."""
 
 RADIUS_PX = 24
 """Half side of the mean window in pixels; ``cells`` = round(RADIUS_PX / CELL_PX)."""
@@ -54,10 +55,12 @@ CELL_PX = 4
 
 
 def detail_channels(cfa: CFA) -> np.ndarray:
-    """(n_channels,) 1 for the channels whose samples enter the luminance residual d, else 0."""
+    """(n_channels,) 1 for the channels whose samples enter the luminance residual d, else 0: all but
+    the sparse channel 2 (S, on 1/8 of the pixels) of the LMS layout; every channel of the others
+    (lms-bayer's S is as dense as Bayer's B)."""
     mask = np.ones(cfa.n_channels, dtype=np.int32)
-    if cfa.kind == "lms" and "S" in cfa.channels:
-        mask[cfa.channels.index("S")] = 0
+    if cfa.layout == "lms":
+        mask[2] = 0
     return mask
 
 
@@ -102,7 +105,7 @@ def reflect_cells(cells: np.ndarray, i0: int, i1: int, j0: int, j1: int) -> np.n
 class DemosaicFlat(Stage):
     """H x W white-balanced mosaic -> (H - 2 halo) x (W - 2 halo) x n_channels camera image for
     tiles without detail (module doc). ``cells``: box radius Rc in cells (0: RADIUS_PX / CELL_PX);
-    ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA kind);
+    ``axial``: weight of the axial neighbours in d (negative: AXIAL of the CFA layout);
     Cells past the image's edges are point-reflected (:func:`reflect_cells`) instead of read from
     the tiler's mirror padding: the image's (H, W) comes with each window's origin
     (:class:`clisp.engine.stage.Origin`, from the planner); a bare (y, x) origin means no edges."""
@@ -121,7 +124,7 @@ class DemosaicFlat(Stage):
         if self.cells <= 0:
             self.cells = max(1, round(RADIUS_PX / CELL_PX))
         if self.axial < 0:
-            self.axial = AXIAL.get(self.cfa.kind, 1.0)
+            self.axial = AXIAL.get(self.cfa.layout, 1.0)
         if self.cfa.n_channels != 3:
             raise ClispError(f"the flat demosaic writes 3 channels; {self.cfa.name} has {self.cfa.n_channels}")
 

@@ -70,12 +70,10 @@ RADIUS = 2
 
 
 def check_bayer(cfa: CFA, what: str) -> None:
-    """Raise ClispError unless ``cfa`` is one of the four 2 x 2 Bayer phases (R, G, B; 2 G per tile)."""
-    p = cfa.pattern
-    bayer = (cfa.kind == "bayer" and tuple(cfa.channels) == ("R", "G", "B") and p.shape == (2, 2)
-             and sorted(p.ravel().tolist()) == [R, G, G, B]
-             and (p[0, 0] == p[1, 1] == G or p[0, 1] == p[1, 0] == G))
-    if not bayer:
+    """Raise ClispError unless ``cfa`` has the Bayer layout (clisp.cfa.layout_of: 2 x 2, channel 1 doubled
+    on a diagonal, channels 0 and 2 once): RGB Bayer in any of its four phases, or L, M, S on it
+    (lms-bayer), whose L, M, S the Bayer demosaics interpolate as R, G, B."""
+    if cfa.layout != "bayer" or cfa.n_channels != 3:
         raise ClispError(f"{what} needs a Bayer CFA (RGGB, GRBG, GBRG or BGGR), got {cfa.name}")
 
 

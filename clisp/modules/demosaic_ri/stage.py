@@ -99,7 +99,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
         """(shot, floor) of the G samples' noise variance in the mosaic's units; zeros without noise."""
         if self.noise is None:
             return 0.0, 0.0
-        g = self.cfa.channels.index("G")
+        g = 1                           # the doubled channel of the Bayer layout (check_bayer): G, or M
         return float(self.noise.shot[g]), float(self.noise.floor[g])
 
     @property
@@ -119,7 +119,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
     def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
         pixel (y, x) is an R site when y + ry and x + rx are even."""
-        ys, xs = np.nonzero(self.cfa.pattern == self.cfa.channels.index("R"))
+        ys, xs = np.nonzero(self.cfa.pattern == 0)     # channel 0 plays R (check_bayer): R, or L
         return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
