@@ -18,6 +18,7 @@ import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -215,6 +216,19 @@ def spectral_colorchecker(kind: str, source: str = "colour", data: str | Path | 
     return SpectralChart(camera=cam[index], truth=srgb[index], wb=wb, matrix=matrix, rois=rois)
 
 
+def sensitivity_kind(cfa: Any) -> str:
+    """The spectral sensitivities of a CFA's channels (SPECTRAL_KINDS): its ``spectral`` (the
+    channel names, clisp.cfa), whatever its layout: 'lms' for L, M, S (the 4x4 CFA and LMS on the
+    Bayer layout alike), 'bayer' (the Nikon D100's R, G, B) for R, G, B.
+
+    >>> from clisp.cfa import cfa_from_name
+    >>> [sensitivity_kind(cfa_from_name(n)) for n in ("lms", "bayer", "lms-bayer")]
+    ['lms', 'bayer', 'lms']
+    """
+    spectral = getattr(cfa, "spectral", cfa.kind)
+    return {"lms": "lms", "rgb": "bayer", "bayer": "bayer"}.get(spectral, spectral)
+
+
 def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str | None = "airy",
                       seed: int | None = 0, r0: float = 1.0, source: str = "colour",
                       data: str | Path | None = None, noise=None):
@@ -225,7 +239,7 @@ def simulate_spectral(cfa: str = "lms", gain: float | None = None, optics: str |
     the chart's true linear sRGB through the same optics. Returns a SimResult.
     """
     cfa_obj = resolve_cfa(cfa)
-    chart = spectral_colorchecker(cfa_obj.kind, source, data)
+    chart = spectral_colorchecker(sensitivity_kind(cfa_obj), source, data)
     return simulate_responses(chart.camera, chart.truth, cfa_obj, chart.wb, chart.matrix, gain=gain,
                               optics=optics, seed=seed, r0=r0, noise=noise,
                               scene=f"spectral colorchecker ({source}, D65)")

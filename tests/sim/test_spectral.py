@@ -9,7 +9,8 @@ import clisp
 from clisp.sim.colorimetry import P_LMS
 from clisp.errors import ClispError
 from clisp.sim.spectral import (WAVELENGTHS, camera_responses, fit_colour_matrix, patch_delta_e, reflectances,
-                            sensitivities, simulate_spectral, spectral_colorchecker, true_srgb, white_balance)
+                            sensitivities, sensitivity_kind, simulate_spectral, spectral_colorchecker, true_srgb,
+                            white_balance)
 
 
 def test_shapes_and_white() -> None:
@@ -45,11 +46,13 @@ def test_fitted_matrix_preserves_white_and_resembles_eq1() -> None:
     assert np.abs(lms.matrix - P_LMS).max() < 0.5          # eq. (1) is close to, not equal to, the fit
 
 
-@pytest.mark.parametrize("cfa, limit", [("lms", 1.0), ("bayer", 3.0)])
+@pytest.mark.parametrize("cfa, limit", [("lms", 1.0), ("bayer", 3.0), ("lms-bayer", 1.0)])
 def test_noiseless_colour_error(cfa: str, limit: float) -> None:
+    """The spectral chart through each CFA; LMS on the Bayer layout takes the cones' sensitivities
+    (sensitivity_kind: the channels, not the layout), so its colour error is the LMS camera's."""
     sim = simulate_spectral(cfa, gain=None)
     out = clisp.process(sim.raw)
-    de = patch_delta_e(out, sim.truth, spectral_colorchecker(sim.raw.cfa.kind).rois)
+    de = patch_delta_e(out, sim.truth, spectral_colorchecker(sensitivity_kind(sim.raw.cfa)).rois)
     assert de.shape == (24,) and de.mean() < limit
 
 
