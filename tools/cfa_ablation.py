@@ -191,25 +191,28 @@ def md_table1(t1: dict, levels: list, pipelines: Sequence[tuple[str, str]]) -> l
 
 def md_steps(t1: dict, levels: list, lb: str) -> list[str]:
     """The two steps' differences (dB) per set and level: step 1, lms-bayer - bayer with the same
-    demosaic ``lb``, red and blue, denoiser off and on; step 2, lms - bayer (RI and DLMMSE) and
-    lms - lms-bayer, red and blue, denoiser on."""
+    demosaic ``lb``, red and blue, denoiser off and on; step 2, lms - bayer (RI and DLMMSE), red on
+    and off, blue on; lms - lms-bayer, red and blue, off and on."""
     def d(s, g, a, b, den, c):
         return t1[(s, g)][a + (den,)][c] - t1[(s, g)][b + (den,)][c]
     L, B = "lms", "bayer"
     lines = [f"| set | noise | step 1: R, lms-bayer - bayer ({lb.upper()}), off / on | B, off / on "
-             "| step 2: R, lms - bayer (RI) / (DLMMSE) | B, lms - bayer (RI) / (DLMMSE) "
-             f"| R, lms - lms-bayer ({lb.upper()}) | B, lms - lms-bayer |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| step 2: R, lms - bayer (RI) / (DLMMSE), on | R, same, off | B, lms - bayer (RI) / (DLMMSE), on "
+             f"| R, lms - lms-bayer ({lb.upper()}), off / on | B, lms - lms-bayer, off / on |",
+             "|---|---|---|---|---|---|---|---|---|"]
     lms, lmsb = (L, "guided"), ("lms-bayer", lb)
     for s in pt.SETS:
         for g in levels:
             r1 = [d(s, g, lmsb, (B, lb), den, 1) for den in (False, True)]
             b1 = [d(s, g, lmsb, (B, lb), den, 3) for den in (False, True)]
             r2 = [d(s, g, lms, (B, n), True, 1) for n in ("ri", "dlmmse")]
+            r2o = [d(s, g, lms, (B, n), False, 1) for n in ("ri", "dlmmse")]
             b2 = [d(s, g, lms, (B, n), True, 3) for n in ("ri", "dlmmse")]
+            r3 = [d(s, g, lms, lmsb, den, 1) for den in (False, True)]
+            b3 = [d(s, g, lms, lmsb, den, 3) for den in (False, True)]
             lines.append(f"| {s} | {level_name(g)} | {r1[0]:+.2f} / {r1[1]:+.2f} | {b1[0]:+.2f} / {b1[1]:+.2f} "
-                         f"| {r2[0]:+.2f} / {r2[1]:+.2f} | {b2[0]:+.2f} / {b2[1]:+.2f} "
-                         f"| {d(s, g, lms, lmsb, True, 1):+.2f} | {d(s, g, lms, lmsb, True, 3):+.2f} |")
+                         f"| {r2[0]:+.2f} / {r2[1]:+.2f} | {r2o[0]:+.2f} / {r2o[1]:+.2f} | {b2[0]:+.2f} / {b2[1]:+.2f} "
+                         f"| {r3[0]:+.2f} / {r3[1]:+.2f} | {b3[0]:+.2f} / {b3[1]:+.2f} |")
     return lines
 
 
@@ -228,20 +231,27 @@ def md_table2(t2: dict, gains: Sequence[int], pipelines: Sequence[tuple[str, str
 
 
 def md_table2_steps(t2: dict, gains: Sequence[int], lb: str) -> list[str]:
-    """Gray-panel SNR differences (dB, mean of P1..P6) for the two steps, red and blue."""
+    """Gray-panel SNR differences (dB, mean of P1..P6) for the two steps, red and blue, denoiser
+    off and on (md_steps' columns)."""
     def d(g, a, b, den, c):
         return float(t2[(g,) + a + (den,)][:, c].mean() - t2[(g,) + b + (den,)][:, c].mean())
     lms, lmsb = ("lms", "guided"), ("lms-bayer", lb)
     lines = [f"| gain | step 1: R, lms-bayer - bayer ({lb.upper()}), off / on | B, off / on "
-             "| step 2: R, lms - bayer (RI) / (DLMMSE), on | B, on | R, lms - lms-bayer, on | B, on |",
-             "|---|---|---|---|---|---|---|"]
+             "| step 2: R, lms - bayer (RI) / (DLMMSE), on | R, same, off | B, same, on | B, same, off "
+             "| R, lms - lms-bayer, off / on | B, off / on |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for g in gains:
         r1 = [d(g, lmsb, ("bayer", lb), den, 0) for den in (False, True)]
         b1 = [d(g, lmsb, ("bayer", lb), den, 2) for den in (False, True)]
         r2 = [d(g, lms, ("bayer", n), True, 0) for n in ("ri", "dlmmse")]
         b2 = [d(g, lms, ("bayer", n), True, 2) for n in ("ri", "dlmmse")]
+        r2o = [d(g, lms, ("bayer", n), False, 0) for n in ("ri", "dlmmse")]
+        b2o = [d(g, lms, ("bayer", n), False, 2) for n in ("ri", "dlmmse")]
+        r3 = [d(g, lms, lmsb, den, 0) for den in (False, True)]
+        b3 = [d(g, lms, lmsb, den, 2) for den in (False, True)]
         lines.append(f"| {g}x | {r1[0]:+.2f} / {r1[1]:+.2f} | {b1[0]:+.2f} / {b1[1]:+.2f} | {r2[0]:+.2f} / {r2[1]:+.2f} "
-                     f"| {b2[0]:+.2f} / {b2[1]:+.2f} | {d(g, lms, lmsb, True, 0):+.2f} | {d(g, lms, lmsb, True, 2):+.2f} |")
+                     f"| {r2o[0]:+.2f} / {r2o[1]:+.2f} | {b2[0]:+.2f} / {b2[1]:+.2f} | {b2o[0]:+.2f} / {b2o[1]:+.2f} "
+                     f"| {r3[0]:+.2f} / {r3[1]:+.2f} | {b3[0]:+.2f} / {b3[1]:+.2f} |")
     return lines
 
 
@@ -261,8 +271,8 @@ def markdown(t1: dict, t2: dict, used: dict[str, int], totals: dict[str, int], s
         "```",
         "",
         f"Run: {minutes:.1f} min on {get_runtime().describe()} ({toolkit.cpu_model()}), revision "
-        f"{toolkit.git_rev(toolkit.REPO, dirty=True)}. Table 1: {images} (every {step}th by file name"
-        f"{'' if step > 1 else ', i.e. all'}), seed 0; Table 2: demo chart, {seeds} seed(s). "
+        f"{toolkit.git_rev(toolkit.REPO, dirty=True)}. Table 1: {images}"
+        f"{f' (every {step}-th by file name)' if step > 1 else ''}, seed 0; Table 2: demo chart, {seeds} seed(s). "
         f"Chroma denoise: {ChromaDenoiseParams()} (the quality preset's).",
         "",
         f"Best Bayer-layout demosaic for lms-bayer by this run (mean Table 1 PSNR, denoiser on, over both "
