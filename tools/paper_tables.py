@@ -138,7 +138,7 @@ class Runner:
         stages = [normalize(cfa, raw.black_level, raw.white_level), white_balance1(cfa, raw.pass1_gains()),
                   demosaic]
         if denoise and not noise.is_zero:
-            space = space_for(cfa.kind, raw.colour_matrix, self.params.strengths)
+            space = space_for(cfa.spectral, raw.colour_matrix, self.params.strengths)
             key = (name, cfa.name, raw.metadata.get("gain"), noise)
             if key not in self.tables:
                 self.tables[key] = calibrate_noise(demosaic, cfa, space, noise, self.params.levels)
