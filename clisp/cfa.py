@@ -76,10 +76,7 @@ class CFA:
     @property
     def spectral(self) -> str:
         """'lms' or 'rgb' (the channel names, CHANNEL_SETS), else 'other': picks the colour pipeline."""
-        for name, channels in CHANNEL_SETS.items():
-            if tuple(self.channels) == channels:
-                return name
-        return "other"
+        return spectral_of(self.channels)
 
     @property
     def layout(self) -> str:
@@ -130,6 +127,11 @@ class CFA:
         return bytes(int(v) for v in self.pattern.ravel())
 
 
+def spectral_of(channels: tuple[str, ...]) -> str:
+    """'lms' or 'rgb' for channels named as in CHANNEL_SETS (in that order), else 'other'."""
+    return next((name for name, names in CHANNEL_SETS.items() if tuple(channels) == names), "other")
+
+
 def layout_of(pattern: np.ndarray) -> str:
     """The layout of a (p, p) pattern of channel indices 0, 1, 2: 'bayer' (2 x 2, channel 1 twice on a
     diagonal, 0 and 2 once: the Bayer demosaics read them as R, G, B), 'lms' (a translate of LMS_TILE:
@@ -151,7 +153,7 @@ def layout_of(pattern: np.ndarray) -> str:
 def make_kind(channels: tuple[str, ...], pattern: np.ndarray) -> str:
     """The ``kind`` of a CFA with these channels and pattern (module doc): 'lms', 'bayer', 'lms-bayer',
     else '<spectral>-<layout>'."""
-    spectral = next((name for name, names in CHANNEL_SETS.items() if tuple(channels) == names), "other")
+    spectral = spectral_of(channels)
     layout = layout_of(pattern)
     named = {("lms", "lms"): "lms", ("rgb", "bayer"): "bayer", ("lms", "bayer"): "lms-bayer"}
     return named.get((spectral, layout), f"{spectral}-{layout}")
