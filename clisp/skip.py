@@ -49,13 +49,16 @@ import numpy as np
 from .analysis import SceneAnalysis, analyse
 from .engine.tiling import Tile, TilePlan
 from .errors import ClispError
+from .modules.block_blend.blend import BlockBlend, rectangles
 from .modules.chroma_denoise.stage import ChromaDenoise
 from .modules.colour.stage import ColourMatrix
 from .modules.demosaic_flat.stage import DemosaicFlat
 from .modules.highlights.stage import HighlightClamp, Highlights
 
-PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT = "full", "light", "none", "flat"
-PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT)
+PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT, PATH_MIXED = "full", "light", "none", "flat", "mixed"
+PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT, PATH_MIXED)
+DETAIL_PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE)
+"""The paths that run the preset's demosaic: a ``mixed`` tile runs one of them on its rectangles."""
 
 FLAT_DETAIL = 2.0
 """Largest luminance detail (SceneAnalysis.detail: Laplacian energy of the cell means over what
@@ -96,7 +99,22 @@ flat path's run against --no-skip): RI -0.43, -0.53, -0.69, -0.82 dB at gains 1,
 (2048 x 1536); ARI -2.80 and -2.05 dB at gains 4 and 64 (1024 x 600), where DLMMSE gains +1.64
 and +1.72, Malvar +1.27 and +1.44, and the guided LMS demosaic +0.06 to +0.25 (gains 1-64)."""
 
-RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0}
+BLEND_RAMP = 32
+"""Width (px) of the cross-fade from the detail path's output to the flat path's on a ``mixed``
+tile (clisp.modules.block_blend): the two paths' grain meets over half a block, not at a line."""
+
+FLAT_PATH_COST = 0.15
+"""Device time per window pixel of the flat path's head (DemosaicFlat, highlights, colour matrix)
+relative to the full path's (the preset's demosaic and chroma denoiser), for the choice between a
+``mixed`` tile and the detail path alone. Measured (clisp process --profile, 12 MP LMS striped sky,
+gain 1, 2-core Xeon, PoCL): see docs/RESULTS.md, issue 30."""
+
+MIX_GAIN = 0.85
+"""A tile takes ``mixed`` only when its modelled cost (the flat path on the tile plus the detail
+path on its rectangles, windows with their halos) is at most this share of the detail path alone:
+the rest pays for the extra launches, uploads and the blend."""
+
+RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0, PATH_MIXED: 0.0}
 """Declared device time of each path's chroma stage per pixel, relative to ``full`` (J = 3),
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
 
@@ -112,6 +130,10 @@ class TileChoice:
     highlight: bool = False
     flat: bool = False
     uniform: bool = False
+    detail: str = ""
+    """A ``mixed`` tile's detail path (full, light or none), run on ``rects``."""
+    rects: tuple[Tile, ...] = ()
+    """A ``mixed`` tile's rectangles (image px, inside the tile) where the detail path runs."""
 
 
 @dataclass
@@ -140,6 +162,16 @@ class SkipPlan:
         return sum(c.tile.h * c.tile.w for c in self.choices if c.path == path)
 
     @property
+    def rects_count(self) -> int:
+        """Rectangles of every ``mixed`` tile (where the detail path ran)."""
+        return sum(len(c.rects) for c in self.choices)
+
+    @property
+    def detail_pixels(self) -> int:
+        """Output pixels of those rectangles."""
+        return sum(r.h * r.w for c in self.choices for r in c.rects)
+
+    @property
     def highlight(self) -> bool:
         """Whether any tile has clipped samples (highlight handling needed)."""
         return any(c.highlight for c in self.choices)
@@ -156,6 +188,9 @@ class SkipPlan:
             k = self.counts.get(path, 0)
             if k:
                 lines.append(f"  {path:<6} {k:4d} tiles, {100 * self.pixels(path) / total:5.1f} % of pixels")
+                if path == PATH_MIXED:
+                    lines.append(f"         the flat path on all of them, the detail path on {self.rects_count} "
+                                 f"rectangles, {100 * self.detail_pixels / total:.1f} % of the image's pixels")
                 for (p, reason), m in sorted(reasons.items()):
                     if p == path:
                         lines.append(f"         {m:4d} x {reason}")
@@ -280,6 +315,48 @@ class Skipper:
                 return False
         return True
 
+    @property
+    def head_length(self) -> int:
+        """Stages of every path up to its chroma stage (the denoiser, or the plain colour matrix
+        in its place): a ``mixed`` tile joins its two paths after them (paths replace stages one
+        for one, so the index is every path's)."""
+        return self.stages.index(self.denoiser) + 1
+
+    def head(self, path: str) -> list[Any]:
+        return self.paths[path][:self.head_length]
+
+    @property
+    def tail(self) -> list[Any]:
+        """The stages after the chroma stage, shared by every path (white balance pass 2, tone curve)."""
+        return self.stages[self.head_length:]
+
+    def block_blend(self) -> BlockBlend | None:
+        """The join of ``mixed`` tiles (clisp.modules.block_blend) for this analysis: the texture
+        blocks (detail, chroma or clipping above the thresholds), the flat path's halo as its reach;
+        None where no tile can mix (no flat path, or a tail with a halo: the join is per pixel)."""
+        if PATH_FLAT not in self.paths or self.denoiser is None or any(st.halo for st in self.tail):
+            return None
+        a = self.analysis
+        texture = (a.detail >= FLAT_DETAIL) | (a.chroma >= FLAT_CHROMA) | (a.clipped > 0)
+        return BlockBlend(texture, a.block, self.halo(PATH_FLAT), BLEND_RAMP)
+
+    def head_halo(self, path: str) -> int:
+        return sum(stage.halo for stage in self.head(path))
+
+    def mixed_rects(self, t: Tile, detail: str, support: np.ndarray, blend: BlockBlend) -> tuple[Tile, ...]:
+        """The rectangles where tile ``t`` runs its ``detail`` path when mixing pays (its modelled
+        cost, FLAT_PATH_COST per pixel of the flat path's window plus the rectangles' windows, at
+        most MIX_GAIN of the detail path's window alone), else ()."""
+        if self.image is None:
+            return ()
+        hd, hf = self.head_halo(detail), self.head_halo(PATH_FLAT)
+        rects = rectangles(support, hd, blend.block, (t.y0, t.x0, t.h, t.w), self.image)
+        mixed = FLAT_PATH_COST * (t.h + 2 * hf) * (t.w + 2 * hf) + sum((h + 2 * hd) * (w + 2 * hd)
+                                                                      for _, _, h, w in rects)
+        if not rects or mixed > MIX_GAIN * (t.h + 2 * hd) * (t.w + 2 * hd):
+            return ()
+        return tuple(Tile(*r) for r in rects)
+
     def plan(self, tiles: TilePlan | list[Tile]) -> SkipPlan:
         tile_list = tiles.tiles if isinstance(tiles, TilePlan) else list(tiles)
         a = self.analysis
@@ -288,22 +365,31 @@ class Skipper:
         margin = self.denoiser.halo if self.denoiser is not None else 0
         vis = visible_chroma_noise(self.denoiser, a) if self.denoiser is not None else None
         flat_margin = sum(st.halo for st in self.paths[PATH_FLAT]) if PATH_FLAT in self.paths else 0
+        blend = self.block_blend()
+        support = blend.support() if blend is not None else None
+        if blend is not None:
+            thresholds["blend_ramp_px"] = BLEND_RAMP
+        window = (tiles.tile_h, tiles.tile_w) if isinstance(tiles, TilePlan) else None
         choices = []
         for t in tile_list:
             rows, cols = a.blocks_for(t.y0, t.x0, t.h, t.w)
             highlight = bool((a.clipped[rows, cols] > 0).any())
             flat_blocks = a.detail[rows, cols] < FLAT_DETAIL
             flat, uniform = bool(flat_blocks.all()), bool(a.uniform[rows, cols].all())
+            detail, rects = "", ()
             if vis is None:
                 path, reason, v = PATH_FULL, "no chroma denoiser in this pipeline", 0.0
             else:
                 grown = a.blocks_for(t.y0, t.x0, t.h, t.w, margin)
                 v = float(vis[grown].max())
-                reach = a.blocks_for(t.y0, t.x0, t.h, t.w, flat_margin)
-                flat_ok = (PATH_FLAT in self.paths and bool((a.detail[reach] < FLAT_DETAIL).all())
-                           and bool((a.chroma[reach] < FLAT_CHROMA).all()) and not (a.clipped[reach] > 0).any()
-                           and self.flat_window_fits(t, *(tiles.tile_h, tiles.tile_w) if isinstance(tiles, TilePlan)
-                                                     else (t.h, t.w)))
+                fits = self.flat_window_fits(t, *(window or (t.h, t.w)))
+                if support is not None:        # no texture block within the join's reach of the tile
+                    flat_ok = fits and not support[rows, cols].any()
+                else:
+                    reach = a.blocks_for(t.y0, t.x0, t.h, t.w, flat_margin)
+                    flat_ok = (PATH_FLAT in self.paths and bool((a.detail[reach] < FLAT_DETAIL).all())
+                               and bool((a.chroma[reach] < FLAT_CHROMA).all()) and not (a.clipped[reach] > 0).any()
+                               and fits)
                 if not self.enabled:
                     path, reason = PATH_FULL, "--no-skip"
                 elif flat_ok:
@@ -317,7 +403,12 @@ class Skipper:
                 else:
                     path, reason = PATH_FULL, "chroma noise visible" if v >= self.visible_light else \
                         "detail or flat areas that need every stage"
-            choices.append(TileChoice(t, path, reason, v, highlight, flat, uniform))
+                if self.enabled and path in DETAIL_PATHS and support is not None and fits:
+                    rects = self.mixed_rects(t, path, support, blend)
+                    if rects:
+                        detail, path = path, PATH_MIXED
+                        reason = f"flat blocks on the flat path, texture on the {detail} path ({reason})"
+            choices.append(TileChoice(t, path, reason, v, highlight, flat, uniform, detail, rects))
         note = f"visible chroma noise per block {np.min(vis):.1e}-{np.max(vis):.1e}" if vis is not None else ""
         return SkipPlan(choices, self.enabled, thresholds if vis is not None else {}, note)
 
@@ -352,22 +443,29 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
 
 def time_saved(plan: SkipPlan, per_stage: dict[str, float], skipper: Skipper) -> str:
     """The device time the skips saved in one run, estimated from the run itself: the full path's
-    demosaic and chroma-denoise cost per pixel (measured on the tiles that ran them; the denoiser's
-    per path weighted by RELATIVE_COST) times the pixels that skipped them, less what the flat
-    path's own stages took. Without such tiles in the run it cannot be estimated."""
-    px = {p: plan.pixels(p) for p in PATHS}
+    demosaic and chroma-denoise cost per pixel (measured on the tiles and rectangles that ran them;
+    the denoiser's per path weighted by RELATIVE_COST) times the pixels that skipped them, less what
+    the flat path's own stages and the block blend took. Halos are not counted (an estimate: the
+    exact figure is the run against --no-skip). Without such pixels in the run it cannot be estimated."""
     demosaic = skipper.stages[demosaic_index(skipper.stages, skipper.stages.index(skipper.denoiser))].name \
         if skipper.denoiser else None
-    ran_demosaic = px[PATH_FULL] + px[PATH_LIGHT] + px[PATH_NONE]
-    units = sum(RELATIVE_COST[p] * px[p] for p in (PATH_FULL, PATH_LIGHT, PATH_NONE))
+    ran: dict[str, int] = {p: plan.pixels(p) for p in DETAIL_PATHS}        # pixels per detail path
+    skipped = plan.pixels(PATH_FLAT)                                     # pixels without the demosaic
+    for c in plan.choices:
+        if c.path == PATH_MIXED:
+            inside = sum(r.h * r.w for r in c.rects)
+            ran[c.detail] += inside
+            skipped += c.tile.h * c.tile.w - inside
+    ran_demosaic = sum(ran.values())
+    units = sum(RELATIVE_COST[p] * n for p, n in ran.items())
     if demosaic is None or ran_demosaic == 0 or units == 0:
         return "time saved: not measurable in this run (no tile ran the full stages; compare with --no-skip)"
     t_dem = per_stage.get(demosaic, 0.0) / ran_demosaic
     t_den = per_stage.get("chroma_denoise", 0.0) / units
-    skipped_dem = px[PATH_FLAT] * t_dem
-    skipped_den = sum((1.0 - RELATIVE_COST[p]) * px[p] for p in PATHS) * t_den
-    flat_cost = per_stage.get("demosaic_flat", 0.0)
+    skipped_dem = skipped * t_dem
+    skipped_den = (skipped + sum((1.0 - RELATIVE_COST[p]) * n for p, n in ran.items())) * t_den
+    flat_cost = per_stage.get("demosaic_flat", 0.0) + per_stage.get("block_blend", 0.0)
     saved = skipped_dem + skipped_den - flat_cost
-    return (f"time saved (estimate from this run's own full-path tiles): {saved:.3f} s of device time "
-            f"({skipped_dem:.3f} s demosaic + {skipped_den:.3f} s chroma denoise skipped, "
-            f"{flat_cost:.3f} s flat path)")
+    return (f"time saved (estimate from this run's own full-path pixels, halos not counted): {saved:.3f} s of "
+            f"device time ({skipped_dem:.3f} s demosaic + {skipped_den:.3f} s chroma denoise skipped, "
+            f"{flat_cost:.3f} s flat path and block blend)")

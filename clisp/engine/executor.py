@@ -273,7 +273,9 @@ class Pipeline:
         self.skip_plan = skip_plan = skipper.plan(plan)
         halo = plan.halo
         computes: dict[str, Callable[..., Any]] = {"full": full}
-        for name in set(skip_plan.counts) - {"full"}:
+        if "mixed" in skip_plan.counts:
+            computes["mixed"] = partial(self._mixed_compute, plan, backend, fuse, whole, image)
+        for name in set(skip_plan.counts) - {"full", "mixed"}:
             sub = Pipeline(self.cfa, skipper.paths[name])
             d = halo - sub.halo
             sub_plan = replace(plan, halo=sub.halo)
@@ -292,6 +294,72 @@ class Pipeline:
                 return KeepAlive(run(t, inner, target), inner)
             computes[name] = crop
         return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
+
+    def _mixed_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any, image: tuple[int, int],
+                       t: Tile, window: np.ndarray | None, target: tuple[np.ndarray, int, int]) -> Any:
+        """One ``mixed`` tile of the skip plan (clisp.skip): the flat path's head over the whole
+        tile, the tile's detail path's head on each of its rectangles, joined into the flat output
+        by the block blend (clisp.modules.block_blend: per pixel, by the distance to texture), then
+        the stages every path shares, once. Each head runs on its own window of the image (cut from
+        the tile's window, or gathered by the device), so a pixel's output does not depend on the
+        tiling. No host round trip: the join is a kernel."""
+        skipper = self.skipper
+        choice = self.skip_plan.choice(t)
+        blend = skipper.block_blend()
+        halo = plan.halo
+        kept: list[np.ndarray] = []
+
+        def region_window(y0: int, x0: int, h: int, w: int, margin: int) -> np.ndarray:
+            oy, ox = y0 - margin - (t.y0 - halo), x0 - margin - (t.x0 - halo)
+            return window[oy:oy + h + 2 * margin, ox:ox + w + 2 * margin]
+
+        heads = {name: skipper.head(name) for name in ("flat", choice.detail)}
+        margins = {name: sum(stage.halo for stage in stages) for name, stages in heads.items()}
+        regions = [("flat", t)] + [(choice.detail, r) for r in choice.rects]
+        if backend != "opencl":
+            out = None
+            for name, r in regions:
+                x = region_window(r.y0, r.x0, r.h, r.w, margins[name])
+                origin = Origin(r.y0 - margins[name], r.x0 - margins[name], image)
+                for stage in heads[name]:
+                    x = stage.reference(x, origin)
+                    origin = advance(origin, stage.halo, stage.downscale)
+                if out is None:
+                    out = x
+                else:
+                    blend.reference(out, x, (r.y0 - t.y0, r.x0 - t.x0), (r.y0, r.x0))
+            origin = Origin(t.y0, t.x0, image)
+            for stage in skipper.tail:
+                out = stage.reference(out, origin)
+            host, y, x0 = target
+            host[y:y + t.h, x0:x0 + t.w] = out
+            return None
+
+        rt = get_runtime()
+        flat = None
+        for name, r in regions:
+            m = margins[name]
+            stage_label("upload")
+            if window is None:
+                src = rt.gather_window(whole, r.y0 - m, r.x0 - m, r.h + 2 * m, r.w + 2 * m, self.cfa.period)
+            else:
+                part = np.ascontiguousarray(region_window(r.y0, r.x0, r.h, r.w, m),
+                                            dtype=None if window.dtype in (np.uint16, np.float32) else np.float32)
+                kept.append(part)                     # the device may read it in place until the tile's event
+                src = rt.host_input(part) or rt.upload(part)
+            dst = self._enqueue_stages(rt, fuse_stages(heads[name]) if fuse else heads[name], src,
+                                       Origin(r.y0 - m, r.x0 - m, image))
+            if flat is None:
+                flat = dst
+            else:
+                stage_label("block_blend")
+                blend.enqueue(rt, flat, dst, (r.y0 - t.y0, r.x0 - t.x0), (r.y0, r.x0))
+                rt.release(dst)
+        tail = Pipeline(self.cfa, skipper.tail).schedule(fuse) if skipper.tail else []
+        host, y, x = target
+        into = (host, y) if x == 0 and t.w == host.shape[1] else None
+        src = self._enqueue_tile(rt, tail, flat, Origin(t.y0, t.x0, image), into)
+        return KeepAlive(self._deliver(rt, src, t, target), *kept)
 
     def _check(self, shape: tuple[int, ...], backend: str) -> None:
         if backend not in ("opencl", "reference"):
@@ -330,6 +398,17 @@ class Pipeline:
         way); returns the interleaved result. ``into``: (host band array, first row): where the
         last stage may write its whole output itself (Runtime.host_image), which spares the
         download; the result then has ``host`` set."""
+        src = Pipeline._enqueue_stages(rt, schedule, src, origin, into)
+        if not src.interleaved:
+            planar, src = src, rt.interleave(src)
+            rt.release(planar)
+        return src
+
+    @staticmethod
+    def _enqueue_stages(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int],
+                        into: tuple[np.ndarray, int] | None = None) -> Any:
+        """Enqueue every stage of ``schedule`` on ``src`` (released on the way); returns the last
+        stage's output as it is (planar or interleaved). ``into``: see :meth:`_enqueue_tile`."""
         for i, stage in enumerate(schedule):
             stage_label(stage.name)
             out = None
@@ -338,9 +417,6 @@ class Pipeline:
             dst = stage.enqueue(rt, src, origin) if out is None else stage.enqueue(rt, src, origin, out=out)
             rt.release(src)
             src, origin = dst, advance(origin, stage.halo, stage.downscale)
-        if not src.interleaved:
-            planar, src = src, rt.interleave(src)
-            rt.release(planar)
         return src
 
     @staticmethod
@@ -387,6 +463,13 @@ class Pipeline:
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None
         src = self._enqueue_tile(rt, schedule, src, origin, into)
+        return self._deliver(rt, src, t, target)
+
+    @staticmethod
+    def _deliver(rt: Any, src: Any, t: Tile, target: tuple[np.ndarray, int, int]) -> Any:
+        """The download of tile ``t``'s interleaved result ``src`` into ``target`` (or, where the
+        last stage wrote into the target itself, what makes those pixels readable); its event."""
+        host, y, x = target
         stage_label("download")
         if src.host is not None:
             event = rt.settle_host_image(src)

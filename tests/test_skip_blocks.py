@@ -1,0 +1,120 @@
+"""Flat paths at block granularity inside a tile (issue 30, item 2): clisp.skip's ``mixed`` tiles
+and their join (clisp.modules.block_blend)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clisp.engine.executor import Pipeline
+from clisp.engine.tiling import grid
+from clisp.pipeline import build_pipeline
+from clisp.sim.simulate import simulate
+from clisp.skip import PATH_FLAT, PATH_FULL, PATH_MIXED
+
+from test_skip import smooth_scene, textured_scene
+
+
+def strip_scene(h: int = 512, w: int = 512) -> np.ndarray:
+    """A smooth gradient with a textured strip of 48 rows in the middle (the striped sky, small)."""
+    scene = smooth_scene(h, w)
+    scene[h // 2 - 24:h // 2 + 24] = textured_scene(h, w)[h // 2 - 24:h // 2 + 24]
+    return scene
+
+
+def mixed_pipeline(monkeypatch: pytest.MonkeyPatch, cfa: str = "lms", gain: float = 1, scene=None):
+    """A skip pipeline on the strip scene that mixes wherever a tile holds texture: on images this
+    small the detail path's halo makes mixing cost more than it saves, so MIX_GAIN is lifted."""
+    import clisp.skip as skip
+    monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
+    sim = simulate(strip_scene() if scene is None else scene, cfa=cfa, gain=gain, seed=4)
+    pipe = build_pipeline(sim.raw, skip=True, demosaic=None if cfa == "lms" else "dlmmse")
+    return sim, pipe
+
+
+def composite(pipe, raw, detail: str = PATH_FULL) -> np.ndarray:
+    """The whole image on the flat path and on the ``detail`` path, joined by the block blend's
+    weights: what every mixed tile of that detail path must equal, whatever the tiling."""
+    sk = pipe.skipper
+    flat = Pipeline(raw.cfa, sk.paths[PATH_FLAT]).run(raw.data, tile=0)
+    full = Pipeline(raw.cfa, sk.paths[detail]).run(raw.data, tile=0)
+    w = sk.block_blend().weight(0, 0, *raw.shape)[..., None]
+    return np.where(w >= 1, full, np.where(w <= 0, flat, flat + w * (full - flat)))
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_mixed_tiles_equal_the_whole_image_joined(cfa: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Per plan, tiled equals whole: each mixed tile equals the whole image's flat and full paths
+    joined by the weights, at any tiling; flat tiles equal the whole flat path."""
+    sim, pipe = mixed_pipeline(monkeypatch, cfa)
+    raw = sim.raw
+    joined = {p: composite(pipe, raw, p) for p in pipe.skipper.paths if p != PATH_FLAT}
+    flat = Pipeline(raw.cfa, pipe.skipper.paths[PATH_FLAT]).run(raw.data, tile=0)
+    for tile in (0, 128, 192):
+        out = pipe.run(raw.data, tile=tile)
+        plan = pipe.skip_plan
+        assert PATH_MIXED in plan.counts, plan.explain()
+        for c in plan.choices:
+            t = c.tile
+            region = (slice(t.y0, t.y0 + t.h), slice(t.x0, t.x0 + t.w))
+            if c.path == PATH_MIXED:
+                assert c.rects
+                np.testing.assert_allclose(out[region], joined[c.detail][region], atol=3e-5, rtol=0,
+                                           err_msg=f"tile {tile}, {c.detail}")
+            elif c.path == PATH_FLAT:
+                np.testing.assert_allclose(out[region], flat[region], atol=3e-5, rtol=0)
+
+
+def test_mixed_tiles_match_the_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    sim, pipe = mixed_pipeline(monkeypatch, "bayer", scene=strip_scene(256, 256))
+    ocl = pipe.run(sim.raw.data, tile=0)
+    assert pipe.skip_plan.counts == {PATH_MIXED: 1}, pipe.skip_plan.explain()
+    ref = pipe.run(sim.raw.data, tile=0, backend="reference")
+    np.testing.assert_allclose(ocl, ref, atol=2e-4, rtol=0)
+
+
+@pytest.mark.parametrize("gain", [1, 16])
+def test_no_seam_where_the_paths_join(gain: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Across the join, the output's error against the truth changes as smoothly as inside the
+    blocks: the row-to-row change of the error's 8-row means (a step would be one large change)
+    is no larger across block seams than within blocks; the join is within the flat path's and
+    the full path's errors; the flat side is no worse than no-skip."""
+    sim, pipe = mixed_pipeline(monkeypatch, "lms", gain)
+    out = pipe.run(sim.raw.data, tile=0)
+    plan = pipe.skip_plan
+    assert plan.counts == {PATH_MIXED: 1}
+    pipe.skipper.enabled = False
+    full = pipe.run(sim.raw.data, tile=0)
+    err = (out - sim.truth)[:, 16:-16].mean(axis=1)              # (rows, 3): mean error per row
+    means = err.reshape(-1, 8, 3).mean(axis=1)                   # 8-row means
+    steps = np.abs(np.diff(means, axis=0)).max(axis=1)           # between neighbouring 8-row bands
+    seam = np.array([(k + 1) * 8 % 64 == 0 for k in range(len(steps))])
+    rect = plan.choices[0].rects[0]
+    near = np.array([rect.y0 - 32 <= (k + 1) * 8 < rect.y0 + rect.h + 32 for k in range(len(steps))])
+    print(f"8-row mean steps: across seams near the join {steps[seam & near].max():.2e}, "
+          f"within blocks {steps[~seam].max():.2e}")
+    assert steps[seam & near].max() <= steps[~seam].max()
+    outside = np.ones(out.shape[0], dtype=bool)
+    outside[rect.y0:rect.y0 + rect.h] = False
+    e_skip = np.mean((out[outside] - sim.truth[outside]) ** 2)
+    e_full = np.mean((full[outside] - sim.truth[outside]) ** 2)
+    assert e_skip <= e_full * 1.02, (e_skip, e_full)
+
+
+def test_plan_mixes_only_where_texture_is_and_it_pays(monkeypatch: pytest.MonkeyPatch) -> None:
+    import clisp.skip as skip
+    sim, pipe = mixed_pipeline(monkeypatch)
+    sk = pipe.skipper
+    plan = sk.plan(grid(512, 512, 512, 512))
+    (c,) = plan.choices
+    assert c.path == PATH_MIXED and c.detail == PATH_FULL
+    texture_rows = np.flatnonzero(sk.block_blend().mask.any(axis=1))
+    (r,) = c.rects                                      # one strip: one rectangle, the whole width
+    assert r.x0 == 0 and r.w == 512
+    assert r.y0 == (texture_rows[0] - 1) * 64 and r.y0 + r.h == (texture_rows[-1] + 2) * 64
+    assert "mixed" in plan.explain() and "rectangles" in plan.explain()
+    monkeypatch.setattr(skip, "MIX_GAIN", 0.1)          # mixing that does not pay: the detail path alone
+    assert {c.path for c in sk.plan(grid(512, 512, 512, 512)).choices} == {PATH_FULL}
+    sk.enabled = False                                  # --no-skip: never mixed
+    assert {c.path for c in sk.plan(grid(512, 512, 512, 512)).choices} == {PATH_FULL}
+    sim2, pipe2 = mixed_pipeline(monkeypatch, scene=smooth_scene(512, 512))
+    assert {c.path for c in pipe2.skipper.plan(grid(512, 512, 512, 512)).choices} == {PATH_FLAT}
