@@ -3,7 +3,7 @@
  * Defines from the host: CFA_PERIOD (P), CELL (cell side, a multiple of P), CELLS (Rc, box radius
  * in cells), NCH (channels). Cell grids are planar (NCH planes). Steps: flat_cells -> flat_reflect (tiles
  * at the image's edge) -> the box means of the cells (the shared box filter, clisp/modules/common/box.cl,
- * radius Rc cells, scale 1 / (2 Rc + 1)^2) -> flat_output. */
+ * radius Rc cells, scale 1 / (2 Rc + 1)^2) -> flat_rows -> flat_output. */
 
 /* flat_cells: cells (NCH planes of cy x cx) = mean of each channel's samples in the CELL x CELL
  * cell whose first pixel is window pixel (ay + CELL i, ax + CELL j); (ay, ax) is a multiple of CELL
@@ -77,44 +77,73 @@ __kernel void flat_reflect(__global const float *restrict cells, __global float 
     }
 }
 
-/* flat_output: dst (NCH planes of oh x ow). Output pixel (y, x) is window pixel (Y, X) =
- * (y + halo, x + halo); (ay, ax) the window pixel of the first cell, (oy, ox) the image coordinate
- * of window pixel (0, 0). mean_c = box_c interpolated bilinearly at
- * u = (Y - ay - centroid_c) / CELL - Rc (box cell i is centred on cell i + Rc, and a cell's mean of
- * channel c sits at the centroid of c's sites in it: centroid = (row, column) per channel), likewise
- * along x. d = a . x(3 x 3 around (Y, X), row-major) - b . mean: the 3 x 3 residual kernel's
- * normalised weights for the pixel's CFA phase (DemosaicFlat.residual_tables: a (P*P, 9),
- * b (P*P, NCH)). out_c = mean_c + d. Halo (Rc + 2) CELL. Launched over exactly ow x oh. */
-__kernel void flat_output(__global const float *restrict src, __global const float *restrict box,
-                          __global float *restrict dst, const int width, const int bw, const int bh,
-                          const int ow, const int oh, const int halo, const int ay, const int ax,
+/* flat_rows: rows (NCH planes of oh x bw) = the box means interpolated along y at each output row:
+ * rows_c(y, j) = (1 - fy) box_c(iy, j) + fy box_c(iy + 1, j), iy + fy = uy = (Y - ay - centroid_c) / CELL - Rc,
+ * Y = y + halo (box cell i is centred on cell i + Rc, and a cell's mean of channel c sits at the
+ * centroid of c's sites in it: centroid = (row, column) per channel). The first half of the
+ * bilinear interpolation, once per row and box column instead of once per output pixel. Launched
+ * over exactly bw x oh. */
+__kernel void flat_rows(__global const float *restrict box, __global float *restrict rows, const int bw,
+                        const int bh, const int oh, const int halo, const int ay,
+                        __constant const float *restrict centroid)
+{
+    const int j = get_global_id(0);
+    const int y = get_global_id(1);
+    for (int c = 0; c < NCH; c++) {
+        const float uy = ((float)(y + halo - ay) - centroid[2 * c]) * (1.0f / CELL) - CELLS;
+        const int iy = (int)floor(uy);
+        const float fy = uy - iy;
+        const __global float *q = box + (c * bh + iy) * bw + j;
+        rows[(c * oh + y) * bw + j] = (1.0f - fy) * q[0] + fy * q[bw];
+    }
+}
+
+/* flat_output: dst (NCH planes of oh x ow); one work-item computes the CELL output pixels
+ * x = CELL q + s, s = 0 .. CELL - 1, of row y. Output pixel (y, x) is window pixel (Y, X) =
+ * (y + halo, x + halo); (ax) the window column of the first cell, (oy, ox) the image coordinate of
+ * window pixel (0, 0). mean_c = rows_c (flat_rows) interpolated along x at
+ * u = (X - ax - centroid_c) / CELL - Rc = q + k_sc + f_sc: since halo, ax and CELL q are fixed
+ * modulo CELL, the offset k_sc and weight f_sc depend on s and c alone (computed once, here, the
+ * same for every work-item), so neighbouring work-items read neighbouring cells; the CFA phase
+ * likewise (P divides CELL). d = a . x(3 x 3 around (Y, X), row-major) - b . mean: the 3 x 3
+ * residual kernel's normalised weights for the pixel's CFA phase (DemosaicFlat.residual_tables:
+ * a (P*P, 9), b (P*P, NCH)). out_c = mean_c + d. Halo (Rc + 2) CELL. Launched over exactly
+ * ceil(ow / CELL) x oh; the last work-item of a row writes only the pixels inside ow. */
+__kernel void flat_output(__global const float *restrict src, __global const float *restrict rows,
+                          __global float *restrict dst, const int width, const int bw,
+                          const int ow, const int oh, const int halo, const int ax,
                           const int oy, const int ox, __constant const float *restrict a,
                           __constant const float *restrict b, __constant const float *restrict centroid)
 {
-    const int x = get_global_id(0);
+    const int q = get_global_id(0);
     const int y = get_global_id(1);
-    const int Y = y + halo, X = x + halo;
-    float m[NCH];
-    for (int c = 0; c < NCH; c++) {
-        const float uy = ((float)(Y - ay) - centroid[2 * c]) * (1.0f / CELL) - CELLS;
-        const float ux = ((float)(X - ax) - centroid[2 * c + 1]) * (1.0f / CELL) - CELLS;
-        const int iy = (int)floor(uy), ix = (int)floor(ux);
-        const float fy = uy - iy, fx = ux - ix;
-        const __global float *q = box + (c * bh + iy) * bw + ix;
-        m[c] = (1.0f - fy) * ((1.0f - fx) * q[0] + fx * q[1]) + fy * ((1.0f - fx) * q[bw] + fx * q[bw + 1]);
-    }
+    const int Y = y + halo;
     const int py = (Y + oy) & (CFA_PERIOD - 1);       /* P is 2 or 4: & is the modulo, also below 0 */
-    const int px = (X + ox) & (CFA_PERIOD - 1);
-    __constant const float *ap = a + (py * CFA_PERIOD + px) * 9;
-    __constant const float *bp = b + (py * CFA_PERIOD + px) * NCH;
-    const __global float *s = src + (Y - 1) * width + X - 1;
-    float d = 0.0f;
-    for (int dy = 0; dy < 3; dy++)
-        for (int dx = 0; dx < 3; dx++)
-            d += ap[3 * dy + dx] * s[dy * width + dx];
-    for (int c = 0; c < NCH; c++)
-        d -= bp[c] * m[c];
-    const int o = y * ow + x;
-    for (int c = 0; c < NCH; c++)
-        dst[c * oh * ow + o] = m[c] + d;
+    for (int s = 0; s < CELL; s++) {
+        const int x = CELL * q + s;
+        if (x >= ow)
+            return;
+        const int X = x + halo;
+        float m[NCH];
+        for (int c = 0; c < NCH; c++) {
+            const float u0 = ((float)(halo + s - ax) - centroid[2 * c + 1]) * (1.0f / CELL) - CELLS;
+            const int k = (int)floor(u0);
+            const float fx = u0 - k;
+            const __global float *r = rows + (c * oh + y) * bw + q + k;
+            m[c] = (1.0f - fx) * r[0] + fx * r[1];
+        }
+        const int px = (X + ox) & (CFA_PERIOD - 1);
+        __constant const float *ap = a + (py * CFA_PERIOD + px) * 9;
+        __constant const float *bp = b + (py * CFA_PERIOD + px) * NCH;
+        const __global float *p = src + (Y - 1) * width + X - 1;
+        float d = 0.0f;
+        for (int dy = 0; dy < 3; dy++)
+            for (int dx = 0; dx < 3; dx++)
+                d += ap[3 * dy + dx] * p[dy * width + dx];
+        for (int c = 0; c < NCH; c++)
+            d -= bp[c] * m[c];
+        const int o = y * ow + x;
+        for (int c = 0; c < NCH; c++)
+            dst[c * oh * ow + o] = m[c] + d;
+    }
 }

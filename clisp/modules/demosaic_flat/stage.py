@@ -271,11 +271,16 @@ class DemosaicFlat(Stage):
         box_count = np.float32(2 * rc + 1) ** 2
         box = enqueue_box(rt, cells, rc, rc, scale=np.float32(1.0) / box_count, release_src=True)
         oh, ow = src.height - 2 * hb, src.width - 2 * hb
+        centroid = rt.constant(as_f32(self.centroids))
+        rows = rt.acquire(n, oh, bw)
+        rt.launch_named("demosaic_flat", "flat_rows", bw, oh, dict(
+            box=box, rows=rows, bw=bw, bh=bh, oh=oh, halo=hb, ay=ay, centroid=centroid), defines)
+        rt.release(box)
         dst = rt.acquire(n, oh, ow)
         a, b = self.residual_tables()
-        rt.launch_named("demosaic_flat", "flat_output", ow, oh, dict(
-            src=src, box=box, dst=dst, width=src.width, bw=bw, bh=bh, ow=ow, oh=oh, halo=hb, ay=ay, ax=ax,
+        rt.launch_named("demosaic_flat", "flat_output", -(-ow // CELL_PX), oh, dict(
+            src=src, rows=rows, dst=dst, width=src.width, bw=bw, ow=ow, oh=oh, halo=hb, ax=ax,
             oy=origin[0], ox=origin[1], a=rt.constant(as_f32(a)), b=rt.constant(as_f32(b)),
-            centroid=rt.constant(as_f32(self.centroids))), defines)
-        rt.release(box)
+            centroid=centroid), defines)
+        rt.release(rows)
         return dst
