@@ -37,7 +37,7 @@ from .version import __version__
 from .errors import ClispError
 from .engine.runtime import get_runtime, save_built_programs
 from .io.rawfile import RAW_SUFFIXES, read_raw
-from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, process_file, resolve_options
+from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, SKIP_WHERE_IT_PAYS, process_file, resolve_options
 # clisp.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
 # tqdm and clisp.io.imageio are imported where they are used.
 
@@ -178,7 +178,7 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
         raw = read_raw(job.input, lazy=True)
         (height, width), stats = process_file(raw, job.output, budget=settings.mem or DEFAULT_BUDGET,
                                           compression=settings.compression, preset=settings.preset,
-                                          demosaic=settings.demosaic, skip=True if settings.skip else None,
+                                          demosaic=settings.demosaic, skip=SKIP_WHERE_IT_PAYS if settings.skip else None,
                                           exposure=settings.exposure, auto_exposure=settings.auto_exposure,
                                           wb=settings.wb, resize=settings.resize, half_size=settings.half_size)
         st = os.stat(job.output)

@@ -30,7 +30,7 @@ from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .modules.resize.stage import check_long_edge, resize_note
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, HALF_SIZE_NO_DENOISE, PRESETS,
-                       denoise_params, output_size, process_file, resolve_options)
+                       SKIP_WHERE_IT_PAYS, denoise_params, output_size, process_file, resolve_options)
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
@@ -384,7 +384,7 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
     profile = _start_profile() if (args.profile or args.explain) and args.backend == "opencl" else None
     with host_timer("decode raw file (header, camera raw pixels)"):
         raw = read_raw(path, lazy=True)
-    skip = (False if args.explain else None) if args.no_skip else True
+    skip = (False if args.explain else None) if args.no_skip else SKIP_WHERE_IT_PAYS
     explained: dict = {}
     (height, width), stats = process_file(raw, output, tile=args.tile, budget=args.mem, backend=args.backend,
                                           progress=True, compression=args.compression, preset=args.preset,

@@ -126,9 +126,13 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
     return DEMOSAICS[name].for_raw(raw)
 
 
+SKIP_WHERE_IT_PAYS = "auto"
+"""build_pipeline's ``skip`` for the CLI's default: skip where it pays on the device."""
+
+
 def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Stage | None = None,
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
-                   wb2: str = "metadata", skip: bool | None = None,
+                   wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
                    wb: str = "camera", half_size: bool = False) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
@@ -143,7 +147,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     'metadata' (known illuminant), 'gray_world' or 'gray_pixels'; left out when it is the identity.
     ``skip``: None = every stage on every tile, no scene analysis; True = analyse the raw and let
     each tile skip what it does not need (clisp.skip; the run's plan is ``Pipeline.skip_plan``);
-    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``). With
+    False = analyse and plan, but every tile takes the full path (``--no-skip --explain``);
+    SKIP_WHERE_IT_PAYS ('auto', the CLI's default) = True where clisp.skip.why_not_skip finds that
+    skipping can pay on the device, else no analysis and ``Pipeline.skip_off`` says why. With
     True the demosaic is also chosen for the raw's noise (clisp.stage_choice: the cheapest whose
     expected error there is within the budget of the preset's; ``Pipeline.stage_choice`` says
     which and why). A
@@ -207,8 +213,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
-        from .skip import Skipper          # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
-        pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
+        from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
+        pipeline.skip_off = why_not_skip(calibration_runtime()) if skip == SKIP_WHERE_IT_PAYS else ""
+        if not pipeline.skip_off:
+            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
     return pipeline
 
 

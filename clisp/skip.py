@@ -119,6 +119,19 @@ RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
 
 
+def why_not_skip(rt: Any) -> str:
+    """Why skipping does not pay on ``rt``'s device ('' where it does, and for the NumPy reference,
+    ``rt`` None): on a device that is not the host's CPU (a GPU) the full path's device time is a
+    few ms where the analysis, NumPy on the host, costs 10-20 ms/MP, so the analysis alone costs more
+    than any skip can save. Measured (issue 30, 12 MP striped sky, LMS, NVIDIA H100 through its
+    OpenCL): the guided demosaic's kernels took 6 ms and the chroma denoiser's 1 ms of device time,
+    the analysis 215 ms; the whole process took 1.16x the time of --no-skip."""
+    if rt is None or rt.device.type & rt.cl.device_type.CPU:
+        return ""
+    return (f"skipping is off on {rt.device.name.strip()} (not the host's CPU): its full path costs less "
+            f"device time than the scene analysis would take on the host")
+
+
 @dataclass(frozen=True)
 class TileChoice:
     """One tile's path and why."""
@@ -421,7 +434,11 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     skipper = getattr(pipeline, "skipper", None)
     plan = getattr(pipeline, "skip_plan", None)
     if skipper is None:
-        return "explain: no scene analysis (nothing to skip: this pipeline has no chroma denoiser)"
+        off = getattr(pipeline, "skip_off", "")
+        choice = getattr(pipeline, "stage_choice", None)
+        return "\n".join([f"explain: no scene analysis ({off or 'nothing to skip: this pipeline has no chroma denoiser'})"]
+                         + ([choice.explain()] if choice is not None else [])
+                         + [f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP"])
     lines.append(skipper.analysis.summary())
     choice = getattr(pipeline, "stage_choice", None)
     if choice is not None:

@@ -118,3 +118,23 @@ def test_plan_mixes_only_where_texture_is_and_it_pays(monkeypatch: pytest.Monkey
     assert {c.path for c in sk.plan(grid(512, 512, 512, 512)).choices} == {PATH_FULL}
     sim2, pipe2 = mixed_pipeline(monkeypatch, scene=smooth_scene(512, 512))
     assert {c.path for c in pipe2.skipper.plan(grid(512, 512, 512, 512)).choices} == {PATH_FLAT}
+
+
+def test_skipping_is_off_where_the_device_is_not_the_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a GPU the full path's device time is less than the analysis: the CLI's default ('auto')
+    analyses nothing there and says why; skip=True still forces the plan (tests, warm-up)."""
+    import clisp.pipeline as pipeline_module
+    from types import SimpleNamespace
+    from clisp.engine.runtime import get_runtime
+    from clisp.pipeline import SKIP_WHERE_IT_PAYS
+    from clisp.skip import explain_run, why_not_skip
+    rt = get_runtime()
+    assert why_not_skip(rt) == "" and why_not_skip(None) == ""         # PoCL on the CPU: skipping pays
+    gpu = SimpleNamespace(cl=rt.cl, device=SimpleNamespace(type=rt.cl.device_type.GPU, name="Some GPU "))
+    assert "Some GPU" in why_not_skip(gpu)
+    monkeypatch.setattr(pipeline_module, "calibration_runtime", lambda: gpu)
+    raw = simulate(strip_scene(256, 256), cfa="lms", gain=1, seed=0).raw
+    auto = build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS)
+    assert auto.skipper is None and "Some GPU" in auto.skip_off
+    assert "no scene analysis (skipping is off on Some GPU" in explain_run(auto, auto.stats)
+    assert build_pipeline(raw, skip=True).skipper is not None

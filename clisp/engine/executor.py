@@ -80,6 +80,8 @@ class Pipeline:
     """Where white balance pass 1's multipliers came from (``--wb``; clisp.white_balance)."""
     stage_choice: Any = None
     """The noise-adaptive choice build_pipeline made (clisp.stage_choice.Choice), None without one."""
+    skip_off: str = ""
+    """Why build_pipeline made no skipper although skipping was asked for (clisp.skip.why_not_skip)."""
 
     @property
     def halo(self) -> int:
