@@ -214,7 +214,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                         stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
-        pipeline.skip_off = why_not_skip(calibration_runtime()) if skip == SKIP_WHERE_IT_PAYS else ""
+        pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
         if not pipeline.skip_off:
             pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
     return pipeline

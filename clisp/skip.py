@@ -6,12 +6,19 @@ a TilePlan, :meth:`Skipper.plan` turns the analysis into a :class:`SkipPlan`, pl
 :class:`TileChoice` per tile (path, reason, the figures behind it), printable for
 ``clisp process --explain`` and testable.
 
-Paths (the chroma denoiser is the only stage skipped so far):
+Paths:
 
 * ``full``  every stage as built (the chroma denoiser with the preset's J levels);
 * ``light`` the chroma denoiser with LIGHT_LEVELS (1) Haar level: the same final full-resolution
   bilateral and level-1 shrink, no coarse levels; halo 10 px instead of 52 (J = 3);
-* ``none``  the plain colour matrix instead of the denoiser.
+* ``none``  the plain colour matrix instead of the denoiser;
+* ``flat``  DemosaicFlat and the plain colour matrix instead of the demosaic and the denoiser
+  (tiles with nothing but noise within the flat path's reach);
+* ``mixed`` both at block granularity inside one tile (issue 30): the flat path over the whole
+  tile, the tile's detail path (``full``, ``light`` or ``none``, by the rule below) only on
+  rectangles around its texture blocks, joined per pixel by the distance to texture
+  (clisp.modules.block_blend) before the stages every path shares. Taken where its modelled cost
+  is at most MIX_GAIN of the detail path alone (:meth:`Skipper.mixed_rects`).
 
 Rule, per tile: the predicted visible chroma noise of every analysis block the tile's output
 depends on (the tile grown by the full denoiser's halo) is
@@ -26,6 +33,14 @@ tone-mapped MSE that PSNR measures, so thresholds on v are thresholds on the err
 tile's v is the largest v_b: ``none`` below VISIBLE_NONE, ``light`` below VISIBLE_LIGHT, else
 ``full``. A tile is therefore never left undenoised unless every block it depends on is below
 VISIBLE_NONE.
+
+Blocks: a block has texture when its luminance detail or chroma activity reaches FLAT_DETAIL or
+FLAT_CHROMA, or it holds clipped samples; ``flat`` and ``mixed`` use the flat path's output only
+farther than its halo from every texture block, cross-fading over BLEND_RAMP px, so a tile is
+``flat`` only when no texture block lies within that reach (:meth:`Skipper.block_blend`).
+
+Device: where skipping cannot pay (a GPU, whose full path costs less than the analysis:
+:func:`why_not_skip`), the CLI's default analyses nothing.
 
 Seams: each tile's output equals the whole image processed on that tile's path (every path is a
 stage list obeying the tiling contract), so tiles on different paths meet where the two paths'
@@ -119,17 +134,42 @@ RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
 
 
-def why_not_skip(rt: Any) -> str:
-    """Why skipping does not pay on ``rt``'s device ('' where it does, and for the NumPy reference,
-    ``rt`` None): on a device that is not the host's CPU (a GPU) the full path's device time is a
-    few ms where the analysis, NumPy on the host, costs 10-20 ms/MP, so the analysis alone costs more
-    than any skip can save. Measured (issue 30, 12 MP striped sky, LMS, NVIDIA H100 through its
-    OpenCL): the guided demosaic's kernels took 6 ms and the chroma denoiser's 1 ms of device time,
-    the analysis 215 ms; the whole process took 1.16x the time of --no-skip."""
-    if rt is None or rt.device.type & rt.cl.device_type.CPU:
-        return ""
-    return (f"skipping is off on {rt.device.name.strip()} (not the host's CPU): its full path costs less "
-            f"device time than the scene analysis would take on the host")
+def flat_path(cfa: Any, stages: list[Any]) -> list[Any] | None:
+    """The ``flat`` path of ``stages`` (the demosaic and the chroma denoiser replaced by
+    DemosaicFlat and the plain colour matrix), or None where there is none: no denoiser, a CFA the
+    flat demosaic does not serve, or a demosaic it does not reach on flat fields (FLAT_LOSES_TO)."""
+    denoiser = next((s for s in stages if isinstance(s, ChromaDenoise)), None)
+    if denoiser is None:
+        return None
+    i = stages.index(denoiser)
+    flat, d = flat_demosaic(cfa), demosaic_index(stages, i)
+    if flat is None or d < 0 or type(stages[d]).__name__ in FLAT_LOSES_TO:
+        return None
+    # the demosaic, then (highlights), then the denoiser
+    return stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
+
+
+def why_not_skip(rt: Any, cfa: Any = None, stages: list[Any] | None = None) -> str:
+    """Why skipping cannot pay for its scene analysis ('' where it can), so the CLI's default runs
+    none (build_pipeline's SKIP_WHERE_IT_PAYS):
+
+    * on a device that is not the host's CPU (a GPU), the full path's device time is a few ms where
+      the analysis, NumPy on the host, costs 10-20 ms/MP. Measured (issue 30, 12 MP striped sky,
+      LMS, NVIDIA H100 through its OpenCL): the guided demosaic's kernels took 6 ms and the chroma
+      denoiser's 1 ms of device time, the analysis 215 ms; the process took 1.16x of --no-skip.
+    * with ``stages`` given, where they have no flat path (:func:`flat_path`: behind RI or ARI, the
+      Bayer quality and best presets): what is left, the denoiser's ``light`` and ``none`` paths,
+      took no tile of any scene measured (issue 30's acceptance: striped sky, Kodak and McMaster
+      collages, Bayer at gains 1, 16 and 64: PSNR identical to --no-skip, 1.02-1.12x its time).
+
+    ``rt`` None (the NumPy reference) counts as the CPU."""
+    if rt is not None and not rt.device.type & rt.cl.device_type.CPU:
+        return (f"skipping is off on {rt.device.name.strip()} (not the host's CPU): its full path costs less "
+                f"device time than the scene analysis would take on the host")
+    if stages is not None and flat_path(cfa, stages) is None:
+        return ("skipping is off: these stages have no flat path (the flat demosaic loses to residual "
+                "interpolation on flat fields), and the denoiser's lighter paths alone never paid for the analysis")
+    return ""
 
 
 @dataclass(frozen=True)
@@ -301,11 +341,9 @@ class Skipper:
             if denoiser.params.levels > LIGHT_LEVELS:
                 paths[PATH_LIGHT] = stages[:i] + [light_denoiser(denoiser)] + stages[i + 1:]
             paths[PATH_NONE] = stages[:i] + [plain_colour(denoiser)] + stages[i + 1:]
-            flat = flat_demosaic(raw.cfa)
-            d = demosaic_index(stages, i)
-            if flat is not None and d >= 0 and type(stages[d]).__name__ not in FLAT_LOSES_TO:
-                # the demosaic, then (highlights), then the denoiser
-                paths[PATH_FLAT] = stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
+            flat = flat_path(raw.cfa, stages)
+            if flat is not None:
+                paths[PATH_FLAT] = flat
         return cls(analysis, list(stages), paths, denoiser, enabled,
                    image=(int(raw.shape[0]), int(raw.shape[1])))
 

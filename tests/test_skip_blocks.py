@@ -138,3 +138,16 @@ def test_skipping_is_off_where_the_device_is_not_the_cpu(monkeypatch: pytest.Mon
     assert auto.skipper is None and "Some GPU" in auto.skip_off
     assert "no scene analysis (skipping is off on Some GPU" in explain_run(auto, auto.stats)
     assert build_pipeline(raw, skip=True).skipper is not None
+    monkeypatch.setattr(pipeline_module, "calibration_runtime", lambda: rt)
+    assert build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS).skipper is not None
+
+
+def test_skipping_is_off_where_there_is_no_flat_path() -> None:
+    """Behind residual interpolation (the Bayer quality preset) there is no flat path, and the
+    denoiser's lighter paths alone never paid for the analysis: the default analyses nothing."""
+    from clisp.pipeline import SKIP_WHERE_IT_PAYS
+    raw = simulate(strip_scene(256, 256), cfa="bayer", gain=1, seed=0).raw
+    quality = build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS)
+    assert quality.skipper is None and "no flat path" in quality.skip_off
+    assert build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS, demosaic="dlmmse").skipper is not None
+    assert build_pipeline(raw, skip=True).skipper is not None
