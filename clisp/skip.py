@@ -391,6 +391,16 @@ class Skipper:
         texture = (a.detail >= FLAT_DETAIL) | (a.chroma >= FLAT_CHROMA) | (a.clipped > 0)
         return BlockBlend(texture, a.block, self.halo(PATH_FLAT), BLEND_RAMP)
 
+    def mixed_head(self, path: str, blend: BlockBlend) -> list[Any]:
+        """The head of ``path`` as a ``mixed`` tile runs it: the flat path's demosaic leaves out
+        the texture blocks, whose output the detail path's replaces (weight 1 within the flat
+        path's halo of texture, and the stages after the demosaic read less far than that)."""
+        head = self.head(path)
+        if path != PATH_FLAT:
+            return head
+        return [replace(stage, unread=blend.mask, block=blend.block) if isinstance(stage, DemosaicFlat) else stage
+                for stage in head]
+
     def head_halo(self, path: str) -> int:
         return sum(stage.halo for stage in self.head(path))
 

@@ -315,7 +315,7 @@ class Pipeline:
             oy, ox = y0 - margin - (t.y0 - halo), x0 - margin - (t.x0 - halo)
             return window[oy:oy + h + 2 * margin, ox:ox + w + 2 * margin]
 
-        heads = {name: skipper.head(name) for name in ("flat", choice.detail)}
+        heads = {name: skipper.mixed_head(name, blend) for name in ("flat", choice.detail)}
         margins = {name: sum(stage.halo for stage in stages) for name, stages in heads.items()}
         regions = [("flat", t)] + [(choice.detail, r) for r in choice.rects]
         if backend != "opencl":

@@ -128,3 +128,22 @@ def test_narrow_edge_window_reads_only_its_cells(rt) -> None:
 def test_cell_fits_every_cfa() -> None:
     for name in ("lms", "bayer-rggb"):
         assert CELL_PX % cfa_from_name(name).period == 0
+
+
+@pytest.mark.parametrize("name", ["lms", "bayer-rggb"])
+def test_unread_blocks_are_zero_and_the_rest_unchanged(rt, name: str) -> None:
+    """A mixed tile's texture blocks (``unread``) are written 0, not computed; every other pixel is
+    what the stage without the mask gives, on the device and in the reference."""
+    plain = DemosaicFlat(cfa_from_name(name), 2)
+    unread = np.zeros((4, 5), dtype=bool)
+    unread[1, 2] = unread[3, 0] = True
+    masked = DemosaicFlat(cfa_from_name(name), 2, unread=unread, block=16)
+    x = mosaic((2 * plain.halo + 40, 2 * plain.halo + 60), seed=5)
+    origin = Origin(-plain.halo + 4, -plain.halo + 8)              # output pixel (0, 0) is image (4, 8)
+    zero = masked.unread_pixels(4, 8, 40, 60)
+    assert zero.sum() == 16 * 16 and zero[12:28, 24:40].all()     # block (1, 2); (3, 0) lies below the window
+    expected = plain.reference(x, origin)
+    expected[zero] = 0.0
+    for got in (masked.reference(x, origin), run_stage(rt, masked, x, origin)):
+        assert_close(got, expected, f"{name} masked")
+        assert (got[zero] == 0).all() and (got[~zero] != 0).all()

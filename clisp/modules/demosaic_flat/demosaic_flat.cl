@@ -108,12 +108,16 @@ __kernel void flat_rows(__global const float *restrict box, __global float *rest
  * likewise (P divides CELL). d = a . x(3 x 3 around (Y, X), row-major) - b . mean: the 3 x 3
  * residual kernel's normalised weights for the pixel's CFA phase (DemosaicFlat.residual_tables:
  * a (P*P, 9), b (P*P, NCH)). out_c = mean_c + d. Halo (Rc + 2) CELL. Launched over exactly
- * ceil(ow / CELL) x oh; the last work-item of a row writes only the pixels inside ow. */
+ * ceil(ow / CELL) x oh; the last work-item of a row writes only the pixels inside ow. A pixel in
+ * a block that nobody reads (unread[by * unread_w + bx] != 0, blocks of `block` px on the image's
+ * multiples of `block`; unread_h 0: none) is written 0 instead. */
 __kernel void flat_output(__global const float *restrict src, __global const float *restrict rows,
                           __global float *restrict dst, const int width, const int bw,
                           const int ow, const int oh, const int halo, const int ax,
                           const int oy, const int ox, __constant const float *restrict a,
-                          __constant const float *restrict b, __constant const float *restrict centroid)
+                          __constant const float *restrict b, __constant const float *restrict centroid,
+                          __global const uchar *restrict unread, const int unread_w, const int unread_h,
+                          const int block)
 {
     const int q = get_global_id(0);
     const int y = get_global_id(1);
@@ -124,6 +128,14 @@ __kernel void flat_output(__global const float *restrict src, __global const flo
         if (x >= ow)
             return;
         const int X = x + halo;
+        const int o = y * ow + x;
+        const int gy = Y + oy, gx = X + ox;           /* image coordinates */
+        if (unread_h > 0 && gy >= 0 && gx >= 0 && gy < unread_h * block && gx < unread_w * block
+            && unread[(gy / block) * unread_w + gx / block]) {
+            for (int c = 0; c < NCH; c++)
+                dst[c * oh * ow + o] = 0.0f;
+            continue;
+        }
         float m[NCH];
         for (int c = 0; c < NCH; c++) {
             const float u0 = ((float)(halo + s - ax) - centroid[2 * c + 1]) * (1.0f / CELL) - CELLS;
@@ -142,7 +154,6 @@ __kernel void flat_output(__global const float *restrict src, __global const flo
                 d += ap[3 * dy + dx] * p[dy * width + dx];
         for (int c = 0; c < NCH; c++)
             d -= bp[c] * m[c];
-        const int o = y * ow + x;
         for (int c = 0; c < NCH; c++)
             dst[c * oh * ow + o] = m[c] + d;
     }

@@ -30,7 +30,7 @@ residual's support (no S sites) is not symmetric everywhere, an error of 0.2 px 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -114,6 +114,11 @@ class DemosaicFlat(Stage):
     cells: int = 0
     axial: float = -1.0
     diagonal: float = 0.0
+    unread: np.ndarray | None = field(default=None, compare=False)
+    """Optional (rows, cols) bool per ``block`` x ``block`` px block of the image (multiples of
+    ``block``): blocks whose output nobody reads (a mixed tile's texture blocks, where the detail
+    path's output replaces this one: clisp.skip). Their pixels are written 0, not computed."""
+    block: int = 64
     name = "demosaic_flat"
     in_channels = 1
     out_channels = 3
@@ -242,7 +247,19 @@ class DemosaicFlat(Stage):
             kk = kw * use[ch]
             num += kk * (xv - m)
             den += kk
-        return np.moveaxis(means, 0, -1) + (num / den)[..., None]
+        out = np.moveaxis(means, 0, -1) + (num / den)[..., None]
+        out[self.unread_pixels(origin[0] + hb, origin[1] + hb, oh, ow)] = 0.0
+        return out
+
+    def unread_pixels(self, y0: int, x0: int, h: int, w: int) -> np.ndarray:
+        """(h, w) bool: the pixels of the image region at (y0, x0) in an :attr:`unread` block."""
+        if self.unread is None:
+            return np.zeros((h, w), dtype=bool)
+        by = np.arange(y0, y0 + h) // self.block
+        bx = np.arange(x0, x0 + w) // self.block
+        rows, cols = self.unread.shape
+        inside = ((by >= 0) & (by < rows))[:, None] & ((bx >= 0) & (bx < cols))[None, :]
+        return inside & self.unread[np.clip(by, 0, rows - 1)][:, np.clip(bx, 0, cols - 1)]
 
     def defines(self) -> dict[str, object]:
         return {"CFA_PERIOD": self.cfa.period, "CELL": CELL_PX, "CELLS": self.cells, "NCH": self.cfa.n_channels}
@@ -278,9 +295,11 @@ class DemosaicFlat(Stage):
         rt.release(box)
         dst = rt.acquire(n, oh, ow)
         a, b = self.residual_tables()
+        unread = self.unread if self.unread is not None else np.zeros((1, 1), dtype=bool)
         rt.launch_named("demosaic_flat", "flat_output", -(-ow // CELL_PX), oh, dict(
             src=src, rows=rows, dst=dst, width=src.width, bw=bw, ow=ow, oh=oh, halo=hb, ax=ax,
             oy=origin[0], ox=origin[1], a=rt.constant(as_f32(a)), b=rt.constant(as_f32(b)),
-            centroid=centroid), defines)
+            centroid=centroid, unread=rt.constant(unread.astype(np.uint8)), unread_w=unread.shape[1],
+            unread_h=unread.shape[0] if self.unread is not None else 0, block=self.block), defines)
         rt.release(rows)
         return dst
