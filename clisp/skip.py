@@ -149,6 +149,11 @@ def flat_path(cfa: Any, stages: list[Any]) -> list[Any] | None:
     return stages[:d] + [flat] + stages[d + 1:i] + [plain_colour(denoiser)] + stages[i + 1:]
 
 
+def on_host_cpu(rt: Any) -> bool:
+    """Whether ``rt``'s device is the host's CPU (PoCL) or ``rt`` is None (the NumPy reference)."""
+    return rt is None or bool(rt.device.type & rt.cl.device_type.CPU)
+
+
 def why_not_skip(rt: Any, cfa: Any = None, stages: list[Any] | None = None) -> str:
     """Why skipping cannot pay for its scene analysis ('' where it can), so the CLI's default runs
     none (build_pipeline's SKIP_WHERE_IT_PAYS):
@@ -163,7 +168,7 @@ def why_not_skip(rt: Any, cfa: Any = None, stages: list[Any] | None = None) -> s
       collages, Bayer at gains 1, 16 and 64: PSNR identical to --no-skip, 1.02-1.12x its time).
 
     ``rt`` None (the NumPy reference) counts as the CPU."""
-    if rt is not None and not rt.device.type & rt.cl.device_type.CPU:
+    if not on_host_cpu(rt):
         return (f"skipping is off on {rt.device.name.strip()} (not the host's CPU): its full path costs less "
                 f"device time than the scene analysis would take on the host")
     if stages is not None and flat_path(cfa, stages) is None:

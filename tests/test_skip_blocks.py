@@ -123,29 +123,31 @@ def test_plan_mixes_only_where_texture_is_and_it_pays(monkeypatch: pytest.Monkey
 def test_skipping_is_off_where_the_device_is_not_the_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
     """On a GPU the full path's device time is less than the analysis: the CLI's default ('auto')
     analyses nothing there and says why; skip=True still forces the plan (tests, warm-up)."""
-    import clisp.pipeline as pipeline_module
+    import clisp.skip as skip
     from types import SimpleNamespace
     from clisp.engine.runtime import get_runtime
     from clisp.pipeline import SKIP_WHERE_IT_PAYS
-    from clisp.skip import explain_run, why_not_skip
-    rt = get_runtime()
-    assert why_not_skip(rt) == "" and why_not_skip(None) == ""         # PoCL on the CPU: skipping pays
-    gpu = SimpleNamespace(cl=rt.cl, device=SimpleNamespace(type=rt.cl.device_type.GPU, name="Some GPU "))
-    assert "Some GPU" in why_not_skip(gpu)
-    monkeypatch.setattr(pipeline_module, "calibration_runtime", lambda: gpu)
+    cl = get_runtime().cl
+    cpu = SimpleNamespace(cl=cl, device=SimpleNamespace(type=cl.device_type.CPU, name="Some CPU"))
+    gpu = SimpleNamespace(cl=cl, device=SimpleNamespace(type=cl.device_type.GPU, name="Some GPU "))
+    assert skip.on_host_cpu(cpu) and skip.on_host_cpu(None) and not skip.on_host_cpu(gpu)
+    assert skip.why_not_skip(cpu) == "" and "Some GPU" in skip.why_not_skip(gpu)
     raw = simulate(strip_scene(256, 256), cfa="lms", gain=1, seed=0).raw
+    monkeypatch.setattr(skip, "on_host_cpu", lambda rt: False)
     auto = build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS)
-    assert auto.skipper is None and "Some GPU" in auto.skip_off
-    assert "no scene analysis (skipping is off on Some GPU" in explain_run(auto, auto.stats)
+    assert auto.skipper is None and "not the host's CPU" in auto.skip_off
+    assert "no scene analysis (skipping is off on" in skip.explain_run(auto, auto.stats)
     assert build_pipeline(raw, skip=True).skipper is not None
-    monkeypatch.setattr(pipeline_module, "calibration_runtime", lambda: rt)
+    monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)
     assert build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS).skipper is not None
 
 
-def test_skipping_is_off_where_there_is_no_flat_path() -> None:
+def test_skipping_is_off_where_there_is_no_flat_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """Behind residual interpolation (the Bayer quality preset) there is no flat path, and the
     denoiser's lighter paths alone never paid for the analysis: the default analyses nothing."""
+    import clisp.skip as skip
     from clisp.pipeline import SKIP_WHERE_IT_PAYS
+    monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)       # the rule on a CPU, whatever this machine's device
     raw = simulate(strip_scene(256, 256), cfa="bayer", gain=1, seed=0).raw
     quality = build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS)
     assert quality.skipper is None and "no flat path" in quality.skip_off
