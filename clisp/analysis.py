@@ -23,7 +23,9 @@ over the 5 % aim; the per-phase clipped/uniform reductions are the part to trim)
 """
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -174,12 +176,62 @@ NOISE_STRIPS = 16
 robust fit, at a quarter of the cost of every block row (12 MP LMS: 313 -> ~100 ms in all)."""
 
 
-def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -> SceneAnalysis:
-    """Analyse ``raw`` (see the module docstring) on a grid of ``block`` x ``block`` blocks.
+THREADS = min(4, os.cpu_count() or 1)
+"""Threads of the analysis: the noise measurement and the bands are shared among them (NumPy
+releases the GIL in its loops)."""
 
-    ``strip_every``: measure noise on the strip of every n-th block row only (None: as many as
-    give NOISE_STRIPS strips, 1 = all)."""
-    start = time.perf_counter()
+BAND_BLOCKS = 4
+"""Block rows summarised together in one band (BAND_BLOCKS * BLOCK rows, about 2 MB of a 12 MP
+uint16 raw): large enough that NumPy's per-call overhead is small next to the work, small enough
+to stay in cache and to keep a memory-mapped raw's reading in bands."""
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What every band pass shares: the block grid, the cells and the per-channel constants.
+
+    Pixel sizes are px; DN are the raw's units; "WB'd" values are black-subtracted, white-normalised
+    and white-balanced (``(DN - black) * scale``)."""
+
+    h: int
+    w: int
+    block: int
+    p: int                      # CFA period
+    nch: int
+    pattern: np.ndarray         # (p, p) channel of each CFA phase
+    rows: int                   # block rows
+    cols: int                   # block columns
+    wc: int                     # whole cells per image row
+    px_edges: np.ndarray        # (cols,) first pixel column of each block
+    cell_edges: np.ndarray      # first cell column of each block (whole cells only)
+    lap_edges: np.ndarray       # first Laplacian column of each block (the Laplacian drops a cell each side)
+    cross: np.ndarray           # (w - p,) bool: horizontal comparisons x vs x + p that cross a block edge
+    clip_tile: np.ndarray       # (block, w) clip threshold of each sample of a block row (exact in the raw's dtype)
+    black: np.ndarray           # (nch,) DN
+    scale: np.ndarray           # (nch,) DN -> WB'd normalised
+    gains: np.ndarray           # (nch,) pass-1 gains (a WB'd sample at CLIP_FRACTION * gain is clipped)
+    counts: np.ndarray          # (nch,) samples of each channel in a cell
+    luma_w: np.ndarray          # (nch,) luma weights on WB'd channels
+    chroma_w: np.ndarray        # (k, nch) chroma weights
+
+
+def _clip_tile(clip_dn: np.ndarray, pattern: np.ndarray, block: int, w: int, dtype: np.dtype) -> np.ndarray:
+    """(block, w) threshold per sample of a block row (its rows start on CFA phase 0) such that
+    ``band >= tile`` is exactly ``band >= clip_dn[channel]``: for integer raws the thresholds are
+    rounded up to integers in the raw's dtype (x >= t <=> x >= ceil(t) for integer x), so the
+    comparison runs on the raw's own type; other raws compare in float64."""
+    p = pattern.shape[0]
+    per_phase = clip_dn[pattern]                                     # (p, p)
+    if np.issubdtype(dtype, np.integer):
+        info = np.iinfo(dtype)
+        whole = np.ceil(per_phase)
+        if whole.max() <= info.max:
+            per_phase = np.maximum(whole, info.min).astype(dtype)
+    return np.tile(per_phase, (block // p, -(-w // p)))[:, :w].copy()
+
+
+def _layout(raw: RawImage, block: int) -> _Layout:
+    """The grid and constants of ``raw`` for :func:`analyse` (raises ClispError on bad sizes)."""
     cfa: CFA = raw.cfa
     p, nch = cfa.period, cfa.n_channels
     if block % p or block % CELL or CELL % p:
@@ -189,95 +241,49 @@ def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -
         raise ClispError(f"raw of {w}x{h} is too small to analyse")
     black = np.asarray(raw.black_level, dtype=np.float64)
     gains = raw.pass1_gains()
-    scale = gains / (float(raw.white_level) - black)                 # DN -> WB'd normalised
     clip_dn = black + CLIP_FRACTION * (float(raw.white_level) - black)
     luma_w, chroma_w = _luma_chroma(raw)
     pattern = cfa.pattern
-    clip_rows = clip_dn[pattern][:, np.arange(w) % p]                 # (p, W) threshold per phase row
-    counts = np.array([np.count_nonzero(pattern == c) for c in range(nch)], dtype=np.float64) * (CELL // p) ** 2
+    wc, cb = w // CELL, block // CELL
+    cross = np.zeros(max(w - p, 0), dtype=bool)
+    for e in range(block, w, block):
+        cross[e - p:e] = True
+    return _Layout(
+        h=h, w=w, block=block, p=p, nch=nch, pattern=pattern, rows=-(-h // block), cols=-(-w // block),
+        wc=wc, px_edges=np.arange(0, w, block), cell_edges=np.arange(0, wc, cb),
+        lap_edges=np.arange(0, max(wc - 2, 0), cb), cross=cross,
+        clip_tile=_clip_tile(clip_dn, pattern, block, w, raw.data.dtype), black=black,
+        scale=gains / (float(raw.white_level) - black), gains=gains,
+        counts=np.array([np.count_nonzero(pattern == c) for c in range(nch)], dtype=np.float64) * (CELL // p) ** 2,
+        luma_w=luma_w, chroma_w=chroma_w)
 
-    rows, cols = -(-h // block), -(-w // block)
+
+def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -> SceneAnalysis:
+    """Analyse ``raw`` (see the module docstring) on a grid of ``block`` x ``block`` blocks.
+
+    ``strip_every``: measure noise on the strip of every n-th block row only (None: as many as
+    give NOISE_STRIPS strips, 1 = all)."""
+    start = time.perf_counter()
+    lay = _layout(raw, block)
+    h, w, nch = lay.h, lay.w, lay.nch
     if strip_every is None:
-        strip_every = max(1, rows // NOISE_STRIPS)
-    wc = w // CELL                                                   # whole cells per row
-    cb = block // CELL                                               # cells per block side
-    col_edges = np.arange(0, wc, cb)
-    px_edges = np.arange(0, w, block)
-    means = np.zeros((nch, rows, cols))
-    lap_y = np.zeros((rows, cols))
-    lap_c = np.zeros((chroma_w.shape[0], rows, cols))
-    clipped = np.zeros((rows, cols))
-    uniform = np.ones((rows, cols), dtype=bool)
-    samples: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in range(nch)]
-    data = raw.data
-    for r in range(rows):
-        y0 = r * block
-        band = np.asarray(data[y0:min(h, y0 + block)])
-        hc = band.shape[0] // CELL
-        # clipped samples per block (per channel thresholds) and uniformity: every phase constant
-        # in the block <=> each sample equals the one a CFA period to its right and below
-        phase_rows = (y0 + np.arange(band.shape[0])) % p
-        clip_hit = band >= clip_rows[phase_rows]
-        clipped[r] += np.add.reduceat(clip_hit.sum(axis=0), px_edges)[:cols]
-        same = np.ones(band.shape, dtype=bool)
-        same[:, :-p] = band[:, p:] == band[:, :-p]
-        same[:-p] &= band[p:] == band[:-p]
-        # a block's last period of columns compares with the next block's: leave those out
-        inner = same.copy()
-        for e in px_edges[1:]:
-            inner[:, e - p:e] = True
-        uniform[r] &= np.logical_and.reduceat(inner.all(axis=0), px_edges)[:cols]
-        if hc == 0:
-            continue
-        cells = np.zeros((nch, hc, wc), dtype=np.float32)
-        for py in range(CELL):
-            for px in range(CELL):
-                c = int(pattern[py % p, px % p])
-                cells[c] += band[py:hc * CELL:CELL, px:wc * CELL:CELL]
-        cells = (cells / counts[:, None, None] - black[:, None, None].astype(np.float32)) \
-            * scale[:, None, None].astype(np.float32)
-        block_sum = np.add.reduceat(cells.sum(axis=1), col_edges, axis=1)        # (nch, cols')
-        n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), col_edges)
-        means[:, r, :block_sum.shape[1]] = block_sum / n_cells
-        y = np.tensordot(luma_w.astype(np.float32), cells, axes=1)
-        ch = np.tensordot(chroma_w.astype(np.float32), cells, axes=1)
-        if hc >= 3 and wc >= 3:
-            ly = _laplacian(y)
-            lc = _laplacian(ch)
-            e = np.arange(0, wc - 2, cb)
-            k = min(len(e), cols)
-            lap_y[r, :k] = np.add.reduceat((ly ** 2).sum(axis=0), e)[:k] / np.add.reduceat(
-                np.full(wc - 2, hc - 2.0), e)[:k]
-            lap_c[:, r, :k] = np.add.reduceat((lc ** 2).sum(axis=1), e, axis=1)[:, :k] / np.add.reduceat(
-                np.full(wc - 2, hc - 2.0), e)[:k]
-        # noise strip: the first 3 lattice rows of every phase
-        if r % strip_every == 0 and band.shape[0] >= 3 * p:
-            for py in range(p):
-                for px in range(p):
-                    c = int(pattern[py, px])
-                    lat = (band[py:3 * p:p, px::p].astype(np.float64) - black[c]) * scale[c]
-                    if lat.shape[1] < 3:
-                        continue
-                    bad = lat >= CLIP_FRACTION * gains[c]
-                    keep = ~(bad[:, :-2] | bad[:, 1:-1] | bad[:, 2:]).any(axis=0)
-                    res = _row3(lat, IMMERKAER)[keep]
-                    lvl = _row3(lat, np.full((3, 3), 1.0 / 9.0))[keep]
-                    tex = (_row3(lat, SOBEL) ** 2 + _row3(lat, SOBEL.T) ** 2)[keep]
-                    samples[c].append((lvl, res, tex))
-    total = float(h * w)
-    px_per_block = np.outer(np.diff(np.append(np.arange(0, h, block), h)), np.diff(np.append(px_edges, w)))
-    clipped_fraction = float(clipped.sum() / total)
-    clipped = clipped / px_per_block
-
-    noise, sigma, levels = _fit_noise(samples, nch)
+        strip_every = max(1, lay.rows // NOISE_STRIPS)
+    strips = [np.array(raw.data[r * block:r * block + 3 * lay.p]) for r in _strip_rows(lay, strip_every)]
     model = _model_noise(raw)
-    sigma_model = np.full(nch, np.nan)
-    if model is not None:
-        sigma_model = np.array([float(np.sqrt(model.variance(c, levels[c]))) for c in range(nch)])
-        ratio = _model_ratio(samples, model, nch)
-        sigma = np.where(np.isfinite(ratio), ratio * sigma_model, sigma)
+    acc = _BlockSums.empty(lay)
+    # the noise measurement and the bands are independent: the first free thread takes each
+    with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-analysis") as pool:
+        measured = pool.submit(_measure_noise, strips, lay, model)
+        for done in [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in _bands(lay)]:
+            done.result()
+        noise, sigma, sigma_model, levels = measured.result()
+    px_per_block = np.outer(np.diff(np.append(np.arange(0, h, block), h)), np.diff(np.append(lay.px_edges, w)))
+    clipped_fraction = float(acc.clipped.sum() / float(h * w))
+    clipped = acc.clipped / px_per_block
+    means = acc.means
     # noise-only energy of the Laplacians of the cell means, per block, from the noise in use
     ref = model if model is not None else noise
+    luma_w, chroma_w, counts = lay.luma_w, lay.chroma_w, lay.counts
     luma = np.tensordot(luma_w, means, axes=1)
     chroma_means = np.tensordot(chroma_w, means, axes=1)
     if ref is not None:
@@ -288,15 +294,150 @@ def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -
         var_y = np.zeros_like(luma)
         var_c = np.zeros_like(chroma_means)
     tiny = 1e-12
-    detail = lap_y / (LAPLACIAN_NOISE_GAIN * var_y + tiny)
-    chroma = (lap_c / (LAPLACIAN_NOISE_GAIN * var_c + tiny)).max(axis=0)
+    detail = acc.lap_y / (LAPLACIAN_NOISE_GAIN * var_y + tiny)
+    chroma = (acc.lap_c / (LAPLACIAN_NOISE_GAIN * var_c + tiny)).max(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         saturation = np.sqrt((chroma_means ** 2).sum(axis=0)) / np.maximum(np.abs(luma), 1e-6)
+    cfa = raw.cfa
     return SceneAnalysis(
         shape=(h, w), cfa=cfa.name, block=block, noise=noise, model=model, sigma=sigma,
         sigma_model=sigma_model, levels=levels, clipped_fraction=clipped_fraction, luma=luma,
-        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=uniform, means=means,
+        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=acc.uniform, means=means,
         seconds=time.perf_counter() - start, channel_names=tuple(getattr(cfa, "channels", ()) or ()))
+
+
+def _strip_rows(lay: _Layout, strip_every: int) -> list[int]:
+    """Block rows whose strip (their first 3 p rows) measures the noise: every ``strip_every``-th
+    one that has those rows and at least one whole cell row."""
+    return [r for r in range(0, lay.rows, strip_every)
+            if min(lay.block, lay.h - r * lay.block) >= max(3 * lay.p, CELL)]
+
+
+def _measure_noise(strips: list[np.ndarray], lay: _Layout, model: ChannelNoise | None
+                   ) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray, np.ndarray]:
+    """(fitted noise, sigma, sigma_model, levels) of SceneAnalysis from the noise strips (each
+    (3 p, W) DN) and the sensor model (None: none; sigma_model is then NaN)."""
+    nch = lay.nch
+    samples = _strip_samples(strips, lay)
+    noise, sigma, levels = _fit_noise(samples, nch)
+    sigma_model = np.full(nch, np.nan)
+    if model is not None:
+        sigma_model = np.array([float(np.sqrt(model.variance(c, levels[c]))) for c in range(nch)])
+        ratio = _model_ratio(samples, model, nch)
+        sigma = np.where(np.isfinite(ratio), ratio * sigma_model, sigma)
+    return noise, sigma, sigma_model, levels
+
+
+@dataclass
+class _BlockSums:
+    """The per-block sums the band passes fill in (each band writes only its own block rows).
+
+    means    (nch, rows, cols) mean WB'd value of each channel.
+    lap_y    (rows, cols) mean squared Laplacian of the luma cell means.
+    lap_c    (k, rows, cols) the same for each chroma plane.
+    clipped  (rows, cols) clipped samples (a count).
+    uniform  (rows, cols) every CFA phase exactly constant in the block."""
+
+    means: np.ndarray
+    lap_y: np.ndarray
+    lap_c: np.ndarray
+    clipped: np.ndarray
+    uniform: np.ndarray
+
+    @classmethod
+    def empty(cls, lay: _Layout) -> "_BlockSums":
+        shape = (lay.rows, lay.cols)
+        return cls(np.zeros((lay.nch,) + shape), np.zeros(shape), np.zeros((lay.chroma_w.shape[0],) + shape),
+                   np.zeros(shape), np.ones(shape, dtype=bool))
+
+
+def _bands(lay: _Layout) -> list[tuple[int, int]]:
+    """(first, end) block rows of each band: BAND_BLOCKS whole block rows at a time, and a last
+    partial block row (image height not a multiple of the block) on its own."""
+    whole = lay.h // lay.block
+    bands = [(r, min(r + BAND_BLOCKS, whole)) for r in range(0, whole, BAND_BLOCKS)]
+    if whole < lay.rows:
+        bands.append((whole, lay.rows))
+    return bands
+
+
+def _scan_band(data: np.ndarray, r0: int, r1: int, lay: _Layout, acc: _BlockSums) -> None:
+    """Read block rows r0 .. r1 - 1 of the mosaic ``data`` (H x W DN) and write their per-block
+    sums to ``acc`` (only those rows: bands may run in parallel)."""
+    band = np.asarray(data[r0 * lay.block:min(lay.h, r1 * lay.block)])
+    band = band.reshape(r1 - r0, -1, lay.w)                          # (kb, bh, W): bh = block but in a last partial row
+    rs = slice(r0, r1)
+    acc.clipped[rs] = _clipped_counts(band, lay)
+    acc.uniform[rs] = _uniform(band, lay)
+    hc = band.shape[1] // CELL
+    if hc > 0:
+        _cell_activity(_wb_cells(_cell_sums(band, lay, hc), lay), rs, lay, acc)
+
+
+def _clipped_counts(band: np.ndarray, lay: _Layout) -> np.ndarray:
+    """(kb, cols) clipped samples (at or above their channel's threshold) per block of ``band``."""
+    hit = band >= lay.clip_tile[:band.shape[1]]
+    per_column = hit.sum(axis=1, dtype=np.uint16 if band.shape[1] <= 0xFFFF else np.int64)
+    return np.add.reduceat(per_column.astype(np.int64), lay.px_edges, axis=-1)
+
+
+def _uniform(band: np.ndarray, lay: _Layout) -> np.ndarray:
+    """(kb, cols) bool: every CFA phase exactly constant in the block. Most blocks of a photo
+    differ within their first 2 p rows, so those are compared first and the whole band only when
+    some block is still a candidate."""
+    top = _differs(band[:, :2 * lay.p], lay)
+    if top.all():
+        return ~top
+    return ~_differs(band, lay)
+
+
+def _differs(band: np.ndarray, lay: _Layout) -> np.ndarray:
+    """(kb, cols) bool: some sample of the block differs from the one a CFA period to its right or
+    below it in the same block (False <=> every phase is constant in the block)."""
+    p = lay.p
+    right = (band[:, :, p:] != band[:, :, :-p]).any(axis=1)          # (kb, W - p)
+    right[:, lay.cross] = False                                      # a block's last p columns vs the next block
+    below = (band[:, p:] != band[:, :-p]).any(axis=1)                # (kb, W)
+    below[:, :right.shape[1]] |= right
+    return np.logical_or.reduceat(below, lay.px_edges, axis=-1)
+
+
+def _cell_sums(band: np.ndarray, lay: _Layout, hc: int) -> np.ndarray:
+    """(nch, kb, hc, wc) float32 sum of each channel's samples in every CELL x CELL cell (DN; exact
+    for integer raws: at most CELL^2 * 65535 < 2^24)."""
+    kb = band.shape[0]
+    v = band[:, :hc * CELL, :lay.wc * CELL].reshape(kb, hc, CELL, lay.wc, CELL)
+    sums = np.zeros((lay.nch, kb, hc, lay.wc), dtype=np.float32)
+    for py in range(CELL):
+        for px in range(CELL):
+            sums[int(lay.pattern[py % lay.p, px % lay.p])] += v[:, :, py, :, px]
+    return sums
+
+
+def _wb_cells(sums: np.ndarray, lay: _Layout) -> np.ndarray:
+    """(nch, kb, hc, wc) float64 WB'd normalised cell means from the cell sums (DN)."""
+    shape = (-1, 1, 1, 1)
+    return (sums / lay.counts.reshape(shape) - lay.black.astype(np.float32).reshape(shape)) \
+        * lay.scale.astype(np.float32).reshape(shape)
+
+
+def _cell_activity(cells: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -> None:
+    """Block means of ``cells`` (nch, kb, hc, wc) and the mean squared Laplacian of their luma and
+    chroma planes (within each block row: it reads no cell of the block rows above or below),
+    written to the block rows ``rs`` of ``acc``."""
+    _, _, hc, wc = cells.shape
+    block_sum = np.add.reduceat(cells.sum(axis=2), lay.cell_edges, axis=-1)        # (nch, kb, cols')
+    n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), lay.cell_edges)
+    acc.means[:, rs, :block_sum.shape[-1]] = block_sum / n_cells
+    if hc < 3 or wc < 3:
+        return
+    y = np.tensordot(lay.luma_w.astype(np.float32), cells, axes=1)                  # (kb, hc, wc)
+    ch = np.tensordot(lay.chroma_w.astype(np.float32), cells, axes=1)               # (k, kb, hc, wc)
+    e = lay.lap_edges
+    k = min(len(e), lay.cols)
+    n_lap = np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]
+    acc.lap_y[rs, :k] = np.add.reduceat((_laplacian(y) ** 2).sum(axis=-2), e, axis=-1)[:, :k] / n_lap
+    acc.lap_c[:, rs, :k] = np.add.reduceat((_laplacian(ch) ** 2).sum(axis=-2), e, axis=-1)[..., :k] / n_lap
 
 
 def _laplacian(a: np.ndarray) -> np.ndarray:
@@ -305,28 +446,84 @@ def _laplacian(a: np.ndarray) -> np.ndarray:
             - 4.0 * a[..., 1:-1, 1:-1])
 
 
-def _row3(lat: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """The 3 x 3 correlation of a 3-row lattice strip: one output row of width W - 2."""
-    n = lat.shape[1] - 2
-    out = np.zeros(n)
+Samples = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+"""Per channel, the noise samples of every strip: (level, Immerkaer residual, squared Sobel
+gradient), each (n,) float64 in WB'd normalised units, in the order strip, phase row, phase column,
+position."""
+
+
+def _strip_samples(strips: list[np.ndarray], lay: _Layout) -> Samples:
+    """Noise samples of the strips (each (3 p, W) DN): on each phase's lattice (3 rows), the 3 x 3
+    residual, level and texture of every position whose 3 x 3 holds no clipped sample."""
+    p, w, pat, s = lay.p, lay.w, lay.pattern, len(strips)
+    n = -(-w // p)                                                   # lattice columns, the last padded
+    columns = -(-(w - np.arange(p)) // p)                            # (p,) lattice columns of each px
+    inside = np.arange(n - 2)[None, :] < (columns - 2)[:, None]      # (px, n - 2): not reading the padding
+    measures = np.empty((3, s, p, p, n - 2))                         # level, residual, texture
+    keep = np.empty((s, p, p, n - 2), dtype=bool)
+    dn = np.zeros((3 * p, n * p))
+    lat = np.empty((p, p, 3, n))                                     # (py, px, lattice row, lattice column)
+    for i, strip in enumerate(strips):
+        dn[:, :w] = strip
+        lat[...] = dn.reshape(3, p, n, p).transpose(1, 3, 0, 2)     # every phase's lattice, WB'd
+        lat -= lay.black[pat][:, :, None, None]
+        lat *= lay.scale[pat][:, :, None, None]
+        bad = lat >= (CLIP_FRACTION * lay.gains[pat])[:, :, None, None]
+        keep[i] = ~(bad[..., :-2] | bad[..., 1:-1] | bad[..., 2:]).any(axis=-2) & inside
+        measures[:, i] = _lattice_measures(lat)
+    samples = []
+    for c in range(lay.nch):
+        py, px = np.nonzero(pat == c)                                # phases of channel c, row-major
+        k = keep[:, py, px]
+        lvl, res, tex = (m[:, py, px][k] for m in measures)
+        samples.append((lvl, res, tex))
+    return samples
+
+
+def _lattice_measures(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(level, Immerkaer residual, squared Sobel gradient), each (..., n - 2), of 3-row lattice
+    strips ``lat`` (..., 3, n): the 3 x 3 correlations with the 1/9 mean, IMMERKAER, SOBEL and
+    SOBEL.T, summed tap by tap in row-major order. Every tap of a kernel is one value times
+    +-1, 2 or 4, so each kernel's product with ``lat`` is taken once and the taps scaled by powers of
+    two: exactly (bit for bit) the tap-by-tap products of the kernels."""
+    n = lat.shape[-1] - 2
+    sixth = lat * IMMERKAER[0, 0]
+    res = _taps(n, (sixth, sixth * 2.0, sixth * 4.0), ((1, -2, 1), (-2, 4, -2), (1, -2, 1)))
+    lvl = _taps(n, (lat * (1.0 / 9.0),), ((1, 1, 1), (1, 1, 1), (1, 1, 1)))
+    double = lat * 2.0
+    gx = _taps(n, (lat, double), SOBEL.astype(int))
+    gy = _taps(n, (lat, double), SOBEL.T.astype(int))
+    gx *= gx
+    gy *= gy
+    gx += gy
+    return lvl, res, gx
+
+
+def _taps(n: int, scaled: tuple[np.ndarray, ...], weights: Any) -> np.ndarray:
+    """sum over the 3 x 3 taps (row-major) of weights[dy][dx] * lat[..., dy, dx:dx + n], from
+    ``scaled`` = (lat, 2 lat, 4 lat)[:k] (k as the largest |weight| needs): 0 + each term in turn,
+    as _row3 sums, with each term's product already exact in ``scaled``."""
+    out = np.zeros(scaled[0].shape[:-2] + (n,))
     for dy in range(3):
         for dx in range(3):
-            if kernel[dy, dx] != 0:
-                out += kernel[dy, dx] * lat[dy, dx:dx + n]
+            wt = int(weights[dy][dx])
+            if wt == 0:
+                continue
+            term = scaled[abs(wt).bit_length() - 1][..., dy, dx:dx + n]
+            if wt > 0:
+                out += term
+            else:
+                out -= term
     return out
 
 
-def _fit_noise(samples: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]],
-               nch: int) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray]:
+def _fit_noise(samples: Samples, nch: int) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray]:
     """(fitted ChannelNoise or None, sigma at each channel's median level, median levels)."""
     shot, floor = [], []
     sigma, levels = np.full(nch, np.nan), np.full(nch, np.nan)
     ok = True
     for c in range(nch):
-        if not samples[c]:
-            ok = False
-            continue
-        lvl, res, tex = (np.concatenate(parts) for parts in zip(*samples[c]))
+        lvl, res, tex = samples[c]
         if lvl.size == 0:
             ok = False
             continue
@@ -348,16 +545,13 @@ def _fit_noise(samples: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]],
     return noise, sigma, levels
 
 
-def _model_ratio(samples: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]], model: ChannelNoise,
-                 nch: int) -> np.ndarray:
+def _model_ratio(samples: Samples, model: ChannelNoise, nch: int) -> np.ndarray:
     """Measured / model noise std per channel: every residual is divided by the model's std at its
     level, and the robust std (1.4826 median |z|) of the FLAT_FRACTION flattest (by Sobel
     gradient, also in model units) is the ratio. No line fit, so it is stable on few samples."""
     ratio = np.full(nch, np.nan)
     for c in range(nch):
-        if not samples[c]:
-            continue
-        lvl, res, tex = (np.concatenate(parts) for parts in zip(*samples[c]))
+        lvl, res, tex = samples[c]
         var = model.variance(c, lvl)
         ok = var > 0
         if np.count_nonzero(ok) < 50:
