@@ -213,6 +213,8 @@ class _Layout:
     counts: np.ndarray          # (nch,) samples of each channel in a cell
     luma_w: np.ndarray          # (nch,) luma weights on WB'd channels
     chroma_w: np.ndarray        # (k, nch) chroma weights
+    planes: np.ndarray          # (1 + k, nch) luma and chroma of the cells' WB'd means, per DN of a channel's cell sum
+    sums_dtype: type            # dtype in which Laplacians of cell sums are exact
 
 
 def _clip_tile(clip_dn: np.ndarray, pattern: np.ndarray, block: int, w: int, dtype: np.dtype) -> np.ndarray:
@@ -245,6 +247,8 @@ def _layout(raw: RawImage, block: int) -> _Layout:
     luma_w, chroma_w = _luma_chroma(raw)
     pattern = cfa.pattern
     wc, cb = w // CELL, block // CELL
+    scale = gains / (float(raw.white_level) - black)
+    counts = np.array([np.count_nonzero(pattern == c) for c in range(nch)], dtype=np.float64) * (CELL // p) ** 2
     cross = np.zeros(max(w - p, 0), dtype=bool)
     for e in range(block, w, block):
         cross[e - p:e] = True
@@ -253,9 +257,11 @@ def _layout(raw: RawImage, block: int) -> _Layout:
         wc=wc, px_edges=np.arange(0, w, block), cell_edges=np.arange(0, wc, cb),
         lap_edges=np.arange(0, max(wc - 2, 0), cb), cross=cross,
         clip_tile=_clip_tile(clip_dn, pattern, block, w, raw.data.dtype), black=black,
-        scale=gains / (float(raw.white_level) - black), gains=gains,
-        counts=np.array([np.count_nonzero(pattern == c) for c in range(nch)], dtype=np.float64) * (CELL // p) ** 2,
-        luma_w=luma_w, chroma_w=chroma_w)
+        scale=scale, gains=gains,
+        counts=counts, luma_w=luma_w, chroma_w=chroma_w,
+        planes=np.concatenate([luma_w[None], chroma_w]).astype(np.float32).astype(np.float64)
+        * (scale.astype(np.float32) / counts)[None, :],
+        sums_dtype=np.float32 if raw.data.dtype.kind in "ui" and raw.data.dtype.itemsize <= 2 else np.float64)
 
 
 def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -> SceneAnalysis:
@@ -371,11 +377,14 @@ def _scan_band(data: np.ndarray, r0: int, r1: int, lay: _Layout, acc: _BlockSums
     acc.uniform[rs] = _uniform(band, lay)
     hc = band.shape[1] // CELL
     if hc > 0:
-        _cell_activity(_wb_cells(_cell_sums(band, lay, hc), lay), rs, lay, acc)
+        _cell_activity(_cell_sums(band, lay, hc), rs, lay, acc)
 
 
 def _clipped_counts(band: np.ndarray, lay: _Layout) -> np.ndarray:
-    """(kb, cols) clipped samples (at or above their channel's threshold) per block of ``band``."""
+    """(kb, cols) clipped samples (at or above their channel's threshold) per block of ``band``;
+    a band whose largest sample is below every threshold (most of a photo) is not compared."""
+    if band.max() < lay.clip_tile.min():
+        return np.zeros((band.shape[0], lay.cols), dtype=np.int64)
     hit = band >= lay.clip_tile[:band.shape[1]]
     per_column = hit.sum(axis=1, dtype=np.uint16 if band.shape[1] <= 0xFFFF else np.int64)
     return np.add.reduceat(per_column.astype(np.int64), lay.px_edges, axis=-1)
@@ -414,36 +423,39 @@ def _cell_sums(band: np.ndarray, lay: _Layout, hc: int) -> np.ndarray:
     return sums
 
 
-def _wb_cells(sums: np.ndarray, lay: _Layout) -> np.ndarray:
-    """(nch, kb, hc, wc) float64 WB'd normalised cell means from the cell sums (DN)."""
-    shape = (-1, 1, 1, 1)
-    return (sums / lay.counts.reshape(shape) - lay.black.astype(np.float32).reshape(shape)) \
-        * lay.scale.astype(np.float32).reshape(shape)
+def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -> None:
+    """Block means of the cells' WB'd channel means, and the mean squared Laplacian of their luma
+    and chroma planes (within each block row: it reads no cell of the block rows above or below),
+    from the cell sums ``sums`` (nch, kb, hc, wc) DN, written to the block rows ``rs`` of ``acc``.
 
-
-def _cell_activity(cells: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -> None:
-    """Block means of ``cells`` (nch, kb, hc, wc) and the mean squared Laplacian of their luma and
-    chroma planes (within each block row: it reads no cell of the block rows above or below),
-    written to the block rows ``rs`` of ``acc``."""
-    _, _, hc, wc = cells.shape
-    block_sum = np.add.reduceat(cells.sum(axis=2), lay.cell_edges, axis=-1)        # (nch, kb, cols')
+    The Laplacian is linear and its taps sum to 0, so the luma / chroma Laplacian is lay.planes
+    times the Laplacians of the channels' cell sums: those are exact (integers below 2^24 in float32
+    for integer raws), and only the weighting and squaring round (float64)."""
+    _, _, hc, wc = sums.shape
+    block_sum = np.add.reduceat(sums.sum(axis=2, dtype=np.float64), lay.cell_edges, axis=-1)   # (nch, kb, cols')
     n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), lay.cell_edges)
-    acc.means[:, rs, :block_sum.shape[-1]] = block_sum / n_cells
+    shape = (-1, 1, 1)
+    acc.means[:, rs, :block_sum.shape[-1]] = (block_sum / (lay.counts.reshape(shape) * n_cells)
+                                              - lay.black.astype(np.float32).reshape(shape)) \
+        * lay.scale.astype(np.float32).reshape(shape)
     if hc < 3 or wc < 3:
         return
-    y = np.tensordot(lay.luma_w.astype(np.float32), cells, axes=1)                  # (kb, hc, wc)
-    ch = np.tensordot(lay.chroma_w.astype(np.float32), cells, axes=1)               # (k, kb, hc, wc)
+    planes = np.tensordot(lay.planes, _laplacian(sums.astype(lay.sums_dtype, copy=False)), axes=1)
+    planes *= planes                                                 # (1 + k, kb, hc - 2, wc - 2)
     e = lay.lap_edges
     k = min(len(e), lay.cols)
-    n_lap = np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]
-    acc.lap_y[rs, :k] = np.add.reduceat((_laplacian(y) ** 2).sum(axis=-2), e, axis=-1)[:, :k] / n_lap
-    acc.lap_c[:, rs, :k] = np.add.reduceat((_laplacian(ch) ** 2).sum(axis=-2), e, axis=-1)[..., :k] / n_lap
+    energy = np.add.reduceat(planes.sum(axis=-2), e, axis=-1)[..., :k] / np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]
+    acc.lap_y[rs, :k] = energy[0]
+    acc.lap_c[:, rs, :k] = energy[1:]
 
 
 def _laplacian(a: np.ndarray) -> np.ndarray:
-    """4-neighbour Laplacian on the interior of the last two axes."""
-    return (a[..., :-2, 1:-1] + a[..., 2:, 1:-1] + a[..., 1:-1, :-2] + a[..., 1:-1, 2:]
-            - 4.0 * a[..., 1:-1, 1:-1])
+    """4-neighbour Laplacian on the interior of the last two axes (in a's dtype)."""
+    lap = a[..., :-2, 1:-1] + a[..., 2:, 1:-1]
+    lap += a[..., 1:-1, :-2]
+    lap += a[..., 1:-1, 2:]
+    lap -= 4 * a[..., 1:-1, 1:-1]
+    return lap
 
 
 Samples = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -455,58 +467,67 @@ position."""
 def _strip_samples(strips: list[np.ndarray], lay: _Layout) -> Samples:
     """Noise samples of the strips (each (3 p, W) DN): on each phase's lattice (3 rows), the 3 x 3
     residual, level and texture of every position whose 3 x 3 holds no clipped sample."""
-    p, w, pat, s = lay.p, lay.w, lay.pattern, len(strips)
+    p, w, s = lay.p, lay.w, len(strips)
     n = -(-w // p)                                                   # lattice columns, the last padded
-    columns = -(-(w - np.arange(p)) // p)                            # (p,) lattice columns of each px
-    inside = np.arange(n - 2)[None, :] < (columns - 2)[:, None]      # (px, n - 2): not reading the padding
-    measures = np.empty((3, s, p, p, n - 2))                         # level, residual, texture
-    keep = np.empty((s, p, p, n - 2), dtype=bool)
-    dn = np.zeros((3 * p, n * p))
-    lat = np.empty((p, p, 3, n))                                     # (py, px, lattice row, lattice column)
+    # the phases (py, px) sorted by channel (row-major within one), so each channel's are a slice
+    py, px = np.divmod(np.argsort(lay.pattern.ravel(), kind="stable"), p)
+    ends = np.cumsum([np.count_nonzero(lay.pattern == c) for c in range(lay.nch)])
+    chan = lay.pattern[py, px]
+    black, scale = lay.black[chan][:, None, None], lay.scale[chan][:, None, None]
+    clip = (CLIP_FRACTION * lay.gains[chan])[:, None, None]
+    columns = -(-(w - px) // p)                                      # lattice columns of each phase
+    inside = np.arange(n - 2)[None, :] < (columns - 2)[:, None]      # (phase, n - 2): not reading the padding
+    measures = np.zeros((3, s, p * p, n - 2))                        # level, residual, texture
+    keep = np.empty((s, p * p, n - 2), dtype=bool)
+    dn = np.zeros((3, p, n, p), dtype=strips[0].dtype if strips else np.float64)
+    lat = np.empty((p * p, 3, n))                                    # (phase, lattice row, lattice column)
     for i, strip in enumerate(strips):
-        dn[:, :w] = strip
-        lat[...] = dn.reshape(3, p, n, p).transpose(1, 3, 0, 2)     # every phase's lattice, WB'd
-        lat -= lay.black[pat][:, :, None, None]
-        lat *= lay.scale[pat][:, :, None, None]
-        bad = lat >= (CLIP_FRACTION * lay.gains[pat])[:, :, None, None]
-        keep[i] = ~(bad[..., :-2] | bad[..., 1:-1] | bad[..., 2:]).any(axis=-2) & inside
-        measures[:, i] = _lattice_measures(lat)
+        dn.reshape(3 * p, n * p)[:, :w] = strip
+        lat[...] = dn[:, py, :, px]                                  # every phase's lattice, WB'd
+        lat -= black
+        lat *= scale
+        bad = (lat >= clip).any(axis=-2)
+        keep[i] = ~(bad[..., :-2] | bad[..., 1:-1] | bad[..., 2:]) & inside
+        _lattice_measures(lat, *measures[:, i])
     samples = []
-    for c in range(lay.nch):
-        py, px = np.nonzero(pat == c)                                # phases of channel c, row-major
-        k = keep[:, py, px]
-        lvl, res, tex = (m[:, py, px][k] for m in measures)
+    for a, b in zip(np.append(0, ends[:-1]), ends):
+        k = keep[:, a:b]
+        lvl, res, tex = (m[:, a:b][k] for m in measures)
         samples.append((lvl, res, tex))
     return samples
 
 
-def _lattice_measures(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(level, Immerkaer residual, squared Sobel gradient), each (..., n - 2), of 3-row lattice
-    strips ``lat`` (..., 3, n): the 3 x 3 correlations with the 1/9 mean, IMMERKAER, SOBEL and
-    SOBEL.T, summed tap by tap in row-major order. Every tap of a kernel is one value times
-    +-1, 2 or 4, so each kernel's product with ``lat`` is taken once and the taps scaled by powers of
-    two: exactly (bit for bit) the tap-by-tap products of the kernels."""
-    n = lat.shape[-1] - 2
-    sixth = lat * IMMERKAER[0, 0]
-    res = _taps(n, (sixth, sixth * 2.0, sixth * 4.0), ((1, -2, 1), (-2, 4, -2), (1, -2, 1)))
-    lvl = _taps(n, (lat * (1.0 / 9.0),), ((1, 1, 1), (1, 1, 1), (1, 1, 1)))
+_IMMERKAER_UNIT = float(IMMERKAER[0, 0])
+_IMMERKAER_TAPS = np.rint(IMMERKAER / _IMMERKAER_UNIT).astype(int)
+"""IMMERKAER = _IMMERKAER_UNIT (1/6) times these taps (1, -2 or 4: powers of two, so each tap's product
+is the unit's product scaled exactly)."""
+
+
+def _lattice_measures(lat: np.ndarray, level: np.ndarray, resid: np.ndarray, texture: np.ndarray) -> None:
+    """Level (3 x 3 mean), Immerkaer residual and squared Sobel gradient of 3-row lattice strips
+    ``lat`` (..., 3, n), written into the zeroed (..., n - 2) arrays ``level``, ``resid``, ``texture``.
+
+    Bit for bit the tap-by-tap sums 0 + k[0, 0] x[0, 0:] + k[0, 1] x[0, 1:] + ... (row-major) of
+    noise_estimate's correlation: every tap is one value (1/9, 1/6, 1) times +-1, 2 or 4, whose
+    products are exact scalings of one product array."""
+    sixth = lat * _IMMERKAER_UNIT
+    _taps(resid, (sixth, sixth * 2.0, sixth * 4.0), _IMMERKAER_TAPS)
+    _taps(level, (lat * (1.0 / 9.0),), np.ones((3, 3), dtype=int))
     double = lat * 2.0
-    gx = _taps(n, (lat, double), SOBEL.astype(int))
-    gy = _taps(n, (lat, double), SOBEL.T.astype(int))
-    gx *= gx
+    _taps(texture, (lat, double), SOBEL.astype(int))
+    gy = _taps(np.zeros_like(texture), (lat, double), SOBEL.T.astype(int))
+    texture *= texture
     gy *= gy
-    gx += gy
-    return lvl, res, gx
+    texture += gy
 
 
-def _taps(n: int, scaled: tuple[np.ndarray, ...], weights: Any) -> np.ndarray:
-    """sum over the 3 x 3 taps (row-major) of weights[dy][dx] * lat[..., dy, dx:dx + n], from
-    ``scaled`` = (lat, 2 lat, 4 lat)[:k] (k as the largest |weight| needs): 0 + each term in turn,
-    as _row3 sums, with each term's product already exact in ``scaled``."""
-    out = np.zeros(scaled[0].shape[:-2] + (n,))
+def _taps(out: np.ndarray, scaled: tuple[np.ndarray, ...], weights: np.ndarray) -> np.ndarray:
+    """Add to ``out`` (..., n) each tap weights[dy, dx] * lat[..., dy, dx:dx + n] in turn (row-major),
+    from ``scaled`` = (lat, 2 lat, 4 lat)[:k] (k as the largest |weight| needs); returns ``out``."""
+    n = out.shape[-1]
     for dy in range(3):
         for dx in range(3):
-            wt = int(weights[dy][dx])
+            wt = int(weights[dy, dx])
             if wt == 0:
                 continue
             term = scaled[abs(wt).bit_length() - 1][..., dy, dx:dx + n]
@@ -556,10 +577,11 @@ def _model_ratio(samples: Samples, model: ChannelNoise, nch: int) -> np.ndarray:
         ok = var > 0
         if np.count_nonzero(ok) < 50:
             continue
-        z, t = res[ok] / np.sqrt(var[ok]), tex[ok] / var[ok]
-        keep = max(1, int(FLAT_FRACTION * z.size))
-        flat = np.argpartition(t, keep - 1)[:keep]
-        ratio[c] = MAD_TO_STD * float(np.median(np.abs(z[flat])))
+        if not ok.all():
+            res, tex, var = res[ok], tex[ok], var[ok]
+        keep = max(1, int(FLAT_FRACTION * res.size))
+        flat = np.argpartition(tex / var, keep - 1)[:keep]
+        ratio[c] = MAD_TO_STD * float(np.median(np.abs(res[flat] / np.sqrt(var[flat]))))
     return ratio
 
 
