@@ -35,7 +35,7 @@ from .cfa import CFA
 from .errors import ClispError
 from .sim.noise import ChannelNoise
 from . import noise_estimate
-from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD
+from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD, median
 from .io.rawimage import RawImage
 from .modules.chroma_denoise.stage import space_for
 
@@ -444,7 +444,8 @@ def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -
     planes *= planes                                                 # (1 + k, kb, hc - 2, wc - 2)
     e = lay.lap_edges
     k = min(len(e), lay.cols)
-    energy = np.add.reduceat(planes.sum(axis=-2), e, axis=-1)[..., :k] / np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]
+    n_lap = np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]                       # Laplacians per block
+    energy = np.add.reduceat(planes.sum(axis=-2), e, axis=-1)[..., :k] / n_lap
     acc.lap_y[rs, :k] = energy[0]
     acc.lap_c[:, rs, :k] = energy[1:]
 
@@ -548,14 +549,14 @@ def _fit_noise(samples: Samples, nch: int) -> tuple[ChannelNoise | None, np.ndar
         if lvl.size == 0:
             ok = False
             continue
-        levels[c] = float(np.median(lvl))
+        levels[c] = median(lvl)
         saved = noise_estimate.FLAT_FRACTION
         noise_estimate.FLAT_FRACTION = FLAT_FRACTION
         try:
             s, f = fit_affine_variance(lvl, res, tex, bins=8, min_per_bin=150)
         except ClispError:
             ok = False                          # too few samples for a line: one robust sigma
-            sigma[c] = MAD_TO_STD * float(np.median(np.abs(res)))
+            sigma[c] = MAD_TO_STD * median(np.abs(res))
             continue
         finally:
             noise_estimate.FLAT_FRACTION = saved
@@ -581,7 +582,7 @@ def _model_ratio(samples: Samples, model: ChannelNoise, nch: int) -> np.ndarray:
             res, tex, var = res[ok], tex[ok], var[ok]
         keep = max(1, int(FLAT_FRACTION * res.size))
         flat = np.argpartition(tex / var, keep - 1)[:keep]
-        ratio[c] = MAD_TO_STD * float(np.median(np.abs(res[flat] / np.sqrt(var[flat]))))
+        ratio[c] = MAD_TO_STD * median(np.abs(res[flat] / np.sqrt(var[flat])))
     return ratio
 
 

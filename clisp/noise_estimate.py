@@ -52,6 +52,18 @@ CLIP_FRACTION = 0.98
 """A normalised sample at or above this (before WB) counts as clipped."""
 
 
+def median(values: np.ndarray) -> float:
+    """``float(np.median(values))`` of a non-empty 1-D array, the same value bit for bit (the mean
+    of the middle one or two order statistics; NaN if any value is NaN), without np.median's first
+    call importing numpy.ma (about 10 ms of every ``clisp process``, which imports it nowhere else)."""
+    n = values.size
+    middle = [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
+    part = np.partition(values, middle + [n - 1])                    # NaN sorts last
+    if np.isnan(part[-1]):
+        return float("nan")
+    return float(np.mean(part[middle[0]:middle[-1] + 1]))
+
+
 def _phase_residuals(plane: np.ndarray, clipped: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(level, residual, texture) of every interior pixel of one phase sub-image whose 3 x 3 is
     unclipped; texture = squared Sobel gradient magnitude."""
@@ -101,8 +113,8 @@ def fit_affine_variance(level: np.ndarray, resid: np.ndarray, texture: np.ndarra
         keep = max(1, int(FLAT_FRACTION * (b - a)))
         flat = np.argpartition(texture[idx], keep - 1)[:keep] if keep < b - a else slice(None)
         idx = idx[flat]
-        sigma = MAD_TO_STD * float(np.median(np.abs(resid[idx])))
-        xs.append(float(np.median(level[idx])))
+        sigma = MAD_TO_STD * median(np.abs(resid[idx]))
+        xs.append(median(level[idx]))
         vs.append(sigma * sigma)
         ws.append(idx.size / max(sigma ** 4, 1e-30))
     x, v, w = np.array(xs), np.array(vs), np.array(ws)
