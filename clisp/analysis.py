@@ -34,7 +34,6 @@ import numpy as np
 from .cfa import CFA
 from .errors import ClispError
 from .sim.noise import ChannelNoise
-from . import noise_estimate
 from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD, median
 from .io.rawimage import RawImage
 from .modules.chroma_denoise.stage import space_for
@@ -550,16 +549,12 @@ def _fit_noise(samples: Samples, nch: int) -> tuple[ChannelNoise | None, np.ndar
             ok = False
             continue
         levels[c] = median(lvl)
-        saved = noise_estimate.FLAT_FRACTION
-        noise_estimate.FLAT_FRACTION = FLAT_FRACTION
         try:
-            s, f = fit_affine_variance(lvl, res, tex, bins=8, min_per_bin=150)
+            s, f = fit_affine_variance(lvl, res, tex, bins=8, min_per_bin=150, flat_fraction=FLAT_FRACTION)
         except ClispError:
             ok = False                          # too few samples for a line: one robust sigma
             sigma[c] = MAD_TO_STD * median(np.abs(res))
             continue
-        finally:
-            noise_estimate.FLAT_FRACTION = saved
         shot.append(s)
         floor.append(f)
         sigma[c] = float(np.sqrt(s * max(levels[c], 0.0) + f))

@@ -93,12 +93,12 @@ def _correlate3_interior(plane: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 
 def fit_affine_variance(level: np.ndarray, resid: np.ndarray, texture: np.ndarray, bins: int = 16,
-                        min_per_bin: int = 600) -> tuple[float, float]:
+                        min_per_bin: int = 600, flat_fraction: float | None = None) -> tuple[float, float]:
     """(shot, floor) of var = shot * level + floor from pooled (level, residual, texture) samples.
 
     Samples are split by level into ``bins`` bins of equal count (at least ``min_per_bin`` each;
     by partition, O(n), not a full sort: ties at a bin edge fall on either side);
-    in each bin the FLAT_FRACTION with the lowest texture give (median level,
+    in each bin the ``flat_fraction`` (None: FLAT_FRACTION) with the lowest texture give (median level,
     (1.4826 median |residual|)^2); the line is fitted by weighted least squares with weights
     count / var^2 (the variance of a variance estimate). Clamped at 0.
     """
@@ -110,7 +110,7 @@ def fit_affine_variance(level: np.ndarray, resid: np.ndarray, texture: np.ndarra
     xs, vs, ws = [], [], []
     for a, b in zip(edges[:-1], edges[1:]):
         idx = order[a:b]
-        keep = max(1, int(FLAT_FRACTION * (b - a)))
+        keep = max(1, int((FLAT_FRACTION if flat_fraction is None else flat_fraction) * (b - a)))
         flat = np.argpartition(texture[idx], keep - 1)[:keep] if keep < b - a else slice(None)
         idx = idx[flat]
         sigma = MAD_TO_STD * median(np.abs(resid[idx]))
