@@ -1,12 +1,12 @@
 """Scene analysis: a cheap pass over the mosaic that tells the skip planner what a scene needs.
 
-:func:`analyse` reads the raw once, in bands of BLOCK rows, and summarises it on a grid of
-BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be mapped onto them):
+:func:`analyse` reads the raw once, in bands of BAND_BLOCKS block rows, and summarises it on a grid
+of BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be mapped onto them):
 
 * per CFA channel, the noise of the white-balanced, normalised samples (ChannelNoise units,
   var = shot * s + floor): Immerkaer's 3 x 3 residual on each phase's lattice (the operator of
-  clisp.noise_estimate), taken on a strip of 3 lattice rows at the top of every block row (about
-  3 p / BLOCK of the rows: 19 % for LMS, 9 % for Bayer), fitted by noise_estimate's robust
+  clisp.noise_estimate), taken on a strip of 3 lattice rows at the top of every n-th block row
+  (NOISE_STRIPS strips or a few more; 3 p rows each), fitted by noise_estimate's robust
   binned line (flattest 30 % per level bin, MAD). When the raw carries a sensor model, the
   measured sigma at each channel's median level is compared with the model's (``noise_ratio``);
 * the clipped fraction (samples at or above CLIP_FRACTION of the white level);
@@ -15,11 +15,16 @@ BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be map
   by what the noise alone would give there: ~1 flat, >> 1 textured), colour saturation (chroma
   magnitude / Y), clipped fraction, and uniform (every phase exactly constant in the block).
 
-Everything is NumPy; the mosaic is read once in bands (a memory-mapped raw stays mapped) and the
-cost is printed by ``clisp process --explain``. Measured (tools/calibrate_skip.py --cost, 2 shared
-cores, 12 MP, best of 3): LMS 197 ms = 16.4 ms/MP (about 2 % of the quality LMS pipeline,
-~750 ms/MP), Bayer 133 ms = 11.1 ms/MP (about 7 % of the quality Bayer pipeline, ~160 ms/MP:
-over the 5 % aim; the per-phase clipped/uniform reductions are the part to trim).
+Everything is NumPy: the mosaic is read once in bands (a memory-mapped raw stays mapped; the noise
+strips are copied out first), the noise measurement and the bands share THREADS threads, and the
+cost is printed by ``clisp process --explain``. Clipped and uniform are exact sample tests; the
+detail and chroma Laplacians are taken on integer cell sums (exact), so only their weighting and
+squaring round (float64). Measured with ``python tools/calibrate_skip.py --cost`` (kodim05 simulated
+and tiled to 12 MP, in memory, best of 3) on 2 shared Xeon cores: LMS 55 ms = 4.6 ms/MP (under 1 %
+of the quality LMS pipeline, ~750 ms/MP), Bayer 35 ms = 2.9 ms/MP (about 2 % of the quality Bayer
+pipeline, ~160 ms/MP); the per-block NumPy loop this replaced took 120 and 80 ms there (197 and
+133 ms when first measured). A fresh process (``clisp process`` analyses once) adds about 20 ms
+of first-touch page faults: 12 MP DNG, min of 9 fresh processes, LMS 72 ms, Bayer 55 ms.
 """
 from __future__ import annotations
 
@@ -177,7 +182,8 @@ robust fit, at a quarter of the cost of every block row (12 MP LMS: 313 -> ~100 
 
 THREADS = min(4, os.cpu_count() or 1)
 """Threads of the analysis: the noise measurement and the bands are shared among them (NumPy
-releases the GIL in its loops)."""
+releases the GIL in its loops). On 2 shared Xeon cores, 12 MP in one process: LMS 60 -> 49 ms,
+Bayer 39 -> 33 ms with 2 threads; in a fresh process, where page faults dominate, about even."""
 
 BAND_BLOCKS = 4
 """Block rows summarised together in one band (BAND_BLOCKS * BLOCK rows, about 2 MB of a 12 MP
@@ -203,16 +209,16 @@ class _Layout:
     wc: int                     # whole cells per image row
     px_edges: np.ndarray        # (cols,) first pixel column of each block
     cell_edges: np.ndarray      # first cell column of each block (whole cells only)
-    lap_edges: np.ndarray       # first Laplacian column of each block (the Laplacian drops a cell each side)
-    cross: np.ndarray           # (w - p,) bool: horizontal comparisons x vs x + p that cross a block edge
-    clip_tile: np.ndarray       # (block, w) clip threshold of each sample of a block row (exact in the raw's dtype)
+    lap_edges: np.ndarray       # first Laplacian column of each block (it drops a cell each side)
+    cross: np.ndarray           # (w - p,) bool: comparisons of x with x + p that cross a block edge
+    clip_tile: np.ndarray       # (block, w) clip threshold per sample of a block row (see _clip_tile)
     black: np.ndarray           # (nch,) DN
     scale: np.ndarray           # (nch,) DN -> WB'd normalised
     gains: np.ndarray           # (nch,) pass-1 gains (a WB'd sample at CLIP_FRACTION * gain is clipped)
     counts: np.ndarray          # (nch,) samples of each channel in a cell
     luma_w: np.ndarray          # (nch,) luma weights on WB'd channels
     chroma_w: np.ndarray        # (k, nch) chroma weights
-    planes: np.ndarray          # (1 + k, nch) luma and chroma of the cells' WB'd means, per DN of a channel's cell sum
+    planes: np.ndarray          # (1 + k, nch) luma, chroma of WB'd cell means per DN of a channel's cell sum
     sums_dtype: type            # dtype in which Laplacians of cell sums are exact
 
 
@@ -370,7 +376,7 @@ def _scan_band(data: np.ndarray, r0: int, r1: int, lay: _Layout, acc: _BlockSums
     """Read block rows r0 .. r1 - 1 of the mosaic ``data`` (H x W DN) and write their per-block
     sums to ``acc`` (only those rows: bands may run in parallel)."""
     band = np.asarray(data[r0 * lay.block:min(lay.h, r1 * lay.block)])
-    band = band.reshape(r1 - r0, -1, lay.w)                          # (kb, bh, W): bh = block but in a last partial row
+    band = band.reshape(r1 - r0, -1, lay.w)      # (kb, bh, W): bh = block, but in a last partial block row
     rs = slice(r0, r1)
     acc.clipped[rs] = _clipped_counts(band, lay)
     acc.uniform[rs] = _uniform(band, lay)
@@ -433,7 +439,7 @@ def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -
     _, _, hc, wc = sums.shape
     block_sum = np.add.reduceat(sums.sum(axis=2, dtype=np.float64), lay.cell_edges, axis=-1)   # (nch, kb, cols')
     n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), lay.cell_edges)
-    shape = (-1, 1, 1)
+    shape = (-1, 1, 1)                         # black and scale rounded to float32, as the cell means always were
     acc.means[:, rs, :block_sum.shape[-1]] = (block_sum / (lay.counts.reshape(shape) * n_cells)
                                               - lay.black.astype(np.float32).reshape(shape)) \
         * lay.scale.astype(np.float32).reshape(shape)
