@@ -223,17 +223,20 @@ class _Layout:
 
 
 def _clip_tile(clip_dn: np.ndarray, pattern: np.ndarray, block: int, w: int, dtype: np.dtype) -> np.ndarray:
-    """(block, w) threshold per sample of a block row (its rows start on CFA phase 0) such that
-    ``band >= tile`` is exactly ``band >= clip_dn[channel]``: for integer raws the thresholds are
-    rounded up to integers in the raw's dtype (x >= t <=> x >= ceil(t) for integer x), so the
-    comparison runs on the raw's own type; other raws compare in float64."""
+    """(block, w) threshold per sample of a block row (its rows start on CFA phase 0) in the raw's
+    own dtype, such that ``band >= tile`` is exactly ``band >= clip_dn[channel]`` (float64): each
+    threshold is rounded up to the next value the dtype holds (x >= t <=> x >= ceil(t) for integer
+    x; the same with the next float32 for float32 x). Other dtypes compare in float64."""
     p = pattern.shape[0]
-    per_phase = clip_dn[pattern]                                     # (p, p)
+    per_phase = clip_dn[pattern]                                     # (p, p) float64
     if np.issubdtype(dtype, np.integer):
         info = np.iinfo(dtype)
         whole = np.ceil(per_phase)
         if whole.max() <= info.max:
             per_phase = np.maximum(whole, info.min).astype(dtype)
+    elif dtype == np.float32:
+        single = per_phase.astype(np.float32)
+        per_phase = np.where(single < per_phase, np.nextafter(single, np.float32(np.inf)), single)
     return np.tile(per_phase, (block // p, -(-w // p)))[:, :w].copy()
 
 

@@ -165,3 +165,26 @@ def test_median_is_numpys_without_numpy_ma() -> None:
             "print('numpy.ma' in sys.modules)")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert loaded.strip() == "False"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_clipped_and_uniform_of_a_float_raw(cfa: str) -> None:
+    """A noiseless (float32) raw: samples at the float32 values on either side of the clip
+    threshold count as the float64 comparison says."""
+    raw = simulate(scene(272, 336), cfa=cfa, gain=None, seed=4).raw
+    data = np.array(raw.data[:264, :325])
+    assert data.dtype == np.float32
+    black = float(raw.black_level[0])
+    # a white level whose clip threshold float32 rounds down (the harder case)
+    white = next(v for v in float(raw.white_level) + np.arange(1, 100) / 7
+                 if np.float32(black + CLIP_FRACTION * (v - black)) < black + CLIP_FRACTION * (v - black))
+    threshold = black + CLIP_FRACTION * (white - black)
+    near = np.float32(threshold)
+    data[64:128, 128:192] = white
+    for i, value in enumerate((np.nextafter(near, np.float32(-np.inf)), near, np.nextafter(near, np.float32(np.inf)))):
+        data[200 + 10 * i:210 + 10 * i, 70:320:3] = value
+    raw = dataclasses.replace(raw, data=data, white_level=white)
+    a, ref = analyse(raw), reference(raw)
+    assert ref["uniform"].any() and (ref["clipped"][3] > 0).any()
+    np.testing.assert_array_equal(a.uniform, ref["uniform"])
+    np.testing.assert_array_equal(a.clipped, ref["clipped"])
