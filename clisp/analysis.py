@@ -219,7 +219,7 @@ class _Layout:
     luma_w: np.ndarray          # (nch,) luma weights on WB'd channels
     chroma_w: np.ndarray        # (k, nch) chroma weights
     planes: np.ndarray          # (1 + k, nch) luma, chroma of WB'd cell means per DN of a channel's cell sum
-    sums_dtype: type            # dtype in which Laplacians of cell sums are exact
+    sums_dtype: type            # dtype of the cell sums (int32 for integer raws: exact)
 
 
 def _clip_tile(clip_dn: np.ndarray, pattern: np.ndarray, block: int, w: int, dtype: np.dtype) -> np.ndarray:
@@ -269,7 +269,7 @@ def _layout(raw: RawImage, block: int) -> _Layout:
         counts=counts, luma_w=luma_w, chroma_w=chroma_w,
         planes=np.concatenate([luma_w[None], chroma_w]).astype(np.float32).astype(np.float64)
         * (scale.astype(np.float32) / counts)[None, :],
-        sums_dtype=np.float32 if raw.data.dtype.kind in "ui" and raw.data.dtype.itemsize <= 2 else np.float64)
+        sums_dtype=np.int32 if raw.data.dtype.kind in "ui" and raw.data.dtype.itemsize <= 2 else np.float32)
 
 
 def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -> SceneAnalysis:
@@ -420,14 +420,20 @@ def _differs(band: np.ndarray, lay: _Layout) -> np.ndarray:
 
 
 def _cell_sums(band: np.ndarray, lay: _Layout, hc: int) -> np.ndarray:
-    """(nch, kb, hc, wc) float32 sum of each channel's samples in every CELL x CELL cell (DN; exact
-    for integer raws: at most CELL^2 * 65535 < 2^24)."""
+    """(nch, kb, hc, wc) sum of each channel's samples in every CELL x CELL cell, DN: int32 for
+    integer raws (exact), float32 (as always) for others."""
     kb = band.shape[0]
     v = band[:, :hc * CELL, :lay.wc * CELL].reshape(kb, hc, CELL, lay.wc, CELL)
-    sums = np.zeros((lay.nch, kb, hc, lay.wc), dtype=np.float32)
+    sums = np.empty((lay.nch, kb, hc, lay.wc), dtype=lay.sums_dtype)
+    started = set()
     for py in range(CELL):
         for px in range(CELL):
-            sums[int(lay.pattern[py % lay.p, px % lay.p])] += v[:, :, py, :, px]
+            c = int(lay.pattern[py % lay.p, px % lay.p])
+            if c in started:
+                sums[c] += v[:, :, py, :, px]
+            else:
+                sums[c] = v[:, :, py, :, px]
+                started.add(c)
     return sums
 
 
@@ -437,8 +443,8 @@ def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -
     from the cell sums ``sums`` (nch, kb, hc, wc) DN, written to the block rows ``rs`` of ``acc``.
 
     The Laplacian is linear and its taps sum to 0, so the luma / chroma Laplacian is lay.planes
-    times the Laplacians of the channels' cell sums: those are exact (integers below 2^24 in float32
-    for integer raws), and only the weighting and squaring round (float64)."""
+    times the Laplacians of the channels' cell sums: those are exact (int32 for integer raws,
+    float64 of the float32 sums for others), and only the weighting and squaring round (float64)."""
     _, _, hc, wc = sums.shape
     block_sum = np.add.reduceat(sums.sum(axis=2, dtype=np.float64), lay.cell_edges, axis=-1)   # (nch, kb, cols')
     n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), lay.cell_edges)
@@ -448,7 +454,7 @@ def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -
         * lay.scale.astype(np.float32).reshape(shape)
     if hc < 3 or wc < 3:
         return
-    planes = np.tensordot(lay.planes, _laplacian(sums.astype(lay.sums_dtype, copy=False)), axes=1)
+    planes = np.tensordot(lay.planes, _laplacian(sums if sums.dtype.kind == "i" else sums.astype(np.float64)), axes=1)
     planes *= planes                                                 # (1 + k, kb, hc - 2, wc - 2)
     e = lay.lap_edges
     k = min(len(e), lay.cols)
