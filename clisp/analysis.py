@@ -285,12 +285,17 @@ def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -
     strips = [np.array(raw.data[r * block:r * block + 3 * lay.p]) for r in _strip_rows(lay, strip_every)]
     model = _model_noise(raw)
     acc = _BlockSums.empty(lay)
-    # the noise measurement and the bands are independent: the first free thread takes each
+    # the first free thread takes each task: the noise samples, half the bands, each channel's noise
+    # fit (queued once the samples are there), the other half
+    bands = _bands(lay)
     with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-analysis") as pool:
-        measured = pool.submit(_measure_noise, strips, lay, model)
-        for done in [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in _bands(lay)]:
+        sampled = pool.submit(_strip_samples, strips, lay)
+        scans = [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in bands[:len(bands) // 2]]
+        fits = [pool.submit(_channel_noise, one, c, model) for c, one in enumerate(sampled.result())]
+        scans += [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in bands[len(bands) // 2:]]
+        for done in scans:
             done.result()
-        noise, sigma, sigma_model, levels = measured.result()
+        noise, sigma, sigma_model, levels = _noise(model, [f.result() for f in fits])
     px_per_block = np.outer(np.diff(np.append(np.arange(0, h, block), h)), np.diff(np.append(lay.px_edges, w)))
     clipped_fraction = float(acc.clipped.sum() / float(h * w))
     clipped = acc.clipped / px_per_block
@@ -327,17 +332,21 @@ def _strip_rows(lay: _Layout, strip_every: int) -> list[int]:
             if min(lay.block, lay.h - r * lay.block) >= max(3 * lay.p, CELL)]
 
 
-def _measure_noise(strips: list[np.ndarray], lay: _Layout, model: ChannelNoise | None
-                   ) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray, np.ndarray]:
-    """(fitted noise, sigma, sigma_model, levels) of SceneAnalysis from the noise strips (each
-    (3 p, W) DN) and the sensor model (None: none; sigma_model is then NaN)."""
-    nch = lay.nch
-    samples = _strip_samples(strips, lay)
-    noise, sigma, levels = _fit_noise(samples, nch)
-    sigma_model = np.full(nch, np.nan)
+def _noise(model: ChannelNoise | None, fits: list["_ChannelFit"]
+           ) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray, np.ndarray]:
+    """(fitted noise, sigma, sigma_model, levels) of SceneAnalysis from each channel's measurement
+    and the sensor model (None: none; sigma_model is then NaN). The fitted noise needs every
+    channel's line; with a model, sigma is the model's times the measured ratio where there is one."""
+    levels = np.array([f.level for f in fits])
+    sigma = np.array([f.sigma for f in fits])
+    lines = [f.line for f in fits if f.line is not None]
+    noise = None
+    if len(lines) == len(fits):
+        noise = ChannelNoise(tuple(shot for shot, _ in lines), tuple(floor for _, floor in lines), "estimate")
+    sigma_model = np.full(len(fits), np.nan)
     if model is not None:
-        sigma_model = np.array([float(np.sqrt(model.variance(c, levels[c]))) for c in range(nch)])
-        ratio = _model_ratio(samples, model, nch)
+        sigma_model = np.array([float(np.sqrt(model.variance(c, levels[c]))) for c in range(len(fits))])
+        ratio = np.array([f.ratio for f in fits])
         sigma = np.where(np.isfinite(ratio), ratio * sigma_model, sigma)
     return noise, sigma, sigma_model, levels
 
@@ -553,47 +562,49 @@ def _taps(out: np.ndarray, scaled: tuple[np.ndarray, ...], weights: np.ndarray) 
     return out
 
 
-def _fit_noise(samples: Samples, nch: int) -> tuple[ChannelNoise | None, np.ndarray, np.ndarray]:
-    """(fitted ChannelNoise or None, sigma at each channel's median level, median levels)."""
-    shot, floor = [], []
-    sigma, levels = np.full(nch, np.nan), np.full(nch, np.nan)
-    ok = True
-    for c in range(nch):
-        lvl, res, tex = samples[c]
-        if lvl.size == 0:
-            ok = False
-            continue
-        levels[c] = median(lvl)
-        try:
-            s, f = fit_affine_variance(lvl, res, tex, bins=8, min_per_bin=150, flat_fraction=FLAT_FRACTION)
-        except ClispError:
-            ok = False                          # too few samples for a line: one robust sigma
-            sigma[c] = MAD_TO_STD * median(np.abs(res))
-            continue
-        shot.append(s)
-        floor.append(f)
-        sigma[c] = float(np.sqrt(s * max(levels[c], 0.0) + f))
-    noise = ChannelNoise(tuple(shot), tuple(floor), "estimate") if ok and len(shot) == nch else None
-    return noise, sigma, levels
+@dataclass(frozen=True)
+class _ChannelFit:
+    """One channel's noise measurement (WB'd normalised units; NaN where there are no samples).
+
+    level  median level of the samples.
+    line   (shot, floor) of noise_estimate's binned fit, or None when too few samples for a line.
+    sigma  the measured noise std at ``level``: the line's, else the robust 1.4826 median |residual|.
+    ratio  measured / model noise std (NaN without a model or with under 50 samples)."""
+
+    level: float
+    line: tuple[float, float] | None
+    sigma: float
+    ratio: float
 
 
-def _model_ratio(samples: Samples, model: ChannelNoise, nch: int) -> np.ndarray:
-    """Measured / model noise std per channel: every residual is divided by the model's std at its
-    level, and the robust std (1.4826 median |z|) of the FLAT_FRACTION flattest (by Sobel
-    gradient, also in model units) is the ratio. No line fit, so it is stable on few samples."""
-    ratio = np.full(nch, np.nan)
-    for c in range(nch):
-        lvl, res, tex = samples[c]
-        var = model.variance(c, lvl)
-        ok = var > 0
-        if np.count_nonzero(ok) < 50:
-            continue
-        if not ok.all():
-            res, tex, var = res[ok], tex[ok], var[ok]
-        keep = max(1, int(FLAT_FRACTION * res.size))
-        flat = np.argpartition(tex / var, keep - 1)[:keep]
-        ratio[c] = MAD_TO_STD * median(np.abs(res[flat] / np.sqrt(var[flat])))
-    return ratio
+def _channel_noise(samples: tuple[np.ndarray, np.ndarray, np.ndarray], c: int,
+                   model: ChannelNoise | None) -> _ChannelFit:
+    """Channel ``c``'s noise from its samples (level, residual, texture)."""
+    lvl, res, tex = samples
+    ratio = _model_ratio(lvl, res, tex, model.variance(c, lvl)) if model is not None else float("nan")
+    if lvl.size == 0:
+        return _ChannelFit(float("nan"), None, float("nan"), ratio)
+    level = median(lvl)
+    try:
+        shot, floor = fit_affine_variance(lvl, res, tex, bins=8, min_per_bin=150, flat_fraction=FLAT_FRACTION)
+    except ClispError:                          # too few samples for a line: one robust sigma
+        return _ChannelFit(level, None, MAD_TO_STD * median(np.abs(res)), ratio)
+    return _ChannelFit(level, (shot, floor), float(np.sqrt(shot * max(level, 0.0) + floor)), ratio)
+
+
+def _model_ratio(lvl: np.ndarray, res: np.ndarray, tex: np.ndarray, var: np.ndarray) -> float:
+    """Measured / model noise std of one channel's samples, ``var`` the model's variance at each
+    sample's level: every residual is divided by the model's std there, and the robust std
+    (1.4826 median |z|) of the FLAT_FRACTION flattest (by Sobel gradient, also in model units)
+    is the ratio. No line fit, so it is stable on few samples (NaN under 50)."""
+    ok = var > 0
+    if np.count_nonzero(ok) < 50:
+        return float("nan")
+    if not ok.all():
+        res, tex, var = res[ok], tex[ok], var[ok]
+    keep = max(1, int(FLAT_FRACTION * res.size))
+    flat = np.argpartition(tex / var, keep - 1)[:keep]
+    return MAD_TO_STD * median(np.abs(res[flat] / np.sqrt(var[flat])))
 
 
 def _model_noise(raw: RawImage) -> ChannelNoise | None:
