@@ -16,15 +16,16 @@ of BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be 
   magnitude / Y), clipped fraction, and uniform (every phase exactly constant in the block).
 
 Everything is NumPy: the mosaic is read once in bands (a memory-mapped raw stays mapped; the noise
-strips are copied out first), the noise measurement and the bands share THREADS threads, and the
+strips are copied out first), the noise and the bands are tasks shared by THREADS threads, and the
 cost is printed by ``clisp process --explain``. Clipped and uniform are exact sample tests; the
 detail and chroma Laplacians are taken on integer cell sums (exact), so only their weighting and
 squaring round (float64). Measured with ``python tools/calibrate_skip.py --cost`` (kodim05 simulated
-and tiled to 12 MP, in memory, best of 3) on 2 shared Xeon cores: LMS 55 ms = 4.6 ms/MP (under 1 %
-of the quality LMS pipeline, ~750 ms/MP), Bayer 35 ms = 2.9 ms/MP (about 2 % of the quality Bayer
-pipeline, ~160 ms/MP); the per-block NumPy loop this replaced took 120 and 80 ms there (197 and
-133 ms when first measured). A fresh process (``clisp process`` analyses once) adds about 20 ms
-of first-touch page faults: 12 MP DNG, min of 9 fresh processes, LMS 72 ms, Bayer 55 ms.
+and tiled to 12 MP, in memory, best of 3) on 2 shared Xeon cores: LMS 41-46 ms = 3.5-3.8 ms/MP
+(under 1 % of the quality LMS pipeline, ~750 ms/MP), Bayer 32-34 ms = 2.7-2.8 ms/MP (about 2 % of
+the quality Bayer pipeline, ~160 ms/MP); the per-block-row loop this replaced took 102-108 and
+68-73 ms in the same runs (197 and 133 ms when first measured). ``clisp process`` analyses once,
+in a fresh process, and pays first-touch page faults on top: 12 MP DNG, 9 fresh processes, LMS
+64-68 ms (the old loop 119-133), Bayer 50-55 ms (84-88).
 """
 from __future__ import annotations
 
@@ -181,9 +182,10 @@ robust fit, at a quarter of the cost of every block row (12 MP LMS: 313 -> ~100 
 
 
 THREADS = min(4, os.cpu_count() or 1)
-"""Threads of the analysis: the noise measurement and the bands are shared among them (NumPy
-releases the GIL in its loops). On 2 shared Xeon cores, 12 MP in one process: LMS 60 -> 49 ms,
-Bayer 39 -> 33 ms with 2 threads; in a fresh process, where page faults dominate, about even."""
+"""Threads of the analysis: the noise samples, each channel's noise fit and the bands are tasks
+shared among them (NumPy releases the GIL in its loops). On 2 shared Xeon cores, 12 MP, best of
+7 in one process: LMS 56 -> 46 ms, Bayer 35 -> 30 ms with 2 threads; in fresh processes, where
+page faults weigh more, LMS 77 -> 64-68 ms, Bayer 52-55 -> 50-55 ms."""
 
 BAND_BLOCKS = 4
 """Block rows summarised together in one band (BAND_BLOCKS * BLOCK rows, about 2 MB of a 12 MP
