@@ -153,3 +153,30 @@ def test_skipping_is_off_where_there_is_no_flat_path(monkeypatch: pytest.MonkeyP
     assert quality.skipper is None and "no flat path" in quality.skip_off
     assert build_pipeline(raw, skip=SKIP_WHERE_IT_PAYS, demosaic="dlmmse").skipper is not None
     assert build_pipeline(raw, skip=True).skipper is not None
+
+
+@pytest.mark.parametrize("cfa,preset", [("lms", "balanced"), ("bayer", "balanced"), ("lms", "quality")])
+def test_mixed_tiles_with_clipping_odd_sizes_and_presets(cfa: str, preset: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A clipped highlight inside the textured strip (the highlight stage on both paths), an image
+    whose sides are no multiple of the blocks or the CFA's period, the balanced preset's demosaics:
+    each mixed tile still equals the whole image's two paths joined, at two tilings."""
+    import clisp.skip as skip
+    monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
+    scene = strip_scene(456, 390)
+    scene[220:232, 100:130] = 4.0                                  # clipped, inside the strip
+    sim = simulate(scene, cfa=cfa, gain=4, seed=9)
+    raw = sim.raw
+    pipe = build_pipeline(raw, skip=True, preset=preset)
+    assert "highlights" in [s.name for s in pipe.skipper.paths[PATH_FLAT]]
+    joined = {p: composite(pipe, raw, p) for p in pipe.skipper.paths if p != PATH_FLAT}
+    for tile in (0, 160):
+        out = pipe.run(raw.data, tile=tile)
+        plan = pipe.skip_plan
+        mixed = [c for c in plan.choices if c.path == PATH_MIXED]
+        assert mixed, plan.explain()
+        for c in mixed:
+            t = c.tile
+            region = (slice(t.y0, t.y0 + t.h), slice(t.x0, t.x0 + t.w))
+            np.testing.assert_allclose(out[region], joined[c.detail][region], atol=5e-5, rtol=0,
+                                       err_msg=f"{cfa} {preset} tile {tile}")
+        assert np.isfinite(out).all()

@@ -33,19 +33,24 @@ def test_weight_is_the_distance_rule_and_the_support_holds_it(reach: int, ramp: 
 
 
 def test_blend_kernel_matches_the_reference() -> None:
+    """Odd sizes, so the launch has ragged strips, and a long ramp, so most pixels are mixed: the
+    kernel joins in place, each pixel exactly once (a pixel joined twice would show here)."""
     from clisp.engine.runtime import get_runtime
     rt = get_runtime()
     rng = np.random.default_rng(3)
-    mask = rng.random((6, 6)) < 0.2
-    b = BlockBlend(mask, block=16, reach=12, ramp=10)
-    flat = rng.random((48, 64, 3)).astype(np.float32)
-    detail = rng.random((24, 40, 3)).astype(np.float32)
+    mask = np.zeros((6, 6), dtype=bool)
+    mask[3, 1] = True
+    b = BlockBlend(mask, block=16, reach=4, ramp=40)
+    flat = rng.random((53, 71, 3)).astype(np.float32)
+    detail = rng.random((37, 53, 3)).astype(np.float32)
+    weight = b.weight(40, 24, 37, 53)
+    assert ((weight > 0) & (weight < 1)).mean() > 0.5
     expected = flat.astype(np.float64)
     b.reference(expected, detail.astype(np.float64), (8, 16), (40, 24))   # the tile sits at image (32, 8)
     f = rt.upload(np.ascontiguousarray(flat.transpose(2, 0, 1)))
     d = rt.upload(np.ascontiguousarray(detail.transpose(2, 0, 1)))
     b.enqueue(rt, f, d, (8, 16), (40, 24))
-    got = rt.download(f).reshape(3, 48, 64).transpose(1, 2, 0)
+    got = rt.download(f).reshape(3, 53, 71).transpose(1, 2, 0)
     np.testing.assert_allclose(got, expected, atol=1e-6, rtol=0)
     assert not np.allclose(got, flat), "the rectangle holds blended pixels"
 

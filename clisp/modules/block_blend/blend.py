@@ -98,7 +98,7 @@ class BlockBlend:
             flat=flat, detail=detail, mask=rt.constant(self.mask.astype(np.uint8)), tile_w=flat.width,
             tile_h=flat.height, out_w=detail.width, out_h=detail.height, off_y=off[0], off_x=off[1],
             rect_y=at[0], rect_x=at[1], mask_w=cols, mask_h=rows, block=self.block,
-            reach_blocks=self.reach_blocks, reach=self.reach, ramp=self.ramp))
+            reach_blocks=self.reach_blocks, reach=self.reach, ramp=self.ramp), exact=False)  # in place: once each
 
 
 def rectangles(support: np.ndarray, halo: int, block: int, tile: tuple[int, int, int, int],

@@ -10,8 +10,9 @@
  * w = clamp((reach + ramp - d) / ramp, 0, 1); then, in each of the 3 planes,
  * flat(rect + (y, x)) <- w >= 1: detail(y, x); w <= 0: kept; else flat + w (detail - flat).
  * flat: the tile's 3 planes (tile_w wide, tile_h high); detail: the rectangle's 3 planes
- * (out_w x out_h); (off_y, off_x): the rectangle's origin in the tile. Halo 0; launched over
- * exactly out_w x out_h (launch_exact): no bounds check. */
+ * (out_w x out_h); (off_y, off_x): the rectangle's origin in the tile. Halo 0. It writes in place,
+ * so each pixel must be joined once: launched over the output rounded up to work-groups, with a
+ * bounds check (launch_exact's shifted ragged strips would join some pixels twice). */
 __kernel void blend_detail(__global float *restrict flat, __global const float *restrict detail,
                            __global const uchar *restrict mask, const int tile_w, const int tile_h,
                            const int out_w, const int out_h, const int off_y, const int off_x,
@@ -20,6 +21,8 @@ __kernel void blend_detail(__global float *restrict flat, __global const float *
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
+    if (x >= out_w || y >= out_h)
+        return;
     const int gy = rect_y + y, gx = rect_x + x;
     const int by = gy / block, bx = gx / block;
     float d = mask[by * mask_w + bx] ? 0.0f : reach + ramp;      /* inside a texture block: w = 1 */
