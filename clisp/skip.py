@@ -506,6 +506,11 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
         lines.append("  device time per stage:")
         for stage, seconds in sorted(per_stage.items(), key=lambda kv: -kv[1]):
             lines.append(f"    {stage:<28}{seconds:8.3f} s")
+        per_path = {p: v for p, v in profile.path_seconds().items() if p != "-"}
+        if per_path:
+            lines.append("  device time per path (the pixels each took; the shared stages of mixed tiles apart):")
+            for path, seconds in sorted(per_path.items(), key=lambda kv: -kv[1]):
+                lines.append(f"    {path:<36}{seconds:8.3f} s")
         if plan is not None:
             lines.append("  " + time_saved(plan, per_stage, skipper))
     return "\n".join(lines)

@@ -180,3 +180,19 @@ def test_mixed_tiles_with_clipping_odd_sizes_and_presets(cfa: str, preset: str, 
             np.testing.assert_allclose(out[region], joined[c.detail][region], atol=5e-5, rtol=0,
                                        err_msg=f"{cfa} {preset} tile {tile}")
         assert np.isfinite(out).all()
+
+
+def test_explain_reports_mixed_tiles_and_device_time_per_path(tmp_path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``clisp process --explain`` on a sky with a textured strip: the mixed tile, its rectangles,
+    and the device time each path took, measured in the run (issue 30, item 3)."""
+    import clisp.skip as skip
+    from clisp.cli import main
+    from clisp.io.rawfile import write_raw
+    monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
+    raw_path = tmp_path / "strip.dng"
+    write_raw(raw_path, simulate(strip_scene(), cfa="lms", gain=1, seed=0).raw)
+    assert main(["process", str(raw_path), "-o", str(tmp_path / "a.exr"), "--explain"]) == 0
+    out = capsys.readouterr().out
+    for expected in ("mixed ", "rectangles", "device time per path", "mixed: flat path", "mixed: full path",
+                     "mixed: join", "time saved"):
+        assert expected in out, f"{expected!r} missing from --explain:\n{out}"

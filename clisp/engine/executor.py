@@ -21,7 +21,7 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from .disk_cache import device_identity, entry_name, read_json, write_json
-from .profile import host_timer, stage_label
+from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
 from .streaming import READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
@@ -295,7 +295,11 @@ class Pipeline:
                 # event: keep it alive with the event, not only for this call
                 return KeepAlive(run(t, inner, target), inner)
             computes[name] = crop
-        return lambda t, window, target: computes[skip_plan.path_of(t)](t, window, target)
+        def compute(t: Tile, window: np.ndarray | None, target: Any) -> Any:
+            path = skip_plan.path_of(t)
+            path_label(path)
+            return computes[path](t, window, target)
+        return compute
 
     def _mixed_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any, image: tuple[int, int],
                        t: Tile, window: np.ndarray | None, target: tuple[np.ndarray, int, int]) -> Any:
@@ -339,8 +343,9 @@ class Pipeline:
 
         rt = get_runtime()
         flat = None
-        for name, r in regions:
+        for k, (name, r) in enumerate(regions):
             m = margins[name]
+            path_label(f"mixed: {'flat' if k == 0 else choice.detail} path")
             stage_label("upload")
             if window is None:
                 src = rt.gather_window(whole, r.y0 - m, r.x0 - m, r.h + 2 * m, r.w + 2 * m, self.cfa.period)
@@ -354,9 +359,11 @@ class Pipeline:
             if flat is None:
                 flat = dst
             else:
+                path_label("mixed: join and the shared stages")
                 stage_label("block_blend")
                 blend.enqueue(rt, flat, dst, (r.y0 - t.y0, r.x0 - t.x0), (r.y0, r.x0))
                 rt.release(dst)
+        path_label("mixed: join and the shared stages")
         tail = Pipeline(self.cfa, skipper.tail).schedule(fuse) if skipper.tail else []
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None

@@ -23,7 +23,10 @@ class Profile:
     """Events and host timers of one run. ``stage`` labels the launches enqueued next."""
 
     stage: str = "-"
+    path: str = "-"
+    """The skip path (clisp.skip) of the tile part being enqueued, for :meth:`path_seconds`."""
     events: list[tuple[str, str, Any]] = field(default_factory=list)
+    paths: list[str] = field(default_factory=list)
     host: dict[str, float] = field(default_factory=lambda: defaultdict(float))
     host_bytes: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -31,6 +34,7 @@ class Profile:
     def record(self, what: str, event: Any) -> None:
         """Keep ``event`` (an OpenCL event of a kernel or copy named ``what``) under the current stage."""
         self.events.append((self.stage, what, event))
+        self.paths.append(self.path)
 
     @contextmanager
     def timed(self, activity: str, nbytes: int = 0) -> Iterator[None]:
@@ -52,6 +56,15 @@ class Profile:
             t[0] += (event.profile.end - event.profile.start) * 1e-9
             t[1] += 1
         return {key: (v[0], int(v[1])) for key, v in totals.items()}
+
+    def path_seconds(self) -> dict[str, float]:
+        """{skip path: device seconds} of the launches and copies enqueued under each
+        (:func:`path_label`; '-' before any)."""
+        totals: dict[str, float] = defaultdict(float)
+        for (_, _, event), path in zip(self.events, self.paths):
+            event.wait()
+            totals[path] += (event.profile.end - event.profile.start) * 1e-9
+        return dict(totals)
 
     def report(self, megapixels: float, wall: float) -> str:
         """A table: per stage and kernel the device time, share and MP/s; then the host activities."""
@@ -106,6 +119,12 @@ def host_timer(activity: str, nbytes: int = 0) -> Iterator[None]:
     else:
         with profile.timed(activity, nbytes):
             yield
+
+
+def path_label(name: str) -> None:
+    """Label the launches enqueued from now on with skip path ``name`` (when profiling)."""
+    if _ACTIVE is not None:
+        _ACTIVE.path = name
 
 
 def stage_label(name: str) -> None:
