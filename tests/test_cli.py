@@ -301,9 +301,12 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
     assert total > 0
 
 
-def test_process_explain_and_no_skip(tmp_path: Path, capsys) -> None:
+def test_process_explain_and_no_skip(tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
     """``--explain`` prints the analysis, the plan and the time per stage; a flat scene's tiles take
-    the flat path, and ``--no-skip`` runs every stage everywhere (issue 13)."""
+    the flat path, and ``--no-skip`` runs every stage everywhere (issue 13). On the host's CPU, where
+    the default skips (clisp.skip.why_not_skip), whatever this machine's device."""
+    import clisp.skip as skip
+    monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)
     from clisp.io.rawfile import write_raw
     from clisp.sim.simulate import simulate
     yy, xx = np.mgrid[0:256, 0:384] / 384.0

@@ -189,6 +189,7 @@ def test_explain_reports_mixed_tiles_and_device_time_per_path(tmp_path, capsys, 
     from clisp.cli import main
     from clisp.io.rawfile import write_raw
     monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
+    monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)     # the CLI's default skips only there
     raw_path = tmp_path / "strip.dng"
     write_raw(raw_path, simulate(strip_scene(), cfa="lms", gain=1, seed=0).raw)
     assert main(["process", str(raw_path), "-o", str(tmp_path / "a.exr"), "--explain"]) == 0
