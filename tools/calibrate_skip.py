@@ -160,7 +160,8 @@ def cli_acceptance(data: Path, work: Path, scenes: list[str], cfas: list[str], g
                             scores[mode] = float(np.mean([psnr(img, truth, region=r) for r in regions]))
                 _, text = timed(["process", raw_path, "-o", work / "out_explain.exr", "--explain"])
                 plan = "; ".join(" ".join(line.split()[:4]) for line in text.splitlines()
-                                 if line.strip().split(" ")[0] in ("full", "light", "flat", "none", "mixed"))
+                                 if line.strip().split(" ")[0] in ("full", "light", "flat", "none", "mixed")
+                                 and " tiles," in line)
                 ts, tn = float(np.median(times["skip"])), float(np.median(times["noskip"]))
                 print(f"{name:<7}{cfa:<6}{gain:>5}{ts:>11.2f}{tn:>11.2f}{ts / tn:>7.2f}{scores['skip']:>12.3f}"
                       f"{scores['noskip']:>12.3f}{scores['noskip'] - scores['skip']:>8.3f}  {plan}", flush=True)
