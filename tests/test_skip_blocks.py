@@ -197,3 +197,21 @@ def test_explain_reports_mixed_tiles_and_device_time_per_path(tmp_path, capsys, 
     for expected in ("mixed ", "rectangles", "device time per path", "mixed: flat path", "mixed: full path",
                      "mixed: join", "time saved"):
         assert expected in out, f"{expected!r} missing from --explain:\n{out}"
+
+
+def test_warm_builds_the_join(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``clisp info --warm`` also runs a mixed tile, so a first real run that mixes builds no
+    program the warm-up did not (the join's kernel, the planar denoiser of the detail path) at
+    the warm-up's noise (a denoiser program also depends on the noise: clisp.warm's docstring)."""
+    import clisp.skip as skip
+    from clisp.engine.runtime import get_runtime
+    from clisp.pipeline import process_file
+    from clisp.warm import WARM_GAIN, warm_kernels
+    rt = get_runtime()
+    warm_kernels(("quality",), ("lms",), report=None)
+    built = set(rt.programs.built)
+    monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
+    raw = simulate(strip_scene(320, 256), cfa="lms", gain=WARM_GAIN, seed=3).raw
+    process_file(raw, tmp_path / "x.tif", preset="quality", skip=True, explain=(explained := {}))
+    assert PATH_MIXED in explained["pipeline"].skip_plan.counts
+    assert set(rt.programs.built) == built
