@@ -482,24 +482,23 @@ class Skipper:
 
 def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     """``clisp process --explain``: the analysis, the plan and, after the run, the time per stage
-    (OpenCL event profiling, when ``profile`` is a clisp.engine.profile.Profile) and the time the skips
-    saved, estimated from RELATIVE_COST and the measured denoiser time."""
-    lines = []
+    and per path (OpenCL event profiling, when ``profile`` is a clisp.engine.profile.Profile) and
+    the time the skips saved, estimated from RELATIVE_COST and the measured denoiser time. Without
+    an analysis (nothing to skip, or skipping cannot pay: :func:`why_not_skip`) it says why."""
     skipper = getattr(pipeline, "skipper", None)
     plan = getattr(pipeline, "skip_plan", None)
+    choice = getattr(pipeline, "stage_choice", None)
     if skipper is None:
         off = getattr(pipeline, "skip_off", "")
-        choice = getattr(pipeline, "stage_choice", None)
-        return "\n".join([f"explain: no scene analysis ({off or 'nothing to skip: this pipeline has no chroma denoiser'})"]
-                         + ([choice.explain()] if choice is not None else [])
-                         + [f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP"])
-    lines.append(skipper.analysis.summary())
-    choice = getattr(pipeline, "stage_choice", None)
+        lines = [f"explain: no scene analysis ({off or 'nothing to skip: this pipeline has no chroma denoiser'})"]
+    else:
+        lines = [skipper.analysis.summary()]
     if choice is not None:
         lines.append(choice.explain())
-    lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
-    lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP (analysis "
-                 f"{skipper.analysis.seconds:.3f} s before it)")
+    if skipper is not None:
+        lines.append(plan.explain() if plan is not None else "skip plan: none (nothing ran)")
+    lines.append(f"run: {stats.seconds:.3f} s for {stats.megapixels:.2f} MP"
+                 + (f" (analysis {skipper.analysis.seconds:.3f} s before it)" if skipper is not None else ""))
     if profile is not None:
         per_stage: dict[str, float] = {}
         for (stage, _kernel), (seconds, _n) in profile.device_seconds().items():
@@ -512,7 +511,7 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
             lines.append("  device time per path (the pixels each took; the shared stages of mixed tiles apart):")
             for path, seconds in sorted(per_path.items(), key=lambda kv: -kv[1]):
                 lines.append(f"    {path:<36}{seconds:8.3f} s")
-        if plan is not None:
+        if plan is not None and skipper is not None:
             lines.append("  " + time_saved(plan, per_stage, skipper))
     return "\n".join(lines)
 
