@@ -276,7 +276,8 @@ class Pipeline:
         halo = plan.halo
         computes: dict[str, Callable[..., Any]] = {"full": full}
         if "mixed" in skip_plan.counts:
-            computes["mixed"] = partial(self._mixed_compute, plan, backend, fuse, whole, image)
+            computes["mixed"] = partial(self._mixed_compute, MixedRun.of(skipper, skip_plan, self.cfa, fuse),
+                                        plan, backend, whole, image)
         for name in set(skip_plan.counts) - {"full", "mixed"}:
             sub = Pipeline(self.cfa, skipper.paths[name])
             d = halo - sub.halo
@@ -301,7 +302,7 @@ class Pipeline:
             return computes[path](t, window, target)
         return compute
 
-    def _mixed_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any, image: tuple[int, int],
+    def _mixed_compute(self, mixed: "MixedRun", plan: TilePlan, backend: str, whole: Any, image: tuple[int, int],
                        t: Tile, window: np.ndarray | None, target: tuple[np.ndarray, int, int]) -> Any:
         """One ``mixed`` tile of the skip plan (clisp.skip): the flat path's head over the whole
         tile, the tile's detail path's head on each of its rectangles, joined into the flat output
@@ -309,9 +310,8 @@ class Pipeline:
         the stages every path shares, once. Each head runs on its own window of the image (cut from
         the tile's window, or gathered by the device), so a pixel's output does not depend on the
         tiling. No host round trip: the join is a kernel."""
-        skipper = self.skipper
         choice = self.skip_plan.choice(t)
-        blend = skipper.block_blend()
+        blend, heads, margins = mixed.blend, mixed.heads, mixed.margins
         halo = plan.halo
         kept: list[np.ndarray] = []
 
@@ -319,8 +319,6 @@ class Pipeline:
             oy, ox = y0 - margin - (t.y0 - halo), x0 - margin - (t.x0 - halo)
             return window[oy:oy + h + 2 * margin, ox:ox + w + 2 * margin]
 
-        heads = {name: skipper.mixed_head(name, blend) for name in ("flat", choice.detail)}
-        margins = {name: sum(stage.halo for stage in stages) for name, stages in heads.items()}
         regions = [("flat", t)] + [(choice.detail, r) for r in choice.rects]
         if backend != "opencl":
             out = None
@@ -335,7 +333,7 @@ class Pipeline:
                 else:
                     blend.reference(out, x, (r.y0 - t.y0, r.x0 - t.x0), (r.y0, r.x0))
             origin = Origin(t.y0, t.x0, image)
-            for stage in skipper.tail:
+            for stage in mixed.tail:
                 out = stage.reference(out, origin)
             host, y, x0 = target
             host[y:y + t.h, x0:x0 + t.w] = out
@@ -354,8 +352,7 @@ class Pipeline:
                                             dtype=None if window.dtype in (np.uint16, np.float32) else np.float32)
                 kept.append(part)                     # the device may read it in place until the tile's event
                 src = rt.host_input(part) or rt.upload(part)
-            dst = self._enqueue_stages(rt, fuse_stages(heads[name]) if fuse else heads[name], src,
-                                       Origin(r.y0 - m, r.x0 - m, image))
+            dst = self._enqueue_stages(rt, mixed.schedules[name], src, Origin(r.y0 - m, r.x0 - m, image))
             if flat is None:
                 flat = dst
             else:
@@ -364,10 +361,9 @@ class Pipeline:
                 blend.enqueue(rt, flat, dst, (r.y0 - t.y0, r.x0 - t.x0), (r.y0, r.x0))
                 rt.release(dst)
         path_label("mixed: join and the shared stages")
-        tail = Pipeline(self.cfa, skipper.tail).schedule(fuse) if skipper.tail else []
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None
-        src = self._enqueue_tile(rt, tail, flat, Origin(t.y0, t.x0, image), into)
+        src = self._enqueue_tile(rt, mixed.tail_schedule, flat, Origin(t.y0, t.x0, image), into)
         return KeepAlive(self._deliver(rt, src, t, target), *kept)
 
     def _check(self, shape: tuple[int, ...], backend: str) -> None:
@@ -500,6 +496,29 @@ def _kept_metering_name(rt: Any, schedule: list[Stage], raw_dtype: Any) -> str |
     except (pickle.PicklingError, TypeError, AttributeError):
         return None
     return entry_name(stages, device_identity(rt.platform, rt.device), str(rt.host_unified))
+
+
+@dataclass
+class MixedRun:
+    """What every ``mixed`` tile of one run shares (clisp.skip): the join, each path's head (the
+    flat one with its texture blocks unread), their halos and OpenCL schedules, and the stages
+    after the join with theirs. Made once per run by :meth:`of`."""
+
+    blend: Any
+    heads: dict[str, list[Stage]]
+    margins: dict[str, int]
+    schedules: dict[str, list[Stage]]
+    tail: list[Stage]
+    tail_schedule: list[Stage]
+
+    @classmethod
+    def of(cls, skipper: Any, skip_plan: Any, cfa: CFA, fuse: bool) -> "MixedRun":
+        blend = skipper.block_blend()
+        names = {"flat"} | {c.detail for c in skip_plan.choices if c.rects}
+        heads = {name: skipper.mixed_head(name, blend) for name in names}
+        return cls(blend, heads, {name: sum(stage.halo for stage in head) for name, head in heads.items()},
+                   {name: fuse_stages(head) if fuse else list(head) for name, head in heads.items()},
+                   skipper.tail, Pipeline(cfa, skipper.tail).schedule(fuse) if skipper.tail else [])
 
 
 class KeepAlive:
