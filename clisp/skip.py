@@ -130,8 +130,8 @@ MIX_GAIN = 0.85
 path on its rectangles, windows with their halos) is at most this share of the detail path alone:
 the rest pays for the extra launches, uploads and the blend."""
 
-RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0, PATH_FLAT: 0.0, PATH_MIXED: 0.0}
-"""Declared device time of each path's chroma stage per pixel, relative to ``full`` (J = 3),
+RELATIVE_COST = {PATH_FULL: 1.0, PATH_LIGHT: 0.7, PATH_NONE: 0.0}
+"""Declared device time of each detail path's chroma stage per pixel, relative to ``full`` (J = 3),
 for the time-saved estimate of --explain (measured: tools/calibrate_skip.py --cost)."""
 
 

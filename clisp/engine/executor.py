@@ -345,14 +345,14 @@ class Pipeline:
             m = margins[name]
             path_label(f"mixed: {'flat' if k == 0 else choice.detail} path")
             stage_label("upload")
-            if window is None:
-                src = rt.gather_window(whole, r.y0 - m, r.x0 - m, r.h + 2 * m, r.w + 2 * m, self.cfa.period)
-            else:
+            part = None
+            if window is not None:
                 part = np.ascontiguousarray(region_window(r.y0, r.x0, r.h, r.w, m),
                                             dtype=None if window.dtype in (np.uint16, np.float32) else np.float32)
                 kept.append(part)                     # the device may read it in place until the tile's event
-                src = rt.host_input(part) or rt.upload(part)
-            dst = self._enqueue_stages(rt, mixed.schedules[name], src, Origin(r.y0 - m, r.x0 - m, image))
+            origin = Origin(r.y0 - m, r.x0 - m, image)
+            src = self._window_image(rt, whole, part, origin, (r.h + 2 * m, r.w + 2 * m))
+            dst = self._enqueue_stages(rt, mixed.schedules[name], src, origin)
             if flat is None:
                 flat = dst
             else:
@@ -459,16 +459,22 @@ class Pipeline:
         rt = get_runtime()
         stage_label("upload")
         origin = Origin(*plan.window_origin(t), image)
-        if window is None:
-            src = rt.gather_window(whole, *origin, *plan.window_shape, self.cfa.period)
-        else:
-            if window.dtype not in (np.uint16, np.float32):
-                window = window.astype(np.float32)
-            src = rt.host_input(window) or rt.upload(window)       # in place where the device can
+        src = self._window_image(rt, whole, window, origin, plan.window_shape)
         host, y, x = target
         into = (host, y) if x == 0 and t.w == host.shape[1] else None
         src = self._enqueue_tile(rt, schedule, src, origin, into)
         return self._deliver(rt, src, t, target)
+
+    def _window_image(self, rt: Any, whole: Any, window: np.ndarray | None, origin: tuple[int, int],
+                      shape: tuple[int, int]) -> Any:
+        """The device image of an input window at image ``origin`` of ``shape``: gathered by the
+        device from ``whole`` where ``window`` is None, else the host window read in place where
+        the device can, or uploaded (as float32 unless uint16 or float32)."""
+        if window is None:
+            return rt.gather_window(whole, *origin, *shape, self.cfa.period)
+        if window.dtype not in (np.uint16, np.float32):
+            window = window.astype(np.float32)
+        return rt.host_input(window) or rt.upload(window)       # in place where the device can
 
     @staticmethod
     def _deliver(rt: Any, src: Any, t: Tile, target: tuple[np.ndarray, int, int]) -> Any:
