@@ -10,10 +10,11 @@ import time
 from contextlib import closing, nullcontext
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .corrections import only_isolated_clips, sensor_corrections
 from .errors import ClispError, clip
 from .io.exif import output_attributes
 from .io.rawfile import read_raw
@@ -134,7 +135,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera", half_size: bool = False) -> Pipeline:
+                   wb: str = "camera", half_size: bool = False, bad_pixels: str = "auto",
+                   dark: Sequence[str] = (), flat: Sequence[str] = (), opcodes: bool = True) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -167,6 +169,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
     ``demosaic`` or ``denoise`` is refused: the binning averages the samples), its highlight mode
     is HALF_SIZE_HIGHLIGHTS unless ``highlights`` says otherwise.
+    ``bad_pixels`` ('auto', 'off' or a map file), ``dark`` and ``flat`` (frames' paths) and ``opcodes``
+    (apply the DNG's opcodes): the sensor corrections (clisp.corrections), a first stage on the
+    mosaic and, for gains, one after the chroma stage; the pipeline's ``corrections`` says what they did.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -189,6 +194,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
             noise = raw_noise(raw)
         except NoiseEstimateError:
             noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+    corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, noise)
+    noise = corrections.noise(noise)                        # the dark frame's own noise added
     choice = None
     if adapt and noise is not None:                         # the cheapest demosaic its noise allows
         demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
@@ -197,10 +204,17 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+    if corrections.pre is not None:
+        stages.insert(0, corrections.pre)
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
+    if highlight is not None and bad_pixels != "off" and only_isolated_clips(raw):
+        highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
+    shade = corrections.shade(raw.colour_matrix, HALF_SIZE_DOWNSCALE if half_size else 1)
+    if shade is not None:                                   # the smooth gain, after highlights and denoiser
+        stages.append(shade)
     if auto_exposure:
         from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
         exposure = float(np.clip(exposure + auto_exposure_ev(raw, gains2, EXPOSURE_LIMIT),
@@ -212,6 +226,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
         stages.append(ToneCurve(quantize=output == "srgb16"))
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         stage_choice=choice)
+    pipeline.corrections = corrections
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
