@@ -12,64 +12,215 @@
  *   SC_FLAT       1: a per-pixel flat-field gain
  *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
- *   SC_K, SC_ALPHA, SC_GAMMA   the auto test's constants (float literals)
+ *   SC_K, SC_ALPHA, SC_GAMMA, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
  */
 
 #include "sensor.h"
 
-/* sensor_correct: one pass over the mosaic, the steps in the DNG's order (halo SC_HALO = 2):
- *   1. w(q) = raw(q) g1(q) - off(q): OpcodeList1's gains on the stored value, then the dark frame
- *      (or the black level) subtracted; u = w / (white - black_c), the normalised value.
- *   2. bad pixel: known (mask), or found (SC_DETECT) where u_p lies beyond every same-channel
- *      neighbour by SC_K noise sigmas (the sensor model at that neighbour's level) plus SC_ALPHA
- *      times their spread, and its 4 nearest pixels (any channel, white-balanced) carry less than
- *      SC_GAMMA of its excess over the 5 x 5 ring (a hot pixel does not light its neighbours);
- *      replaced by the mean of the opposite same-channel pair that differs least (along an edge),
- *      else by the mean of the good neighbours.
- *   3. out = w_p r(p) out_scale_c + out_offset_c, r = flat(p) g2(p) / G_c(p): the flat field and
- *      OpcodeList2's gains, less the smooth part that sensor_shade applies after the chroma stage.
- * src: the window (width + 4) x (height + 4); mask, dark, flat: the same window of those planes;
- * (oy, ox): image coordinate of the window's pixel (0, 0); dst: width x height float.
- * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx) (chars),
- * pairs_n[k] opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). Neighbours outside the
- * img_h x img_w image are left out (the mirrored padding puts the pixel itself among them). */
-__kernel void sensor_correct(__global const RAW_T *restrict src, __global float *restrict dst,
-                             const int width, const int height, const int oy, const int ox,
-                             __constant const char *restrict pattern,
-                             __constant const char *restrict nb, __constant const char *restrict nb_n,
-                             __constant const char *restrict pairs, __constant const char *restrict pairs_n,
-                             __constant const float *restrict black, __constant const float *restrict inv_range,
-                             __constant const float *restrict out_scale, __constant const float *restrict out_offset,
-                             __constant const float *restrict noise_a, __constant const float *restrict noise_b,
-                             __constant const float *restrict wb,
-                             __global const ushort *restrict mask, __global const float *restrict dark,
-                             __global const float *restrict flat,
-                             __constant const float *restrict terms, __global const float *restrict maps,
-                             __global const float *restrict grid, const int gh, const int gw, const float inv_cell,
-                             __global uint *restrict found, const int img_h, const int img_w)
+/* The window's geometry and the per-pixel steps shared by both kernels. src is the window,
+ * (width + 4) x (height + 4); (x, y) an output pixel; the image pixel is (y + 2 + oy, x + 2 + ox). */
+#define W_AT(q) ((float)src[q] * g1 - OFF(q))
+#if SC_DARK
+#define OFF(q) dark[q]
+#else
+#define OFF(q) black[c]
+#endif
+#define SC_ARGS __global const RAW_T *restrict src, __global float *restrict dst, \
+        const int width, const int height, const int oy, const int ox, \
+        __constant const char *restrict pattern, \
+        __constant const float *restrict black, __constant const float *restrict inv_range, \
+        __constant const float *restrict out_scale, __constant const float *restrict out_offset, \
+        __constant const float *restrict noise_a, __constant const float *restrict noise_b, \
+        __global const ushort *restrict mask, __global const float *restrict dark, \
+        __global const float *restrict flat, \
+        __constant const float *restrict terms, __global const float *restrict maps, \
+        __global const float *restrict grid, const int gh, const int gw, const float inv_cell, \
+        const int img_h, const int img_w
+
+/* gain_after: r(p) = flat(p) g2(p) / G_c(p), the gains after the bad-pixel step (step 3). */
+inline float gain_after(__global const float *flat, __constant const float *terms, __global const float *maps,
+                        __global const float *grid, const int gh, const int gw, const float inv_cell,
+                        const int i, const int c, const int gy, const int gx)
 {
-    const int x = get_global_id(0);
+    float r = 1.0f;
+#if SC_FLAT
+    r *= flat[i];
+#endif
+#if SC_TERMS
+    r *= list_gain(terms, maps, 2, gy, gx);
+#endif
+#if SC_GRID
+    r /= grid_gain(grid, gh, gw, inv_cell, c, (float)gy, (float)gx);
+#endif
+    return r;
+}
+
+/* sensor_screen: 8 pixels of a row per work-item, over the window less the halo (2): the steps
+ * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
+ * frame or the black level; r: gain_after), and the candidates for sensor_fix appended to ``list``
+ * (``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
+ * their 4 same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs and any
+ * 2 x 2 one; SC_DIAG 0: every pixel) by SC_K sigmas (at their level; at 0 for a dark one) plus
+ * SC_FLOOR plus SC_ALPHA times their range: sensor_fix's test restricted to them, so a pixel it would
+ * replace is never left out (the pixels within 2 of the image's edge, whose neighbours the padding
+ * mirrors, are appended by sensor_edges instead). The 8 lanes are explicit float8 (PoCL's implicit
+ * vectoriser gives up on the atomic append: 8 against 50 ms for 6 MP); the test is branch-free
+ * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
+ * than 8 pixels takes the scalar path. */
+#define LANES 8
+inline int screen_one(__global const RAW_T *src, __constant const char *pattern, __constant const float *black,
+                      __constant const float *inv_range, __constant const float *noise_a,
+                      __constant const float *noise_b, __global const ushort *mask, __global const float *dark,
+                      const float g1, const int i, const int sw, const int c, const float w)
+{
+    int cand = 0;
+#if SC_DETECT
+    const float d0 = W_AT(i - 2 * sw - 2), d1 = W_AT(i - 2 * sw + 2), d2 = W_AT(i + 2 * sw - 2), d3 = W_AT(i + 2 * sw + 2);
+    const float m0 = d0 > d1 ? d0 : d1, m1 = d2 > d3 ? d2 : d3, n0 = d0 < d1 ? d0 : d1, n1 = d2 < d3 ? d2 : d3;
+    const float s = inv_range[c];
+    const float up = w * s, uhi = (m0 > m1 ? m0 : m1) * s, ulo = (n0 < n1 ? n0 : n1) * s;
+    const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+    const float eh = up - uhi - spread, el = ulo - up - spread;
+    const float level = uhi > 0.0f ? uhi : 0.0f;
+    cand = ((eh > 0.0f) && (eh * eh > SC_K * SC_K * (noise_a[c] * level + noise_b[c])))
+         || ((el > 0.0f) && (el * el > SC_K * SC_K * noise_b[c])) || !SC_DIAG;
+#endif
+#if SC_MASK
+    cand |= mask[i] != 0;
+#endif
+    return cand;
+}
+
+inline void append(__global uint *list, __global uint *count, const uint cap, const uint p)
+{
+    const uint k = atomic_inc(count);
+    if (k < cap)
+        list[k] = p;
+}
+
+__kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint *restrict count, const uint cap,
+                            __constant const float *restrict lanes8)
+{
+    const int xg = get_global_id(0);
     const int y = get_global_id(1);
-    if (x >= width || y >= height)
+    const int x0 = xg * LANES;
+    if (x0 >= width || y >= height)
         return;
     const int sw = width + 2 * SC_HALO;
-    const int iy = y + SC_HALO, ix = x + SC_HALO;            /* in the window */
-    const int gy = iy + oy, gx = ix + ox;                     /* in the image */
+    const int gy = y + SC_HALO + oy, gx0 = x0 + SC_HALO + ox;
+    const int i0 = (y + SC_HALO) * sw + x0 + SC_HALO;
+    const int edge_row = gy < 2 || gy >= img_h - 2;
+    if (x0 + LANES > width || SC_TERMS || SC_GRID) {          /* the scalar path */
+        for (int k = 0; k < LANES && x0 + k < width; k++) {
+            const int i = i0 + k, gx = gx0 + k;
+            const int c = cfa_channel(pattern, gy, gx);
+#if SC_TERMS
+            const float g1 = list_gain(terms, maps, 1, gy, gx);
+#else
+            const float g1 = 1.0f;
+#endif
+            const float w = W_AT(i);
+#if SC_DETECT || SC_MASK
+            if (screen_one(src, pattern, black, inv_range, noise_a, noise_b, mask, dark, g1, i, sw, c, w)
+                && !edge_row && gx >= 2 && gx < img_w - 2)
+                append(list, count, cap, (uint)(y * width + x0 + k));
+#endif
+            dst[y * width + x0 + k] = w * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx)
+                                      * out_scale[c] + out_offset[c];
+        }
+        return;
+    }
+    /* the 8 lanes' channel constants: lanes8[((py P + px) 6 + j) 8 + k], j = black, 1 / range,
+     * noise a, noise b, out scale, out offset, for lane k of a group starting at phase (py, px) */
+    const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx0 % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
+    __constant const float *lc = lanes8 + (py * CFA_PERIOD + px) * 6 * LANES;
+    const float8 blk = vload8(0, lc), inv = vload8(1, lc), na = vload8(2, lc), nb8 = vload8(3, lc);
+    const float8 osc = vload8(4, lc), oof = vload8(5, lc);
+#if SC_DARK
+#define OFF8(q) vload8(0, dark + (q))
+#else
+#define OFF8(q) blk
+#endif
+#define W8(q) (convert_float8(vload8(0, src + (q))) - OFF8(q))
+    const float8 w = W8(i0);
+#if SC_DETECT || SC_MASK
+    int8 cand = (int8)(0);
+#if SC_DETECT
+    const float8 d0 = W8(i0 - 2 * sw - 2), d1 = W8(i0 - 2 * sw + 2), d2 = W8(i0 + 2 * sw - 2), d3 = W8(i0 + 2 * sw + 2);
+    const float8 m0 = d0 > d1 ? d0 : d1, m1 = d2 > d3 ? d2 : d3, n0 = d0 < d1 ? d0 : d1, n1 = d2 < d3 ? d2 : d3;
+    const float8 up = w * inv, uhi = (m0 > m1 ? m0 : m1) * inv, ulo = (n0 < n1 ? n0 : n1) * inv;
+    const float8 spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+    const float8 eh = up - uhi - spread, el = ulo - up - spread;
+    const float8 level = uhi > 0.0f ? uhi : (float8)(0.0f);
+    cand = ((eh > 0.0f) & (eh * eh > SC_K * SC_K * (na * level + nb8)))
+         | ((el > 0.0f) & (el * el > SC_K * SC_K * nb8));
+    if (!SC_DIAG)
+        cand = (int8)(-1);
+#endif
+#if SC_MASK
+    cand |= convert_int8(vload8(0, mask + i0)) != 0;
+#endif
+    if (any(cand)) {
+        for (int k = 0; k < LANES; k++) {
+            const int gx = gx0 + k;
+            if (((int *)&cand)[k] && !edge_row && gx >= 2 && gx < img_w - 2)
+                append(list, count, cap, (uint)(y * width + x0 + k));
+        }
+    }
+#endif
+    float8 r = (float8)(1.0f);
+#if SC_FLAT
+    r = vload8(0, flat + i0);
+#endif
+    vstore8(w * r * osc + oof, 0, dst + y * width + x0);
+}
+
+/* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
+ * window's pixels within 2 of the image's edge: sensor_fix tests them with the neighbours inside the
+ * image only). Halo 0; one work-item per pixel, bounds checked. */
+__kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
+                           const int width, const int y0, const int x0, const int rows, const int cols)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= cols || y >= rows)
+        return;
+    const uint k = atomic_inc(count);
+    if (k < cap)
+        list[k] = (uint)((y0 + y) * width + x0 + x);
+}
+
+/* sensor_fix: the candidates of sensor_screen, one work-item each (halo 2):
+ *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
+ *   beyond every same-channel neighbour within 2 pixels (inside the image) by SC_K noise sigmas (the
+ *   sensor model at that neighbour's level) plus SC_FLOOR plus SC_ALPHA times their spread, and its
+ *   4 nearest pixels (any channel, white-balanced) carry less than SC_GAMMA of its excess over the
+ *   16 pixels at distance 2 (a hot pixel does not light its neighbours); replaced by the mean of the
+ *   opposite same-channel pair that differs least (along an edge), else by the good neighbours' mean,
+ *   and its output rewritten. Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at
+ *   nb[k][i] = (dy, dx), pairs_n[k] opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
+__kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
+                         const uint cap, __constant const char *restrict nb, __constant const char *restrict nb_n,
+                         __constant const char *restrict pairs, __constant const char *restrict pairs_n,
+                         __constant const float *restrict wb, __global uint *restrict found)
+{
+    const uint j0 = get_global_id(1) * get_global_size(0) + get_global_id(0);   /* the list, row by row */
+    if (j0 >= min(*count, cap))
+        return;
+    const int p = (int)list[j0];
+    const int y = p / width, x = p - y * width;
+    const int sw = width + 2 * SC_HALO;
+    const int gy = y + SC_HALO + oy, gx = x + SC_HALO + ox;
     const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
     const int k = py * CFA_PERIOD + px;
     const int c = pattern[k];
-    const int i = iy * sw + ix;
+    const int i = (y + SC_HALO) * sw + x + SC_HALO;
 #if SC_TERMS
     const float g1 = list_gain(terms, maps, 1, gy, gx);
 #else
     const float g1 = 1.0f;
 #endif
-#if SC_DARK
-    float w = (float)src[i] * g1 - dark[i];
-#else
-    float w = (float)src[i] * g1 - black[c];
-#endif
+    float w = W_AT(i);
 #if SC_MASK
     int bad = mask[i] != 0;
 #else
@@ -78,30 +229,27 @@ __kernel void sensor_correct(__global const RAW_T *restrict src, __global float 
     const int n = nb_n[k];
     __constant const char *o = nb + 2 * k * SC_NB_MAX;
 #define OUTSIDE(j) (gy + o[2 * (j)] < 0 || gy + o[2 * (j)] >= img_h || gx + o[2 * (j) + 1] < 0 || gx + o[2 * (j) + 1] >= img_w)
+#if SC_MASK
+#define SKIP(q, j) (OUTSIDE(j) || mask[q])
+#else
+#define SKIP(q, j) OUTSIDE(j)
+#endif
 #if SC_DETECT
-    if (!bad && n > 0) {
+    if (!bad) {
         float hi = -INFINITY, lo = INFINITY;
         int used = 0;
         for (int j = 0; j < n; j++) {
             const int q = i + o[2 * j] * sw + o[2 * j + 1];
-            if (OUTSIDE(j))
+            if (SKIP(q, j))
                 continue;
-#if SC_MASK
-            if (mask[q])
-                continue;
-#endif
-#if SC_DARK
-            const float wq = (float)src[q] * g1 - dark[q];
-#else
-            const float wq = (float)src[q] * g1 - black[c];
-#endif
+            const float wq = W_AT(q);
             hi = fmax(hi, wq);
             lo = fmin(lo, wq);
             used++;
         }
         const float s = inv_range[c];
         const float up = w * s, uhi = hi * s, ulo = lo * s;
-        const float spread = SC_ALPHA * (uhi - ulo);
+        const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
         const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
         const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
         if (used && (hot > 0.0f || cold > 0.0f)) {
@@ -112,8 +260,7 @@ __kernel void sensor_correct(__global const RAW_T *restrict src, __global float 
                     const int ady = abs(dy), adx = abs(dx);
                     if (ady + adx == 0 || (ady <= 1 && adx <= 1 && ady + adx == 2))
                         continue;
-                    const int cq = pattern[((gy + dy) % CFA_PERIOD + CFA_PERIOD) % CFA_PERIOD * CFA_PERIOD
-                                           + ((gx + dx) % CFA_PERIOD + CFA_PERIOD) % CFA_PERIOD];
+                    const int cq = cfa_channel(pattern, gy + dy, gx + dx);
                     const int q = i + dy * sw + dx;
 #if SC_DARK
                     const float v = ((float)src[q] * g1 - dark[q]) * inv_range[cq] * wb[cq];
@@ -135,63 +282,33 @@ __kernel void sensor_correct(__global const RAW_T *restrict src, __global float 
         }
     }
 #endif
-    if (bad) {
-        /* the opposite same-channel pair that differs least, else the good neighbours' mean */
-        float best = INFINITY, est = 0.0f, sum = 0.0f;
-        int good = 0;
-        __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
-        for (int j = 0; j < pairs_n[k]; j++) {
-            const int a = pr[2 * j], b = pr[2 * j + 1];
-            const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
-            if (OUTSIDE(a) || OUTSIDE(b))
-                continue;
-#if SC_MASK
-            if (mask[qa] || mask[qb])
-                continue;
-#endif
-#if SC_DARK
-            const float wa = (float)src[qa] * g1 - dark[qa], wb_ = (float)src[qb] * g1 - dark[qb];
-#else
-            const float wa = (float)src[qa] * g1 - black[c], wb_ = (float)src[qb] * g1 - black[c];
-#endif
-            const float d = fabs(wa - wb_);
-            if (d < best) {
-                best = d;
-                est = 0.5f * (wa + wb_);
-            }
+    if (!bad)
+        return;
+    /* the opposite same-channel pair that differs least, else the good neighbours' mean */
+    float best = INFINITY, est = 0.0f, sum = 0.0f;
+    int good = 0;
+    __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
+    for (int j = 0; j < pairs_n[k]; j++) {
+        const int a = pr[2 * j], b = pr[2 * j + 1];
+        const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
+        if (SKIP(qa, a) || SKIP(qb, b))
+            continue;
+        const float wa = W_AT(qa), wb_ = W_AT(qb);
+        const float d = fabs(wa - wb_);
+        if (d < best) {
+            best = d;
+            est = 0.5f * (wa + wb_);
         }
-        if (best == INFINITY) {
-            for (int j = 0; j < n; j++) {
-                const int q = i + o[2 * j] * sw + o[2 * j + 1];
-                if (OUTSIDE(j))
-                    continue;
-#if SC_MASK
-                if (mask[q])
-                    continue;
-#endif
-#if SC_DARK
-                sum += (float)src[q] * g1 - dark[q];
-#else
-                sum += (float)src[q] * g1 - black[c];
-#endif
-                good++;
-            }
-            if (good)
-                est = sum / (float)good;
-            else
-                est = w;
-        }
-        w = est;
     }
-    float r = 1.0f;
-#if SC_FLAT
-    r *= flat[i];
-#endif
-#if SC_TERMS
-    r *= list_gain(terms, maps, 2, gy, gx);
-#endif
-#if SC_GRID
-    r /= grid_gain(grid, gh, gw, inv_cell, c, (float)gy, (float)gx);
-#endif
-    dst[y * width + x] = w * r * out_scale[c] + out_offset[c];
+    if (best == INFINITY) {
+        for (int j = 0; j < n; j++) {
+            const int q = i + o[2 * j] * sw + o[2 * j + 1];
+            if (SKIP(q, j))
+                continue;
+            sum += W_AT(q);
+            good++;
+        }
+        est = good ? sum / (float)good : w;
+    }
+    dst[p] = est * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx) * out_scale[c] + out_offset[c];
 }

@@ -74,6 +74,20 @@ their points hundreds of pixels apart, so a 16 px grid follows them to 1e-4."""
 TERM_SIZE = 24
 """Floats per packed gain term (sensor.cl: T_*)."""
 
+FLOOR = 1e-3
+"""Least excess (normalised units: 0.1 % of the range) of a pixel the auto test replaces: on a
+noiseless raw every local extremum would otherwise qualify."""
+
+LANES = 8
+"""Pixels of a row per work-item of sensor_screen (its float8 lanes)."""
+
+FIX_ROW = 256
+"""sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
+
+CANDIDATES = 8
+"""sensor_screen keeps at most one candidate per CANDIDATES pixels of a window for sensor_fix (the
+screen passes about 1-5 % of a textured mosaic's pixels at gain 1-16: README.md)."""
+
 
 # --------------------------------------------------------------------------------------------
 # Tables and parameters
@@ -340,7 +354,7 @@ class SensorCorrect(Stage):
                 with np.errstate(all="ignore"):
                     hi, lo = np.nanmax(vals, axis=0), np.nanmin(vals, axis=0)
                 up, uhi, ulo = w * inv_range[c], hi * inv_range[c], lo * inv_range[c]
-                spread = t.alpha * (uhi - ulo)
+                spread = t.alpha * (uhi - ulo) + FLOOR
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
                 cold = ulo - up - t.k * np.sqrt(t.noise_a[c] * np.maximum(ulo, 0) + t.noise_b[c]) - spread
                 cand = ~bad & used & ((hot > 0) | (cold > 0))
@@ -414,15 +428,29 @@ class SensorCorrect(Stage):
         t = self.test
         return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "CFA_PERIOD": self.cfa.period,
                 "SC_HALO": HALO, "SC_NB_MAX": nb.shape[1], "SC_PAIRS_MAX": pairs.shape[1],
-                "SC_DETECT": int(t is not None), "SC_MASK": int(self.mask is not None),
+                "SC_DETECT": int(t is not None), "SC_DIAG": int(diagonals_same_channel(self.cfa)),
+                "SC_MASK": int(self.mask is not None),
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
                 "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE,
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
-                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f"}
+                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
+
+    def lane_constants(self) -> np.ndarray:
+        """sensor_screen's per-lane channel constants: for each phase (py, px) of a group's first pixel
+        and lane k, the channel's black, 1 / range, noise a, noise b, out scale, out offset (float32)."""
+        p, t = self.cfa.period, self.test or DefectTest.noiseless(self.cfa.n_channels)
+        per = np.stack([self.black, 1.0 / (self.white - self.black), np.asarray(t.noise_a), np.asarray(t.noise_b),
+                        self.out_scale, self.out_offset])                      # 6 x C
+        out = np.zeros((p, p, 6, LANES), np.float32)
+        for py in range(p):
+            for px in range(p):
+                channels = self.cfa.pattern[py, (px + np.arange(LANES)) % p]
+                out[py, px] = per[:, channels]
+        return out
 
     def _device(self, rt: Runtime) -> dict[str, Any]:
-        """What the kernel reads besides the window, once per runtime: the tables, the whole planes
+        """What the kernels read besides the window, once per runtime: the tables, the whole planes
         the device gathers windows from, the packed terms, the counter of pixels found."""
         state = self._devices.get(id(rt))
         if state is not None:
@@ -441,7 +469,7 @@ class SensorCorrect(Stage):
             state["grid"], state["gh"], state["gw"], state["inv_cell"] = rt.constant(np.ones(1, np.float32)), 1, 1, 1.0
         for key, plane in (("mask", self.mask), ("dark", self.dark), ("flat", self.flat)):
             state[key] = rt.host_source(plane) if plane is not None else None
-        if not getattr(rt, "_meter", None):
+        if not _metering(rt):
             flags = rt.cl.mem_flags.READ_WRITE | rt.cl.mem_flags.COPY_HOST_PTR
             state["found"] = rt.cl.Buffer(rt.context, flags, hostbuf=np.zeros(1, np.uint32))
             self._devices[id(rt)] = state
@@ -467,7 +495,7 @@ class SensorCorrect(Stage):
         if plane is None:
             return rt.constant(np.zeros(1, dtype)), []
         whole = state.get(key)
-        if getattr(rt, "_meter", None) is not None:          # a metering run: count the buffer only
+        if _metering(rt):                                    # a metering run: count the buffer only
             img = rt.acquire(1, src.height, src.width, dtype)
         elif whole is not None:
             img = rt.gather_window(whole, int(origin[0]), int(origin[1]), src.height, src.width, self.cfa.period)
@@ -485,20 +513,79 @@ class SensorCorrect(Stage):
         for key, dtype in (("mask", np.uint16), ("dark", np.float32), ("flat", np.float32)):
             planes[key], extra = self._window(rt, state, key, origin, src, dtype)
             held += extra
-        rt.launch_named("sensor", "sensor_correct", width, height, dict(
-            src=src, dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]),
-            pattern=rt.constant(self.cfa.pattern), nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
-            pairs_n=state["pairs_n"], black=rt.constant(as_f32(self.black)),
-            inv_range=rt.constant(as_f32(1.0 / (self.white - self.black))),
-            out_scale=rt.constant(as_f32(self.out_scale)), out_offset=rt.constant(as_f32(self.out_offset)),
-            noise_a=state["noise_a"], noise_b=state["noise_b"], wb=state["wb"], mask=planes["mask"],
-            dark=planes["dark"], flat=planes["flat"], terms=state["terms"], maps=state["maps"], grid=state["grid"],
-            gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], found=state["found"],
-            img_h=extent[0], img_w=extent[1]),
-            self.defines(src.dtype), exact=False)
+        args = dict(src=src, dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]),
+                    pattern=rt.constant(self.cfa.pattern), black=rt.constant(as_f32(self.black)),
+                    inv_range=rt.constant(as_f32(1.0 / (self.white - self.black))),
+                    out_scale=rt.constant(as_f32(self.out_scale)), out_offset=rt.constant(as_f32(self.out_offset)),
+                    noise_a=state["noise_a"], noise_b=state["noise_b"], mask=planes["mask"], dark=planes["dark"],
+                    flat=planes["flat"], terms=state["terms"], maps=state["maps"], grid=state["grid"],
+                    gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], img_h=extent[0], img_w=extent[1])
+        defines = self.defines(src.dtype)
+        screening = self.test is not None or self.mask is not None
+        cap = max(1024, width * height // CANDIDATES)
+        if screening:
+            count = rt.acquire(1, 1, 1, np.uint32)
+            candidates = rt.acquire(1, 1, cap, np.uint32)
+            if not _metering(rt):
+                rt.cl.enqueue_fill_buffer(rt.queue, count.buffer, np.uint32(0), 0, 4)
+            args.update(count=count, cap=cap)
+            held += [count, candidates]
+        else:
+            candidates = rt.constant(np.zeros(1, np.uint32))
+            args.update(count=rt.constant(np.zeros(1, np.uint32)), cap=0)
+        rt.launch_named("sensor", "sensor_screen", -(-width // LANES), height,
+                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants())), defines, exact=False)
+        if self.test is not None:
+            for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
+                rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
+                                width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
+        if screening:
+            rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-cap // FIX_ROW), dict(
+                args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
+                pairs_n=state["pairs_n"], wb=state["wb"], found=state["found"]), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
+
+
+def edge_strips(origin: tuple[int, int], width: int, height: int,
+                extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+    """(y0, x0, rows, cols) in output coordinates of the output window's pixels within HALO of the
+    image's edge (an output window of ``width`` x ``height`` whose pixel (0, 0) is image pixel
+    origin + HALO): the rows along the top and bottom, then the columns between them, each pixel once.
+
+    >>> edge_strips((-2, -2), 10, 8, (8, 10))
+    [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
+    """
+    ty, tx = origin[0] + HALO, origin[1] + HALO
+    out = []
+    top, bottom = 0, height                   # the rows the row strips leave to the column strips
+    for lo, hi, is_top in ((0, HALO, True), (extent[0] - HALO, extent[0], False)):
+        a, b = max(lo - ty, 0), min(hi - ty, height)
+        if b > a:
+            out.append((a, 0, b - a, width))
+            if is_top:
+                top = max(top, b)
+            else:
+                bottom = min(bottom, a)
+    for lo, hi in ((0, HALO), (extent[1] - HALO, extent[1])):
+        a, b = max(lo - tx, 0), min(hi - tx, width)
+        if b > a and bottom > top:
+            out.append((top, a, bottom - top, b - a))
+    return out
+
+
+def _metering(rt: Runtime) -> bool:
+    """Whether ``rt`` is in a metering run (Runtime.metering: nothing is allocated or launched)."""
+    return getattr(rt, "_meter", None) is not None
+
+
+def diagonals_same_channel(cfa: CFA) -> bool:
+    """Whether the 4 pixels at (+-2, +-2) have every pixel's own channel (sensor_screen's neighbours):
+    true for the Bayer and LMS CFAs and any 2 x 2 one."""
+    p = cfa.period
+    return all(cfa.pattern[(ky + dy) % p, (kx + dx) % p] == cfa.pattern[ky, kx]
+               for ky in range(p) for kx in range(p) for dy in (-2, 2) for dx in (-2, 2))
 
 
 # --------------------------------------------------------------------------------------------
