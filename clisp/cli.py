@@ -28,7 +28,6 @@ from .engine.runtime import get_runtime, list_devices, save_built_programs
 from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import RAW_SUFFIXES, is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
-from .io.rawimage import RawImage
 from .modules.resize.stage import check_long_edge, resize_note
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, HALF_SIZE_NO_DENOISE, PRESETS,
                        SKIP_WHERE_IT_PAYS, denoise_params, output_size, process_file, resolve_options)
@@ -398,7 +397,6 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
     if defects is None:
         return ""
     from .sim import defects as sd
-    from .sim.noise import NoiseModel
     ops = []
     if args.gainmap:
         ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)
@@ -408,16 +406,8 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
         raw.metadata["opcodes"] = ops
     stem = Path(args.output).with_suffix("")
     written = []
-    for kind, count, make in (("dark", args.dark_frames, sd.dark_frame), ("flat", args.flat_frames, sd.flat_frame)):
-        for i in range(count):
-            frame = RawImage(data=make(defects, raw.cfa, raw.shape, gain, NoiseModel(), args.seed + 1000 * (1 + (kind == "flat")) + i),
-                             cfa=raw.cfa, black_level=raw.black_level, white_level=raw.white_level, wb=raw.wb,
-                             colour_matrix=raw.colour_matrix, exposure=raw.exposure,
-                             metadata={**{k: v for k, v in raw.metadata.items() if k != "opcodes"}, "frame": kind,
-                                       "gain": gain if kind == "dark" else (None if gain is None else 1.0),
-                                       "sensor": {**defects.to_dict(), "exposure_time": defects.exposure_time
-                                                  * (sd.FLAT_TIME_SHARE if kind == "flat" else 1.0)}},
-                             source="simulated")
+    for kind, count, seed in (("dark", args.dark_frames, args.seed + 1000), ("flat", args.flat_frames, args.seed + 2000)):
+        for i, frame in enumerate(sd.frames(raw, defects, kind, count, gain, seed)):
             path = f"{stem}_{kind}{i + 1:02d}.dng"
             write_raw(path, frame)
             written.append(path)

@@ -104,10 +104,10 @@ class Corrections:
         return "\n".join(lines)
 
 
-def sensor_corrections(raw: RawImage, bad_pixels: str = "auto", dark: Sequence[Any] = (),
+def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[Any] = (),
                        flat: Sequence[Any] = (), opcodes: bool = True, noise: Any = None) -> Corrections:
-    """The corrections for ``raw`` (module doc). ``dark``, ``flat``: paths of raw files, or
-    RawImages. ``noise``: the raw's ChannelNoise where the caller has it (build_pipeline's, for the
+    """The corrections for ``raw`` (module doc). ``bad_pixels``: also an H x W bool array, a map.
+    ``dark``, ``flat``: paths of raw files, or RawImages. ``noise``: the raw's ChannelNoise where the caller has it (build_pipeline's, for the
     denoiser), else the sensor model of the metadata, else the assumed model FALLBACK_ELECTRONS.
     ClispError (one line naming the files) for frames that do not match the raw, an unreadable map,
     or frames without light."""
@@ -120,7 +120,11 @@ def sensor_corrections(raw: RawImage, bad_pixels: str = "auto", dark: Sequence[A
         out.unapplied.append(f"all ({raw.metadata['opcodes_unreadable']})")
     mask = np.zeros(shape, dtype=bool)
     known: list[str] = []
-    if bad_pixels not in BAD_PIXEL_MODES:
+    if isinstance(bad_pixels, np.ndarray):                  # a map given as an H x W bool array
+        mask |= np.asarray(bad_pixels, dtype=bool)
+        known.append(f"{int(mask.sum())} from the map")
+        bad_pixels = "map"
+    elif bad_pixels not in BAD_PIXEL_MODES:
         listed = read_bad_pixel_map(bad_pixels, shape)
         mask |= listed
         known.append(f"{int(listed.sum())} from {Path(bad_pixels).name}")
@@ -470,16 +474,21 @@ def write_bad_pixel_map(path: str | os.PathLike[str], mask: np.ndarray, note: st
 # Clipped light against hot pixels
 # --------------------------------------------------------------------------------------------
 
+ISOLATED = 0.5
+"""A clipped sample whose same-channel neighbours all lie below this share of the clip level is
+isolated (a hot pixel), not a clipped light."""
+
 MAX_ISOLATED = 200_000
 """More clipped samples than this are taken for a clipped light without looking further."""
 
 
 def only_isolated_clips(raw: RawImage) -> bool:
-    """Whether every clipped sample of ``raw`` is isolated: no sample of its channel within 2 pixels
-    is clipped too. A hot pixel that saturates is such a sample, a clipped light (larger than the
-    lens' blur) is not; the pipeline then leaves the highlight stage out, since the bad pixels are
-    replaced before it. False where nothing is clipped (the highlight stage is left out anyway) or
-    for float raws."""
+    """Whether every clipped sample of ``raw`` is isolated: every sample of its channel within 2
+    pixels lies below ISOLATED of the clip level (above black). A hot pixel that saturates on a
+    darker surround is such a sample; a clipped light (larger than the lens' blur) is not, nor is a
+    noise peak on a bright surface. The pipeline then leaves the highlight stage out, since the bad
+    pixels are replaced before it. False where nothing is clipped (the highlight stage is left out
+    anyway) or for float raws."""
     from .modules.highlights.stage import clip_thresholds_dn
     from .modules.sensor.stage import neighbour_tables
     data = raw.data
@@ -511,6 +520,7 @@ def only_isolated_clips(raw: RawImage) -> bool:
             inside = (qy >= 0) & (qy < height) & (qx >= 0) & (qx < width)
             values = np.asarray(data[qy[inside], qx[inside]]) if inside.any() else np.zeros(0)
             c = raw.cfa.pattern[int(k) // p, int(k) % p]
-            if np.any(values >= thresholds[c]):
+            black = float(raw.black_level[c])
+            if np.any(values >= black + ISOLATED * (thresholds[c] - black)):
                 return False
     return True

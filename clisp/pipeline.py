@@ -135,7 +135,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera", half_size: bool = False, bad_pixels: str = "auto",
+                   wb: str = "camera", half_size: bool = False, bad_pixels: Any = "auto",
                    dark: Sequence[str] = (), flat: Sequence[str] = (), opcodes: bool = True) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
@@ -207,7 +207,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if corrections.pre is not None:
         stages.insert(0, corrections.pre)
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
-    if highlight is not None and bad_pixels != "off" and only_isolated_clips(raw):
+    if highlight is not None and not (isinstance(bad_pixels, str) and bad_pixels == "off") and only_isolated_clips(raw):
         highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)

@@ -28,6 +28,7 @@ FLAT_TIME_SHARE of the shot's exposure, as one shoots flats: bright and at the l
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import asdict, dataclass
 from typing import Any, Mapping
@@ -218,10 +219,34 @@ def expose(light: np.ndarray, dark_e: np.ndarray, gain: float | None, noise: Noi
 
 def capture(raw_norm: np.ndarray, defects: SensorDefects, cfa: CFA, gain: float | None, noise: NoiseModel,
             rng: np.random.Generator) -> np.ndarray:
-    """The shot through the defective sensor: DN of the ideal normalised mosaic ``raw_norm``."""
+    """The shot through the defective sensor: DN of the ideal normalised mosaic ``raw_norm``. The
+    light's noise is drawn as NoiseModel.sample draws it (where the light is the ideal one, no
+    shading or PRNU, every pixel that is not defective gets exactly the defect-free raw's value for
+    the same seed), the dark signal and the dead pixels' read noise from a stream of their own."""
     shape = raw_norm.shape
     n_fs = noise.full_scale_electrons(1.0 if gain is None else gain)
-    return expose(raw_norm * response(defects, cfa, shape), dark_electrons(defects, shape, n_fs), gain, noise, rng)
+    light = raw_norm
+    if defects.shading < 1 or defects.prnu:
+        light = raw_norm * response(dataclasses.replace(defects, dead=0.0), cfa, shape)
+    dark = dark_electrons(defects, shape, n_fs)
+    if gain is None:
+        out = expose(light, dark, None, noise, rng)
+        if defects.dead:
+            out[dead_mask(defects, shape)] = float(noise.black_level)
+        return out
+    electrons = rng.poisson(np.clip(light, 0.0, 1.0e6) * n_fs).astype(np.float64)
+    electrons += rng.normal(0.0, noise.read_noise_e, size=shape)
+    extra = np.random.default_rng([int(defects.seed), 99, int(rng.integers(1 << 31))])
+    if dark.any():
+        electrons += extra.poisson(dark)
+    if defects.dead:
+        dead = dead_mask(defects, shape)
+        electrons[dead] = extra.normal(0.0, noise.read_noise_e, size=int(dead.sum()))
+    electrons *= noise.dn_per_electron(gain)
+    electrons += float(noise.black_level)
+    dn = np.rint(electrons, out=electrons)
+    np.clip(dn, 0.0, float(noise.white_level), out=dn)
+    return dn.astype(np.uint16)
 
 
 def dark_frame(defects: SensorDefects, cfa: CFA, shape: tuple[int, int], gain: float | None,
@@ -295,3 +320,39 @@ def bad_pixel_list_opcode(defects: SensorDefects, shape: tuple[int, int], bayer_
     rows, cols = np.nonzero(bad_sites(defects, shape))
     return FixBadPixelsList([(int(r), int(c)) for r, c in zip(rows, cols)], [], bayer_phase, list_no=1,
                             origin=(0, 0), image=tuple(shape))
+
+
+def frames(raw: Any, defects: SensorDefects, kind: str, count: int, gain: float | None, seed: int,
+           noise: NoiseModel = NoiseModel()) -> list:
+    """``count`` dark or flat frames (``kind``) matching the simulated ``raw`` (a RawImage), as RawImages
+    with the raw's levels and metadata: a dark frame the shot's gain and exposure time, a flat frame
+    base gain and FLAT_TIME_SHARE of it; frame i's noise seeded by ``seed`` + i."""
+    from ..io.rawimage import RawImage
+    make = dark_frame if kind == "dark" else flat_frame
+    out = []
+    for i in range(count):
+        data = make(defects, raw.cfa, raw.shape, gain, noise, seed + i)
+        md = {k: v for k, v in raw.metadata.items() if k != "opcodes"}
+        md.update(frame=kind, gain=gain if kind == "dark" or gain is None else 1.0,
+                  sensor={**defects.to_dict(),
+                          "exposure_time": defects.exposure_time * (FLAT_TIME_SHARE if kind == "flat" else 1.0)})
+        out.append(RawImage(data=data, cfa=raw.cfa, black_level=raw.black_level, white_level=raw.white_level,
+                            wb=raw.wb, colour_matrix=raw.colour_matrix, exposure=raw.exposure, metadata=md,
+                            source=f"simulated {kind} frame {i + 1}"))
+    return out
+
+
+def oracle_frame(raw: Any, defects: SensorDefects, kind: str, gain: float | None,
+                 noise: NoiseModel = NoiseModel()) -> Any:
+    """The noiseless dark frame (its expected DN) or flat frame (FLAT_LEVEL through the true shading
+    and PRNU) of ``raw``, float32: the oracle that tools/bench_sensor.py corrects with."""
+    from ..io.rawimage import RawImage
+    if kind == "dark":
+        data = expected_dark(defects, raw.shape, gain, noise)
+    else:
+        data = float(noise.black_level) + FLAT_LEVEL * response(defects, raw.cfa, raw.shape) * noise.range_dn
+    md = {k: v for k, v in raw.metadata.items() if k != "opcodes"}
+    md.update(frame=kind)
+    return RawImage(data=data.astype(np.float32), cfa=raw.cfa, black_level=raw.black_level,
+                    white_level=raw.white_level, wb=raw.wb, colour_matrix=raw.colour_matrix, exposure=raw.exposure,
+                    metadata=md, source=f"oracle {kind} frame")

@@ -190,15 +190,38 @@ __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict
         list[k] = (uint)((y0 + y) * width + x0 + x);
 }
 
-/* sensor_fix: the candidates of sensor_screen, one work-item each (halo 2):
+/* y_near: Y at window index q (image pixel (gy, gx)): the mean of its 4 nearest pixels, each
+ * (raw g1 - off) / (white - black) times its channel's white balance. */
+inline float y_near(__global const RAW_T *src, __constant const char *pattern, __constant const float *black,
+                    __constant const float *inv_range, __constant const float *wb, __global const float *dark,
+                    const float g1, const int q, const int sw, const int gy, const int gx)
+{
+    float total = 0.0f;
+    for (int e = 0; e < 4; e++) {
+        const int dy = e == 0 ? -1 : e == 1 ? 1 : 0, dx = e == 2 ? -1 : e == 3 ? 1 : 0;
+        const int cq = cfa_channel(pattern, gy + dy, gx + dx);
+        const int qq = q + dy * sw + dx;
+#if SC_DARK
+        total += ((float)src[qq] * g1 - dark[qq]) * inv_range[cq] * wb[cq];
+#else
+        total += ((float)src[qq] * g1 - black[cq]) * inv_range[cq] * wb[cq];
+#endif
+    }
+    return 0.25f * total;
+}
+
+/* sensor_fix: the candidates of sensor_screen, one work-item each (halo 3):
+ *   the replacement: along the opposite same-channel pair (within 2 pixels, inside the image, not
+ *   known bad) that differs least in the channel and in Y (y_near), the pair's mean plus the colour
+ *   difference Y(p) - Y(pair) (the channel follows the other channels' detail, as a demosaic
+ *   assumes); without a pair, the good neighbours' mean.
  *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
- *   beyond every same-channel neighbour within 2 pixels (inside the image) by SC_K noise sigmas (the
- *   sensor model at that neighbour's level) plus SC_FLOOR plus SC_ALPHA times their spread, and its
- *   4 nearest pixels (any channel, white-balanced) carry less than SC_GAMMA of its excess over the
- *   16 pixels at distance 2 (a hot pixel does not light its neighbours); replaced by the mean of the
- *   opposite same-channel pair that differs least (along an edge), else by the good neighbours' mean,
- *   and its output rewritten. Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at
- *   nb[k][i] = (dy, dx), pairs_n[k] opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
+ *   beyond every same-channel neighbour by SC_K noise sigmas (the sensor model at that neighbour's
+ *   level) plus SC_FLOOR plus SC_ALPHA times their range, and its 4 nearest pixels carry less than
+ *   SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess: an optical detail
+ *   lights its neighbours through the lens, a hot pixel does not); its output is then rewritten.
+ * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx), pairs_n[k]
+ * opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
 __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
                          const uint cap, __constant const char *restrict nb, __constant const char *restrict nb_n,
                          __constant const char *restrict pairs, __constant const char *restrict pairs_n,
@@ -220,7 +243,7 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
 #else
     const float g1 = 1.0f;
 #endif
-    float w = W_AT(i);
+    const float w = W_AT(i);
 #if SC_MASK
     int bad = mask[i] != 0;
 #else
@@ -234,6 +257,38 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
 #else
 #define SKIP(q, j) OUTSIDE(j)
 #endif
+    const float wbc = wb[c], s = inv_range[c];
+    const float yp = y_near(src, pattern, black, inv_range, wb, dark, g1, i, sw, gy, gx);
+    float best = INFINITY, est = 0.0f, ybar = 0.0f, wbar = 0.0f;
+    __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
+    for (int j = 0; j < pairs_n[k]; j++) {
+        const int a = pr[2 * j], b = pr[2 * j + 1];
+        const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
+        if (SKIP(qa, a) || SKIP(qb, b))
+            continue;
+        const float wa = W_AT(qa), wb_ = W_AT(qb);
+        const float ya = y_near(src, pattern, black, inv_range, wb, dark, g1, qa, sw, gy + o[2 * a], gx + o[2 * a + 1]);
+        const float yb = y_near(src, pattern, black, inv_range, wb, dark, g1, qb, sw, gy + o[2 * b], gx + o[2 * b + 1]);
+        const float d = fabs(wa - wb_) * s + fabs(ya - yb) / wbc;
+        if (d < best) {
+            best = d;
+            ybar = 0.5f * (ya + yb);
+            wbar = 0.5f * (wa + wb_);
+            est = wbar + (yp - ybar) / (wbc * s);
+        }
+    }
+    if (best == INFINITY) {
+        float sum = 0.0f;
+        int good = 0;
+        for (int j = 0; j < n; j++) {
+            const int q = i + o[2 * j] * sw + o[2 * j + 1];
+            if (SKIP(q, j))
+                continue;
+            sum += W_AT(q);
+            good++;
+        }
+        est = good ? sum / (float)good : w;
+    }
 #if SC_DETECT
     if (!bad) {
         float hi = -INFINITY, lo = INFINITY;
@@ -247,36 +302,14 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             lo = fmin(lo, wq);
             used++;
         }
-        const float s = inv_range[c];
         const float up = w * s, uhi = hi * s, ulo = lo * s;
         const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
         const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
         const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
         if (used && (hot > 0.0f || cold > 0.0f)) {
-            /* the support test: the 4 nearest pixels against the ring at distance 2, white-balanced */
-            float axial = 0.0f, ring = 0.0f;
-            for (int dy = -2; dy <= 2; dy++) {
-                for (int dx = -2; dx <= 2; dx++) {
-                    const int ady = abs(dy), adx = abs(dx);
-                    if (ady + adx == 0 || (ady <= 1 && adx <= 1 && ady + adx == 2))
-                        continue;
-                    const int cq = cfa_channel(pattern, gy + dy, gx + dx);
-                    const int q = i + dy * sw + dx;
-#if SC_DARK
-                    const float v = ((float)src[q] * g1 - dark[q]) * inv_range[cq] * wb[cq];
-#else
-                    const float v = ((float)src[q] * g1 - black[cq]) * inv_range[cq] * wb[cq];
-#endif
-                    if (ady + adx == 1)
-                        axial += v;
-                    else
-                        ring += v;
-                }
-            }
-            axial *= 0.25f;
-            ring *= 1.0f / 16.0f;
-            const float excess = up * wb[c] - ring;
-            bad = fabs(excess) > 0.0f && (axial - ring) / excess < SC_GAMMA;
+            const float excess = (w - wbar) * s * wbc;
+            const float support = best == INFINITY ? 0.0f : (yp - ybar) / excess;
+            bad = fabs(excess) > 0.0f && support < SC_GAMMA;
             if (bad)
                 atomic_inc(found);
         }
@@ -284,31 +317,5 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
 #endif
     if (!bad)
         return;
-    /* the opposite same-channel pair that differs least, else the good neighbours' mean */
-    float best = INFINITY, est = 0.0f, sum = 0.0f;
-    int good = 0;
-    __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
-    for (int j = 0; j < pairs_n[k]; j++) {
-        const int a = pr[2 * j], b = pr[2 * j + 1];
-        const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
-        if (SKIP(qa, a) || SKIP(qb, b))
-            continue;
-        const float wa = W_AT(qa), wb_ = W_AT(qb);
-        const float d = fabs(wa - wb_);
-        if (d < best) {
-            best = d;
-            est = 0.5f * (wa + wb_);
-        }
-    }
-    if (best == INFINITY) {
-        for (int j = 0; j < n; j++) {
-            const int q = i + o[2 * j] * sw + o[2 * j + 1];
-            if (SKIP(q, j))
-                continue;
-            sum += W_AT(q);
-            good++;
-        }
-        est = good ? sum / (float)good : w;
-    }
     dst[p] = est * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx) * out_scale[c] + out_offset[c];
 }

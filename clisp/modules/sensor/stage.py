@@ -53,8 +53,12 @@ from ...engine.tiling import gather_window
 from ...io.opcodes import FixVignetteRadial, GainMap, gain_map_at, selects, vignette_at
 from ..raw_scale.stage import CfaAffine
 
-HALO = 2
-"""Radius of the same-channel neighbourhood (Bayer R and B: the nearest same-colour pixels are 2 away)."""
+HALO = 3
+"""Pixels each output reads on every side: the same-channel neighbours within 2 (Bayer R and B: the
+nearest same-colour pixels are 2 away), and the 4 nearest pixels of each of them (the replacement's Y)."""
+
+RADIUS = 2
+"""Radius of the same-channel neighbourhood."""
 
 K = 6.0
 """Noise sigmas (at the neighbours' level) by which a bad pixel lies beyond every same-channel
@@ -93,7 +97,7 @@ screen passes about 1-5 % of a textured mosaic's pixels at gain 1-16: README.md)
 # Tables and parameters
 # --------------------------------------------------------------------------------------------
 
-def neighbour_tables(cfa: CFA, radius: int = HALO) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def neighbour_tables(cfa: CFA, radius: int = RADIUS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per CFA phase k = py P + px: the same-channel neighbours within ``radius`` (nb: P^2 x NB x 2
     int8 (dy, dx), nb_n: their counts) and the opposite pairs among them (pairs: P^2 x NP x 2 int8
     indices into nb[k], pairs_n).
@@ -299,7 +303,9 @@ class SensorCorrect(Stage):
         """A following per-channel affine (normalisation, white balance pass 1) folds into the output."""
         if isinstance(following, CfaAffine):
             o, s = np.asarray(following.offset, dtype=np.float64), np.asarray(following.scale, dtype=np.float64)
-            return replace(self, out_scale=self.out_scale * s, out_offset=(self.out_offset - o) * s)
+            fused = replace(self, out_scale=self.out_scale * s, out_offset=(self.out_offset - o) * s)
+            fused._devices = self._devices        # one device state (and count of pixels found) for both
+            return fused
         return None
 
     # ------------------------------------------------------------------------------- reference
@@ -347,8 +353,19 @@ class SensorCorrect(Stage):
             w = w_at(0, 0)
             bad = masked(0, 0).copy()
             offs = [tuple(int(v) for v in nb[k, j]) for j in range(nb_n[k])]
+            t = self.test or DefectTest.noiseless(cfa.n_channels)
+            wb = np.asarray(t.wb)
+
+            def y_at(dy: int, dx: int) -> np.ndarray:            # Y: the 4 nearest pixels, white-balanced
+                total = 0.0
+                for ey, ex in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                    idx = np.ix_(rows + dy + ey, cols + dx + ex)
+                    cq = ch[idx]
+                    total = total + (raw[idx] * gp - (off[idx] if np.ndim(off) == 2 else off[idx])) * inv_range[cq] * wb[cq]
+                return total / 4.0
+
+            est, y_bar, w_bar = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
             if self.test is not None and offs:
-                t = self.test
                 vals = np.stack([np.where(masked(*o), np.nan, w_at(*o)) for o in offs])
                 used = np.any(~np.isnan(vals), axis=0)
                 with np.errstate(all="ignore"):
@@ -358,16 +375,14 @@ class SensorCorrect(Stage):
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
                 cold = ulo - up - t.k * np.sqrt(t.noise_a[c] * np.maximum(ulo, 0) + t.noise_b[c]) - spread
                 cand = ~bad & used & ((hot > 0) | (cold > 0))
-                if cand.any():
-                    support = self._support(raw, off, ch, g1, rows, cols, gp)
-                    excess = up * t.wb[c] - support[1]
-                    with np.errstate(all="ignore"):
-                        ok = (np.abs(excess) > 0) & ((support[0] - support[1]) / excess < t.gamma)
-                    new = cand & ok
-                    found[np.ix_(rows - r, cols - r)] = new
-                    bad = bad | new
+                with np.errstate(all="ignore"):
+                    excess = (w - w_bar) * inv_range[c] * wb[c]
+                    support = np.where(np.isnan(y_bar), 0.0, (y_at(0, 0) - y_bar) / excess)
+                new = cand & (np.abs(excess) > 0) & (support < t.gamma)
+                found[np.ix_(rows - r, cols - r)] = new
+                bad = bad | new
             if bad.any():
-                w = np.where(bad, self._estimate(w_at, masked, offs, k, pairs, pairs_n, w), w)
+                w = np.where(bad, est, w)
             gain = np.ones_like(w)
             if self.flat is not None:
                 gain = gain * window_of(self.flat, origin, x.shape, p)[np.ix_(rows, cols)]
@@ -378,39 +393,29 @@ class SensorCorrect(Stage):
             w_out[np.ix_(rows - r, cols - r)] = w * gain * self.out_scale[c] + self.out_offset[c]
         return w_out, found
 
-    def _support(self, raw, off, ch, g1, rows, cols, gp) -> tuple[np.ndarray, np.ndarray]:
-        """(mean of the 4 nearest pixels, mean of the 16 at distance 2), white-balanced and normalised."""
-        t = self.test
-        wb = np.asarray(t.wb)
-        inv_range = 1.0 / (self.white - self.black)
-        axial, ring = 0.0, 0.0
-        for dy in range(-2, 3):
-            for dx in range(-2, 3):
-                ady, adx = abs(dy), abs(dx)
-                if ady + adx == 0 or (ady <= 1 and adx <= 1 and ady + adx == 2):
-                    continue
-                idx = np.ix_(rows + dy, cols + dx)
-                cq = ch[idx]
-                o = off[idx] if np.ndim(off) == 2 else off[idx]
-                v = (raw[idx] * gp - o) * inv_range[cq] * wb[cq]
-                if ady + adx == 1:
-                    axial = axial + v
-                else:
-                    ring = ring + v
-        return axial / 4.0, ring / 16.0
-
     @staticmethod
-    def _estimate(w_at, masked, offs, k, pairs, pairs_n, w) -> np.ndarray:
-        """The replacement: the mean of the opposite pair that differs least, else of the good neighbours."""
+    def _estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range_c, wb_c):
+        """(the replacement, the chosen pair's mean Y, its mean w) per pixel: along the opposite
+        same-channel pair that differs least (in the channel and in Y, the white-balanced mean of
+        each member's 4 nearest pixels), the pair's mean plus the colour difference Y(p) - Y(pair)
+        (the channel follows the other channels' detail, as a demosaic assumes); without a pair the
+        good neighbours' mean (Y of the pair NaN, its w 0: the support test then passes)."""
         best = np.full(w.shape, np.inf)
         est = np.zeros(w.shape)
+        y_bar = np.full(w.shape, np.nan)
+        w_bar = np.zeros(w.shape)
+        y_p = y_at(0, 0)
         for j in range(pairs_n[k]):
             a, b = offs[pairs[k, j, 0]], offs[pairs[k, j, 1]]
             wa, wb_ = w_at(*a), w_at(*b)
-            d = np.where(masked(*a) | masked(*b), np.inf, np.abs(wa - wb_))
+            ya, yb = y_at(*a), y_at(*b)
+            d = np.where(masked(*a) | masked(*b), np.inf, np.abs(wa - wb_) * inv_range_c + np.abs(ya - yb) / wb_c)
             better = d < best
             best = np.where(better, d, best)
-            est = np.where(better, 0.5 * (wa + wb_), est)
+            mean_y, mean_w = 0.5 * (ya + yb), 0.5 * (wa + wb_)
+            est = np.where(better, mean_w + (y_p - mean_y) / (wb_c * inv_range_c), est)
+            y_bar = np.where(better, mean_y, y_bar)
+            w_bar = np.where(better, mean_w, w_bar)
         if offs:
             good = np.stack([~masked(*o) for o in offs])
             vals = np.stack([w_at(*o) for o in offs])
@@ -419,7 +424,7 @@ class SensorCorrect(Stage):
                 mean = np.where(n > 0, (vals * good).sum(axis=0) / np.maximum(n, 1), w)
         else:
             mean = w
-        return np.where(np.isinf(best), mean, est)
+        return np.where(np.isinf(best), mean, est), y_bar, w_bar
 
     # ------------------------------------------------------------------------------- OpenCL
 
@@ -427,7 +432,7 @@ class SensorCorrect(Stage):
         nb, _, pairs, _ = neighbour_tables(self.cfa)
         t = self.test
         return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "CFA_PERIOD": self.cfa.period,
-                "SC_HALO": HALO, "SC_NB_MAX": nb.shape[1], "SC_PAIRS_MAX": pairs.shape[1],
+                "SC_HALO": HALO, "SC_RADIUS": RADIUS, "SC_NB_MAX": nb.shape[1], "SC_PAIRS_MAX": pairs.shape[1],
                 "SC_DETECT": int(t is not None), "SC_DIAG": int(diagonals_same_channel(self.cfa)),
                 "SC_MASK": int(self.mask is not None),
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
@@ -550,17 +555,17 @@ class SensorCorrect(Stage):
 
 def edge_strips(origin: tuple[int, int], width: int, height: int,
                 extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
-    """(y0, x0, rows, cols) in output coordinates of the output window's pixels within HALO of the
+    """(y0, x0, rows, cols) in output coordinates of the output window's pixels within RADIUS of the
     image's edge (an output window of ``width`` x ``height`` whose pixel (0, 0) is image pixel
     origin + HALO): the rows along the top and bottom, then the columns between them, each pixel once.
 
-    >>> edge_strips((-2, -2), 10, 8, (8, 10))
+    >>> edge_strips((-3, -3), 10, 8, (8, 10))
     [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
     """
     ty, tx = origin[0] + HALO, origin[1] + HALO
     out = []
     top, bottom = 0, height                   # the rows the row strips leave to the column strips
-    for lo, hi, is_top in ((0, HALO, True), (extent[0] - HALO, extent[0], False)):
+    for lo, hi, is_top in ((0, RADIUS, True), (extent[0] - RADIUS, extent[0], False)):
         a, b = max(lo - ty, 0), min(hi - ty, height)
         if b > a:
             out.append((a, 0, b - a, width))
@@ -568,7 +573,7 @@ def edge_strips(origin: tuple[int, int], width: int, height: int,
                 top = max(top, b)
             else:
                 bottom = min(bottom, a)
-    for lo, hi in ((0, HALO), (extent[1] - HALO, extent[1])):
+    for lo, hi in ((0, RADIUS), (extent[1] - RADIUS, extent[1])):
         a, b = max(lo - tx, 0), min(hi - tx, width)
         if b > a and bottom > top:
             out.append((top, a, bottom - top, b - a))
