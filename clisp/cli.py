@@ -203,10 +203,11 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 
 def _add_sensor_options(p: argparse.ArgumentParser) -> None:
     """process's sensor corrections (clisp.corrections)."""
-    p.add_argument("--bad-pixels", default="auto", metavar="auto|off|MAP",
-                   help="defective pixels: auto (default) finds them against the sensor's noise model and "
-                        "replaces them from neighbours of their channel, with the DNG's FixBadPixels lists; "
-                        "MAP is a file of 'column row' lines (dcraw's format) used as given, no search; off: none")
+    p.add_argument("--bad-pixels", default=None, metavar="auto|off|MAP",
+                   help="defective pixels: auto (default; preset fast: off) finds them against the sensor's noise "
+                        "model and replaces them from neighbours of their channel, with the DNG's FixBadPixels "
+                        "lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
+                        "off: none")
     p.add_argument("--dark", action="append", default=[], metavar="DARK",
                    help="a dark frame (same camera, exposure and ISO, no light; a raw file, or a folder of "
                         "them), subtracted; repeat for several, averaged; scaled by exposure time when both "

@@ -58,7 +58,7 @@ stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA l
 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear", "other": "bilinear"}, "denoise_levels": 0,
-             "highlights": "clamp"},
+             "highlights": "clamp", "bad_pixels": "off"},
     "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse", "other": "bilinear"}, "denoise_levels": 2,
                  "highlights": "reconstruct"},
     "quality": {"demosaic": {"lms": "guided", "bayer": "ri", "other": "bilinear"}, "denoise_levels": 3,
@@ -72,7 +72,9 @@ serves the other layouts). The colour side (camera constants, chroma space) foll
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
-raw with clipping spread over a fifth of it). Explicit options override."""
+raw with clipping spread over a fifth of it). ``bad_pixels``: the defect search's default where it is
+not 'auto' (fast: off; the search is a pass of its own there, since the fast path folds the
+normalisation into the demosaic: +15 % on a 24 MP raw; docs/RESULTS.md). Explicit options override."""
 
 DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
@@ -135,7 +137,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera", half_size: bool = False, bad_pixels: Any = "auto",
+                   wb: str = "camera", half_size: bool = False, bad_pixels: Any = None,
                    dark: Sequence[str] = (), flat: Sequence[str] = (), opcodes: bool = True) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
@@ -169,7 +171,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
     ``demosaic`` or ``denoise`` is refused: the binning averages the samples), its highlight mode
     is HALF_SIZE_HIGHLIGHTS unless ``highlights`` says otherwise.
-    ``bad_pixels`` ('auto', 'off' or a map file), ``dark`` and ``flat`` (frames' paths) and ``opcodes``
+    ``bad_pixels`` ('auto', 'off' or a map file; None: the preset's, auto but for fast), ``dark`` and
+    ``flat`` (frames' paths) and ``opcodes``
     (apply the DNG's opcodes): the sensor corrections (clisp.corrections), a first stage on the
     mosaic and, for gains, one after the chroma stage; the pipeline's ``corrections`` says what they did.
     """
@@ -194,6 +197,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
             noise = raw_noise(raw)
         except NoiseEstimateError:
             noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+    if bad_pixels is None:                                  # the preset's (fast: off), else auto
+        bad_pixels = options.get("bad_pixels", "auto")
     corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, noise)
     noise = corrections.noise(noise)                        # the dark frame's own noise added
     choice = None

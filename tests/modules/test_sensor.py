@@ -139,7 +139,7 @@ def test_corrections_bring_the_raw_back(defective):
     from clisp.metrics import psnr
     d, sim, clean = defective
     off = build_pipeline(sim.raw, preset="fast", bad_pixels="off", opcodes=False).run(sim.raw.data)
-    pipe = build_pipeline(sim.raw, preset="fast", dark=sd.frames(sim.raw, d, "dark", 4, 4.0, 10),
+    pipe = build_pipeline(sim.raw, preset="fast", bad_pixels="auto", dark=sd.frames(sim.raw, d, "dark", 4, 4.0, 10),
                           flat=sd.frames(sim.raw, d, "flat", 4, 4.0, 20))
     fixed = pipe.run(sim.raw.data)
     assert psnr(fixed, clean.truth) > psnr(off, clean.truth) + 3
@@ -155,6 +155,13 @@ def test_no_false_corrections_on_a_smooth_raw_at_gain_64():
     on = build_pipeline(raw, preset="fast", bad_pixels="auto").run(raw.data)
     off = build_pipeline(raw, preset="fast", bad_pixels="off").run(raw.data)
     assert_close(on, off, "the search on a defect-free gain-64 raw")
+
+
+def test_fast_preset_searches_only_when_asked(defective):
+    _, sim, _ = defective
+    assert build_pipeline(sim.raw, preset="fast", opcodes=False).corrections.pre is None
+    assert build_pipeline(sim.raw, preset="fast", bad_pixels="auto", opcodes=False).corrections.pre.test is not None
+    assert build_pipeline(sim.raw, preset="balanced", opcodes=False).corrections.pre.test is not None
 
 
 def test_map_file_used_as_given(tmp_path, defective):
@@ -195,7 +202,7 @@ def test_cli_names_unapplied_opcodes(tmp_path, capfd):
     sim.raw.metadata["opcodes"] = [OtherOpcode(1, bytes(8), list_no=3), OtherOpcode(1, bytes(8), list_no=3)]
     write_raw(tmp_path / "r.dng", sim.raw)
     assert main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--preset", "fast",
-                 "--explain"]) == 0
+                 "--bad-pixels", "auto", "--explain"]) == 0
     out, err = capfd.readouterr()
     assert err.count("DNG opcode WarpRectilinear (OpcodeList3) not applied") == 1
     assert "sensor: bad pixels auto" in out

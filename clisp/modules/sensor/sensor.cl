@@ -60,10 +60,10 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
  * frame or the black level; r: gain_after), and the candidates for sensor_fix appended to ``list``
  * (``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
- * their 4 same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs and any
- * 2 x 2 one; SC_DIAG 0: every pixel) by SC_K sigmas (at their level; at 0 for a dark one) plus
- * SC_FLOOR plus SC_ALPHA times their range: sensor_fix's test restricted to them, so a pixel it would
- * replace is never left out (the pixels within 2 of the image's edge, whose neighbours the padding
+ * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
+ * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
+ * (at their level; at 0 for a dark one) plus SC_FLOOR plus SC_ALPHA times their range: sensor_fix's
+ * test restricted to a subset of its neighbours, so a pixel it would replace is never left out (the pixels within 2 of the image's edge, whose neighbours the padding
  * mirrors, are appended by sensor_edges instead). The 8 lanes are explicit float8 (PoCL's implicit
  * vectoriser gives up on the atomic append: 8 against 50 ms for 6 MP); the test is branch-free
  * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
@@ -147,16 +147,21 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
 #if SC_DETECT || SC_MASK
     int8 cand = (int8)(0);
 #if SC_DETECT
-    const float8 d0 = W8(i0 - 2 * sw - 2), d1 = W8(i0 - 2 * sw + 2), d2 = W8(i0 + 2 * sw - 2), d3 = W8(i0 + 2 * sw + 2);
-    const float8 m0 = d0 > d1 ? d0 : d1, m1 = d2 > d3 ? d2 : d3, n0 = d0 < d1 ? d0 : d1, n1 = d2 < d3 ? d2 : d3;
-    const float8 up = w * inv, uhi = (m0 > m1 ? m0 : m1) * inv, ulo = (n0 < n1 ? n0 : n1) * inv;
+    /* the highest and lowest of the same-channel neighbours at (+-2, +-2) (the same channel in the
+     * Bayer and LMS CFAs) and, SC_EVEN (a 2 x 2 CFA: every even offset has the pixel's channel), at
+     * (0, +-2), (+-2, 0): ternaries, which PoCL vectorises (select() and fmax() it does not) */
+    float8 hi = W8(i0 - 2 * sw - 2), lo = hi;
+#define NB(dy, dx) { const float8 v = W8(i0 + (dy) * sw + (dx)); hi = v > hi ? v : hi; lo = v < lo ? v : lo; }
+    NB(-2, 2) NB(2, -2) NB(2, 2)
+#if SC_EVEN
+    NB(0, -2) NB(0, 2) NB(-2, 0) NB(2, 0)
+#endif
+    const float8 up = w * inv, uhi = hi * inv, ulo = lo * inv;
     const float8 spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
     const float8 eh = up - uhi - spread, el = ulo - up - spread;
     const float8 level = uhi > 0.0f ? uhi : (float8)(0.0f);
     cand = ((eh > 0.0f) & (eh * eh > SC_K * SC_K * (na * level + nb8)))
          | ((el > 0.0f) & (el * el > SC_K * SC_K * nb8));
-    if (!SC_DIAG)
-        cand = (int8)(-1);
 #endif
 #if SC_MASK
     cand |= convert_int8(vload8(0, mask + i0)) != 0;
@@ -258,6 +263,29 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
 #define SKIP(q, j) OUTSIDE(j)
 #endif
     const float wbc = wb[c], s = inv_range[c];
+#if SC_DETECT
+    int extreme = 0;
+    if (!bad) {                      /* first the cheap test over every same-channel neighbour */
+        float hi = -INFINITY, lo = INFINITY;
+        int used = 0;
+        for (int j = 0; j < n; j++) {
+            const int q = i + o[2 * j] * sw + o[2 * j + 1];
+            if (SKIP(q, j))
+                continue;
+            const float wq = W_AT(q);
+            hi = fmax(hi, wq);
+            lo = fmin(lo, wq);
+            used++;
+        }
+        const float up = w * s, uhi = hi * s, ulo = lo * s;
+        const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+        const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
+        const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
+        extreme = used && (hot > 0.0f || cold > 0.0f);
+        if (!extreme)
+            return;
+    }
+#endif
     const float yp = y_near(src, pattern, black, inv_range, wb, dark, g1, i, sw, gy, gx);
     float best = INFINITY, est = 0.0f, ybar = 0.0f, wbar = 0.0f;
     __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
@@ -290,29 +318,13 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
         est = good ? sum / (float)good : w;
     }
 #if SC_DETECT
-    if (!bad) {
-        float hi = -INFINITY, lo = INFINITY;
-        int used = 0;
-        for (int j = 0; j < n; j++) {
-            const int q = i + o[2 * j] * sw + o[2 * j + 1];
-            if (SKIP(q, j))
-                continue;
-            const float wq = W_AT(q);
-            hi = fmax(hi, wq);
-            lo = fmin(lo, wq);
-            used++;
-        }
-        const float up = w * s, uhi = hi * s, ulo = lo * s;
-        const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
-        const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
-        const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
-        if (used && (hot > 0.0f || cold > 0.0f)) {
-            const float excess = (w - wbar) * s * wbc;
-            const float support = best == INFINITY ? 0.0f : (yp - ybar) / excess;
-            bad = fabs(excess) > 0.0f && support < SC_GAMMA;
-            if (bad)
-                atomic_inc(found);
-        }
+    if (!bad && extreme) {
+        /* the support test: how much of the excess over the pair the 4 nearest pixels carry */
+        const float excess = (w - wbar) * s * wbc;
+        const float support = best == INFINITY ? 0.0f : (yp - ybar) / excess;
+        bad = fabs(excess) > 0.0f && support < SC_GAMMA;
+        if (bad)
+            atomic_inc(found);
     }
 #endif
     if (!bad)

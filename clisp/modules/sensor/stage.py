@@ -64,12 +64,15 @@ K = 6.0
 """Noise sigmas (at the neighbours' level) by which a bad pixel lies beyond every same-channel
 neighbour (tools/bench_sensor.py --tune; README.md)."""
 
-ALPHA = 1.0
-"""Times the same-channel neighbours' spread (their range) a bad pixel must also exceed: texture."""
+ALPHA = 0.0
+"""Times the same-channel neighbours' spread (their range) a bad pixel must also exceed (texture):
+none; the support test keeps texture out (tools/bench_sensor.py --tune: 0.25 and 0.5 lose 0.1-0.2 dB
+on raws with defects for 0.07-0.09 dB on raws without)."""
 
 GAMMA = 0.08
-"""Largest share of a bad pixel's excess its 4 nearest pixels may carry: the optics spread a real
-point of light to them (the simulated Airy PSF: 7.7 % to each), a hot pixel lights none."""
+"""Largest share of a bad pixel's excess over its pair its 4 nearest pixels may carry (beyond the
+pair's own): the optics spread a real point of light to them (the simulated Airy PSF: about 6 %
+more than to the pair's), a hot pixel lights none (tools/bench_sensor.py --tune: 0.05 loses 0.03-0.08 dB)."""
 
 GRID_CELL = 16
 """Pixels between the smooth gain's nodes (bilinear in between): the DNG GainMaps of phones have
@@ -434,6 +437,7 @@ class SensorCorrect(Stage):
         return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "CFA_PERIOD": self.cfa.period,
                 "SC_HALO": HALO, "SC_RADIUS": RADIUS, "SC_NB_MAX": nb.shape[1], "SC_PAIRS_MAX": pairs.shape[1],
                 "SC_DETECT": int(t is not None), "SC_DIAG": int(diagonals_same_channel(self.cfa)),
+                "SC_EVEN": int(self.cfa.period == 2),
                 "SC_MASK": int(self.mask is not None),
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
