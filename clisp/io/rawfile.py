@@ -393,7 +393,11 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             info[key] = md[key]
     ops = opcodes_of(md)
     if ops:
-        info["opcodes"] = [f"{op.name} (OpcodeList{op.list_no})" for op in ops]
+        counts: dict[str, int] = {}
+        for op in ops:
+            key = f"{op.name} (OpcodeList{op.list_no})"
+            counts[key] = counts.get(key, 0) + 1
+        info["opcodes"] = [f"{k} x{n}" if n > 1 else k for k, n in counts.items()]
     return info
 
 
