@@ -474,25 +474,21 @@ def write_bad_pixel_map(path: str | os.PathLike[str], mask: np.ndarray, note: st
 # Clipped light against hot pixels
 # --------------------------------------------------------------------------------------------
 
-ISOLATED = 0.5
-"""A clipped sample whose same-channel neighbours all lie below this share of the clip level is
-isolated (a hot pixel), not a clipped light."""
-
 MAX_ISOLATED = 200_000
 """More clipped samples than this are taken for a clipped light without looking further."""
 
 
-def only_isolated_clips(raw: RawImage) -> bool:
-    """Whether every clipped sample of ``raw`` is isolated: every sample of its channel within 2
-    pixels lies below ISOLATED of the clip level (above black). A hot pixel that saturates on a
-    darker surround is such a sample; a clipped light (larger than the lens' blur) is not, nor is a
-    noise peak on a bright surface. The pipeline then leaves the highlight stage out, since the bad
-    pixels are replaced before it. False where nothing is clipped (the highlight stage is left out
-    anyway) or for float raws."""
+def only_isolated_clips(raw: RawImage, pre: SensorCorrect | None) -> bool:
+    """Whether every clipped sample of ``raw`` is a bad pixel the corrections replace before the
+    highlight stage: a known one (``pre``'s mask), or one the auto test takes for hot (beyond every
+    same-channel neighbour within 2 pixels by K noise sigmas: a hot pixel that saturates, not a
+    clipped light, whose neighbours are bright too, nor a noise peak on a bright surface). The
+    pipeline then leaves the highlight stage out: "a hot pixel is not a clipped light". False where
+    nothing is clipped (the stage is left out anyway), without corrections, or for float raws."""
     from .modules.highlights.stage import clip_thresholds_dn
-    from .modules.sensor.stage import neighbour_tables
+    from .modules.sensor.stage import FLOOR, neighbour_tables
     data = raw.data
-    if data.dtype != np.uint16:
+    if pre is None or data.dtype != np.uint16 or (pre.test is None and pre.mask is None):
         return False
     thresholds = clip_thresholds_dn(raw)
     p, (height, width) = raw.cfa.period, raw.shape
@@ -511,16 +507,29 @@ def only_isolated_clips(raw: RawImage) -> bool:
     ys, xs = np.concatenate([s[0] for s in sites]), np.concatenate([s[1] for s in sites])
     if not len(ys):
         return False
+    if pre.mask is not None:
+        known = pre.mask[ys, xs] != 0
+        ys, xs = ys[~known], xs[~known]
+        if not len(ys):
+            return True
+    if pre.test is None:
+        return False
     nb, nb_n, _, _ = neighbour_tables(raw.cfa)
     phase = (ys % p) * p + xs % p
+    t = pre.test
     for k in np.unique(phase):
         sel = phase == k
+        c = int(raw.cfa.pattern[int(k) // p, int(k) % p])
+        black, span = float(raw.black_level[c]), float(raw.white_level - raw.black_level[c])
+        u = (data[ys[sel], xs[sel]].astype(np.float64) - black) / span
+        hi = np.full(u.shape, -np.inf)
         for dy, dx in nb[k, :nb_n[k]]:
             qy, qx = ys[sel] + int(dy), xs[sel] + int(dx)
             inside = (qy >= 0) & (qy < height) & (qx >= 0) & (qx < width)
-            values = np.asarray(data[qy[inside], qx[inside]]) if inside.any() else np.zeros(0)
-            c = raw.cfa.pattern[int(k) // p, int(k) % p]
-            black = float(raw.black_level[c])
-            if np.any(values >= black + ISOLATED * (thresholds[c] - black)):
-                return False
+            v = np.full(u.shape, -np.inf)
+            v[inside] = (data[qy[inside], qx[inside]].astype(np.float64) - black) / span
+            hi = np.maximum(hi, v)
+        sigma = np.sqrt(t.noise_a[c] * np.maximum(hi, 0) + t.noise_b[c])
+        if np.any(~(u - hi > t.k * sigma + FLOOR)):
+            return False
     return True

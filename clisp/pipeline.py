@@ -212,7 +212,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if corrections.pre is not None:
         stages.insert(0, corrections.pre)
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
-    if highlight is not None and not (isinstance(bad_pixels, str) and bad_pixels == "off") and only_isolated_clips(raw):
+    if highlight is not None and only_isolated_clips(raw, corrections.pre):
         highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)

@@ -154,7 +154,8 @@ def tune(args: argparse.Namespace) -> None:
     from clisp.metrics import psnr
     from clisp.sim.simulate import simulate
     original = corr.defect_test
-    grid = [(k, a, g) for k in args.k for a in args.alpha for g in args.gamma]
+    from clisp.modules.sensor.stage import Z
+    grid = [(k, a, g, z) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])]
     results: dict = {p: [] for p in grid}
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
@@ -164,7 +165,7 @@ def tune(args: argparse.Namespace) -> None:
                 free_off = clisp.process(clean.raw, bad_pixels="off")
                 for p in grid:
                     corr.defect_test = lambda raw, noise=None, p=p: (
-                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2]), "tuned")
+                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3]), "tuned")
                     out = clisp.process(sim.raw)
                     free = clisp.process(clean.raw)
                     results[p].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
@@ -178,7 +179,7 @@ def tune(args: argparse.Namespace) -> None:
                 if not r:
                     continue
                 c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
-                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} {cfa} gain {gain:g}: corrected - defect-free "
+                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} {cfa} gain {gain:g}: corrected - defect-free "
                       f"(search off) {c - fo:+.3f} dB, search on the defect-free raw {f - fo:+.3f} dB, far off "
                       f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
 
@@ -187,9 +188,13 @@ def false_positives(args: argparse.Namespace) -> None:
     """Defect-free raws: the search on against off, per image (pixels the test replaced, the largest
     output difference; the tolerance rule is 1e-5)."""
     import clisp
+    import clisp.corrections as corr
     from clisp.pipeline import build_pipeline
     from clisp.engine.runtime import get_runtime
     from clisp.sim.simulate import simulate
+    original = corr.defect_test
+    if args.z is not None:                 # another z than the stage's (--z: the first value)
+        corr.defect_test = lambda raw, noise=None: (dataclasses.replace(original(raw, noise)[0], z=args.z[0]), "z")
     total = changed = 0
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
@@ -208,10 +213,12 @@ def false_positives(args: argparse.Namespace) -> None:
 
 
 def gainmap_flatness(args: argparse.Namespace) -> None:
-    """A grey field through a lens with shading 0.5 (and colour shading), recorded as GainMap
-    opcodes in our DNG: corner-to-centre luminance ratio and CIEDE2000 of the corners against the
-    centre, for the defect-free raw, clisp with the opcodes, clisp without (as LibRaw), and rawpy's
-    output of the same DNG (LibRaw applies no opcode)."""
+    """A grey field (0.18) through a lens with shading 0.5 and its colour shading, recorded as GainMap
+    opcodes in our DNG (written and read back): the mean corner-to-centre luminance ratio, its
+    difference to the defect-free raw's (%), and the largest CIEDE2000 between an output's corner
+    colour and the defect-free output's (each corner scaled to the defect-free corner's luminance,
+    so this is the colour alone), for clisp with the opcodes, clisp --no-opcodes and rawpy's output of
+    the same DNG (LibRaw applies no opcode; Bayer only)."""
     import tempfile
     import clisp
     from clisp.io.rawfile import read_raw, write_raw
@@ -229,19 +236,29 @@ def gainmap_flatness(args: argparse.Namespace) -> None:
                 path = Path(tmp) / "gainmap.dng"
                 write_raw(path, sim.raw)
                 raw = read_raw(path)
-                outs = {"defect-free": clisp.process(clean.raw), "clisp": clisp.process(raw),
-                        "clisp --no-opcodes": clisp.process(raw, opcodes=False)}
+                outs = {"clisp": clisp.process(raw), "clisp --no-opcodes": clisp.process(raw, opcodes=False)}
+                free = clisp.process(clean.raw)
                 if cfa == "bayer":
-                    outs["rawpy (LibRaw)"] = rawpy_linear(path, clean.raw)
+                    outs["rawpy (LibRaw)"] = rawpy_linear(path)
+                    free_rawpy = rawpy_linear_raw(clean.raw)
+            ref_ratio, ref_corners, _ = corner_colours(free)
+            print(f"{cfa} gain {gain:g} defect-free: corner/centre luminance {ref_ratio:.4f}")
             for name, out in outs.items():
-                lum, de = corner_stats(out, lambda a, b: ciede2000(a[None, None, :], b[None, None, :], clip=False))
-                print(f"{cfa} gain {gain:g} {name:<20} corner/centre luminance {lum:.4f}, corner CIEDE2000 "
-                      f"against the centre {de:.2f}")
+                ratio, corners, _ = corner_colours(out)
+                base_ratio, base_corners = (ref_ratio, ref_corners)
+                if name.startswith("rawpy"):             # against rawpy's own defect-free output
+                    base_ratio, base_corners, _ = corner_colours(free_rawpy)
+                lum = np.array([0.2126, 0.7152, 0.0722])
+                de = max(ciede2000((c * (b @ lum) / (c @ lum))[None, None], b[None, None], clip=False)
+                         for c, b in zip(corners, base_corners))
+                print(f"{cfa} gain {gain:g} {name:<20} corner/centre luminance {ratio:.4f} "
+                      f"({100 * (ratio / base_ratio - 1):+.2f} % against the defect-free raw), corner colour "
+                      f"CIEDE2000 {de:.2f}")
 
 
-def rawpy_linear(path: Path, clean_raw) -> np.ndarray:
-    """rawpy's linear sRGB of our DNG: its postprocess with the camera white balance, no auto-bright,
-    linear gamma, 16 bit, scaled so that its centre matches clisp's exposure (the ratios are what count)."""
+def rawpy_linear(path: Path) -> np.ndarray:
+    """rawpy's linear sRGB of a DNG: postprocess with the camera white balance, no auto-bright,
+    linear gamma, 16 bit (LibRaw applies no opcode)."""
     import rawpy
     with rawpy.imread(str(path)) as raw:
         rgb = raw.postprocess(use_camera_wb=True, no_auto_bright=True, gamma=(1, 1), output_bps=16,
@@ -249,20 +266,25 @@ def rawpy_linear(path: Path, clean_raw) -> np.ndarray:
     return rgb.astype(np.float64) / 65535.0
 
 
-def corner_stats(img: np.ndarray, de_fn) -> tuple[float, float]:
-    """(mean of the 4 corners' luminance / the centre's; the largest CIEDE2000 between a corner's
-    mean colour and the centre's, after scaling the corner to the centre's luminance, so the
-    colour shading is what remains). Patches of 1/16 of the side."""
+def rawpy_linear_raw(raw) -> np.ndarray:
+    import tempfile
+    from clisp.io.rawfile import write_raw
+    with tempfile.TemporaryDirectory() as tmp:
+        write_raw(Path(tmp) / "free.dng", raw)
+        return rawpy_linear(Path(tmp) / "free.dng")
+
+
+def corner_colours(img: np.ndarray) -> tuple[float, list[np.ndarray], np.ndarray]:
+    """(mean of the 4 corners' luminance over the centre's; the 4 corner patches' mean colours; the
+    centre's): patches of 1/8 of each side, 8 px in from the edges."""
     h, w = img.shape[:2]
-    ph, pw = h // 16, w // 16
+    ph, pw = h // 8, w // 8
     def patch(y, x):
         return img[y:y + ph, x:x + pw].reshape(-1, 3).mean(axis=0)
     lum = np.array([0.2126, 0.7152, 0.0722])
     centre = patch(h // 2 - ph // 2, w // 2 - pw // 2)
     corners = [patch(8, 8), patch(8, w - pw - 8), patch(h - ph - 8, 8), patch(h - ph - 8, w - pw - 8)]
-    ratio = float(np.mean([c @ lum for c in corners]) / (centre @ lum))
-    de = max(float(de_fn(c * (centre @ lum) / (c @ lum), centre)) for c in corners)
-    return ratio, de
+    return float(np.mean([c @ lum for c in corners]) / (centre @ lum)), corners, centre
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -278,11 +300,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--results", type=Path, default=None, help="rewrite the bench_sensor block of this Markdown file")
     p.add_argument("--tune", action="store_true")
     p.add_argument("--k", type=lambda s: [float(v) for v in s.split(",")], default=[6.0])
-    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=[1.0])
+    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=[0.0])
     p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=[0.08])
+    p.add_argument("--z", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="the support test's noise margin(s) (default: the stage's Z)")
     p.add_argument("--false-positives", action="store_true")
     p.add_argument("--gainmap-flatness", action="store_true")
-    p.add_argument("--size", type=toolkit.parse_size, default=(768, 512), help="the grey field's WxH")
+    p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")
     return p.parse_args(argv)
 
 

@@ -12,7 +12,7 @@
  *   SC_FLAT       1: a per-pixel flat-field gain
  *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
- *   SC_K, SC_ALPHA, SC_GAMMA, SC_FLOOR   the auto test's constants (float literals)
+ *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
  */
 
@@ -321,8 +321,12 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
     if (!bad && extreme) {
         /* the support test: how much of the excess over the pair the 4 nearest pixels carry */
         const float excess = (w - wbar) * s * wbc;
-        const float support = best == INFINITY ? 0.0f : (yp - ybar) / excess;
-        bad = fabs(excess) > 0.0f && support < SC_GAMMA;
+        /* the noise of Y(p) - Y(pair) (4 and 8 samples of about the pixel's channel): the support
+         * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
+         * look unsupported */
+        const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
+        bad = fabs(excess) > 0.0f && (best == INFINITY || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
+                                      + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
         if (bad)
             atomic_inc(found);
     }

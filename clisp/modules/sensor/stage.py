@@ -74,6 +74,12 @@ GAMMA = 0.08
 pair's own): the optics spread a real point of light to them (the simulated Airy PSF: about 6 %
 more than to the pair's), a hot pixel lights none (tools/bench_sensor.py --tune: 0.05 loses 0.03-0.08 dB)."""
 
+Z = 1.0
+"""Noise sigmas of Y(p) - Y(pair) by which the support must lie below GAMMA: at high gain the noise
+of the 4 nearest pixels is larger than the 6 % a lit point gives them, and a glint would look
+unsupported (tools/bench_sensor.py --false-positives); 2 cost 0.05-0.1 dB more on raws with defects at
+gain 16 (--tune --z)."""
+
 GRID_CELL = 16
 """Pixels between the smooth gain's nodes (bilinear in between): the DNG GainMaps of phones have
 their points hundreds of pixels apart, so a 16 px grid follows them to 1e-4."""
@@ -143,6 +149,7 @@ class DefectTest:
     k: float = K
     alpha: float = ALPHA
     gamma: float = GAMMA
+    z: float = Z
 
     @classmethod
     def from_noise(cls, noise: Any, pass1_gains: np.ndarray) -> "DefectTest":
@@ -380,8 +387,10 @@ class SensorCorrect(Stage):
                 cand = ~bad & used & ((hot > 0) | (cold > 0))
                 with np.errstate(all="ignore"):
                     excess = (w - w_bar) * inv_range[c] * wb[c]
-                    support = np.where(np.isnan(y_bar), 0.0, (y_at(0, 0) - y_bar) / excess)
-                new = cand & (np.abs(excess) > 0) & (support < t.gamma)
+                    var = wb[c] * t.noise_a[c] * np.maximum(np.nan_to_num(y_bar), 0) + wb[c] ** 2 * t.noise_b[c]
+                    lit = (y_at(0, 0) - y_bar) * np.sign(excess) + t.z * np.sqrt(0.375 * var)
+                    unsupported = np.isnan(y_bar) | (lit < t.gamma * np.abs(excess))
+                new = cand & (np.abs(excess) > 0) & unsupported
                 found[np.ix_(rows - r, cols - r)] = new
                 bad = bad | new
             if bad.any():
@@ -443,7 +452,7 @@ class SensorCorrect(Stage):
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
                 "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE,
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
-                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
+                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
     def lane_constants(self) -> np.ndarray:
         """sensor_screen's per-lane channel constants: for each phase (py, px) of a group's first pixel
