@@ -3,8 +3,10 @@
  * Defines from the host (no defaults here):
  *   RAW_T         the mosaic's sample type (ushort, float)
  *   CFA_PERIOD    side of the CFA's repeating tile
- *   SC_HALO       2: the same-channel neighbourhood's radius
- *   SC_NB_MAX     most same-channel neighbours of a phase within SC_HALO (table stride)
+ *   SC_HALO       3: the window's margin (the same-channel neighbours within SC_RADIUS, and the
+ *                 4 nearest pixels of each, which the replacement's Y reads)
+ *   SC_RADIUS     2: the same-channel neighbourhood's radius
+ *   SC_NB_MAX     most same-channel neighbours of a phase within SC_RADIUS (table stride)
  *   SC_PAIRS_MAX  most opposite neighbour pairs of a phase (table stride)
  *   SC_DETECT     1: search defective pixels against the noise model (the auto test)
  *   SC_MASK       1: a plane of known bad pixels (a map file, the DNG's FixBadPixels opcodes)
@@ -19,7 +21,8 @@
 #include "sensor.h"
 
 /* The window's geometry and the per-pixel steps shared by both kernels. src is the window,
- * (width + 4) x (height + 4); (x, y) an output pixel; the image pixel is (y + 2 + oy, x + 2 + ox). */
+ * (width + 2 SC_HALO) x (height + 2 SC_HALO), i.e. (width + 6) x (height + 6); (x, y) an output
+ * pixel; the image pixel is (y + SC_HALO + oy, x + SC_HALO + ox). */
 #define W_AT(q) ((float)src[q] * g1 - OFF(q))
 #if SC_DARK
 #define OFF(q) dark[q]

@@ -3,10 +3,13 @@
 Two stages, one at each end of the colour pipeline::
 
     step                   halo  launches  what
-    sensor_correct            2         1  first stage, on the raw mosaic (DN in): OpcodeList1's gains,
-                                           the dark frame (or the black level), bad pixels (known, or
-                                           found against the noise model), the flat field and
-                                           OpcodeList2's gains less their smooth part G
+    sensor_screen             3         1  first stage, on the raw mosaic (DN in): OpcodeList1's gains,
+                                           the dark frame (or the black level), the flat field and
+                                           OpcodeList2's gains less their smooth part G; candidates
+                                           for the defect test listed
+    sensor_edges              0       0-4  the window's pixels near the image's edge, listed
+    sensor_fix                3         1  each candidate: the defect test against the noise model
+                                           (or the known bad pixels), and its replacement
     sensor_shade              0         1  after the chroma stage: G, per camera channel
                                            (out = M diag(G) M^-1 in, M the colour matrix)
 
@@ -21,14 +24,13 @@ bilinear) after the highlight stage and the denoiser: they see the image as the 
 it, with its own clip level and noise, which is what "the clip level moves per pixel" and "the
 noise table follows the gain" mean.
 
-The auto test (``sensor_correct``, constants K, ALPHA, GAMMA; measured: tools/bench_sensor.py and
-README.md): a pixel is bad where its normalised value u_p lies beyond every same-channel
-neighbour within 2 pixels (above the highest for a hot pixel, below the lowest for a dead one) by
-K noise sigmas at that neighbour's level (the sensor's noise model) plus ALPHA times the
-neighbours' spread (texture), and its 4 nearest pixels, white-balanced, carry less than GAMMA of
-its excess over the ring of 16 pixels at distance 2 (an optical detail lights its neighbours
-through the lens, a hot pixel does not). It is replaced by the mean of the opposite same-channel
-pair that differs least (the direction along an edge), as the DNG SDK's FixBadPixels do.
+The auto test (``sensor_screen`` and ``sensor_fix``, constants K, ALPHA, GAMMA; what each step
+does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
+normalised value lies beyond every same-channel neighbour within RADIUS (above the highest for a
+hot pixel, below the lowest for a dead one) by K noise sigmas at that neighbour's level plus
+ALPHA times their spread, and its 4 nearest pixels carry less than GAMMA of its excess over the
+opposite same-channel pair that differs least. It is replaced by that pair's mean plus the colour
+difference of its 4 nearest pixels.
 
 Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
 
@@ -36,8 +38,8 @@ Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
     >>> x = np.full((12, 12), 300.0); x[6, 6] = 1000.0
     >>> st = SensorCorrect(bayer_cfa(), black=np.full(3, 64.0), white=1023.0, test=DefectTest.noiseless(3))
     >>> out = st.reference(x, (0, 0))
-    >>> out.shape, float(out[4, 4]), float(out.max())
-    ((8, 8), 300.0, 300.0)
+    >>> out.shape, float(out[3, 3]), float(out.max())
+    ((6, 6), 300.0, 300.0)
 """
 from __future__ import annotations
 
