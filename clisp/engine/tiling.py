@@ -267,19 +267,23 @@ def window_indices(y0: int, x0: int, h: int, w: int, shape: tuple[int, int],
     return rows, cols
 
 
-def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
-    """Split an index array into (dst_start, src_start, length) runs of consecutive indices."""
+def _longest_run(idx: np.ndarray) -> tuple[int, int, int]:
+    """(dst_start, src_start, length) of the longest run of consecutive indices in ``idx``: a
+    window's interior (its padded border lines are mirrored, so each is a run of its own)."""
     breaks = np.flatnonzero(np.diff(idx) != 1) + 1
     starts = np.concatenate(([0], breaks))
     ends = np.concatenate((breaks, [len(idx)]))
-    return [(int(a), int(idx[a]), int(b - a)) for a, b in zip(starts, ends)]
+    i = int(np.argmax(ends - starts))
+    return int(starts[i]), int(idx[starts[i]]), int(ends[i] - starts[i])
 
 
 def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``data[rows][:, cols]`` as a contiguous copy, copied as slices of consecutive rows and
-    columns (the interior is one block, each padded border line its own short run), which is much
-    faster than fancy indexing on large windows. ``out``: a len(rows) x len(cols) array of
-    ``data``'s dtype to fill instead of a new one (a reused buffer spares the new pages' faults)."""
+    """``data[rows][:, cols]`` as a contiguous copy: the interior (the longest runs of consecutive
+    rows and columns) as one block copy, the padded border rows and columns by fancy indexing.
+    Copying each border line as its own slice cost 19 ms for a 0.26 MP window with a 71 px halo
+    (every mirrored row times every mirrored column a slice) against 1 ms with a 1 px halo.
+    ``out``: a len(rows) x len(cols) array of ``data``'s dtype to fill instead of a new one (a
+    reused buffer spares the new pages' faults)."""
     shape = (len(rows), len(cols))
     if out is None:
         window = np.empty(shape, dtype=data.dtype)
@@ -287,10 +291,15 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
         raise ValueError(f"gather target {out.shape} {out.dtype} does not fit window {shape} {data.dtype}")
     else:
         window = out
-    col_runs = _runs(cols)
-    for dy, sy, ny in _runs(rows):
-        for dx, sx, nx in col_runs:
-            window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
+    dy, sy, ny = _longest_run(rows)
+    dx, sx, nx = _longest_run(cols)
+    window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
+    edge_cols = np.r_[0:dx, dx + nx:shape[1]]
+    if edge_cols.size:
+        window[dy:dy + ny, edge_cols] = data[sy:sy + ny, cols[edge_cols]]
+    for a, b in ((0, dy), (dy + ny, shape[0])):            # the border rows above and below, whole
+        if b > a:
+            window[a:b] = data[rows[a:b]][:, cols]
     return window
 
 
