@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import math
 import pickle
+import threading
 import time
+from collections import OrderedDict
 from contextlib import closing
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -149,12 +151,21 @@ class Pipeline:
 
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
+        key = _stages_key(self.stages, True)
+        if key is not None:
+            key += repr((tuple(shape), np.dtype(raw_dtype).str, tile, budget, backend, sink_bands)).encode()
+            plan = PLANS.get(key)
+            if plan is not None:
+                return plan
         limits = device_limits(backend)
         needs = self.needs(raw_dtype)
         out_h, out_w = self.output_shape(shape)
         if backend == "opencl":
             needs = replace(needs, cost=self.tile_cost(raw_dtype, out_w, limits, sink_bands))
-        return make_plan(out_h, out_w, needs, tile, budget, limits)
+        plan = make_plan(out_h, out_w, needs, tile, budget, limits)
+        if key is not None:
+            PLANS.put(key, plan)
+        return plan
 
     def tile_cost(self, raw_dtype: Any, image_width: int, limits: DeviceLimits,
                   sink_bands: bool) -> Callable[[int, int], float]:
@@ -172,7 +183,11 @@ class Pipeline:
         out_px = self.out_channels * self.out_dtype.itemsize
         halo, scale = self.halo, self.downscale
         kept = _kept_metering_name(rt, schedule, raw_dtype)
-        metered: dict[str, list[int]] = (read_json("metering", kept) if kept else None) or {}
+        metered: dict[str, list[int]] | None = METERED.get(kept) if kept else None
+        if metered is None:
+            metered = (read_json("metering", kept) if kept else None) or {}
+            if kept:
+                METERED.put(kept, metered)
 
         def cost(rows: int, cols: int) -> float:
             window = (rows * scale + 2 * halo, cols * scale + 2 * halo)
@@ -236,8 +251,9 @@ class Pipeline:
         win_h, win_w = plan.window_shape
         whole = self._device_source(source) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
-            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
-            compute = partial(self._compute_opencl, self.schedule(fuse), plan, whole=whole, image=image)
+            schedule = self.schedule(fuse)           # the pool holds what this plan's tiles need
+            get_runtime().trim_pool(keep=_pool_key(schedule, plan, whole is not None, self.skipper))
+            compute = partial(self._compute_opencl, schedule, plan, whole=whole, image=image)
         else:
             compute = partial(self._compute_reference, plan, image=image)
 
@@ -246,16 +262,15 @@ class Pipeline:
 
         windows = WindowPool()
 
-        def read(t: Tile) -> np.ndarray | None:
-            if whole is not None:                    # the device gathers the window itself
-                return None
+        def read(t: Tile) -> np.ndarray:
             with host_timer("read tile windows"):
                 return source.read(*plan.window_origin(t), win_h, win_w, self.cfa.period,
                                    windows.take((win_h, win_w), source.window_dtype))
 
         start = time.perf_counter()
-        try:
-            run_tiles(plan, read, compute, sink, progress, release=None if whole is not None else windows.give)
+        try:                                         # where the device gathers each window: no reads
+            run_tiles(plan, None if whole is not None else read, compute, sink, progress,
+                      release=None if whole is not None else windows.give)
         finally:
             if backend == "opencl":
                 get_runtime().queue.finish()          # no copy may still target the sink's arrays
@@ -389,12 +404,19 @@ class Pipeline:
 
     def schedule(self, fuse: bool = True) -> list[Stage]:
         """The stages as run on OpenCL: fused where they compose, the last one writing the host's
-        interleaved layout when it can."""
-        schedule = fuse_stages(self.stages) if fuse else list(self.stages)
-        last = schedule[-1].with_interleaved_output()
-        if last is not None:
-            schedule[-1] = last
-        return schedule
+        interleaved layout when it can. Made once per process for equal stages (:data:`SCHEDULES`,
+        keyed by their pickle), so every call of one camera and settings launches the same stage
+        objects, whose kernels, sources and constants are resolved once."""
+        key = _stages_key(self.stages, fuse)
+        schedule = SCHEDULES.get(key) if key is not None else None
+        if schedule is None:
+            schedule = fuse_stages(self.stages) if fuse else list(self.stages)
+            last = schedule[-1].with_interleaved_output()
+            if last is not None:
+                schedule[-1] = last
+            if key is not None:
+                SCHEDULES.put(key, schedule)
+        return list(schedule)
 
     @staticmethod
     def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int],
@@ -547,3 +569,60 @@ def device_limits(backend: str) -> DeviceLimits:
         return DeviceLimits()
     device = get_runtime().device
     return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
+
+
+class Memo:
+    """A small least-recently-used map of what a process works out once per camera and settings
+    (schedules, plans, metered tiles): ``get`` (None when absent) and ``put``; at most ``size``
+    entries, the oldest dropped first."""
+
+    def __init__(self, size: int = 32) -> None:
+        self.size = size
+        self._items: OrderedDict[Any, Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: Any) -> Any:
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+            return value
+
+    def put(self, key: Any, value: Any) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+SCHEDULES = Memo()
+"""Pipeline.schedule's fused stages, by the pickled stages (:func:`_stages_key`)."""
+
+PLANS = Memo()
+"""Pipeline.plan's TilePlans (frozen), by the pickled stages and the plan's arguments."""
+
+METERED = Memo()
+"""Pipeline.tile_cost's metered windows, by the kept name (also on disk: clisp.engine.disk_cache)."""
+
+
+def _stages_key(stages: list[Stage], fuse: bool) -> bytes | None:
+    """The memo key of ``stages`` (their pickle: every parameter, matrix and noise table) run with
+    ``fuse``, and the runtime's device; None when a stage does not pickle (nothing is memoised)."""
+    try:
+        return pickle.dumps((stages, fuse), protocol=4) + str(id(get_runtime())).encode()
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+
+
+def _pool_key(schedule: list[Stage], plan: TilePlan, gathered: bool, skipper: Any) -> Any:
+    """What a run's pooled buffers depend on (Runtime.trim_pool): the identity of its schedule's
+    stages (memoised per settings: Pipeline.schedule), its window shape and whether the device
+    gathers the windows; None (always trim) with a skipper, whose per-tile paths vary."""
+    if skipper is not None:
+        return None
+    return tuple(id(stage) for stage in schedule), plan.window_shape, plan.tile_h, plan.tile_w, gathered

@@ -267,46 +267,82 @@ class WindowPool:
                 self._free.append(entry[1])
 
 
-def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray],
-              compute: Callable[[Tile, np.ndarray, tuple[np.ndarray, int, int]], Any],
+def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray] | None,
+              compute: Callable[[Tile, np.ndarray | None, tuple[np.ndarray, int, int]], Any],
               sink: TileSink, progress: Callable[[Tile], None] | None = None,
               release: Callable[[np.ndarray], None] | None = None, read_ahead: int = READ_AHEAD) -> None:
     """Run every tile of ``plan`` in order, overlapping host I/O with the device.
 
-    ``read(tile)`` returns the tile's input window (called on a reader thread, ``read_ahead``
-    tiles ahead); ``compute(tile, window, target)`` enqueues the tile and returns an event whose
-    ``wait()`` means its pixels are in ``target`` and nothing reads its window any more (or None
-    when it finished synchronously). Tile n-1 is handed to ``sink.done`` (and ``progress``), and
-    its window to ``release``, only after tile n is enqueued, so the device always has the next
-    tile queued while the host writes.
+    ``read(tile)`` returns the tile's input window (called on the reader thread, ``read_ahead``
+    tiles ahead; for a plan of one tile on this thread, since nothing could overlap it); None where
+    the device gathers every window itself (compute then gets None). ``compute(tile, window,
+    target)`` enqueues the tile and returns an event whose ``wait()`` means its pixels are in
+    ``target`` and nothing reads its window any more (or None when it finished synchronously).
+    Tile n-1 is handed to ``sink.done`` (and ``progress``), and its window to ``release``, only
+    after tile n is enqueued, so the device always has the next tile queued while the host writes.
     """
     tiles = plan.tiles
-    with ThreadPoolExecutor(1, thread_name_prefix="clisp-read") as reader:
-        ahead = deque(reader.submit(read, t) for t in tiles[:read_ahead])
-        previous: tuple[Tile, Any, np.ndarray] | None = None
-        try:
-            for i, tile in enumerate(tiles):
-                with host_timer("wait for reader (main thread)"):
-                    window = ahead.popleft().result()
-                if i + read_ahead < len(tiles):
-                    ahead.append(reader.submit(read, tiles[i + read_ahead]))
-                event = compute(tile, window, sink.target(tile))
-                if previous is not None:
-                    _finish(*previous, sink, progress, release)
-                previous = (tile, event, window)
+    if read is None or len(tiles) == 1:
+        windows: Callable[[int], Any] = (lambda i: None) if read is None else (lambda i: read(tiles[i]))
+        _loop(tiles, windows, compute, sink, progress, release)
+        return
+    reader = _reader()
+    ahead = deque(reader.submit(read, t) for t in tiles[:read_ahead])
+
+    def window(i: int) -> np.ndarray:
+        with host_timer("wait for reader (main thread)"):
+            got = ahead.popleft().result()
+        if i + read_ahead < len(tiles):
+            ahead.append(reader.submit(read, tiles[i + read_ahead]))
+        return got
+    try:
+        _loop(tiles, window, compute, sink, progress, release)
+    except BaseException:
+        for future in ahead:
+            future.cancel()
+        for future in ahead:                       # none still writes into a window of this run
+            if not future.cancelled():
+                try:
+                    future.result()
+                except BaseException:
+                    pass
+        raise
+
+
+def _loop(tiles: Sequence[Tile], window: Callable[[int], Any], compute: Callable[..., Any], sink: TileSink,
+          progress: Callable[[Tile], None] | None, release: Callable[[np.ndarray], None] | None) -> None:
+    """run_tiles' loop: tile i's window (``window(i)``), its compute, then the previous tile's finish."""
+    previous: tuple[Tile, Any, Any] | None = None
+    for i, tile in enumerate(tiles):
+        w = window(i)
+        event = compute(tile, w, sink.target(tile))
+        if previous is not None:
             _finish(*previous, sink, progress, release)
-        except BaseException:
-            for future in ahead:
-                future.cancel()
-            raise
+        previous = (tile, event, w)
+    if previous is not None:
+        _finish(*previous, sink, progress, release)
 
 
-def _finish(tile: Tile, event: Any, window: np.ndarray, sink: TileSink,
+_READER: ThreadPoolExecutor | None = None
+_READER_LOCK = threading.Lock()
+
+
+def _reader() -> ThreadPoolExecutor:
+    """The process's reader thread (one, made on first use): starting a thread pool per run cost
+    0.7-0.8 ms of a 6 ms call."""
+    global _READER
+    with _READER_LOCK:
+        if _READER is None:
+            _READER = ThreadPoolExecutor(1, thread_name_prefix="clisp-read")
+        return _READER
+
+
+def _finish(tile: Tile, event: Any, window: np.ndarray | None, sink: TileSink,
             progress: Callable[[Tile], None] | None, release: Callable[[np.ndarray], None] | None) -> None:
     if event is not None:
         with host_timer("wait for device (main thread)"):
             event.wait()
-    if release is not None:
+    if release is not None and window is not None:
         release(window)
     sink.done(tile)
     if progress is not None:
