@@ -23,6 +23,7 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from .disk_cache import device_identity, entry_name, read_json, write_json
+from . import profile
 from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
@@ -267,6 +268,8 @@ class Pipeline:
                 return source.read(*plan.window_origin(t), win_h, win_w, self.cfa.period,
                                    windows.take((win_h, win_w), source.window_dtype))
 
+        recording = profile.active()
+        loop = recording.begin_loop() if recording is not None else None
         start = time.perf_counter()
         try:                                         # where the device gathers each window: no reads
             run_tiles(plan, None if whole is not None else read, compute, sink, progress,
@@ -274,9 +277,11 @@ class Pipeline:
         finally:
             if backend == "opencl":
                 get_runtime().queue.finish()          # no copy may still target the sink's arrays
+        seconds = time.perf_counter() - start
+        if loop is not None:
+            recording.end_loop(loop, seconds, len(plan.tiles))
         height, width = source.shape
-        self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
-                              (plan.tile_h, plan.tile_w))
+        self.stats = RunStats(seconds, height * width / 1e6, len(plan.tiles), (plan.tile_h, plan.tile_w))
         return self.stats
 
     def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,

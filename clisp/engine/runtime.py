@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import os
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
@@ -278,6 +279,8 @@ class Runtime:
         if self._meter is not None:
             self.program(name, defines, generated)              # built or noted: nothing launches
             return
+        recording = profile.active()
+        start = time.perf_counter() if recording is not None else 0.0
         params = self.signature(name, kernel_name, defines, generated)
         names = [p.name for p in params]
         missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
@@ -289,6 +292,8 @@ class Runtime:
             launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
         else:
             self.launch(kernel, width, height, *values)
+        if recording is not None:
+            recording.named(time.perf_counter() - start)
 
     # -- buffers --------------------------------------------------------------------------
     def acquire(self, channels: int, height: int, width: int, dtype: Any = np.float32) -> DeviceImage:
@@ -356,7 +361,8 @@ class Runtime:
         channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
-        _record("upload", self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False))
+        _record("upload", self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False),
+                array.nbytes, "upload")
         return image
 
     def interleave(self, image: DeviceImage) -> DeviceImage:
@@ -380,7 +386,8 @@ class Runtime:
         host = np.empty(shape, dtype=image.dtype) if into is None else into
         if host.shape != shape or not host.flags.c_contiguous:
             raise ValueError(f"download target {host.shape} does not match device image {shape}")
-        self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True)
+        _record("download", self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True),
+                host.nbytes, "download")
         return host
 
     def host_image(self, array: np.ndarray) -> DeviceImage | None:
@@ -451,7 +458,7 @@ class Runtime:
         event after which the host may read the array."""
         mapped, _ = self.cl.enqueue_map_buffer(self.queue, image.buffer, self.cl.map_flags.READ, 0,
                                                (image.nbytes,), np.uint8, is_blocking=False)
-        return _record("download", mapped.base.release(self.queue))
+        return _record("download", mapped.base.release(self.queue), image.nbytes, "in place")
 
     def download_region(self, image: DeviceImage, into: np.ndarray, y0: int, x0: int,
                         rows: int, cols: int) -> Any:
@@ -464,7 +471,7 @@ class Runtime:
             raise ValueError(f"download target {into.shape} {into.dtype} does not fit device image "
                              f"{image.height}x{image.width}x{image.channels} {image.dtype}")
         pixel = image.channels * np.dtype(image.dtype).itemsize
-        return _record("download", self.cl.enqueue_copy(
+        return _record_copy("download", rows * cols * pixel, self.cl.enqueue_copy(
             self.queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
             host_origin=(x0 * pixel, y0, 0), region=(cols * pixel, rows, 1),
             buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,)))
@@ -522,22 +529,34 @@ def _skipped_launch(*args: Any, **kwargs: Any) -> None:
     return None
 
 
-def _record(what: str, event: Any) -> Any:
-    """Hand ``event`` to the active profile (clisp.engine.profile), if any; returns it."""
+def _record(what: str, event: Any, nbytes: int = 0, transfer: str = "") -> Any:
+    """Hand ``event`` to the active profile (clisp.engine.profile), if any; returns it. A copy's
+    ``nbytes`` count under ``transfer`` ('upload', 'download', 'in place')."""
     active = profile.active()
     if active is not None:
-        active.record(what, event)
+        active.record(what, event, nbytes, transfer)
     return event
 
 
+def _record_copy(transfer: str, nbytes: int, event: Any) -> Any:
+    """:func:`_record` of a copy named after its ``transfer``."""
+    return _record(transfer, event, nbytes, transfer)
+
+
 class _ProfiledKernel:
-    """A kernel whose every launch is recorded in the active profile (profiling runtimes only)."""
+    """A kernel whose every launch is recorded in the active profile, with the host time of its
+    enqueue (profiling runtimes only)."""
 
     def __init__(self, kernel: Any, name: str) -> None:
         self.kernel, self.name = kernel, name
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        return _record(self.name, self.kernel(*args, **kwargs))
+        start = time.perf_counter()
+        event = self.kernel(*args, **kwargs)
+        active = profile.active()
+        if active is not None:
+            active.enqueued(time.perf_counter() - start)
+        return _record(self.name, event)
 
 
 WORK_GROUP = (64, 4)
