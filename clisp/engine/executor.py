@@ -250,7 +250,7 @@ class Pipeline:
         self._check(source.shape, backend)
         image = (int(source.shape[0]), int(source.shape[1]))     # the planner's alone; stages get it per window
         win_h, win_w = plan.window_shape
-        whole = self._device_source(source) if backend == "opencl" else None
+        whole = self._device_source(source, plan) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
             schedule = self.schedule(fuse)           # the pool holds what this plan's tiles need
             get_runtime().trim_pool(keep=_pool_key(schedule, plan, whole is not None, self.skipper))
@@ -276,7 +276,9 @@ class Pipeline:
                       release=None if whole is not None else windows.give)
         finally:
             if backend == "opencl":
-                get_runtime().queue.finish()          # no copy may still target the sink's arrays
+                get_runtime().finish()                # no copy may still target the sink's arrays
+                if whole is not None:
+                    get_runtime().release(whole)      # a staged mosaic's buffers back to their pools
         seconds = time.perf_counter() - start
         if loop is not None:
             recording.end_loop(loop, seconds, len(plan.tiles))
@@ -465,14 +467,19 @@ class Pipeline:
         return rt.host_image(host[y:y + h])
 
     @staticmethod
-    def _device_source(source: WindowSource) -> Any:
-        """A device image over the whole mosaic of an in-memory source that the device reads in
-        place (Runtime.host_source: a device sharing host memory, an aligned uint16 or float32
-        array), so that each tile's window is gathered by the device (Runtime.gather_window), not
-        copied by the host; None otherwise (files, discrete GPUs, other dtypes)."""
+    def _device_source(source: WindowSource, plan: TilePlan) -> Any:
+        """The whole mosaic of an in-memory source (uint16 or float32) on the device, so that each
+        tile's window is gathered there (Runtime.gather_window), not copied by the host; None where
+        the host reads the windows (files, other dtypes; see :func:`resident_policy`)."""
         if not isinstance(source, ArrayWindows) or source.data.dtype not in (np.uint16, np.float32):
             return None
-        return get_runtime().host_source(source.data)
+        rt = get_runtime()
+        in_place = rt.host_source(source.data)
+        if in_place is not None:
+            return in_place
+        if not resident_policy(rt, source.data.nbytes, len(plan.tiles)):
+            return None
+        return rt.resident_mosaic(source.data)
 
     def _compute_opencl(self, schedule: list[Stage], plan: TilePlan, t: Tile, window: np.ndarray | None,
                         target: tuple[np.ndarray, int, int], whole: Any = None,
@@ -513,7 +520,7 @@ class Pipeline:
             event = rt.settle_host_image(src)
         else:
             event = rt.download_region(src, host, y, x, t.h, t.w)
-            rt.release(src)                           # the in-order queue copies before reuse
+            rt.release(src, after=event)              # reused once the copy has read it
         rt.queue.flush()
         return event
 
@@ -631,3 +638,21 @@ def _pool_key(schedule: list[Stage], plan: TilePlan, gathered: bool, skipper: An
     if skipper is not None:
         return None
     return tuple(id(stage) for stage in schedule), plan.window_shape, plan.tile_h, plan.tile_w, gathered
+
+
+RESIDENT_SHARE = 0.25
+"""Largest share of a discrete device's global memory that a whole mosaic may take to stay on the
+device for a run (Runtime.resident_mosaic); its tiles' buffers keep the rest of DEVICE_SHARE. A
+24 MP uint16 mosaic is 48 MB: 0.06 % of an 80 GB GPU."""
+
+
+def resident_policy(rt: Any, nbytes: int, tiles: int) -> bool:
+    """Whether a run copies an in-memory mosaic the device cannot read in place (not aligned, or a
+    discrete device) to the device once (Runtime.resident_mosaic) instead of the host gathering
+    each tile's window: on a discrete device when it fits RESIDENT_SHARE of its memory (one upload
+    from pinned memory, then windows gathered on the device); on a device sharing host memory only
+    for a plan of one tile, where the host would copy the same pixels anyway and nothing overlaps
+    the copy (with several tiles the reader thread gathers windows while the device runs)."""
+    if rt.host_unified:
+        return tiles == 1
+    return nbytes <= RESIDENT_SHARE * int(rt.device.global_mem_size)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import os
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -144,6 +145,7 @@ class DeviceImage:
     interleaved: bool = False
     capacity: int = 0           # bytes of ``buffer`` (at least nbytes: pooled buffers are reused larger)
     host: np.ndarray | None = None   # the host array that is the buffer's storage (Runtime.host_image)
+    staging: np.ndarray | None = None   # a staging buffer it was filled from (Runtime.resident_mosaic)
 
     @property
     def nbytes(self) -> int:
@@ -170,16 +172,45 @@ class Runtime:
         self._meter: BufferPool | None = None
         self._pool_for: Any = None               # trim_pool's ``keep`` of the last run
         self.host_unified = bool(self.device.host_unified_memory)
+        self._transfer_queue: Any = None
+        self.staging = HostStaging(self)
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
         kernels are re-wrapped so that their launches are recorded (clisp.engine.profile)."""
         if not self.profiling:
-            self.queue.finish()
+            self.finish()
             self.queue = self.cl.CommandQueue(self.context,
                                               properties=self.cl.command_queue_properties.PROFILING_ENABLE)
+            self._transfer_queue = None
             self.profiling = True
             self._kernels.clear()
+
+    @property
+    def transfer_queue(self) -> Any:
+        """The queue of uploads and downloads between tiles: on a device that shares host memory
+        the compute queue itself (a copy is the same cores' memcpy); on a discrete device a second
+        in-order queue, so that a window's upload and a result's download overlap the kernels of
+        another tile (the DMA engines run beside the compute units). Kernels are only ever
+        enqueued on :attr:`queue`, from one thread: a ``cl.Kernel``'s arguments are state, and one
+        kernel object shared by two queues or threads would race."""
+        if self.host_unified:
+            return self.queue
+        if self._transfer_queue is None:
+            props = self.cl.command_queue_properties.PROFILING_ENABLE if self.profiling else 0
+            self._transfer_queue = self.cl.CommandQueue(self.context, properties=props)
+        return self._transfer_queue
+
+    def finish(self) -> None:
+        """Wait until every command of both queues has completed."""
+        self.queue.finish()
+        if self._transfer_queue is not None:
+            self._transfer_queue.finish()
+
+    def _after(self, event: Any) -> None:
+        """Make the compute queue's next commands wait for ``event`` (of the transfer queue)."""
+        if self.transfer_queue is not self.queue:
+            self.cl.enqueue_barrier(self.queue, wait_for=[event])
 
     def describe(self) -> str:
         """One line naming platform and device, e.g. for ``clisp info --device``."""
@@ -302,13 +333,24 @@ class Runtime:
         nbytes = max(1, channels * height * width * np.dtype(dtype).itemsize)
         pool = self._meter if self._meter is not None else self.pool
         buf, capacity = pool.acquire(nbytes)
+        pending = pool.pending.pop(id(buf), None)
+        if pending is not None:                  # a download of the transfer queue still reads it
+            self._after(pending)
         return DeviceImage(buf, channels, height, width, np.dtype(dtype), capacity=capacity)
 
-    def release(self, image: DeviceImage) -> None:
-        """Return a device image's buffer to the pool (a host image's is not pooled: dropped)."""
+    def release(self, image: DeviceImage, after: Any = None) -> None:
+        """Return a device image's buffer to the pool (a host image's is not pooled: dropped; a
+        staged mosaic gives its staging buffer back). ``after``: an event of the transfer queue
+        that still reads the buffer (a download): whoever acquires it next waits for it on the
+        device (:meth:`acquire`), never on the host."""
+        if image.staging is not None:
+            self.staging.give(image.staging)
+            image.staging = None
         if image.host is not None:
             return
         pool = self._meter if self._meter is not None else self.pool
+        if after is not None and self.transfer_queue is not self.queue:
+            pool.pending[id(image.buffer)] = after
         pool.release(image.buffer, image.capacity)
 
     def trim_pool(self, keep: Any = None) -> None:
@@ -319,7 +361,7 @@ class Runtime:
         call then reuses its buffers instead of faulting in fresh pages)."""
         if keep is not None and keep == self._pool_for:
             return
-        self.queue.finish()
+        self.finish()
         self.pool.trim()
         self._pool_for = keep
 
@@ -361,8 +403,38 @@ class Runtime:
         channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
-        _record("upload", self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False),
-                array.nbytes, "upload")
+        event = _record_copy("upload", array.nbytes,
+                             self.cl.enqueue_copy(self.transfer_queue, image.buffer, array, is_blocking=False))
+        self._after(event)
+        return image
+
+    def resident_mosaic(self, array: np.ndarray) -> DeviceImage:
+        """The whole H x W mosaic ``array`` (uint16 or float32) on the device, for each tile's
+        window to be gathered there (:meth:`gather_window`): read in place where the device shares
+        host memory and the array is aligned (:meth:`host_source`); else copied once into a
+        staging buffer (:class:`HostStaging`: page-aligned, or pinned on a discrete device, and
+        reused across calls and files), which a shared-memory device then reads in place and a
+        discrete one receives in one upload of the transfer queue. :meth:`release` gives the
+        staging buffer back; ``array`` may change once this returns."""
+        whole = self.host_source(array)
+        if whole is not None:
+            return whole
+        staged = self.staging.take(array.nbytes)
+        view = staged[:array.nbytes].view(array.dtype).reshape(array.shape)
+        with profile.host_timer("stage the mosaic (host copy)", array.nbytes):
+            np.copyto(view, array)
+        if self.host_unified:
+            image = self._host_plane(view)
+            if image is None:
+                self.staging.give(staged)
+                raise RuntimeError("a staging buffer the device does not read in place")
+        else:
+            image = self.acquire(1, array.shape[0], array.shape[1], array.dtype)
+            event = _record_copy("upload", array.nbytes,
+                                 self.cl.enqueue_copy(self.transfer_queue, image.buffer, view, is_blocking=False))
+            self._after(event)
+            self.transfer_queue.flush()
+        image.staging = staged
         return image
 
     def interleave(self, image: DeviceImage) -> DeviceImage:
@@ -471,16 +543,71 @@ class Runtime:
             raise ValueError(f"download target {into.shape} {into.dtype} does not fit device image "
                              f"{image.height}x{image.width}x{image.channels} {image.dtype}")
         pixel = image.channels * np.dtype(image.dtype).itemsize
-        return _record_copy("download", rows * cols * pixel, self.cl.enqueue_copy(
-            self.queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
+        queue = self.transfer_queue
+        wait = None if queue is self.queue else [self.cl.enqueue_marker(self.queue)]   # after the tile's kernels
+        self.queue.flush()
+        event = _record_copy("download", rows * cols * pixel, self.cl.enqueue_copy(
+            queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
             host_origin=(x0 * pixel, y0, 0), region=(cols * pixel, rows, 1),
-            buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,)))
+            buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,), wait_for=wait))
+        queue.flush()
+        return event
 
     def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
         """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
         lx, ly = LOCAL_SIZE
         gsize = ((width + lx - 1) // lx * lx, (height + ly - 1) // ly * ly)
         kernel(self.queue, gsize, LOCAL_SIZE, *args)
+
+
+class HostStaging:
+    """Host buffers that hand data to the device and back: page-aligned arrays on a device that
+    shares host memory (it reads them in place), pinned memory on a discrete device (buffers made
+    with ALLOC_HOST_PTR and mapped once: the DMA engine reads and writes them at the bus's speed,
+    where a pageable array is first copied by the driver). Reused across tiles, calls and files:
+    ``take(nbytes)`` hands out the smallest free buffer of at least ``nbytes`` (uint8, possibly
+    longer), else a new one; ``give`` takes it back. Nothing handed to a caller is ever a staging
+    buffer: a later call would overwrite it."""
+
+    def __init__(self, rt: "Runtime") -> None:
+        self._rt = rt
+        self._free: list[np.ndarray] = []
+        self._keep: dict[int, Any] = {}          # id(array) -> its pinned cl.Buffer (kept alive, mapped)
+        self._lock = threading.Lock()
+
+    def take(self, nbytes: int) -> np.ndarray:
+        with self._lock:
+            fits = [b for b in self._free if b.size >= nbytes]
+            if fits:
+                best = min(fits, key=len)
+                self._free = [b for b in self._free if b is not best]
+                return best
+        return self._new(max(int(nbytes), 1))
+
+    def give(self, array: np.ndarray) -> None:
+        with self._lock:
+            if all(b is not array for b in self._free):
+                self._free.append(array)
+
+    def trim(self) -> None:
+        """Drop the free buffers (their pinned memory goes back to the driver)."""
+        with self._lock:
+            for array in self._free:
+                self._keep.pop(id(array), None)
+            self._free = []
+
+    def _new(self, nbytes: int) -> np.ndarray:
+        rt = self._rt
+        if rt.host_unified:
+            from .streaming import aligned_empty     # deferred: streaming imports the runtime's users
+            return aligned_empty(nbytes)
+        cl = rt.cl
+        buffer = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR, nbytes)
+        array, _ = cl.enqueue_map_buffer(rt.transfer_queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE, 0,
+                                         (nbytes,), np.uint8, is_blocking=True)
+        with self._lock:
+            self._keep[id(array)] = buffer
+        return array
 
 
 class BufferPool:
@@ -497,6 +624,7 @@ class BufferPool:
         self._buffers: list[Any] = []
         self.created = 0
         self.largest = 0
+        self.pending: dict[int, Any] = {}    # id(buffer) -> an event that still reads it (Runtime.release)
 
     def acquire(self, nbytes: int) -> tuple[Any, int]:
         """(buffer, its size in bytes) of at least ``nbytes``."""
@@ -521,7 +649,7 @@ class BufferPool:
             release = getattr(buffer, "release", None)
             if release is not None:
                 release()
-        self._sizes, self._buffers = [], []
+        self._sizes, self._buffers, self.pending = [], [], {}
 
 
 def _skipped_launch(*args: Any, **kwargs: Any) -> None:
