@@ -399,6 +399,28 @@ def test_tone_curve_to_16_bit_codes(rt):
         assert diff.max() <= 1 and np.mean(diff > 0) < 0.05
 
 
+@pytest.mark.parametrize("quantize", [False, True])
+def test_tone_curve_eight_per_item_equals_the_scalar_kernel(rt, quantize):
+    """srgb_encode8 (eight pixels per work-item, the interleaved output on CPU devices) gives
+    exactly srgb_encode's values: every exponent of [2^-9, 1], the linear segment, values past 1
+    and below 0, on rows whose width is not a multiple of 8 (the last work-item overlaps)."""
+    from clisp.modules.colour import stage as colour_stage
+    if not colour_stage.eight_per_item(rt):
+        pytest.skip("srgb_encode8 runs on CPU devices only")
+    bits = np.arange(np.float32(2.0 ** -9).view(np.uint32), np.float32(1.0).view(np.uint32) + 1, 97,
+                     dtype=np.uint32)
+    x = np.concatenate([bits.view(np.float32), np.linspace(-0.5, 0.0031308, 1001, dtype=np.float32),
+                        np.array([0.0, 1.0, 1.5, 7.0, -0.0, 2.0 ** -9], dtype=np.float32)])
+    x = np.resize(x, (3, 301, 203)).astype(np.float32)
+    src = rt.upload(x)
+    planar = ToneCurve(quantize=quantize).enqueue(rt, src, (0, 0))
+    eight = ToneCurve(quantize=quantize, interleaved=True).enqueue(rt, src, (0, 0))
+    a, b = rt.download(planar), rt.download(eight)
+    for image in (src, planar, eight):
+        rt.release(image)
+    np.testing.assert_array_equal(b, np.moveaxis(a, 0, -1))
+
+
 def test_colour_references():
     x = random_rgb(seed=61).astype(np.float64)
     np.testing.assert_allclose(ColourMatrix(P_LMS).reference(x, (0, 0)), x @ P_LMS.T, rtol=1e-13)

@@ -65,9 +65,16 @@ def camera_neutral(colour_matrix: np.ndarray, target: np.ndarray | None = None) 
 
 def srgb_source(rt: Runtime) -> str:
     """Program text that defines ``encode_srgb`` and ``quantize16`` (the polynomial's constants, then
-    clisp/modules/colour/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`."""
-    constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
-    return "\n".join(constants + [rt.header("srgb.h")])
+    clisp/modules/colour/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`. Made once per
+    process (it read the header on every tile)."""
+    global _SRGB_SOURCE
+    if _SRGB_SOURCE is None:
+        constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
+        _SRGB_SOURCE = "\n".join(constants + [rt.header("srgb.h")])
+    return _SRGB_SOURCE
+
+
+_SRGB_SOURCE: str | None = None
 
 
 @dataclass
@@ -97,9 +104,19 @@ class ToneCurve(Stage):
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
                 out: DeviceImage | None = None) -> DeviceImage:
         defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
-        kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
         dst = out if out is not None else rt.acquire(3, src.height, src.width, self.out_dtype)
-        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
-                  np.int32(src.width), np.int32(src.height))
+        if self.interleaved and src.width >= 8 and eight_per_item(rt):
+            kernel = rt.kernel("colour", "srgb_encode8", defines, srgb_source(rt))
+            rt.launch(kernel, -(-src.width // 8), src.height, src.buffer, dst.buffer, src.width, src.height)
+        else:
+            kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
+            launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, src.width, src.height)
         dst.interleaved = self.interleaved
         return dst
+
+
+def eight_per_item(rt: Runtime) -> bool:
+    """Whether the interleaved tone curve takes eight pixels per work-item (kernel srgb_encode8): on
+    CPU devices, where PoCL scatters a scalar kernel's interleaved stores (24 MP to 16-bit codes:
+    177 MP/s scalar; README.md); GPUs keep one pixel per lane (coalesced by the hardware)."""
+    return bool(rt.device.type & rt.cl.device_type.CPU)
