@@ -28,7 +28,8 @@ from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
 from .streaming import READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
-from .tiling import DEVICE_SHARE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
+from .tiling import (DEVICE_SHARE, GPU_TARGET_TILE_PIXELS, TARGET_TILE_PIXELS, DeviceLimits, Tile, TileNeeds,
+                     TilePlan, make_plan)
 
 DEFAULT_BUDGET = 2**30
 """Memory budget in bytes. ``clisp process --mem`` / :func:`process_file`: the peak resident set
@@ -152,13 +153,13 @@ class Pipeline:
 
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
+        limits = device_limits(backend)
         key = _stages_key(self.stages, True)
         if key is not None:
-            key += repr((tuple(shape), np.dtype(raw_dtype).str, tile, budget, backend, sink_bands)).encode()
+            key += repr((tuple(shape), np.dtype(raw_dtype).str, tile, budget, backend, sink_bands, limits)).encode()
             plan = PLANS.get(key)
             if plan is not None:
                 return plan
-        limits = device_limits(backend)
         needs = self.needs(raw_dtype)
         out_h, out_w = self.output_shape(shape)
         if backend == "opencl":
@@ -579,8 +580,10 @@ def device_limits(backend: str) -> DeviceLimits:
     """The OpenCL device's memory limits (none for the NumPy reference)."""
     if backend != "opencl":
         return DeviceLimits()
-    device = get_runtime().device
-    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
+    rt = get_runtime()
+    device = rt.device
+    target = TARGET_TILE_PIXELS if rt.host_unified else GPU_TARGET_TILE_PIXELS
+    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size), target)
 
 
 class Memo:

@@ -114,3 +114,17 @@ def test_resident_policy() -> None:
     gpu = SimpleNamespace(host_unified=False, device=SimpleNamespace(global_mem_size=2**34))
     assert resident_policy(shared, 48 << 20, 1) and not resident_policy(shared, 48 << 20, 13)
     assert resident_policy(gpu, 48 << 20, 13) and not resident_policy(gpu, int(RESIDENT_SHARE * 2**34) + 1, 1)
+
+
+def test_plans_per_device_kind(discrete) -> None:
+    """A discrete device plans a 24 MP raw of the quality path as one window (GPU_TARGET_TILE_PIXELS,
+    its memory permitting); a device sharing host memory as bands (TARGET_TILE_PIXELS, or more
+    rows where the halo asks for them: tiling.HALO_ROWS_FACTOR)."""
+    from clisp.engine.tiling import halo_target_pixels
+    raw = make_raw("lms", shape=(64, 64))
+    pipeline = build_pipeline(raw, preset="quality")
+    gpu = pipeline.plan((4000, 6000), np.uint16, budget=8 * 2**30)
+    discrete.host_unified = True
+    cpu = pipeline.plan((4000, 6000), np.uint16, budget=8 * 2**30)
+    assert len(gpu.tiles) == 1
+    assert len(cpu.tiles) > 4 and np.prod(cpu.window_shape) <= 1.1 * halo_target_pixels(6000, pipeline.halo)
