@@ -25,7 +25,7 @@ from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
                                            space_for)
-from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
+from .modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_ri.stage import DemosaicRI
 from .modules.demosaic_bilinear.stage import DemosaicBilinear
@@ -76,7 +76,7 @@ raw with clipping spread over a fifth of it). Explicit options override."""
 DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
 """Largest ``--exposure`` in EV either way (a gain of 1024: past it a raw's quantisation shows)."""
-OUTPUTS = ("linear", "srgb", "srgb16")
+OUTPUTS = ("linear", "srgb", "srgb16", "srgb8")
 HALF_SIZE_DOWNSCALE = 2
 """Raw pixels per output pixel along each axis with ``--half-size``."""
 HALF_SIZE_HIGHLIGHTS = "clamp"
@@ -139,7 +139,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     WB pass 2, tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
-    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``demosaic``: a name
+    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG); ``'srgb8'`` to 8-bit
+    codes, uint8 (for JPEG: the device writes the file's bytes). ``demosaic``: a name
     (DEMOSAICS; None = the preset's) or a configured demosaic stage, used as given. ``denoise``: None =
     the preset's depth, False = off, True = on (the preset's depth, at least 1 level), or explicit
     ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
@@ -208,8 +209,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     output_gains = gains2 * 2.0 ** exposure
     if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(output_gains))
-    if output in ("srgb", "srgb16"):
-        stages.append(ToneCurve(quantize=output == "srgb16"))
+    tone = tone_curve_for(output)
+    if tone is not None:
+        stages.append(tone)
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
@@ -430,7 +432,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     compression = compression or DEFAULT_COMPRESSION
     attributes = output_attributes(raw)
     kind = output_kind(path)
-    encoding = "srgb16" if kind == "srgb" else kind
+    encoding = encoded_output(path) if kind == "srgb" else kind
     scale = HALF_SIZE_DOWNSCALE if options.get("half_size") else 1
     region = scaled_crop(crop_of(raw), scale, raw.shape) if crop else None
     upright = output_size(raw, crop, options.get("half_size", False))
@@ -479,16 +481,27 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 
+def encoded_output(path: str | Path) -> str:
+    """The pipeline output an sRGB-encoded file takes: 8-bit codes for JPEG ('srgb8'), 16-bit codes
+    for TIFF and PNG ('srgb16').
+
+    >>> encoded_output("a.JPG"), encoded_output("b.tif")
+    ('srgb8', 'srgb16')
+    """
+    from .io.imageio import JPEG_EXTENSIONS       # deferred, as in process_file
+    return "srgb8" if Path(path).suffix.lower() in JPEG_EXTENSIONS else "srgb16"
+
+
 def _write_resized(path: str | Path, image: np.ndarray, target: tuple[int, int], encoding: str, backend: str,
                    compression: str, attributes: dict) -> None:
     """Write the linear H x W x 3 ``image`` resized to ``target`` (height, width) in ``encoding``
-    ('linear', 'srgb16'): on the device, band by band into the file; the NumPy reference (and
+    ('linear', 'srgb16', 'srgb8'): on the device, band by band into the file; the NumPy reference (and
     ToneCurve's) for ``backend`` 'reference'."""
     from .io.imageio import ImageWriter, write_image   # deferred, as in process_file
     if backend != "opencl":
         pixels = resize_reference(image, *target)
         if encoding != "linear":
-            pixels = ToneCurve(quantize=encoding == "srgb16").reference(pixels, (0, 0))
+            pixels = tone_curve_for(encoding).reference(pixels, (0, 0))
         write_image(path, pixels, compression=compression, attributes=attributes)
         return
     with ImageWriter(path, target[1], target[0], 3, compression, attributes) as writer:

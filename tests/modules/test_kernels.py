@@ -399,22 +399,42 @@ def test_tone_curve_to_16_bit_codes(rt):
         assert diff.max() <= 1 and np.mean(diff > 0) < 0.05
 
 
-@pytest.mark.parametrize("quantize", [False, True])
-def test_tone_curve_eight_per_item_equals_the_scalar_kernel(rt, quantize):
+def test_tone_curve_to_8_bit_codes(rt):
+    """ToneCurve(quantize=True, bits=8), JPEG's output: the nearest 8-bit code of the encoded value,
+    interleaved or not; the OpenCL codes equal the reference's but where the encoded value lies
+    within the curve's error of a half code."""
+    x = random_rgb(seed=63)
+    stage = ToneCurve(quantize=True, bits=8)
+    ref = stage.reference(x, (0, 0))
+    assert ref.dtype == np.uint8 and ref.max() == 255 and ref.min() == 0
+    for interleaved in (False, True):
+        s = stage.with_interleaved_output() if interleaved else stage
+        src = to_device(rt, x)
+        dst = s.enqueue(rt, src, (0, 0))
+        assert dst.dtype == np.uint8 and dst.interleaved == interleaved
+        got = from_device(rt, dst)
+        rt.release(src)
+        rt.release(dst)
+        diff = np.abs(got.astype(np.int32) - ref)
+        assert diff.max() <= 1 and np.mean(diff > 0) < 0.001
+
+
+@pytest.mark.parametrize("quantize, bits", [(False, 16), (True, 16), (True, 8)])
+def test_tone_curve_eight_per_item_equals_the_scalar_kernel(rt, quantize, bits):
     """srgb_encode8 (eight pixels per work-item, the interleaved output on CPU devices) gives
     exactly srgb_encode's values: every exponent of [2^-9, 1], the linear segment, values past 1
     and below 0, on rows whose width is not a multiple of 8 (the last work-item overlaps)."""
     from clisp.modules.colour import stage as colour_stage
     if not colour_stage.eight_per_item(rt):
         pytest.skip("srgb_encode8 runs on CPU devices only")
-    bits = np.arange(np.float32(2.0 ** -9).view(np.uint32), np.float32(1.0).view(np.uint32) + 1, 97,
+    patterns = np.arange(np.float32(2.0 ** -9).view(np.uint32), np.float32(1.0).view(np.uint32) + 1, 97,
                      dtype=np.uint32)
-    x = np.concatenate([bits.view(np.float32), np.linspace(-0.5, 0.0031308, 1001, dtype=np.float32),
+    x = np.concatenate([patterns.view(np.float32), np.linspace(-0.5, 0.0031308, 1001, dtype=np.float32),
                         np.array([0.0, 1.0, 1.5, 7.0, -0.0, 2.0 ** -9], dtype=np.float32)])
     x = np.resize(x, (3, 301, 203)).astype(np.float32)
     src = rt.upload(x)
-    planar = ToneCurve(quantize=quantize).enqueue(rt, src, (0, 0))
-    eight = ToneCurve(quantize=quantize, interleaved=True).enqueue(rt, src, (0, 0))
+    planar = ToneCurve(quantize=quantize, bits=bits).enqueue(rt, src, (0, 0))
+    eight = ToneCurve(quantize=quantize, interleaved=True, bits=bits).enqueue(rt, src, (0, 0))
     a, b = rt.download(planar), rt.download(eight)
     for image in (src, planar, eight):
         rt.release(image)

@@ -17,10 +17,13 @@ __kernel void apply_matrix3(__global const float *restrict src, __global float *
 }
 
 /* srgb_encode: clip to [0, 1] and sRGB-encode (encode_srgb, clisp/modules/colour/srgb.h, prepended by the host)
- * the 3 planes of a linear image. Halo 0. QUANTIZE (define): 1 writes 16-bit codes (ushort),
- * 0 float. INTERLEAVED (define): 1 writes H x W x 3 (the host layout), 0 three planes. */
+ * the 3 planes of a linear image. Halo 0. QUANTIZE (define): 1 writes codes of CODE_BITS (define:
+ * 16, ushort, or 8, uchar), 0 float. INTERLEAVED (define): 1 writes H x W x 3 (the host layout), 0 three planes. */
 #ifdef SRGB_M0
-#if QUANTIZE
+#if QUANTIZE && CODE_BITS == 8
+typedef uchar out_t;
+#define STORE(v) quantize8(v)
+#elif QUANTIZE
 typedef ushort out_t;
 #define STORE(v) quantize16(v)
 #else
@@ -54,7 +57,10 @@ __kernel void srgb_encode(__global const float *restrict src, __global out_t *re
  * work-item of a row starts at width - 8 (it rewrites a few pixels with the same values), so
  * width >= 8. QUANTIZE as srgb_encode. */
 typedef float8 float8_u __attribute__((aligned(4)));
-#if QUANTIZE
+#if QUANTIZE && CODE_BITS == 8
+typedef uchar8 out8_u __attribute__((aligned(1)));
+#define STORE8(v) quantize8x8(v)
+#elif QUANTIZE
 typedef ushort8 out8_u __attribute__((aligned(2)));
 #define STORE8(v) quantize16x8(v)
 #else

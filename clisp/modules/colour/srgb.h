@@ -72,3 +72,20 @@ inline ushort8 quantize16x8(const float8 v)
     const uint8 code = as_uint8(fl + magic) - as_uint8(magic);
     return (ushort8)(code.s0, code.s1, code.s2, code.s3, code.s4, code.s5, code.s6, code.s7);
 }
+
+/* quantize8 / quantize8x8: an encoded value (one, eight) to the nearest 8-bit code, as quantize16
+ * and quantize16x8 (JPEG output: the device writes the file's bytes, a third of float's). */
+inline uchar quantize8(const float v)
+{
+    return (uchar)(int)(v * 255.0f + 0.5f);
+}
+
+inline uchar8 quantize8x8(const float8 v)
+{
+    const float8 magic = (float8)12582912.0f;
+    const float8 t = v * 255.0f + 0.5f;
+    const float8 r = (t + magic) - magic;
+    const float8 fl = r > t ? r - 1.0f : r;
+    const uint8 code = as_uint8(fl + magic) - as_uint8(magic);
+    return (uchar8)(code.s0, code.s1, code.s2, code.s3, code.s4, code.s5, code.s6, code.s7);
+}
