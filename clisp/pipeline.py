@@ -476,9 +476,20 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
             ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
             (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
              BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
-                      plan, width, channels, pipeline.out_dtype)) as sink, bar as update:
+                      plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
+            bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
     return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
+
+
+def _band_staging(backend: str) -> Any:
+    """Where process_file's output bands come from: the runtime's pinned staging buffers on a
+    discrete device (the downloads' destination, reused across files); None (plain arrays) on a
+    device sharing host memory, whose last kernel writes into the band itself."""
+    if backend != "opencl":
+        return None
+    rt = get_runtime()
+    return None if rt.host_unified else rt.staging
 
 
 def encoded_output(path: str | Path) -> str:

@@ -155,13 +155,17 @@ class BandSink:
     to ``write(y0, rows)`` (rows: h x W x C of ``dtype``) on a writer thread, in order.
 
     ``buffers`` band buffers rotate, so writing band b overlaps computing band b+1; a new band
-    waits for the write of the band that last used its buffer. Use as a context manager: leaving
+    waits for the write of the band that last used its buffer. ``staging``: a HostStaging
+    (Runtime.staging) to take the band buffers from and give them back to on leaving: on a discrete
+    device pinned memory, which the downloads fill at the bus's speed, reused across files. Use as a context manager: leaving
     waits for the writes and re-raises their errors.
     """
 
     def __init__(self, write: Callable[[int, np.ndarray], None], plan: TilePlan, width: int,
-                 channels: int = 3, dtype: Any = np.float32, buffers: int = 2) -> None:
+                 channels: int = 3, dtype: Any = np.float32, buffers: int = 2, staging: Any = None) -> None:
         self.write = write
+        self.staging = staging                  # where band buffers come from (Runtime.staging), if given
+        self._taken: list[np.ndarray] = []      # the staging buffers taken
         self.dtype = np.dtype(dtype)
         self.shape = (plan.tile_h, width, channels)
         self.band_h = plan.tile_h
@@ -182,6 +186,10 @@ class BandSink:
                     future.result()
         finally:
             self.executor.shutdown(wait=True, cancel_futures=True)
+            if self.staging is not None:              # nothing writes them any more: back to the pool
+                for taken in self._taken:
+                    self.staging.give(taken)
+                self._taken, self.buffers = [], [None] * len(self.buffers)
 
     def _slot(self, tile: Tile) -> int:
         return tile.y0 // self.band_h % len(self.buffers)
@@ -193,7 +201,12 @@ class BandSink:
                 self.pending[slot].result()                  # that buffer's band is written
             self.pending[slot] = None
         if self.buffers[slot] is None:
-            self.buffers[slot] = np.empty(self.shape, dtype=self.dtype)
+            if self.staging is None:
+                self.buffers[slot] = np.empty(self.shape, dtype=self.dtype)
+            else:                                       # pinned memory, reused across files (a GPU's downloads)
+                nbytes = int(np.prod(self.shape)) * self.dtype.itemsize
+                self._taken.append(self.staging.take(nbytes))
+                self.buffers[slot] = self._taken[-1][:nbytes].view(self.dtype).reshape(self.shape)
         return self.buffers[slot], 0, tile.x0
 
     def done(self, tile: Tile) -> None:

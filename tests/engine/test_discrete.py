@@ -128,3 +128,19 @@ def test_plans_per_device_kind(discrete) -> None:
     cpu = pipeline.plan((4000, 6000), np.uint16, budget=8 * 2**30)
     assert len(gpu.tiles) == 1
     assert len(cpu.tiles) > 4 and np.prod(cpu.window_shape) <= 1.1 * halo_target_pixels(6000, pipeline.halo)
+
+
+def test_band_buffers_are_pinned_and_reused_across_files(tmp_path: Path, discrete) -> None:
+    """On a discrete device process_file's output bands come from the runtime's staging buffers and
+    go back to them: a second file takes the same ones (pinned memory is allocated once)."""
+    raw = make_raw("bayer", shape=(160, 200))
+    made = []
+    new = discrete.staging._new
+    discrete.staging._new = lambda n: made.append(n) or new(n)
+    try:
+        process_file(raw, tmp_path / "a.tif", tile=64, preset="fast")
+        first = len(made)
+        process_file(raw, tmp_path / "b.tif", tile=64, preset="fast")
+    finally:
+        del discrete.staging._new
+    assert first >= 2 and len(made) == first
