@@ -19,7 +19,7 @@ from .io.exif import output_attributes
 from .io.rawfile import read_raw
 from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .engine.executor import DEFAULT_BUDGET, Pipeline, RunStats, device_limits
-from .engine.runtime import get_runtime
+from .engine.runtime import DEVICE_LOCK, get_runtime
 from .engine.stage import Stage
 from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
@@ -384,8 +384,9 @@ def _crop_image(image: np.ndarray, crop: tuple[int, int, int, int] | None) -> np
 def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "opencl", crop: bool = True,
                        **options: Any) -> tuple[np.ndarray, RunStats]:
     """:func:`process` for a RawImage, also returning the run's timing."""
-    pipeline = build_pipeline(raw, **options)
-    image = pipeline.run(raw.data, tile=tile, backend=backend)
+    with DEVICE_LOCK:                                # one thread at a time builds and runs on the device
+        pipeline = build_pipeline(raw, **options)
+        image = pipeline.run(raw.data, tile=tile, backend=backend)
     image = _crop_image(image, output_crop(crop_of(raw), pipeline, raw.shape) if crop else None)
     image = np.ascontiguousarray(orient(image, int(raw.metadata.get("flip", 0) or 0)))
     return image, pipeline.stats
@@ -428,7 +429,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     output carries the raw's metadata (clisp.io.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
-    from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image   # deferred: 2 ms of start-up
+    from .io.imageio import DEFAULT_COMPRESSION, output_kind   # deferred: 2 ms of start-up
     compression = compression or DEFAULT_COMPRESSION
     attributes = output_attributes(raw)
     kind = output_kind(path)
@@ -437,6 +438,39 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     region = scaled_crop(crop_of(raw), scale, raw.shape) if crop else None
     upright = output_size(raw, crop, options.get("half_size", False))
     target = upright if resize is None else resized_size(*upright, check_long_edge(resize))
+    resized = target != upright
+    flip = int(raw.metadata.get("flip", 0) or 0)
+    in_memory = bool(flip) or (resized and backend != "opencl")
+    hold = DeviceHold()               # the device's part; decoding and writing run outside (DEVICE_LOCK)
+    try:
+        return _process_locked(raw, path, tile, budget, backend, progress, compression, explain, region,
+                               upright, target, encoding, attributes, flip, in_memory, options, hold)
+    finally:
+        hold.release()
+
+
+class DeviceHold:
+    """This thread's hold of DEVICE_LOCK (taken when made), given up by :meth:`release` (once; later
+    calls do nothing), so that a function can end its device work before its ``with`` blocks end."""
+
+    def __init__(self) -> None:
+        DEVICE_LOCK.acquire()
+        self.held = True
+
+    def release(self) -> None:
+        if self.held:
+            self.held = False
+            DEVICE_LOCK.release()
+
+
+def _process_locked(raw: RawImage, path: str | Path, tile: int | None, budget: int, backend: str, progress: bool,
+                    compression: str, explain: dict | None, region: tuple[int, int, int, int] | None,
+                    upright: tuple[int, int], target: tuple[int, int], encoding: str, attributes: dict,
+                    flip: int, in_memory: bool, options: dict, hold: DeviceHold) -> tuple[tuple[int, int], RunStats]:
+    """:func:`process_file` from the pipeline on, called with ``hold`` of DEVICE_LOCK; a plain file
+    (no resize, no rotation) gives it up once its tile loop has ended, so that its last bands are
+    written and the file closed while another thread's file runs on the device."""
+    from .io.imageio import ImageWriter, write_image   # deferred: 2 ms of start-up
     resized = target != upright
     pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
     notes = []                                                           # what was applied, in the file
@@ -452,8 +486,6 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
         attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
     if explain is not None:                       # the caller reads the plan after the run
         explain["pipeline"] = pipeline
-    flip = int(raw.metadata.get("flip", 0) or 0)
-    in_memory = bool(flip) or (resized and backend != "opencl")
     resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
         if resized and not in_memory else None
     plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
@@ -466,6 +498,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
         if resized:
             _write_resized(path, oriented, target, encoding, backend, compression, attributes)
         else:
+            hold.release()
             write_image(path, oriented, compression=compression, attributes=attributes)
         return target, pipeline.stats
     (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
@@ -479,6 +512,8 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
                       plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
             bar as update:
         stats = pipeline.stream(source, sink, plan, backend, progress=update)
+        if resizer is None:
+            hold.release()                  # the bands left to write and the file's close need no device
     return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 

@@ -358,6 +358,8 @@ def test_process_many_inputs_into_a_folder(tmp_path: Path, scene_png: Path, caps
     assert sorted(p.name for p in out.iterdir()) == ["a.tif", "b.tif", "c.tif"]
     assert "3 of 4 files written" in text and "1 failed" in text
     assert err.count("\n") == 1 and "bad.dng" in err
+    written = [line.split(":")[0] for line in text.splitlines() if ".tif:" in line]
+    assert [Path(p).name for p in written] == ["a.tif", "b.tif", "c.tif"]          # in the inputs' order
     for name, path in (("a", folder / "a.dng"), ("c", lone)):
         single = tmp_path / f"{name}-single.tif"
         assert run(["process", path, "-o", single], capsys)[0] == 0

@@ -721,12 +721,23 @@ def save_built_programs() -> None:
         _RUNTIME.save_programs()
 
 
+DEVICE_LOCK = threading.RLock()
+"""Held by whatever enqueues on the process's runtime or changes its pools: building a pipeline
+(the noise calibration's kernels, the planner's metering runs, which swap the kernel cache) and a
+run's tile loop (clisp.pipeline.process_file, process_with_stats). Several files then go through
+one process at once (``clisp process RAW... -o OUTDIR``, a batch worker's threads) with their
+decoding and writing overlapping another file's device work, while one thread at a time launches:
+a ``cl.Kernel`` holds its arguments as state, and the runtime shares one per program and defines.
+Reentrant: a locked caller may call locked code."""
+
+
 def get_runtime(profiling: bool = False) -> Runtime:
     """The process-wide runtime, created on first use. ``profiling``: create it with event
     profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue)."""
     global _RUNTIME
-    if _RUNTIME is None:
-        _RUNTIME = Runtime(profiling=profiling)
-    elif profiling:
-        _RUNTIME.enable_profiling()
-    return _RUNTIME
+    with DEVICE_LOCK:
+        if _RUNTIME is None:
+            _RUNTIME = Runtime(profiling=profiling)
+        elif profiling:
+            _RUNTIME.enable_profiling()
+        return _RUNTIME

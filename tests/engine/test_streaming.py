@@ -609,3 +609,16 @@ def test_option_parsing() -> None:
     for bad in ("100", "0x5", "ax3", "1x2x3"):
         with pytest.raises(argparse.ArgumentTypeError):
             image_size(bad)
+
+
+def test_threads_share_the_device_safely() -> None:
+    """clisp.process from several threads at once (DEVICE_LOCK lets one at a time build and launch):
+    every result equals the same call made alone."""
+    from concurrent.futures import ThreadPoolExecutor
+    raws = [make_raw(kind, shape=(150, 190), seed=seed) for kind in ("lms", "bayer") for seed in (1, 2)]
+    alone = [clisp.process(raw, preset=preset, output="srgb16") for raw in raws for preset in ("fast", "quality")]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda rp: clisp.process(rp[0], preset=rp[1], output="srgb16"),
+                                 [(raw, preset) for raw in raws for preset in ("fast", "quality")]))
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)
