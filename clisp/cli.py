@@ -30,8 +30,9 @@ from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .modules.resize.stage import check_long_edge, resize_note
-from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, HALF_SIZE_NO_DENOISE, PRESETS,
-                       SKIP_WHERE_IT_PAYS, denoise_params, output_size, process_file, resolve_options)
+from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, FILES_IN_FLIGHT,
+                       GPU_FILES_IN_FLIGHT, HALF_SIZE_NO_DENOISE, PRESETS, SKIP_WHERE_IT_PAYS, denoise_params,
+                       output_size, process_file, resolve_options)
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
@@ -417,20 +418,10 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
     return "\n".join(lines)
 
 
-FILES_IN_FLIGHT = 2
-"""Files ``clisp process RAW... -o OUTDIR`` has under way at once on a device that shares host
-memory: one on the device while the other is decoded or its last bands written and the file
-closed (clisp.engine.runtime.DEVICE_LOCK lets one thread at a time on the device); README.md."""
-
-GPU_FILES_IN_FLIGHT = 3
-"""The same on a discrete device: decode the next, run this one, write the last, on the host's
-cores while the GPU runs."""
-
-
 def files_in_flight(args: argparse.Namespace, count: int) -> int:
     """How many of ``count`` files ``clisp process`` runs at once: one with --profile or --explain
     (their figures are the one file's) or on the NumPy reference, else FILES_IN_FLIGHT (or
-    GPU_FILES_IN_FLIGHT on a discrete device)."""
+    GPU_FILES_IN_FLIGHT on a discrete device: clisp.pipeline)."""
     if count < 2 or args.profile or args.explain or args.backend != "opencl":
         return 1
     return FILES_IN_FLIGHT if get_runtime().host_unified else GPU_FILES_IN_FLIGHT

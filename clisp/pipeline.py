@@ -126,6 +126,17 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
     return DEMOSAICS[name].for_raw(raw)
 
 
+FILES_IN_FLIGHT = 2
+"""Files one process has under way at once on a device that shares host memory (``clisp process
+RAW... -o OUTDIR``): one on the device while the other is decoded or its last bands written and
+the file closed (clisp.engine.runtime.DEVICE_LOCK lets one thread at a time on the device).
+Twelve 3 MP Bayer raws to TIFF on 2 PoCL cores: quality 4.4-5.3 s against 5.1-6.3 s one at a
+time, fast 0.35-0.46 against 0.37-0.46 (docs/RESULTS.md, issue 41)."""
+
+GPU_FILES_IN_FLIGHT = 3
+"""The same on a discrete device, and the threads of a ``clisp batch`` worker there: decode the
+next, run this one, write the last, on the host's cores while the GPU runs."""
+
 SKIP_WHERE_IT_PAYS = "auto"
 """build_pipeline's ``skip`` for the CLI's default: skip where it pays on the device."""
 
