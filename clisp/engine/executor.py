@@ -27,7 +27,7 @@ from . import profile
 from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
-from .streaming import READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
+from .streaming import READ_AHEAD, ArraySink, aligned_array, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
 from .tiling import (DEVICE_SHARE, GPU_TARGET_TILE_PIXELS, TARGET_TILE_PIXELS, DeviceLimits, Tile, TileNeeds,
                      TilePlan, make_plan)
 
@@ -154,7 +154,7 @@ class Pipeline:
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
         limits = device_limits(backend)
-        key = _stages_key(self.stages, True)
+        key = self._key(True)
         if key is not None:
             key += repr((tuple(shape), np.dtype(raw_dtype).str, tile, budget, backend, sink_bands, limits)).encode()
             plan = PLANS.get(key)
@@ -238,7 +238,7 @@ class Pipeline:
         A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
         """
         self._check(data.shape, backend)
-        out = np.empty(self.output_shape(data.shape) + (self.out_channels,), dtype=self.out_dtype)
+        out = aligned_array(self.output_shape(data.shape) + (self.out_channels,), self.out_dtype)
         plan = self.plan(data.shape, data.dtype, tile, budget, backend)
         with closing(window_source(data)) as source:
             self.stream(source, ArraySink(out), plan, backend, fuse)
@@ -410,12 +410,22 @@ class Pipeline:
         host[y:y + t.h, x0:x0 + t.w] = x
         return None
 
+    def _key(self, fuse: bool) -> bytes | None:
+        """:func:`_stages_key` of this pipeline's stages, pickled once per list of stage objects."""
+        ident = (tuple(map(id, self.stages)), fuse)
+        cached = self.__dict__.get("_keys")
+        if cached is None or cached[0] != ident[0]:
+            cached = self.__dict__["_keys"] = (ident[0], {})
+        if fuse not in cached[1]:
+            cached[1][fuse] = _stages_key(self.stages, fuse)
+        return cached[1][fuse]
+
     def schedule(self, fuse: bool = True) -> list[Stage]:
         """The stages as run on OpenCL: fused where they compose, the last one writing the host's
         interleaved layout when it can. Made once per process for equal stages (:data:`SCHEDULES`,
         keyed by their pickle), so every call of one camera and settings launches the same stage
         objects, whose kernels, sources and constants are resolved once."""
-        key = _stages_key(self.stages, fuse)
+        key = self._key(fuse)
         schedule = SCHEDULES.get(key) if key is not None else None
         if schedule is None:
             schedule = fuse_stages(self.stages) if fuse else list(self.stages)

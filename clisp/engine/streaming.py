@@ -201,8 +201,8 @@ class BandSink:
                 self.pending[slot].result()                  # that buffer's band is written
             self.pending[slot] = None
         if self.buffers[slot] is None:
-            if self.staging is None:
-                self.buffers[slot] = np.empty(self.shape, dtype=self.dtype)
+            if self.staging is None:          # page-aligned: the device writes it in place (aligned_array)
+                self.buffers[slot] = aligned_array(self.shape, self.dtype)
             else:                                       # pinned memory, reused across files (a GPU's downloads)
                 nbytes = int(np.prod(self.shape)) * self.dtype.itemsize
                 self._taken.append(self.staging.take(nbytes))
@@ -221,6 +221,15 @@ def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
     raw = np.empty(nbytes + align, dtype=np.uint8)
     start = -raw.ctypes.data % align
     return raw[start:start + nbytes]
+
+
+def aligned_array(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    """An uninitialised C-contiguous array of ``shape`` and ``dtype`` starting on a page boundary:
+    a device sharing host memory writes it in place (Runtime.host_image). Over an unaligned array
+    PoCL keeps its own aligned copy and copies it in on the launch and out on the map: 0.5 ms of
+    a 2 ms call for the 1.5 MB output of a 0.26 MP raw."""
+    dtype = np.dtype(dtype)
+    return aligned_empty(int(np.prod(shape)) * dtype.itemsize).view(dtype).reshape(shape)
 
 
 def aligned_copy(data: np.ndarray, dtype: Any = None) -> np.ndarray:

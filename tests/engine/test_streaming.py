@@ -93,8 +93,9 @@ def test_every_preset_tiled_equals_whole(name: str, kind: str) -> None:
 @pytest.mark.parametrize("output", ["linear", "srgb16"])
 def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind: str, output: str) -> None:
     """Full-width bands of the fast pipeline: on a device that shares host memory the last kernel
-    writes straight into the output (Runtime.host_image); the last, ragged band, whose window's
-    output would run past the image, is downloaded. The result equals the download path's and
+    writes straight into the output where the band's first row is aligned (Runtime.host_image);
+    the others, and the last, ragged band, whose window's output would run past the image, are
+    downloaded. The result equals the download path's and
     the reference."""
     raw = make_raw(kind, shape=(301, 517))
     # highlights off: the random raw passes white, and the highlight stage's halo would make squares
@@ -111,9 +112,11 @@ def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind
     monkeypatch.setattr(rt, "host_image", counting)
     plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
     assert len(plan.tiles) > 2 and plan.tile_w == raw.shape[1] and raw.shape[0] % plan.tile_h != 0
-    out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+    out = clisp.engine.streaming.aligned_array(raw.shape + (3,), pipeline.out_dtype)
     pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
-    assert len(made) == len(plan.tiles) - 1 and all(made) == rt.host_unified
+    align = int(rt.device.mem_base_addr_align) // 8                # a band's first row must be aligned
+    row = raw.shape[1] * 3 * out.itemsize
+    assert made == [rt.host_unified and t.y0 * row % align == 0 for t in plan.tiles[:-1]] and made[0] == rt.host_unified
     monkeypatch.setattr(rt, "host_unified", False)                # the download path
     downloaded = pipeline.run(raw.data, tile=0)
     ref = pipeline.run(raw.data, backend="reference")
@@ -406,9 +409,14 @@ def unaligned(data: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["bayer", "lms"])
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32])
-def test_device_gather_equals_host_gather(kind: str, dtype: type) -> None:
-    """Runtime.gather_window (clisp/modules/raw_scale/raw_scale.cl) equals tiling.gather_window, the CFA mirror included:
-    windows inside, across every edge, wider and taller than the image."""
+@pytest.mark.parametrize("one_launch", [True, False])
+def test_device_gather_equals_host_gather(kind: str, dtype: type, one_launch: bool,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runtime.gather_window (clisp/engine/gather.cl) equals tiling.gather_window, the CFA mirror included:
+    windows inside, across every edge, wider and taller than the image; gathered in one launch (a
+    small window) or in the vectorised launch over the inside columns and one per mirrored side."""
+    import clisp.engine.runtime as runtime
+    monkeypatch.setattr(runtime, "GATHER_ONE_LAUNCH", 1 << 20 if one_launch else 0)
     rt = get_runtime()
     data = make_raw(kind, shape=(37, 45), dtype=dtype).data
     whole = rt.upload(data)
