@@ -415,6 +415,8 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
         wall = _process_seconds()
         lines.append(profile.report(stats.megapixels, wall))
         lines.append(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
+    if profile is not None:
+        engine_profile.stop()                           # the next file's runs are not this file's
     return "\n".join(lines)
 
 

@@ -47,15 +47,16 @@ def test_recording_in_process(demo_raw_small) -> None:
     """An in-process caller gets the figures --profile prints: a run's loop, its device busy share
     (a fraction of its wall), its launches and the output's bytes."""
     import clisp
+    from clisp.engine import profile
     clisp.process(demo_raw_small, preset="fast", output="srgb16")           # warm
+    before = profile.active()
     with recording() as prof:
         out = clisp.process(demo_raw_small, preset="fast", output="srgb16")
     f = prof.summary()
     assert f["tiles"] >= 1 and 0 < f["device_busy"] <= 1.0 + 1e-9
     assert f["launches_per_tile"] >= 2 and f["host_us_per_enqueue"] > 0
     assert f["bytes_upload"] + f["bytes_download"] + f["bytes_in_place"] >= out.nbytes
-    from clisp.engine import profile
-    assert profile.active() is None                                         # recording ends with the block
+    assert profile.active() is before                                       # recording ends with the block
 
 
 @pytest.fixture(scope="module")
