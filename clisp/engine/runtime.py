@@ -166,6 +166,7 @@ class Runtime:
         self.programs = Programs(cl, self.context, self.platform, self.device)
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
         self._signatures: dict[tuple[str, tuple[str, ...], str], tuple[Parameter, ...]] = {}
+        self._launchers: dict[tuple, tuple] = {}   # launch_named's kernel, names and conversions
         self._flag_cache: dict[tuple, tuple[str, ...]] = {}
         self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
@@ -185,6 +186,7 @@ class Runtime:
             self._transfer_queue = None
             self.profiling = True
             self._kernels.clear()
+            self._launchers.clear()
 
     @property
     def transfer_queue(self) -> Any:
@@ -312,13 +314,21 @@ class Runtime:
             return
         recording = profile.active()
         start = time.perf_counter() if recording is not None else 0.0
-        params = self.signature(name, kernel_name, defines, generated)
-        names = [p.name for p in params]
-        missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
-        if missing or unknown:
+        flags = self._flags(defines)
+        key = (name, flags, generated, kernel_name)
+        launcher = self._launchers.get(key)
+        if launcher is None:                     # resolved once per program, defines and kernel
+            params = self.signature(name, kernel_name, defines, generated)
+            launcher = self._launchers[key] = (self.kernel(name, kernel_name, defines, generated),
+                                               tuple(p.name for p in params), tuple(p.convert for p in params))
+        kernel, names, converts = launcher
+        try:
+            values = [convert(args[n]) for n, convert in zip(names, converts)]
+        except KeyError:
+            values = None
+        if values is None or len(args) != len(names):
+            missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
             raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
-        values = [p.convert(args[p.name]) for p in params]
-        kernel = self.kernel(name, kernel_name, defines, generated)
         if exact:
             launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
         else:
