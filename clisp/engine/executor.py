@@ -262,7 +262,8 @@ class Pipeline:
         if self.skipper is not None:                 # per-tile paths (clisp.skip), on the raw's grid
             compute = self._path_compute(plan, backend, fuse, whole, compute, image)
 
-        windows = WindowPool()
+        rt = get_runtime() if backend == "opencl" else None
+        windows = WindowPool(staging=rt.staging if rt is not None and not rt.host_unified else None)
 
         def read(t: Tile) -> np.ndarray:
             with host_timer("read tile windows"):
@@ -280,6 +281,7 @@ class Pipeline:
                 get_runtime().finish()                # no copy may still target the sink's arrays
                 if whole is not None:
                     get_runtime().release(whole)      # a staged mosaic's buffers back to their pools
+            windows.close()
         seconds = time.perf_counter() - start
         if loop is not None:
             recording.end_loop(loop, seconds, len(plan.tiles))

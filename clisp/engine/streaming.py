@@ -257,13 +257,17 @@ class WindowPool:
     reused ones on this 2-core machine (bench_bandwidth). Buffers are page-aligned, so a device
     that shares host memory reads them in place (Runtime.host_input). ``take`` never blocks: with
     run_tiles' order (READ_AHEAD windows read while two tiles are in flight) READ_AHEAD + 2 buffers
-    suffice, and another is made only if a caller holds more.
+    suffice, and another is made only if a caller holds more. ``staging``: a HostStaging
+    (Runtime.staging) to take new buffers from, given back by :meth:`close` (pinned memory on a
+    discrete device, reused across runs and files).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, staging: Any = None) -> None:
         self._free: list[np.ndarray] = []
         self._taken: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._lock = threading.Lock()
+        self._staging = staging          # a HostStaging to take buffers from (pinned, on a GPU), or None
+        self._from_staging: list[np.ndarray] = []
 
     def take(self, shape: tuple[int, int], dtype: Any) -> np.ndarray:
         """An uninitialised array of ``shape`` and ``dtype`` over a free buffer (or a new one)."""
@@ -274,7 +278,11 @@ class WindowPool:
             buffer = min(fits, key=len) if fits else None
             if buffer is not None:
                 self._free = [b for b in self._free if b is not buffer]
-        if buffer is None:
+        if buffer is None and self._staging is not None:      # pinned: the upload runs at the bus's speed
+            buffer = self._staging.take(max(nbytes, 1))
+            with self._lock:
+                self._from_staging.append(buffer)
+        elif buffer is None:
             buffer = aligned_empty(max(nbytes, 1))
         window = buffer[:nbytes].view(dtype).reshape(shape)
         with self._lock:
@@ -287,6 +295,13 @@ class WindowPool:
             entry = self._taken.pop(id(window), None)
             if entry is not None:
                 self._free.append(entry[1])
+
+    def close(self) -> None:
+        """The run is over (every window given back): staging buffers go back to their pool."""
+        with self._lock:
+            taken, self._from_staging, self._free = self._from_staging, [], []
+        for buffer in taken:
+            self._staging.give(buffer)
 
 
 def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray] | None,

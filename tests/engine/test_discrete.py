@@ -144,3 +144,25 @@ def test_band_buffers_are_pinned_and_reused_across_files(tmp_path: Path, discret
     finally:
         del discrete.staging._new
     assert first >= 2 and len(made) == first
+
+
+def test_file_windows_read_into_pinned_staging(tmp_path: Path, discrete) -> None:
+    """A raw read from its file (FileWindows) on a discrete device: the windows are read into
+    staging buffers (pinned), given back when the run ends, and a second file reuses them."""
+    from clisp.io.rawfile import read_raw, write_raw
+    write_raw(tmp_path / "r.dng", make_raw("bayer", shape=(200, 300)))
+    raw = read_raw(tmp_path / "r.dng", lazy=True)
+    made = []
+    new = discrete.staging._new
+    discrete.staging._new = lambda n: made.append(n) or new(n)
+    try:
+        process_file(raw, tmp_path / "a.tif", tile=64, preset="fast")
+        first = len(made)
+        process_file(raw, tmp_path / "b.tif", tile=64, preset="fast")
+    finally:
+        del discrete.staging._new
+    assert first > 2 and len(made) == first           # windows and bands: made once, then reused
+    discrete.host_unified = True
+    process_file(raw, tmp_path / "s.tif", tile=64, preset="fast")
+    import tifffile
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "a.tif"), tifffile.imread(tmp_path / "s.tif"))
