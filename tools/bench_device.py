@@ -109,7 +109,7 @@ def busy_of(call, repeat: int) -> dict:
     try:
         from clisp.engine.profile import recording
     except ImportError:
-        return {}
+        return busy_of_events(call, repeat)
     busy, outside, launches = [], [], []
     with recording():
         call()
@@ -124,6 +124,38 @@ def busy_of(call, repeat: int) -> dict:
         launches.append(f["launches_per_tile"])
     return {"busy": statistics.median(busy), "outside": statistics.median(outside),
             "launches": statistics.median(launches)}
+
+
+def busy_of_events(call, repeat: int) -> dict:
+    """busy_of for a clisp without clisp.engine.profile.recording (the tree before issue 41): its
+    profiling runtime's events of the whole call, their union over the call's wall time (there is
+    no tile loop to tell apart, so 'busy' is over the call and equals 1 - 'outside')."""
+    from clisp.engine import profile
+    from clisp.engine.runtime import get_runtime
+    get_runtime(profiling=True)
+    call()
+    outside = []
+    for _ in range(repeat):
+        prof = profile.start()
+        start = time.perf_counter()
+        call()
+        wall = time.perf_counter() - start
+        profile._ACTIVE = None
+        spans = []
+        for _, _, event in prof.events:
+            event.wait()
+            spans.append((event.profile.start, event.profile.end))
+        spans.sort()
+        covered, current = 0, None
+        for a, b in spans:
+            if current is None or a > current[1]:
+                covered += 0 if current is None else current[1] - current[0]
+                current = [a, b]
+            else:
+                current[1] = max(current[1], b)
+        covered += 0 if current is None else current[1] - current[0]
+        outside.append(1.0 - covered * 1e-9 / wall)
+    return {"busy": 1.0 - statistics.median(outside), "outside": statistics.median(outside)}
 
 
 def child_throughput(size: tuple[int, int], repeat: int) -> dict:
