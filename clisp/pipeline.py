@@ -440,7 +440,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     output carries the raw's metadata (clisp.io.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
-    from .io.imageio import DEFAULT_COMPRESSION, output_kind   # deferred: 2 ms of start-up
+    from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image   # deferred: 2 ms of start-up
     compression = compression or DEFAULT_COMPRESSION
     attributes = output_attributes(raw)
     kind = output_kind(path)
@@ -452,80 +452,69 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     resized = target != upright
     flip = int(raw.metadata.get("flip", 0) or 0)
     in_memory = bool(flip) or (resized and backend != "opencl")
-    hold = DeviceHold()               # the device's part; decoding and writing run outside (DEVICE_LOCK)
-    try:
-        return _process_locked(raw, path, tile, budget, backend, progress, compression, explain, region,
-                               upright, target, encoding, attributes, flip, in_memory, options, hold)
-    finally:
-        hold.release()
+    with DeviceHold() as hold:        # the device's part; decoding and writing run outside (DEVICE_LOCK)
+        pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
+        notes = []                                                           # what was applied, in the file
+        if options.get("wb", "camera") != "camera":
+            notes.append(f"white balance {pipeline.wb_source} (clisp)")
+        if options.get("exposure") or options.get("auto_exposure"):
+            how = ", auto" if options.get("auto_exposure") else ""
+            notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
+        if resized:                                   # the size it had, in the file (no EXIF size is written)
+            notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
+                         f"(clisp, Lanczos-3 in linear light)")
+        if notes:
+            attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
+        if explain is not None:                       # the caller reads the plan after the run
+            explain["pipeline"] = pipeline
+        resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
+            if resized and not in_memory else None
+        plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
+                                   extra=2 * resizer.window_bytes if resizer else 0)
+        if in_memory:               # rotated output rows are input columns: orient the whole result
+            image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
+            with closing(window_source(raw.data)) as source:
+                pipeline.stream(source, ArraySink(image), plan, backend)
+            oriented = orient(_crop_image(image, region), flip)
+            if resized:
+                _write_resized(path, oriented, target, encoding, backend, compression, attributes)
+            else:
+                hold.release()
+                write_image(path, oriented, compression=compression, attributes=attributes)
+            return target, pipeline.stats
+        (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
+        out_h, out_w = target
+        bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
+        start = time.perf_counter()
+        with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
+                ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
+                (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
+                 BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
+                          plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
+                bar as update:
+            stats = pipeline.stream(source, sink, plan, backend, progress=update)
+            if resizer is None:
+                hold.release()                  # the bands left to write and the file's close need no device
+        return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 
 class DeviceHold:
-    """This thread's hold of DEVICE_LOCK (taken when made), given up by :meth:`release` (once; later
-    calls do nothing), so that a function can end its device work before its ``with`` blocks end."""
+    """This thread's hold of DEVICE_LOCK, taken on entering; :meth:`release` gives it up early
+    (once; leaving the block then does nothing), so that process_file's device work can end before
+    its file is written and closed."""
 
-    def __init__(self) -> None:
+    def __enter__(self) -> "DeviceHold":
         DEVICE_LOCK.acquire()
         self.held = True
+        return self
 
     def release(self) -> None:
         if self.held:
             self.held = False
             DEVICE_LOCK.release()
 
-
-def _process_locked(raw: RawImage, path: str | Path, tile: int | None, budget: int, backend: str, progress: bool,
-                    compression: str, explain: dict | None, region: tuple[int, int, int, int] | None,
-                    upright: tuple[int, int], target: tuple[int, int], encoding: str, attributes: dict,
-                    flip: int, in_memory: bool, options: dict, hold: DeviceHold) -> tuple[tuple[int, int], RunStats]:
-    """:func:`process_file` from the pipeline on, called with ``hold`` of DEVICE_LOCK; a plain file
-    (no resize, no rotation) gives it up once its tile loop has ended, so that its last bands are
-    written and the file closed while another thread's file runs on the device."""
-    from .io.imageio import ImageWriter, write_image   # deferred: 2 ms of start-up
-    resized = target != upright
-    pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
-    notes = []                                                           # what was applied, in the file
-    if options.get("wb", "camera") != "camera":
-        notes.append(f"white balance {pipeline.wb_source} (clisp)")
-    if options.get("exposure") or options.get("auto_exposure"):
-        how = ", auto" if options.get("auto_exposure") else ""
-        notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
-    if resized:                                   # the size it had, in the file (no EXIF size is written)
-        notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
-                     f"(clisp, Lanczos-3 in linear light)")
-    if notes:
-        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
-    if explain is not None:                       # the caller reads the plan after the run
-        explain["pipeline"] = pipeline
-    resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
-        if resized and not in_memory else None
-    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
-                               extra=2 * resizer.window_bytes if resizer else 0)
-    if in_memory:               # rotated output rows are input columns: orient the whole result
-        image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
-        with closing(window_source(raw.data)) as source:
-            pipeline.stream(source, ArraySink(image), plan, backend)
-        oriented = orient(_crop_image(image, region), flip)
-        if resized:
-            _write_resized(path, oriented, target, encoding, backend, compression, attributes)
-        else:
-            hold.release()
-            write_image(path, oriented, compression=compression, attributes=attributes)
-        return target, pipeline.stats
-    (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
-    out_h, out_w = target
-    bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
-    start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
-            ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
-            (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
-             BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
-                      plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
-            bar as update:
-        stats = pipeline.stream(source, sink, plan, backend, progress=update)
-        if resizer is None:
-            hold.release()                  # the bands left to write and the file's close need no device
-    return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def _band_staging(backend: str) -> Any:
