@@ -36,6 +36,8 @@ from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOS
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
+from .sim import defects as sd
+from .sim.defects import SensorDefects
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
 # they use them, to keep `import clisp.cli` light (issue 11).
 
@@ -104,7 +106,6 @@ def _add_sensor_defect_options(p: argparse.ArgumentParser) -> None:
 
 def _sensor_defects(args: argparse.Namespace):
     """The SensorDefects simulate's options ask for, or None; ClispError for a malformed value."""
-    from .sim.defects import SensorDefects
     values: dict = {}
 
     def number(option: str, text: str, what: str) -> float:
@@ -206,9 +207,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 def _add_sensor_options(p: argparse.ArgumentParser) -> None:
     """process's sensor corrections (clisp.corrections)."""
     p.add_argument("--bad-pixels", default=None, metavar="auto|off|MAP",
-                   help="defective pixels: auto (default; preset fast: off) finds them against the sensor's noise "
-                        "model and replaces them from neighbours of their channel, with the DNG's FixBadPixels "
-                        "lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
+                   help="defective pixels: auto (default; off for preset fast and --half-size) finds them "
+                        "against the sensor's noise model and replaces them from neighbours of their channel, "
+                        "with the DNG's FixBadPixels lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
                         "off: none")
     p.add_argument("--dark", action="append", default=[], metavar="DARK",
                    help="a dark frame (same camera, exposure and ISO, no light; a raw file, or a folder of "
@@ -399,7 +400,6 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
     raw as a camera would (GainMap, FixBadPixelsList); the note for simulate's line."""
     if defects is None:
         return ""
-    from .sim import defects as sd
     ops = []
     if args.gainmap:
         ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)

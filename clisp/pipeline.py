@@ -86,6 +86,10 @@ HALF_SIZE_HIGHLIGHTS = "clamp"
 """The highlight mode of ``--half-size`` whatever the preset (an explicit ``--highlights`` wins): the
 per-pixel clamp, as LibRaw's default, in keeping with a preview (reconstruct's radii and rim are
 tuned to a demosaic's full-resolution false colour)."""
+HALF_SIZE_BAD_PIXELS = "off"
+"""The defect search of ``--half-size`` whatever the preset (an explicit ``--bad-pixels`` wins): off, as
+the fast preset's, in keeping with a preview (the binning averages a hot pixel with three good ones);
+known bad pixels (a map, the DNG's lists, the frames') are still replaced."""
 HALF_SIZE_NO_DENOISE = ("--half-size runs no chroma denoise (the binning averages the samples): "
                         "leave out --denoise-scale and --chroma-strengths")
 """The refusal of an explicit chroma denoiser with ``--half-size`` (docs/messages.md)."""
@@ -114,7 +118,8 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
         return {}
     options = {key: value[kind] if isinstance(value, dict) else value for key, value in PRESETS[name].items()}
     if half_size:
-        return {**options, "demosaic": None, "denoise_levels": 0, "highlights": HALF_SIZE_HIGHLIGHTS}
+        return {**options, "demosaic": None, "denoise_levels": 0, "highlights": HALF_SIZE_HIGHLIGHTS,
+                "bad_pixels": HALF_SIZE_BAD_PIXELS}
     if demosaic:
         options["demosaic"] = demosaic
     kinds = DEMOSAICS[options["demosaic"]].cfa_kinds or (kind,)
