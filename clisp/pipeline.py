@@ -197,7 +197,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
-    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
+    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2,
+                                noise=noise, scale=2 if half_size else 1)
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)

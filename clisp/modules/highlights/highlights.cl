@@ -1,19 +1,29 @@
 /* Highlight handling on planar white-balanced camera channels (clisp/modules/highlights/stage.py has
  * the definitions and the NumPy reference). n: the neutral (3), t: the clip thresholds in units
- * of n (3). Launched over exactly the output (launch_exact): no bounds checks. */
+ * of n (3). */
 
 /* The reconstruct/clip kernels need the host's constants (clisp/modules/highlights/stage.py, as
- * defines): HL_RADIUS, HL_RIM, HL_BLOCK, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
- * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R and
- * the reach levels HL_D_APPLY, HL_D_CELLS, HL_D_NEAR, HL_D_NEAR_ROWS. Built without them (the clamp alone), the file holds hl_clamp only. */
+ * defines): HL_RADIUS, HL_RIM, HL_MC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
+ * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
+ * HL_WORK_CELLS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
 #include "box.h"
 
-/* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
- * near on the window less the rim (w1 x h1) -> reference sums per cell and over each cell's
- * neighbourhood (ncw x nch cells of the image's grid) -> output (ow x oh, w1 - 2 R x h1 - 2 R).
- * Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R). */
+/* Windows: src (width x height) -> flags (same, uchar: bit c = channel c clipped) -> near rows
+ * (w1 = width - 2 RIM columns) -> near on the window less the rim (w1 x h1, uchar) -> reference
+ * sums per cell and over each cell's neighbourhood (ncw x nch cells of the image's grid) ->
+ * output (ow x oh, w1 - 2 R x h1 - 2 R). Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R).
+ *
+ * Work in proportion to the clipped area: the host's clip map (Highlights.schedule) gives the
+ * window's map cells (HL_MC x HL_MC px on the image's grid: window pixel (y, x) lies in cell
+ * ((y + py) / HL_MC, (x + px) / HL_MC)) with their bits: 0-2 the channels that may count as
+ * clipped there, HL_WORK_CELLS and HL_WORK_BOX where the two cell kernels work. hl_copy copies the
+ * whole output; the list kernels (hl_flags, hl_near_rows, hl_near, hl_apply) run one work-group
+ * of HL_MC x HL_MC per cell of a list (entries gy << 16 | gx): flags only where a channel is
+ * allowed (0 elsewhere, hl_clear), near within a cell of those (every pixel within RIM <=
+ * HL_MC of a flag; 0 elsewhere), the near rows a cell above and below that, apply there; the
+ * cell kernels run over their grid and leave at once outside their cells. */
 
 /* max without fmax: PoCL 3 does not vectorise fmax/fmin (3x slower kernels); inputs are finite. */
 inline float hl_max(const float a, const float b)
@@ -21,114 +31,83 @@ inline float hl_max(const float a, const float b)
     return a > b ? a : b;
 }
 
-inline int any_clipped(const float y0, const float y1, const float y2, __constant const float *t)
+/* list_pixel: this work-item's window pixel (x, y): cell get_global_id(1) / HL_MC of the list,
+ * its pixel (get_global_id(0), get_global_id(1) % HL_MC). */
+inline int2 list_pixel(__global const int *list, const int py, const int px)
 {
-    return y0 >= t[0] || y1 >= t[1] || y2 >= t[2];
+    const int c = list[get_global_id(1) / HL_MC];
+    return (int2)((c & 0xffff) * HL_MC + (int)get_global_id(0) - px,
+                  (c >> 16) * HL_MC + (int)(get_global_id(1) % HL_MC) - py);
 }
 
-/* soft_clipped: channel c (plane at src + offset) at src index i, not clipped itself, counts as
- * clipped when y_c >= HL_DIP t_c and y_c >= t_c at one of the 8 neighbours (the caller has
- * another channel clipped at i: highlights.clipped_channels, and keeps i one pixel inside the
- * window). */
-inline int soft_clipped(__global const float *src, const int i, const int width, const float inv_n,
-                        const float t)
-{
-    if (src[i] * inv_n < HL_DIP * t)
-        return 0;
-    float m = 0.0f;
-    for (int dy = -1; dy <= 1; dy++)
-        for (int dx = -1; dx <= 1; dx++)
-            m = hl_max(m, src[i + dy * width + dx]);
-    return m * inv_n >= t;
-}
-
-/* hl_flags: 1 where a channel of the pixel reached its threshold, else 0. */
-__kernel void hl_flags(__global const float *restrict src, __global float *restrict dst,
-                       const int width, const int height, __constant const float *restrict n,
-                       __constant const float *restrict t)
+/* hl_copy: the output, the window less RIM + R on every side (hl_apply overwrites where it works). */
+__kernel void hl_copy(__global const float *restrict src, __global float *restrict dst, const int width,
+                      const int height, const int out_w, const int out_h)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int plane = width * height;
-    const int i = y * width + x;
-    dst[i] = any_clipped(src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2], t) ? 1.0f : 0.0f;
+    const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS, plane = width * height;
+    const int o = y * out_w + x, oplane = out_w * out_h;
+    dst[o] = src[i];
+    dst[oplane + o] = src[plane + i];
+    dst[2 * oplane + o] = src[2 * plane + i];
 }
 
-/* Sparsity: the stage changes only pixels within RIM of a clipped one, so every kernel after
- * hl_flags works only where a clipped pixel lies near enough for its result to be read.
- * hl_blocks: blocks (nby x nbx, HL_BLOCK px of the src window each) = 1 where the block holds a
- * clipped pixel. hl_reach: plane d - 1 (d = 1..4) = 1 where a block within d blocks does. A
- * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set, d the
- * host's level for that kernel (highlights.reach_levels): apply works within HL_D_APPLY blocks
- * (every pixel it changes lies within RIM of a clipped one) and reads the cell box sums of its
- * cell and near there; the cell box sums read cells up to (HL_CELL_R + 1) HL_CELL - 1 px away
- * (HL_D_CELLS), the cells read near at their pixels (HL_D_NEAR, a block more: a cell may straddle
- * a block edge), near reads the near rows RIM rows away (HL_D_NEAR_ROWS); nothing a working pixel
- * reads was skipped, whatever the pool's buffers held before. Skipped apply pixels are copied
- * unchanged. */
-__kernel void hl_blocks(__global const float *restrict flags, __global float *restrict blocks,
-                        const int width, const int height, const int nbx)
+/* hl_clear: 0 in every byte of a width-wide plane. */
+__kernel void hl_clear(__global uchar *restrict dst, const int width)
 {
-    const int bx = get_global_id(0);
-    const int by = get_global_id(1);
-    const int x0 = bx * HL_BLOCK, y0 = by * HL_BLOCK;
-    const int x1 = min(x0 + HL_BLOCK, width), y1 = min(y0 + HL_BLOCK, height);
-    float m = 0.0f;
-    for (int y = y0; y < y1; y++)
-        for (int x = x0; x < x1; x++)
-            m = hl_max(m, flags[y * width + x]);
-    blocks[by * nbx + bx] = m;
+    dst[get_global_id(1) * width + get_global_id(0)] = 0;
 }
 
-__kernel void hl_reach(__global const float *restrict blocks, __global float *restrict reach,
-                       const int nbx, const int nby)
+/* hl_flags (list: the cells where a channel is allowed): bit c where y_c >= t_c and the cell allows c. */
+__kernel void hl_flags(__global const int *restrict list, __global const float *restrict src,
+                       __global const uchar *restrict cells, __global uchar *restrict dst, const int width,
+                       const int height, const int ngx, const int py, const int px,
+                       __constant const float *restrict n, __constant const float *restrict t)
 {
-    const int bx = get_global_id(0);
-    const int by = get_global_id(1);
-    for (int d = 1; d <= 4; d++) {
-        float m = 0.0f;
-        for (int j = max(by - d, 0); j <= min(by + d, nby - 1); j++)
-            for (int i = max(bx - d, 0); i <= min(bx + d, nbx - 1); i++)
-                m = hl_max(m, blocks[j * nbx + i]);
-        reach[((d - 1) * nby + by) * nbx + bx] = m;
-    }
-}
-
-/* active: whether src pixel (sx, sy) lies in a block with reach[d] set. */
-inline int active(__global const float *reach, const int d, const int sx, const int sy, const int nbx,
-                  const int nby)
-{
-    return reach[((d - 1) * nby + sy / HL_BLOCK) * nbx + sx / HL_BLOCK] > 0.0f;
-}
-
-/* hl_near_rows: max of the flags over 2 RIM + 1 consecutive columns. */
-__kernel void hl_near_rows(__global const float *restrict src, __global float *restrict dst,
-                           const int width, const int out_w, __global const float *restrict reach,
-                           const int nbx, const int nby)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    if (!active(reach, HL_D_NEAR_ROWS, x + HL_RIM, y, nbx, nby))
+    const int2 p = list_pixel(list, py, px);
+    if (p.x < 0 || p.y < 0 || p.x >= width || p.y >= height)
         return;
-    float m = 0.0f;
-    for (int k = 0; k <= 2 * HL_RIM; k++)
-        m = hl_max(m, src[y * width + x + k]);
-    dst[y * out_w + x] = m;
+    const int bits = cells[((p.y + py) / HL_MC) * ngx + (p.x + px) / HL_MC];
+    const int plane = width * height, i = p.y * width + p.x;
+    uchar f = 0;
+    if ((bits & 1) && src[i] / n[0] >= t[0])
+        f |= 1;
+    if ((bits & 2) && src[plane + i] / n[1] >= t[1])
+        f |= 2;
+    if ((bits & 4) && src[2 * plane + i] / n[2] >= t[2])
+        f |= 4;
+    dst[i] = f;
 }
 
-/* hl_near: on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
- * channel (max of the near rows over 2 RIM + 1 rows), else 0. */
-__kernel void hl_near(__global const float *restrict rows, __global float *restrict dst, const int w1,
-                      const int h1, __global const float *restrict reach, const int nbx, const int nby)
+/* hl_near_rows (list): 1 where a flag lies within RIM columns (the window less RIM columns, w1 wide). */
+__kernel void hl_near_rows(__global const int *restrict list, __global const uchar *restrict flags,
+                           __global uchar *restrict dst, const int width, const int height, const int w1,
+                           const int py, const int px)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    if (!active(reach, HL_D_NEAR, x + HL_RIM, y + HL_RIM, nbx, nby))
+    const int2 p = list_pixel(list, py, px);
+    const int x = p.x - HL_RIM;
+    if (x < 0 || x >= w1 || p.y < 0 || p.y >= height)
         return;
-    float near = 0.0f;
+    uchar m = 0;
     for (int k = 0; k <= 2 * HL_RIM; k++)
-        near = hl_max(near, rows[(y + k) * w1 + x]);
-    dst[y * w1 + x] = near;
+        m |= flags[p.y * width + x + k];
+    dst[p.y * w1 + x] = m != 0;
+}
+
+/* hl_near (list): on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
+ * channel (max of the near rows over 2 RIM + 1 rows). */
+__kernel void hl_near(__global const int *restrict list, __global const uchar *restrict rows,
+                      __global uchar *restrict dst, const int w1, const int h1, const int py, const int px)
+{
+    const int2 p = list_pixel(list, py, px);
+    const int x = p.x - HL_RIM, y = p.y - HL_RIM;
+    if (x < 0 || y < 0 || x >= w1 || y >= h1)
+        return;
+    uchar m = 0;
+    for (int k = 0; k <= 2 * HL_RIM; k++)
+        m |= rows[(y + k) * w1 + x];
+    dst[y * w1 + x] = m;
 }
 
 #if HL_RADIUS > 0
@@ -136,15 +115,15 @@ __kernel void hl_near(__global const float *restrict rows, __global float *restr
  * (near: the pixel's near flag): (w, w rho0, w rho1, w mean(y)) of a far reference (bright,
  * clearly unclipped, not near), then (w, w rho0, w rho1) of a rim reference (near, no channel
  * clipped, bright); rho_c = y_c / mean(y). */
-inline void reference_weights(__global const float *src, const int i, const int plane, const float near,
+inline void reference_weights(__global const float *src, const int i, const int plane, const uchar near,
                               const float *inv_n, const float *inv_nt, float *w)
 {
     const float x0 = src[i], x1 = src[plane + i], x2 = src[2 * plane + i];
     const float y0 = x0 * inv_n[0], y1 = x1 * inv_n[1], y2 = x2 * inv_n[2];
     const float m = hl_max(hl_max(x0 * inv_nt[0], x1 * inv_nt[1]), x2 * inv_nt[2]);
     const float ramp = clamp((m - HL_LOW) * (1.0f / (HL_REF - HL_LOW)), 0.0f, 1.0f);
-    const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
-    const float rim = (near > 0.0f && m < 1.0f) ? ramp : 0.0f;
+    const float far = (m < HL_REF && near == 0) ? ramp : 0.0f;
+    const float rim = (near != 0 && m < 1.0f) ? ramp : 0.0f;
     const float total = y0 + y1 + y2;
     const float inv = total > 0.0f ? 3.0f / total : 0.0f;
     w[0] = far;
@@ -156,12 +135,12 @@ inline void reference_weights(__global const float *src, const int i, const int 
     w[6] = rim * y1 * inv;
 }
 
-/* cell_active: whether this work-item's cell (i, j) = (global id 0, 1), rows j HL_CELL - oy ..
- * + HL_CELL - 1 of the window less the rim (w1 x h1, cut at its edges), columns likewise, touches a
- * block with reach[d] set: its corners lie in every block it touches. span: the cell's first and
- * last column and row. */
-inline int cell_active(__global const float *reach, const int d, const int ox, const int oy, const int w1,
-                       const int h1, const int nbx, const int nby, int *span)
+/* cell_work: whether this work-item's cell (i, j) = (global id 0, 1), rows j HL_CELL - oy ..
+ * + HL_CELL - 1 of the window less the rim (w1 x h1, cut at its edges), columns likewise, lies in a
+ * map cell with the bit ``work`` (a cell lies in one map cell: both on the image's grid, HL_MC a
+ * multiple of HL_CELL). span: the cell's first and last column and row. */
+inline int cell_work(__global const uchar *cells, const int work, const int ngx, const int py, const int px,
+                     const int ox, const int oy, const int w1, const int h1, int *span)
 {
     const int i = get_global_id(0), j = get_global_id(1);
     const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
@@ -170,24 +149,24 @@ inline int cell_active(__global const float *reach, const int d, const int ox, c
     span[1] = x1;
     span[2] = y0;
     span[3] = y1;
-    return active(reach, d, x0 + HL_RIM, y0 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y0 + HL_RIM, nbx, nby) ||
-           active(reach, d, x0 + HL_RIM, y1 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y1 + HL_RIM, nbx, nby);
+    return (cells[((y0 + HL_RIM + py) / HL_MC) * ngx + (x0 + HL_RIM + px) / HL_MC] & work) != 0;
 }
 
 /* hl_cells: the reference weights (reference_weights of src and near) summed over each cell of
  * HL_CELL x HL_CELL px of the window less the rim (w1 x h1); cells lie on the image's grid, the
  * window's first pixel at (oy, ox) of its cell, so cell (j, i) covers rows j HL_CELL - oy ..
- * + HL_CELL - 1 (cut at the window's edges). dst: HL_SUMS planes of nch x ncw cells. */
-__kernel void hl_cells(__global const float *restrict src, __global const float *restrict near,
+ * + HL_CELL - 1 (cut at the window's edges). dst: HL_SUMS planes of nch x ncw cells, written
+ * where the map cell has HL_WORK_CELLS (every cell hl_cell_box reads). */
+__kernel void hl_cells(__global const float *restrict src, __global const uchar *restrict near,
                        __global float *restrict dst, const int width, const int height, const int w1,
                        const int h1, const int ncw, const int nch, const int oy, const int ox,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __global const float *restrict reach, const int nbx, const int nby)
+                       __global const uchar *restrict cells, const int ngx, const int py, const int px)
 {
     const int i = get_global_id(0);
     const int j = get_global_id(1);
     int span[4];
-    if (!cell_active(reach, HL_D_CELLS, ox, oy, w1, h1, nbx, nby, span))
+    if (!cell_work(cells, HL_WORK_CELLS, ngx, py, px, ox, oy, w1, h1, span))
         return;
     const int plane = width * height, cplane = ncw * nch;
     const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
@@ -206,20 +185,20 @@ __kernel void hl_cells(__global const float *restrict src, __global const float 
 }
 
 /* hl_cell_box: the sums of each cell's (2 HL_CELL_R + 1)^2 neighbourhood of cells (cells outside
- * the window count 0), HL_SUMS planes of nch x ncw, by the shared box sums (box.h); only cells
- * holding a pixel where hl_apply works. */
-__kernel void hl_cell_box(__global const float *restrict cells, __global float *restrict dst, const int ncw,
+ * the window count 0), HL_SUMS planes of nch x ncw, by the shared box sums (box.h); only in map
+ * cells with HL_WORK_BOX (where hl_apply works). */
+__kernel void hl_cell_box(__global const float *restrict sums, __global float *restrict dst, const int ncw,
                           const int nch, const int w1, const int h1, const int oy, const int ox,
-                          __global const float *restrict reach, const int nbx, const int nby)
+                          __global const uchar *restrict cells, const int ngx, const int py, const int px)
 {
     int span[4];
-    if (!cell_active(reach, HL_D_APPLY, ox, oy, w1, h1, nbx, nby, span))
+    if (!cell_work(cells, HL_WORK_BOX, ngx, py, px, ox, oy, w1, h1, span))
         return;
     const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
     const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
     for (int p = 0; p < HL_SUMS; p++)
-        dst[p * cplane + j * ncw + i] = box_sum_rect(cells + p * cplane, ncw, i0, i1, j0, j1);
+        dst[p * cplane + j * ncw + i] = box_sum_rect(sums + p * cplane, ncw, i0, i1, j0, j1);
 }
 #endif /* HL_RADIUS > 0 */
 
@@ -243,42 +222,46 @@ inline float agreement(const float *a, const float *b, __constant const float *d
     return clamp((HL_AGREE_HI - dist) / (HL_AGREE_HI - HL_AGREE_LO), 0.0f, 1.0f);
 }
 
-/* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
+/* hl_apply (list: the cells within a cell of a flag): the rule of stage.py at output pixel (y, x)
+ * = window pixel (y + RIM + R, x + RIM + R); the clipped channels from the flags (bit c) and, at a
+ * pixel with a flag, every channel over its threshold or within HL_DIP of it and flagged at one of
+ * the 8 neighbours (highlights.clipped_channels). HL_CLIP: clipped -> white n,
  * near -> neutral at the mean. Else the reconstruction: box: hl_cell_box's sums (ncw x nch cells,
- * far then rim, HL_SUMS planes) at the pixel's cell, read where the pixel is clipped or near; d
- * the display matrix of agreement(). */
-__kernel void hl_apply(__global const float *restrict src, __global const float *restrict nearby,
+ * far then rim, HL_SUMS planes) at the pixel's cell; d the display matrix of agreement(). */
+__kernel void hl_apply(__global const int *restrict list, __global const float *restrict src,
+                       __global const uchar *restrict flags, __global const uchar *restrict nearby,
                        __global const float *restrict box, __global float *restrict dst,
                        const int width, const int height, const int w1, const int ncw, const int nch,
                        const int oy, const int ox, const int out_w, const int out_h,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __constant const float *restrict d, const float white,
-                       __global const float *restrict reach, const int nbx, const int nby)
+                       __constant const float *restrict d, const float white, const int py, const int px)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = width * height, oplane = out_w * out_h;
-    const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS;
-    if (!active(reach, 1, x + HL_RIM + HL_RADIUS, y + HL_RIM + HL_RADIUS, nbx, nby)) {
-        const int o = y * out_w + x;                  /* nothing clipped within RIM: unchanged */
-        dst[o] = src[i];
-        dst[oplane + o] = src[plane + i];
-        dst[2 * oplane + o] = src[2 * plane + i];
+    const int2 q = list_pixel(list, py, px);
+    const int x = q.x - HL_RIM - HL_RADIUS, y = q.y - HL_RIM - HL_RADIUS;
+    if (x < 0 || y < 0 || x >= out_w || y >= out_h)
         return;
-    }
+    const int plane = width * height, oplane = out_w * out_h;
+    const int i = q.y * width + q.x;
     float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
-    int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
-    if (c0 + c1 + c2 > 0) {
-        c0 = c0 || soft_clipped(src, i, width, 1.0f / n[0], t[0]);
-        c1 = c1 || soft_clipped(src + plane, i, width, 1.0f / n[1], t[1]);
-        c2 = c2 || soft_clipped(src + 2 * plane, i, width, 1.0f / n[2], t[2]);
+    const int f = flags[i];
+    int c0 = f & 1, c1 = (f >> 1) & 1, c2 = (f >> 2) & 1;
+    if (f) {                     /* beside a true clip: over the threshold, or soft (clipped at a neighbour) */
+        int beside = 0;
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++)
+                beside |= flags[i + dy * width + dx];
+        c0 = c0 || v[0] >= t[0] || ((beside & 1) && v[0] >= HL_DIP * t[0]);
+        c1 = c1 || v[1] >= t[1] || ((beside & 2) && v[1] >= HL_DIP * t[1]);
+        c2 = c2 || v[2] >= t[2] || ((beside & 4) && v[2] >= HL_DIP * t[2]);
     }
     const int count = c0 + c1 + c2;
-    const float near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+    const uchar near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+    if (count == 0 && near == 0)
+        return;                              /* unchanged: hl_copy has it */
 #if HL_CLIP
     if (count > 0) {
         v[0] = v[1] = v[2] = white;
-    } else if (near > 0.0f) {
+    } else if (near) {
         const float mean = (v[0] + v[1] + v[2]) / 3.0f;
         v[0] = v[1] = v[2] = mean;
     }
@@ -286,7 +269,7 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     if (count == 3) {
         const float top = hl_max(hl_max(v[0], v[1]), v[2]);
         v[0] = v[1] = v[2] = top;
-    } else if (count > 0 || near > 0.0f) {
+    } else {
         const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL;
         float s[HL_SUMS];
         for (int p = 0; p < HL_SUMS; p++)

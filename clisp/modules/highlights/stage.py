@@ -70,7 +70,8 @@ Measured figures: docs/RESULTS.md, "Highlights".
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -96,11 +97,6 @@ CELL = 4
 reference colour over the (2 k + 1)^2 cells around its cell, k = :func:`cell_radius` (RADIUS 16:
 7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of seven planes cost
 more than the rest of the stage."""
-
-BLOCK = 16
-"""Side of the blocks the OpenCL path tests for clipped pixels (clisp/modules/highlights/highlights.cl): every
-kernel after the flags works only within the few blocks of one whose results can be read
-(:func:`reach_levels`), so raws with few clipped pixels pay little more than the flags pass."""
 
 REF = 0.9
 """A pixel is a colour reference only while every channel is below this share of its threshold
@@ -155,18 +151,45 @@ channel well below its clip level at the sites of the other channels (guided LMS
 clipped: raising a channel on an unclipped light's edge coloured it (README.md)."""
 
 
+MAP = 8
+"""Side (mosaic px) of the cells of the clip map (:func:`clip_map`): a pixel's channel may count as
+clipped only in a cell the map allows for it, within a cell of a clipped sample that the noise
+test calls a true clip. The kernels' work lists are made of these cells (on the stage's grid:
+MAP / scale px, scale 2 after the half-size binning), so the stage works in proportion to the
+clipped area."""
+
+TEST = 16
+"""Side (mosaic px) of the blocks of the noise test (:func:`clip_map`): 2 x 2 map cells; 128
+samples of a channel that holds half the sites (LMS L, Bayer G), 64 of a quarter, 32 of an eighth."""
+
+NOISE_WINDOW = 3.0
+"""The noise test counts a block's samples of a channel from NOISE_WINDOW sigma (the noise at the
+clip threshold) under the threshold up: the samples a level near full scale puts there, few of
+a darker surface beside it."""
+
+NOISE_Z = 3.0
+"""Sigmas (of the binomial count) by which a block's clipped samples may exceed what the noise
+around a level at full scale gives, before the block counts as truly clipped."""
+
+
 @dataclass
 class Highlights(Stage):
     """Clipped-highlight handling on white-balanced camera channels (see the module docstring).
 
     neutral    (3,) n: the camera values that come out grey.
-    threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped).
+    threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped, where the clip map
+               allows it).
     white      s = min_c t_c, the neutral level of ``clip`` (units of n).
     mode       'clip' or 'reconstruct'.
     radius     R of 'reconstruct' (its halo beyond the rim).
     rim        RIM: the false-colour rim around clipped pixels (px).
     display    (3, 3) camera values in units of n to output RGB (:func:`display_matrix`), where
                'reconstruct' compares chromas; None: the identity.
+    clip_map   (ny, nx) uint8 per cell of ``map_cell`` px on the image's grid (:func:`clip_map`):
+               bit c set where channel c may count as clipped; None: everywhere (a stage built
+               by hand). Cells past the image's edge take the edge's (clamped lookups).
+    map_cell   the map's cell side on the stage's grid (px): MAP, MAP / 2 after the half-size
+               binning; a multiple of CELL, at least ``rim``.
     """
 
     neutral: np.ndarray
@@ -176,17 +199,22 @@ class Highlights(Stage):
     radius: int = RADIUS
     rim: int = RIM
     display: np.ndarray | None = None
+    clip_map: np.ndarray | None = field(default=None, repr=False)
+    map_cell: int = MAP
     name = "highlights"
 
     def __post_init__(self) -> None:
-        if max(reach_levels(self.rim, self.radius).values()) > 4:
-            raise ClispError(f"highlights: rim {self.rim} + radius {self.radius} reach past 4 blocks of {BLOCK} px")
         if self.mode not in ("clip", "reconstruct"):
             raise ClispError(f"unknown highlight mode {self.mode!r}; expected clip or reconstruct")
+        if self.map_cell % CELL or not 1 <= self.rim <= self.map_cell:
+            raise ClispError(f"highlights: rim {self.rim} must be 1 to the map's cell of {self.map_cell} px, "
+                             f"a multiple of {CELL} px")
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
         self.threshold = np.asarray(self.threshold, dtype=np.float64).reshape(3)
         self.white = float(self.white)
         self.display = np.eye(3) if self.display is None else np.asarray(self.display, dtype=np.float64).reshape(3, 3)
+        if self.clip_map is not None:
+            self.clip_map = np.ascontiguousarray(self.clip_map, dtype=np.uint8)
 
     @property
     def halo(self) -> int:
@@ -194,17 +222,31 @@ class Highlights(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """float32 planes per input pixel: flags, near rows, near, output (3); reconstruct: the
-        cell and cell-box sums (SUMS planes each at 1 / CELL^2 of the pixels)."""
-        return 4.0 * (6 + (2 * SUMS / CELL ** 2 if self.mode == "reconstruct" else 0))
+        """Device bytes per input pixel: the output (3 float32 planes), flags, near rows and near
+        (one byte each); reconstruct: the cell and cell-box sums (SUMS float32 planes each at
+        1 / CELL^2 of the pixels)."""
+        return 12.0 + 3.0 + (2 * 4.0 * SUMS / CELL ** 2 if self.mode == "reconstruct" else 0.0)
+
+    def allowed(self, origin: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+        """H x W x 3 bool for a window of ``shape`` at ``origin``: where each channel may count as
+        clipped (the clip map's cell of each pixel, clamped to the map's edge)."""
+        h, w = shape
+        if self.clip_map is None:
+            return np.ones((h, w, 3), dtype=bool)
+        ny, nx = self.clip_map.shape
+        rows = np.clip((origin[0] + np.arange(h)) // self.map_cell, 0, ny - 1)
+        cols = np.clip((origin[1] + np.arange(w)) // self.map_cell, 0, nx - 1)
+        bits = self.clip_map[rows[:, None], cols[None, :]]
+        return ((bits[..., None] >> np.arange(3, dtype=np.uint8)) & 1).astype(bool)
 
     # ------------------------------------------------------------------------------- reference
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         n, t, d, r = self.neutral, self.threshold, self.rim, self.radius
         y = np.asarray(x, dtype=np.float64) / n
-        near = box_max(box_max((y >= t).any(axis=-1).astype(np.float64), d, 1), d, 0) > 0   # window - 2d
-        clipped = clipped_channels(y, t)
+        hard = (y >= t) & self.allowed(origin, y.shape[:2])
+        near = box_max(box_max(hard.any(axis=-1).astype(np.float64), d, 1), d, 0) > 0   # window - 2d
+        clipped = clipped_channels(y, t, hard)
         y = y[d:y.shape[0] - d, d:y.shape[1] - d]
         clipped = clipped[d:clipped.shape[0] - d, d:clipped.shape[1] - d]
         if self.mode == "clip":
@@ -219,79 +261,124 @@ class Highlights(Stage):
 
     # ------------------------------------------------------------------------------- OpenCL
 
+    def window_map(self, origin: tuple[int, int], height: int, width: int) -> tuple[np.ndarray, int, int]:
+        """(the clip map's cells over a window of height x width at ``origin``, (ngy, ngx) uint8;
+        py, px): window pixel (y, x) lies in cell ((y + py) // map_cell, (x + px) // map_cell)."""
+        mc = self.map_cell
+        gy0, gx0 = origin[0] // mc, origin[1] // mc
+        py, px = origin[0] - gy0 * mc, origin[1] - gx0 * mc
+        ngy, ngx = (py + height - 1) // mc + 1, (px + width - 1) // mc + 1
+        if self.clip_map is None:
+            return np.full((ngy, ngx), 7, dtype=np.uint8), py, px
+        ny, nx = self.clip_map.shape
+        rows = np.clip(gy0 + np.arange(ngy), 0, ny - 1)
+        cols = np.clip(gx0 + np.arange(ngx), 0, nx - 1)
+        return np.ascontiguousarray(self.clip_map[rows[:, None], cols[None, :]]), py, px
+
+    def schedule(self, origin: tuple[int, int], height: int, width: int) -> dict[str, object]:
+        """The kernels' work over a window (host side, from the clip map): the window's cells with
+        their bits (0-2: the channels allowed; WORK_CELLS: hl_cells works there; WORK_BOX:
+        hl_cell_box does) and the lists of cells (gy << 16 | gx) each list kernel runs over:
+        ``flags`` where a channel is allowed (the seeds; flags are 0 elsewhere), ``near`` the seeds
+        and the cells around them (every pixel within RIM <= map_cell of a flag: hl_near, hl_apply),
+        ``rows`` those and a cell above and below (the near rows hl_near reads), and the cells of
+        the reference sums apply reads (within (k + 1) CELL - 1 px of its cells)."""
+        cells, py, px = self.window_map(origin, height, width)
+        seeds = cells != 0
+        near = grow(seeds, 1)
+        rows = grow(near, 1, axes=(0,))
+        work = cells.copy()
+        if self.mode == "reconstruct":
+            reach = -(-((cell_radius(self.radius) + 1) * CELL - 1) // self.map_cell)
+            work |= np.where(grow(near, reach), WORK_CELLS, 0).astype(np.uint8)
+            work |= np.where(near, WORK_BOX, 0).astype(np.uint8)
+        return {"cells": work, "py": py, "px": px, "flags": cell_list(seeds), "rows": cell_list(rows),
+                "near": cell_list(near)}
+
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
-        n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
         w, h, d = src.width, src.height, self.rim
         r = self.radius if self.mode == "reconstruct" else 0
-        defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
-                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
-                   "HL_CLIP": int(self.mode == "clip"), "HL_AGREE_LO": repr(AGREE_LO) + "f",
-                   "HL_AGREE_HI": repr(AGREE_HI) + "f", "HL_RISE_LO": repr(RISE_LO) + "f",
-                   "HL_RISE_HI": repr(RISE_HI) + "f", "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS,
-                   "HL_CELL": CELL, "HL_CELL_R": cell_radius(self.radius)}
-        defines["HL_BLOCK"] = BLOCK
-        defines.update({f"HL_D_{k.upper()}": v for k, v in reach_levels(d, r).items()})
+        ow, oh = w - 2 * (d + r), h - 2 * (d + r)
+        defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_MC": self.map_cell, "HL_REF": repr(REF) + "f",
+                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f",
+                   "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip"),
+                   "HL_AGREE_LO": repr(AGREE_LO) + "f", "HL_AGREE_HI": repr(AGREE_HI) + "f",
+                   "HL_RISE_LO": repr(RISE_LO) + "f", "HL_RISE_HI": repr(RISE_HI) + "f",
+                   "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS, "HL_CELL": CELL,
+                   "HL_CELL_R": cell_radius(self.radius), "HL_WORK_CELLS": WORK_CELLS, "HL_WORK_BOX": WORK_BOX}
+
         def launch(kernel: str, gx: int, gy: int, /, **args: object) -> None:
             rt.launch_named("highlights", kernel, gx, gy, args, defines)
 
-        flags = rt.acquire(1, h, w)
-        launch("hl_flags", w, h, src=src, dst=flags, width=w, height=h, n=n, t=t)
-        nbx, nby = -(-w // BLOCK), -(-h // BLOCK)
-        blocks = rt.acquire(1, nby, nbx)
-        launch("hl_blocks", nbx, nby, flags=flags, blocks=blocks, width=w, height=h, nbx=nbx)
-        reach = rt.acquire(4, nby, nbx)
-        launch("hl_reach", nbx, nby, blocks=blocks, reach=reach, nbx=nbx, nby=nby)
-        rt.release(blocks)
-        sparse = dict(reach=reach, nbx=nbx, nby=nby)
+        def over(kernel: str, cells: np.ndarray, /, **args: object) -> None:      # one work-group per cell
+            mc = self.map_cell
+            rt.launch_named("highlights", kernel, mc, mc * len(cells), dict(args, list=rt.constant(cells)), defines,
+                            group=(mc, mc))
+
+        dst = rt.acquire(3, oh, ow)
+        launch("hl_copy", ow, oh, src=src, dst=dst, width=w, height=h, out_w=ow, out_h=oh)
+        plan = self.schedule(origin, h, w)
+        if not len(plan["flags"]):
+            return dst                                 # nothing may clip within the window: a copy
+        n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
+        cells, py, px = rt.constant(plan["cells"]), plan["py"], plan["px"]
+        ngx = plan["cells"].shape[1]
+        flags = rt.acquire(1, h, w, np.uint8)
+        launch("hl_clear", w, h, dst=flags, width=w)
+        over("hl_flags", plan["flags"], src=src, cells=cells, dst=flags, width=w, height=h, ngx=ngx, py=py, px=px,
+             n=n, t=t)
         w1, h1 = w - 2 * d, h - 2 * d
-        rows = rt.acquire(1, h, w1)
-        launch("hl_near_rows", w1, h, src=flags, dst=rows, width=w, out_w=w1, **sparse)
-        rt.release(flags)
-        near = rt.acquire(1, h1, w1)                    # on the window less the rim
-        launch("hl_near", w1, h1, rows=rows, dst=near, w1=w1, h1=h1, **sparse)
+        rows = rt.acquire(1, h, w1, np.uint8)
+        over("hl_near_rows", plan["rows"], flags=flags, dst=rows, width=w, height=h, w1=w1, py=py, px=px)
+        near = rt.acquire(1, h1, w1, np.uint8)                   # on the window less the rim
+        launch("hl_clear", w1, h1, dst=near, width=w1)
+        over("hl_near", plan["near"], rows=rows, dst=near, w1=w1, h1=h1, py=py, px=px)
         rt.release(rows)
-        ow, oh = w1 - 2 * r, h1 - 2 * r
         oy, ox = ((o + d) % CELL for o in origin)       # the window's first pixel in its cell
         ncw, nch = -(-(w1 + ox) // CELL), -(-(h1 + oy) // CELL)
-        cell_grid = dict(w1=w1, h1=h1, ncw=ncw, nch=nch, oy=oy, ox=ox)
+        cell_grid = dict(w1=w1, h1=h1, ncw=ncw, nch=nch, oy=oy, ox=ox, cells=cells, ngx=ngx, py=py, px=px)
         box = near
         if r:
-            cells = rt.acquire(SUMS, nch, ncw)
-            launch("hl_cells", ncw, nch, src=src, near=near, dst=cells, width=w, height=h, n=n, t=t, **cell_grid,
-                   **sparse)
+            sums = rt.acquire(SUMS, nch, ncw)
+            launch("hl_cells", ncw, nch, src=src, near=near, dst=sums, width=w, height=h, n=n, t=t, **cell_grid)
             box = rt.acquire(SUMS, nch, ncw)
-            launch("hl_cell_box", ncw, nch, cells=cells, dst=box, **cell_grid, **sparse)
-            rt.release(cells)
-        dst = rt.acquire(3, oh, ow)
-        launch("hl_apply", ow, oh, src=src, nearby=near, box=box, dst=dst, width=w, height=h, w1=w1, ncw=ncw,
-               nch=nch, oy=oy, ox=ox, out_w=ow, out_h=oh, n=n, t=t, d=rt.constant(as_f32(self.display)),
-               white=self.white, **sparse)
-        rt.release(reach)
+            launch("hl_cell_box", ncw, nch, sums=sums, dst=box, **cell_grid)
+            rt.release(sums)
+        over("hl_apply", plan["near"], src=src, flags=flags, nearby=near, box=box, dst=dst, width=w, height=h,
+             w1=w1, ncw=ncw, nch=nch, oy=oy, ox=ox, out_w=ow, out_h=oh, n=n, t=t,
+             d=rt.constant(as_f32(self.display)), white=self.white, py=py, px=px)
+        rt.release(flags)
         rt.release(near)
         if r:
             rt.release(box)
         return dst
 
 
-def reach_levels(rim: int, radius: int) -> dict[str, int]:
-    """Blocks (of BLOCK px) around a clipped pixel's block within which each kernel works. Apply
-    changes pixels within ``rim`` of a clipped one, so it works within ceil(rim / BLOCK) blocks and
-    copies the rest; each kernel that feeds another works wherever that one works, widened by the
-    reach of its reads there: the cells (:func:`cell_box_sums`) up to (k + 1) CELL - 1 px beyond
-    the cells apply reads, near a block more (a cell may straddle a block edge), the near rows
-    ``rim`` rows more. So no working pixel reads a value that was skipped.
+WORK_CELLS = 8
+"""Bit of a window cell (Highlights.schedule) where hl_cells sums the reference weights."""
+WORK_BOX = 16
+"""Bit of a window cell where hl_cell_box sums the cells around each cell (hl_apply reads them)."""
 
-    >>> reach_levels(4, 16)
-    {'apply': 1, 'cells': 2, 'near': 3, 'near_rows': 4}
-    >>> reach_levels(4, 0)
-    {'apply': 1, 'cells': 1, 'near': 1, 'near_rows': 2}
+
+def grow(mask: np.ndarray, k: int, axes: tuple[int, ...] = (0, 1)) -> np.ndarray:
+    """``mask`` (2-D bool) grown by k entries along ``axes`` (a (2 k + 1)-wide maximum, zeros past
+    the edges)."""
+    out = mask
+    for axis in axes:
+        pad = [(0, 0)] * mask.ndim
+        pad[axis] = (k, k)
+        out = box_max(np.pad(out, pad), k, axis)
+    return out
+
+
+def cell_list(mask: np.ndarray) -> np.ndarray:
+    """The cells of a 2-D bool mask as int32 gy << 16 | gx, row by row.
+
+    >>> cell_list(np.array([[0, 1], [1, 0]], bool)).tolist()
+    [1, 65536]
     """
-    def blocks(distance: int) -> int:
-        return -(-distance // BLOCK)
-    apply = max(1, blocks(rim))
-    cells = apply + blocks((cell_radius(radius) + 1) * CELL - 1) if radius else apply
-    near = cells + 1 if radius else apply
-    return {"apply": apply, "cells": cells, "near": near, "near_rows": near + blocks(rim)}
+    gy, gx = np.nonzero(mask)
+    return ((gy.astype(np.int64) << 16) | gx).astype(np.int32)
 
 
 def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
@@ -303,18 +390,21 @@ def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
     return out
 
 
-def clipped_channels(y: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """H x W x 3 bool: channel c of y (H x W x 3, units of n) is clipped where y_c >= t_c, or,
-    at pixels where another channel is, where y_c >= DIP t_c and y_c >= t_c at one of the 8
-    neighbours (inside the array)."""
-    hard = y >= t
+def clipped_channels(y: np.ndarray, t: np.ndarray, hard: np.ndarray | None = None) -> np.ndarray:
+    """H x W x 3 bool: channel c of y (H x W x 3, units of n) is clipped where it is ``hard``
+    (default y_c >= t_c; the stage: that, where the clip map allows c), and at pixels with a hard
+    channel also where y_c >= t_c (a channel the map calls the noise of a white at full scale is,
+    beside a true clip, a lower bound on the truth as a clipped one is), or where y_c >= DIP t_c and
+    c is hard at one of the 8 neighbours (inside the array)."""
+    over = y >= t
+    hard = over if hard is None else hard
     padded = np.pad(hard, ((1, 1), (1, 1), (0, 0)))
     h, w = hard.shape[:2]
     beside = np.zeros_like(hard)
     for dy in range(3):
         for dx in range(3):
             beside |= padded[dy:dy + h, dx:dx + w]
-    return hard | (beside & (y >= DIP * t) & hard.any(axis=-1, keepdims=True))
+    return hard | ((over | (beside & (y >= DIP * t))) & hard.any(axis=-1, keepdims=True))
 
 
 def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndarray:
@@ -432,6 +522,155 @@ def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.n
     return np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
 
 
+# ----------------------------------------------------------------------------------- the clip map
+
+@dataclass
+class ClipMap:
+    """Where a raw's samples clip, and where that is a true clip (:func:`clip_map`).
+
+    bits     (ny, nx) uint8 per MAP px cell of the mosaic: bit c set where channel c may count as
+             clipped (the stage's ``clip_map``).
+    clipped  (by, bx, 3) bool per TEST px block: a sample of channel c at or over its threshold.
+    true     (by, bx, 3) bool: those the noise test calls a true clip (grown into clipped
+             neighbours), all of ``clipped`` without a noise model.
+    """
+
+    bits: np.ndarray
+    clipped: np.ndarray
+    true: np.ndarray
+
+
+def clip_map(raw, noise=None) -> ClipMap | None:
+    """The clip map of ``raw`` (3-channel CFA, integer samples), or None where no sample reached
+    its channel's threshold (:func:`clip_thresholds_dn`). ``noise``: the white-balanced channels'
+    noise (clisp.sim.noise.ChannelNoise: var_c(s) = shot_c s + floor_c), None: every clipped block
+    is a true clip.
+
+    The noise test, per TEST px block and channel: a white surface at or just under full scale
+    clips part of its samples by noise alone, and is left as it is. With sigma the noise at the
+    threshold T (in DN) and the samples from T - NOISE_WINDOW sigma up (the ``bright`` ones, k of
+    them at or over T, u under it), a level mu at most the clip level C clips at most a share
+    q_C = Q((T - C) / sigma) / Q((T - C) / sigma - NOISE_WINDOW) of them (Q the Gaussian tail;
+    the share grows with mu, so C bounds it for any mix of levels up to C). The block is a true
+    clip of channel c where it holds a clipped sample and
+        u = 0                                  (nothing but clipped samples near the clip), or
+        k > n q_C + NOISE_Z sqrt(n q_C (1 - q_C)) + 0.5   (more clipped than noise allows),
+    n = k + u; a light past the clip clips every sample of its inside. True blocks grow into the 8
+    neighbouring blocks that hold a clipped sample of the channel (a light's edge, whose samples
+    through the clip a block of its own would count as a brighter surface's noise).
+
+    The map: a MAP px cell allows channel c where it holds a clipped sample of c in a true block,
+    and in the 8 cells around such a cell (the demosaic carries a clipped channel a few pixels
+    past its samples). Cost: one maximum per TEST block over the mosaic; the counts only in the
+    blocks that reach the lowest threshold."""
+    data = raw.data
+    if data.dtype != np.uint16 or raw.cfa.n_channels != 3:
+        return None
+    thr = clip_thresholds_dn(raw)
+    peaks = block_peaks(data, TEST)
+    found = np.argwhere(peaks >= thr.min())
+    if not len(found):
+        return None
+    by, bx = found[:, 0], found[:, 1]
+    blocks = gather_blocks(data, by, bx, TEST)                     # n x TEST x TEST samples
+    channel = block_channels(raw.cfa, by, bx, TEST)               # n x TEST x TEST channel indices
+    sigma = threshold_sigma(raw, noise, thr)
+    clip_dn = channel_clip_dn(raw)
+    nby, nbx = peaks.shape
+    half = TEST // MAP
+    clipped = np.zeros((nby, nbx, 3), dtype=bool)
+    true = np.zeros((nby, nbx, 3), dtype=bool)
+    cells = np.zeros((nby * half, nbx * half, 3), dtype=bool)
+    for c in range(3):
+        own = channel == c
+        hit = own & (blocks >= thr[c])
+        k = hit.sum(axis=(1, 2))
+        clipped[by, bx, c] = k > 0
+        if sigma is None or sigma[c] <= 0:
+            true[by, bx, c] = k > 0
+        else:
+            n = (own & (blocks >= thr[c] - NOISE_WINDOW * sigma[c])).sum(axis=(1, 2))
+            q = noise_clip_share((thr[c] - clip_dn[c]) / sigma[c])
+            excess = k > n * q + NOISE_Z * np.sqrt(n * q * (1.0 - q)) + 0.5
+            true[by, bx, c] = (k > 0) & ((n == k) | excess)
+        cells[by[:, None, None] * half + np.arange(half)[None, :, None],
+              bx[:, None, None] * half + np.arange(half)[None, None, :], c] = \
+            hit.reshape(-1, half, MAP, half, MAP).any(axis=(2, 4))
+    for c in range(3):
+        true[..., c] |= grow(true[..., c], 1) & clipped[..., c]
+    h, w = data.shape
+    ny, nx = -(-h // MAP), -(-w // MAP)
+    up = np.repeat(np.repeat(true, half, axis=0), half, axis=1)
+    bits = np.zeros((nby * half, nbx * half), dtype=np.uint8)
+    for c in range(3):
+        bits |= grow(cells[..., c] & up[..., c], 1).astype(np.uint8) << c
+    return ClipMap(np.ascontiguousarray(bits[:ny, :nx]), clipped, true)
+
+
+def noise_clip_share(t: float) -> float:
+    """q_C of :func:`clip_map`: the share of the samples from NOISE_WINDOW sigma under the
+    threshold up that reach it, for a level ``-t`` sigma over the threshold (t = (T - C) / sigma).
+
+    >>> round(noise_clip_share(-0.02 / 0.012), 3)        # gain 1 of the simulator: sigma 1.2 %
+    0.952
+    """
+    def tail(z: float) -> float:
+        return 0.5 * math.erfc(z / math.sqrt(2.0))
+    return tail(t) / max(tail(t - NOISE_WINDOW), 1e-300)
+
+
+def threshold_sigma(raw, noise, thr: np.ndarray) -> np.ndarray | None:
+    """(3,) the noise std (DN) of each channel at its clip threshold, from ``noise`` (white-balanced
+    units), or None without one."""
+    if noise is None:
+        return None
+    black = np.asarray(raw.black_level, dtype=np.float64)
+    span = float(raw.white_level) - black
+    gains = raw.pass1_gains()
+    level = (thr - black) / span * gains
+    return np.array([math.sqrt(max(float(noise.variance(c, level[c])), 0.0)) / gains[c] * span[c] for c in range(3)])
+
+
+def block_peaks(data: np.ndarray, b: int) -> np.ndarray:
+    """The largest sample of each b x b block of a mosaic (blocks on its grid from (0, 0); the
+    last row and column of blocks may be cut by its edge): ceil(H / b) x ceil(W / b)."""
+    h, w = data.shape
+    hf, wf = h // b * b, w // b * b
+    out = np.zeros((-(-h // b), -(-w // b)), dtype=data.dtype)
+    if hf and wf:
+        out[:h // b, :w // b] = data[:hf, :wf].reshape(h // b, b, w // b, b).max(axis=(1, 3))
+    for rows, cols, at in (((0, h), (wf, w), (slice(None), -1)), ((hf, h), (0, w), (-1, slice(None)))):
+        part = data[rows[0]:rows[1], cols[0]:cols[1]]
+        if part.size:
+            padded = np.zeros((-(-part.shape[0] // b) * b, -(-part.shape[1] // b) * b), dtype=data.dtype)
+            padded[:part.shape[0], :part.shape[1]] = part
+            peaks = padded.reshape(padded.shape[0] // b, b, padded.shape[1] // b, b).max(axis=(1, 3))
+            out[at] = np.maximum(out[at], peaks.reshape(-1))
+    return out
+
+
+def gather_blocks(data: np.ndarray, by: np.ndarray, bx: np.ndarray, b: int) -> np.ndarray:
+    """The b x b blocks (by, bx) of a mosaic, n x b x b, zeros past its edge."""
+    h, w = data.shape
+    rows = by[:, None] * b + np.arange(b)[None, :]                # n x b
+    cols = bx[:, None] * b + np.arange(b)[None, :]
+    inside = (rows[:, :, None] < h) & (cols[:, None, :] < w)
+    out = data[np.minimum(rows, h - 1)[:, :, None], np.minimum(cols, w - 1)[:, None, :]]
+    return np.where(inside, out, 0).astype(data.dtype)
+
+
+def block_channels(cfa, by: np.ndarray, bx: np.ndarray, b: int) -> np.ndarray:
+    """The CFA channel of every sample of the b x b blocks (by, bx): n x b x b (or 1 x b x b where b
+    is a multiple of the CFA's period, as every block then has the same)."""
+    p = cfa.period
+    pattern = np.asarray(cfa.pattern)
+    if b % p == 0:
+        return cfa.channel_map(b, b)[None]
+    rows = (by[:, None] * b + np.arange(b)[None, :]) % p
+    cols = (bx[:, None] * b + np.arange(b)[None, :]) % p
+    return pattern[rows[:, :, None], cols[:, None, :]]
+
+
 # ----------------------------------------------------------------------------------- from a raw
 
 def channel_clip_dn(raw) -> np.ndarray:
@@ -489,13 +728,29 @@ def display_matrix(colour_matrix: np.ndarray, neutral: np.ndarray) -> np.ndarray
     return a / float(a.sum(axis=1).mean())
 
 
-def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False) -> Highlights | None:
-    """The Highlights stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
-    clipped samples (unless ``force``), or a colour matrix without a positive neutral."""
+def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False, noise=None,
+                    scale: int = 1) -> Stage | None:
+    """The highlight stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
+    clipped samples, one whose clipped samples are all the noise of whites at full scale
+    (:func:`clip_map`; ``clip`` and ``reconstruct``), unless ``force``, or a colour matrix without
+    a positive neutral. ``noise``: the raw's channel noise for the noise test (ChannelNoise); None:
+    the raw's own (clisp.noise_estimate.raw_noise: its sensor model, else estimated; a raw too
+    small to estimate it gets no test). ``scale``: mosaic px per pixel of the stage's grid (2 after
+    the half-size binning)."""
     if mode not in MODES:
         raise ClispError(f"unknown highlight mode {mode!r}; expected one of {', '.join(MODES)}")
-    if mode == "off" or raw.cfa.n_channels != 3 or not (force or has_clipped(raw)):
+    if mode == "off" or raw.cfa.n_channels != 3:
         return None
+    bits = None
+    if mode == "clamp":
+        if not (force or has_clipped(raw)):
+            return None
+    else:
+        found = clip_map(raw, raw_noise_or_none(raw) if noise is None else noise)
+        if found is not None and found.bits.any():
+            bits = found.bits
+        elif not force:
+            return None
     try:
         n = neutral_of(raw.colour_matrix, wb2)
     except ClispError:
@@ -505,7 +760,17 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
     t = clip * raw.pass1_gains() / n                         # after WB pass 1, in units of n
     if mode == "clamp":
         return HighlightClamp(n, float(t.min()))
-    return Highlights(n, MARGIN * t, float(t.min()), mode, display=display_matrix(raw.colour_matrix, n))
+    return Highlights(n, MARGIN * t, float(t.min()), mode, display=display_matrix(raw.colour_matrix, n),
+                      clip_map=bits, map_cell=MAP // scale)
+
+
+def raw_noise_or_none(raw):
+    """The raw's channel noise (clisp.noise_estimate.raw_noise), None where it cannot be estimated."""
+    from ...noise_estimate import NoiseEstimateError, raw_noise
+    try:
+        return raw_noise(raw)
+    except NoiseEstimateError:
+        return None
 
 
 @dataclass
