@@ -105,11 +105,11 @@ def test_clipped_record_bounds_the_brightness():
     from clisp.modules.highlights.stage import reconstruct
     y = np.array([[[1.2, 1.25, 1.0]]])
     clipped = np.array([[[True, True, False]]])
-    sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
+    sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 0.0, 0.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.allclose(out[0, 0], [1.25, 1.25, 1.0])
     # a reference colour that calls the clipped channel nearly dark gives it no say (RHO_MIN)
-    sums = np.array([[[100.0, 10.0, 145.0, 100.0, 100.0, 10.0, 145.0]]])     # rho^ = (0.1, 1.45, 1.45)
+    sums = np.array([[[100.0, 10.0, 145.0, 100.0, 100.0, 10.0, 145.0, 0.0, 0.0, 100.0, 10.0, 145.0]]])     # rho^ = (0.1, 1.45, 1.45)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.all(np.isfinite(out)) and out[0, 0, 1] < 2.0
 

@@ -3,9 +3,9 @@
  * of n (3). */
 
 /* The reconstruct/clip kernels need the host's constants (clisp/modules/highlights/stage.py, as
- * defines): HL_RADIUS, HL_RIM, HL_MC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
+ * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
  * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
- * HL_WORK_CELLS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
+ * HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
 #include "box.h"
@@ -17,13 +17,14 @@
  *
  * Work in proportion to the clipped area: the host's clip map (Highlights.schedule) gives the
  * window's map cells (HL_MC x HL_MC px on the image's grid: window pixel (y, x) lies in cell
- * ((y + py) / HL_MC, (x + px) / HL_MC)) with their bits: 0-2 the channels that may count as
- * clipped there, HL_WORK_CELLS and HL_WORK_BOX where the two cell kernels work. hl_copy copies the
- * whole output; the list kernels (hl_flags, hl_near_rows, hl_near, hl_apply) run one work-group
- * of HL_MC x HL_MC per cell of a list (entries gy << 16 | gx): flags only where a channel is
- * allowed (0 elsewhere, hl_clear), near within a cell of those (every pixel within RIM <=
- * HL_MC of a flag; 0 elsewhere), the near rows a cell above and below that, apply there; the
- * cell kernels run over their grid and leave at once outside their cells. */
+ * ((y + py) / HL_MC, (x + px) / HL_MC)) with the channels that may count as clipped there (bits
+ * 0-2), the lists of HL_WC x HL_WC px work cells for the list kernels and the work of the cell
+ * kernels per reference cell (HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX). hl_copy copies the whole
+ * output; the list kernels (hl_flags, hl_near_rows, hl_near, hl_apply) run one work-group of
+ * HL_WC x HL_WC per listed cell (entries gy << 16 | gx): flags only where a channel is allowed
+ * (0 elsewhere, hl_clear), near within a map cell of those (every pixel within RIM <= HL_MC of a
+ * flag; 0 elsewhere), the near rows a map cell above and below that, apply where near; the cell
+ * kernels run over the grid of reference cells and leave at once outside their work. */
 
 /* max without fmax: PoCL 3 does not vectorise fmax/fmin (3x slower kernels); inputs are finite. */
 inline float hl_max(const float a, const float b)
@@ -31,13 +32,14 @@ inline float hl_max(const float a, const float b)
     return a > b ? a : b;
 }
 
-/* list_pixel: this work-item's window pixel (x, y): cell get_global_id(1) / HL_MC of the list,
- * its pixel (get_global_id(0), get_global_id(1) % HL_MC). */
-inline int2 list_pixel(__global const int *list, const int py, const int px)
+/* list_pixel: this work-item's window pixel (x, y): work cell get_global_id(1) / HL_WC of the
+ * list (HL_WC px on the image's grid, the window's first pixel at (wy, wx) of its cell), its pixel
+ * (get_global_id(0), get_global_id(1) % HL_WC). */
+inline int2 list_pixel(__global const int *list, const int wy, const int wx)
 {
-    const int c = list[get_global_id(1) / HL_MC];
-    return (int2)((c & 0xffff) * HL_MC + (int)get_global_id(0) - px,
-                  (c >> 16) * HL_MC + (int)(get_global_id(1) % HL_MC) - py);
+    const int c = list[get_global_id(1) / HL_WC];
+    return (int2)((c & 0xffff) * HL_WC + (int)get_global_id(0) - wx,
+                  (c >> 16) * HL_WC + (int)(get_global_id(1) % HL_WC) - wy);
 }
 
 /* hl_copy: the output, the window less RIM + R on every side (hl_apply overwrites where it works). */
@@ -63,9 +65,10 @@ __kernel void hl_clear(__global uchar *restrict dst, const int width)
 __kernel void hl_flags(__global const int *restrict list, __global const float *restrict src,
                        __global const uchar *restrict cells, __global uchar *restrict dst, const int width,
                        const int height, const int ngx, const int py, const int px,
-                       __constant const float *restrict n, __constant const float *restrict t)
+                       __constant const float *restrict n, __constant const float *restrict t, const int wy,
+                       const int wx)
 {
-    const int2 p = list_pixel(list, py, px);
+    const int2 p = list_pixel(list, wy, wx);
     if (p.x < 0 || p.y < 0 || p.x >= width || p.y >= height)
         return;
     const int bits = cells[((p.y + py) / HL_MC) * ngx + (p.x + px) / HL_MC];
@@ -83,9 +86,9 @@ __kernel void hl_flags(__global const int *restrict list, __global const float *
 /* hl_near_rows (list): 1 where a flag lies within RIM columns (the window less RIM columns, w1 wide). */
 __kernel void hl_near_rows(__global const int *restrict list, __global const uchar *restrict flags,
                            __global uchar *restrict dst, const int width, const int height, const int w1,
-                           const int py, const int px)
+                           const int wy, const int wx)
 {
-    const int2 p = list_pixel(list, py, px);
+    const int2 p = list_pixel(list, wy, wx);
     const int x = p.x - HL_RIM;
     if (x < 0 || x >= w1 || p.y < 0 || p.y >= height)
         return;
@@ -98,9 +101,9 @@ __kernel void hl_near_rows(__global const int *restrict list, __global const uch
 /* hl_near (list): on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
  * channel (max of the near rows over 2 RIM + 1 rows). */
 __kernel void hl_near(__global const int *restrict list, __global const uchar *restrict rows,
-                      __global uchar *restrict dst, const int w1, const int h1, const int py, const int px)
+                      __global uchar *restrict dst, const int w1, const int h1, const int wy, const int wx)
 {
-    const int2 p = list_pixel(list, py, px);
+    const int2 p = list_pixel(list, wy, wx);
     const int x = p.x - HL_RIM, y = p.y - HL_RIM;
     if (x < 0 || y < 0 || x >= w1 || y >= h1)
         return;
@@ -113,8 +116,9 @@ __kernel void hl_near(__global const int *restrict list, __global const uchar *r
 #if HL_RADIUS > 0
 /* reference_weights: the HL_SUMS reference planes of highlights.reference_weights at src index i
  * (near: the pixel's near flag): (w, w rho0, w rho1, w mean(y)) of a far reference (bright,
- * clearly unclipped, not near), then (w, w rho0, w rho1) of a rim reference (near, no channel
- * clipped, bright); rho_c = y_c / mean(y). */
+ * clearly unclipped, not near), (w, w rho0, w rho1, w (y0 - mean), w (y1 - mean)) of a rim
+ * reference (near, no channel clipped, bright), (w, w rho0, w rho1) of a surface reference (not
+ * near, clearly unclipped, not among the darkest); rho_c = y_c / mean(y). */
 inline void reference_weights(__global const float *src, const int i, const int plane, const uchar near,
                               const float *inv_n, const float *inv_nt, float *w)
 {
@@ -124,83 +128,72 @@ inline void reference_weights(__global const float *src, const int i, const int 
     const float ramp = clamp((m - HL_LOW) * (1.0f / (HL_REF - HL_LOW)), 0.0f, 1.0f);
     const float far = (m < HL_REF && near == 0) ? ramp : 0.0f;
     const float rim = (near != 0 && m < 1.0f) ? ramp : 0.0f;
-    const float total = y0 + y1 + y2;
+    const float surface = (m < HL_REF && near == 0) ?
+        clamp((m - HL_SURFACE_LOW) * (1.0f / (HL_SURFACE_FULL - HL_SURFACE_LOW)), 0.0f, 1.0f) : 0.0f;
+    const float total = y0 + y1 + y2, mean = total * (1.0f / 3.0f);
     const float inv = total > 0.0f ? 3.0f / total : 0.0f;
     w[0] = far;
     w[1] = far * y0 * inv;
     w[2] = far * y1 * inv;
-    w[3] = far * total * (1.0f / 3.0f);
+    w[3] = far * mean;
     w[4] = rim;
     w[5] = rim * y0 * inv;
     w[6] = rim * y1 * inv;
+    w[7] = rim * (y0 - mean);
+    w[8] = rim * (y1 - mean);
+    w[9] = surface;
+    w[10] = surface * y0 * inv;
+    w[11] = surface * y1 * inv;
 }
 
-/* cell_work: whether this work-item's cell (i, j) = (global id 0, 1), rows j HL_CELL - oy ..
- * + HL_CELL - 1 of the window less the rim (w1 x h1, cut at its edges), columns likewise, lies in a
- * map cell with the bit ``work`` (a cell lies in one map cell: both on the image's grid, HL_MC a
- * multiple of HL_CELL). span: the cell's first and last column and row. */
-inline int cell_work(__global const uchar *cells, const int work, const int ngx, const int py, const int px,
-                     const int ox, const int oy, const int w1, const int h1, int *span)
-{
-    const int i = get_global_id(0), j = get_global_id(1);
-    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
-    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
-    span[0] = x0;
-    span[1] = x1;
-    span[2] = y0;
-    span[3] = y1;
-    return (cells[((y0 + HL_RIM + py) / HL_MC) * ngx + (x0 + HL_RIM + px) / HL_MC] & work) != 0;
-}
-
-/* hl_cells: the reference weights (reference_weights of src and near) summed over each cell of
- * HL_CELL x HL_CELL px of the window less the rim (w1 x h1); cells lie on the image's grid, the
- * window's first pixel at (oy, ox) of its cell, so cell (j, i) covers rows j HL_CELL - oy ..
- * + HL_CELL - 1 (cut at the window's edges). dst: HL_SUMS planes of nch x ncw cells, written
- * where the map cell has HL_WORK_CELLS (every cell hl_cell_box reads). */
+/* hl_cells: the reference weights (reference_weights of src and near) of HL_SAMPLES pixels of
+ * each cell of HL_CELL x HL_CELL px of the window less the rim (w1 x h1), summed: the pixels
+ * (HL_SAMPLE_Y, HL_SAMPLE_X) of the cell (highlights.SAMPLES), those inside the window less the rim.
+ * Cells lie on the image's grid, the window's first pixel at (oy, ox) of its cell, so cell (j, i)
+ * starts at row j HL_CELL - oy, column i HL_CELL - ox. dst: HL_SUMS planes of nch x ncw cells, at
+ * the cells with HL_WORK_CELLS (those hl_box_rows reads). */
 __kernel void hl_cells(__global const float *restrict src, __global const uchar *restrict near,
                        __global float *restrict dst, const int width, const int height, const int w1,
                        const int h1, const int ncw, const int nch, const int oy, const int ox,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __global const uchar *restrict cells, const int ngx, const int py, const int px)
+                       __global const uchar *restrict cells)
 {
+    const int sample_y[HL_SAMPLES] = HL_SAMPLE_Y, sample_x[HL_SAMPLES] = HL_SAMPLE_X;
     const int i = get_global_id(0);
     const int j = get_global_id(1);
-    int span[4];
-    if (!cell_work(cells, HL_WORK_CELLS, ngx, py, px, ox, oy, w1, h1, span))
+    if (!(cells[j * ncw + i] & HL_WORK_CELLS))
         return;
     const int plane = width * height, cplane = ncw * nch;
     const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
     const float inv_nt[3] = {inv_n[0] / t[0], inv_n[1] / t[1], inv_n[2] / t[2]};
     float s[HL_SUMS], w[HL_SUMS];
-    for (int p = 0; p < HL_SUMS; p++)
-        s[p] = 0.0f;
-    for (int y = span[2]; y <= span[3]; y++)
-        for (int x = span[0]; x <= span[1]; x++) {
-            reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
-            for (int p = 0; p < HL_SUMS; p++)
-                s[p] += w[p];
-        }
-    for (int p = 0; p < HL_SUMS; p++)
-        dst[p * cplane + j * ncw + i] = s[p];
+    for (int q = 0; q < HL_SUMS; q++)
+        s[q] = 0.0f;
+    for (int k = 0; k < HL_SAMPLES; k++) {
+        const int y = j * HL_CELL - oy + sample_y[k], x = i * HL_CELL - ox + sample_x[k];
+        if (x < 0 || y < 0 || x >= w1 || y >= h1)
+            continue;
+        reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
+        for (int q = 0; q < HL_SUMS; q++)
+            s[q] += w[q];
+    }
+    for (int q = 0; q < HL_SUMS; q++)
+        dst[q * cplane + j * ncw + i] = s[q];
 }
 
-/* hl_cell_box: the sums of each cell's (2 HL_CELL_R + 1)^2 neighbourhood of cells (cells outside
- * the window count 0), HL_SUMS planes of nch x ncw, by the shared box sums (box.h); only in map
- * cells with HL_WORK_BOX (where hl_apply works). */
-__kernel void hl_cell_box(__global const float *restrict sums, __global float *restrict dst, const int ncw,
-                          const int nch, const int w1, const int h1, const int oy, const int ox,
-                          __global const uchar *restrict cells, const int ngx, const int py, const int px)
+/* hl_box_rows: the sums of each cell's 2 HL_CELL_R + 1 cells along its row of cells (cells outside
+ * the window count 0), HL_SUMS planes of nch x ncw, at the cells with HL_WORK_ROWS (those
+ * hl_box_cols reads). */
+__kernel void hl_box_rows(__global const float *restrict sums, __global float *restrict dst, const int ncw,
+                          const int nch, const int oy, const int ox, __global const uchar *restrict cells)
 {
-    int span[4];
-    if (!cell_work(cells, HL_WORK_BOX, ngx, py, px, ox, oy, w1, h1, span))
-        return;
     const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
+    if (!(cells[j * ncw + i] & HL_WORK_ROWS))
+        return;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
-    const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
-    for (int p = 0; p < HL_SUMS; p++)
-        dst[p * cplane + j * ncw + i] = box_sum_rect(sums + p * cplane, ncw, i0, i1, j0, j1);
+    for (int q = 0; q < HL_SUMS; q++)
+        dst[q * cplane + j * ncw + i] = box_sum_rect(sums + q * cplane, ncw, i0, i1, j, j);
 }
-#endif /* HL_RADIUS > 0 */
 
 /* chroma_of: rho^ (mean 1) from box sums (w, w rho0, w rho1) and the neutral prior. */
 inline void chroma_of(const float s0, const float s1, const float s2, float *rho)
@@ -222,21 +215,88 @@ inline float agreement(const float *a, const float *b, __constant const float *d
     return clamp((HL_AGREE_HI - dist) / (HL_AGREE_HI - HL_AGREE_LO), 0.0f, 1.0f);
 }
 
+/* hl_box_cols: the box of (2 HL_CELL_R + 1)^2 cells around each cell (hl_box_rows' sums over
+ * 2 HL_CELL_R + 1 rows), and from it what hl_apply needs per cell, HL_REFS planes of nch x ncw:
+ * 0-2 the far references' chroma rho^ (chroma_of), 3 their agreement with the rim's (d the display
+ * matrix), 4-5 their weight and weighted brightness (the box's sums 0 and 3), 6-8 the rim's
+ * difference chroma along the surface's, Delta (highlights.rim_difference), 9-11 the surface's
+ * chroma less 1, c, 12-14 g = d^T e / |e|^2 with e the part of d c across d (1, 1, 1) (0 where the
+ * surface has no chroma: highlights.surface_projection's s is g . y), 15 (d c . d 1) / |d 1|^2,
+ * 16 the largest output channel of d Delta, 17 |Delta|^2; at the cells with HL_WORK_BOX (where
+ * hl_apply reads them). */
+__kernel void hl_box_cols(__global const float *restrict rows, __global float *restrict dst, const int ncw,
+                          const int nch, const int oy, const int ox, __global const uchar *restrict cells,
+                          __constant const float *restrict d)
+{
+    const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
+    if (!(cells[j * ncw + i] & HL_WORK_BOX))
+        return;
+    const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
+    float s[HL_SUMS];
+    for (int q = 0; q < HL_SUMS; q++)
+        s[q] = box_sum_rect(rows + q * cplane, ncw, i, i, j0, j1);
+    float far[3], rim[3], surface[3], c[3];
+    chroma_of(s[0], s[1], s[2], far);
+    chroma_of(s[4], s[5], s[6], rim);
+    chroma_of(s[9], s[10], s[11], surface);
+    for (int k = 0; k < 3; k++)
+        c[k] = surface[k] - 1.0f;
+    /* the rim's difference chroma along the surface's (highlights.rim_difference) */
+    const float sw = s[4] + HL_PRIOR, delta[3] = {s[7] / sw, s[8] / sw, -(s[7] + s[8]) / sw};
+    float dd = 0.0f, dc[3], d1[3], dl[3], a11 = 0.0f, a12 = 0.0f, a22 = 0.0f;
+    for (int r = 0; r < 3; r++) {
+        dl[r] = d[3 * r] * delta[0] + d[3 * r + 1] * delta[1] + d[3 * r + 2] * delta[2];
+        dc[r] = d[3 * r] * c[0] + d[3 * r + 1] * c[1] + d[3 * r + 2] * c[2];
+        d1[r] = d[3 * r] + d[3 * r + 1] + d[3 * r + 2];
+        dd += dl[r] * dc[r];
+        a11 += d1[r] * d1[r];
+        a12 += dc[r] * d1[r];
+        a22 += dc[r] * dc[r];
+    }
+    const float amount = a22 > 1e-12f ? hl_max(dd, 0.0f) / a22 : 0.0f;
+    float e[3], ee = 0.0f, size = 0.0f, norm = 0.0f;       /* d c's part across d 1 */
+    for (int r = 0; r < 3; r++) {
+        e[r] = dc[r] - a12 / a11 * d1[r];
+        ee += e[r] * e[r];
+        size = hl_max(size, fabs(amount * dc[r]));
+        norm += amount * c[r] * amount * c[r];
+    }
+    const int ok = a22 > 1e-12f && ee > 1e-6f * a22;
+    const int at = j * ncw + i;
+    dst[at] = far[0];
+    dst[cplane + at] = far[1];
+    dst[2 * cplane + at] = far[2];
+    dst[3 * cplane + at] = agreement(far, rim, d);
+    dst[4 * cplane + at] = s[0];
+    dst[5 * cplane + at] = s[3];
+    for (int k = 0; k < 3; k++) {
+        dst[(6 + k) * cplane + at] = amount * c[k];
+        dst[(9 + k) * cplane + at] = c[k];
+        dst[(12 + k) * cplane + at] = ok ? (d[k] * e[0] + d[3 + k] * e[1] + d[6 + k] * e[2]) / ee : 0.0f;
+    }
+    dst[15 * cplane + at] = a12 / a11;
+    dst[16 * cplane + at] = size;
+    dst[17 * cplane + at] = norm;
+}
+#endif /* HL_RADIUS > 0 */
+
 /* hl_apply (list: the cells within a cell of a flag): the rule of stage.py at output pixel (y, x)
- * = window pixel (y + RIM + R, x + RIM + R); the clipped channels from the flags (bit c) and, at a
- * pixel with a flag, every channel over its threshold or within HL_DIP of it and flagged at one of
- * the 8 neighbours (highlights.clipped_channels). HL_CLIP: clipped -> white n,
- * near -> neutral at the mean. Else the reconstruction: box: hl_cell_box's sums (ncw x nch cells,
- * far then rim, HL_SUMS planes) at the pixel's cell; d the display matrix of agreement(). */
+ * = window pixel (y + RIM + R, x + RIM + R); the clipped channels from the flags (bit c) and the
+ * soft test (a channel within HL_DIP of its threshold, clipped at one of the 8 neighbours, at a
+ * pixel with another clipped channel: highlights.clipped_channels); wt: the free channels' weights;
+ * h = d^T d (1, 1, 1) / |d (1, 1, 1)|^2 (surface_projection's white). HL_CLIP: clipped -> white n,
+ * near -> neutral at the mean. Else the reconstruction: box: hl_box_cols' planes (ncw x nch
+ * cells) at the pixel's cell; d the display matrix of agreement(). */
 __kernel void hl_apply(__global const int *restrict list, __global const float *restrict src,
                        __global const uchar *restrict flags, __global const uchar *restrict nearby,
                        __global const float *restrict box, __global float *restrict dst,
                        const int width, const int height, const int w1, const int ncw, const int nch,
                        const int oy, const int ox, const int out_w, const int out_h,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __constant const float *restrict d, const float white, const int py, const int px)
+                       __constant const float *restrict d, __constant const float *restrict wt,
+                       __constant const float *restrict h, const float white, const int wy, const int wx)
 {
-    const int2 q = list_pixel(list, py, px);
+    const int2 q = list_pixel(list, wy, wx);
     const int x = q.x - HL_RIM - HL_RADIUS, y = q.y - HL_RIM - HL_RADIUS;
     if (x < 0 || y < 0 || x >= out_w || y >= out_h)
         return;
@@ -245,14 +305,14 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
     float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
     const int f = flags[i];
     int c0 = f & 1, c1 = (f >> 1) & 1, c2 = (f >> 2) & 1;
-    if (f) {                     /* beside a true clip: over the threshold, or soft (clipped at a neighbour) */
+    if (f) {                                 /* soft: the channel clipped at a neighbour */
         int beside = 0;
         for (int dy = -1; dy <= 1; dy++)
             for (int dx = -1; dx <= 1; dx++)
                 beside |= flags[i + dy * width + dx];
-        c0 = c0 || v[0] >= t[0] || ((beside & 1) && v[0] >= HL_DIP * t[0]);
-        c1 = c1 || v[1] >= t[1] || ((beside & 2) && v[1] >= HL_DIP * t[1]);
-        c2 = c2 || v[2] >= t[2] || ((beside & 4) && v[2] >= HL_DIP * t[2]);
+        c0 = c0 || ((beside & 1) && v[0] >= HL_DIP * t[0]);
+        c1 = c1 || ((beside & 2) && v[1] >= HL_DIP * t[1]);
+        c2 = c2 || ((beside & 4) && v[2] >= HL_DIP * t[2]);
     }
     const int count = c0 + c1 + c2;
     const uchar near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
@@ -270,16 +330,13 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
         const float top = hl_max(hl_max(v[0], v[1]), v[2]);
         v[0] = v[1] = v[2] = top;
     } else {
-        const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL;
-        float s[HL_SUMS];
-        for (int p = 0; p < HL_SUMS; p++)
-            s[p] = box[p * ncw * nch + cell];
-        float far[3], rim[3];
-        chroma_of(s[0], s[1], s[2], far);
-        chroma_of(s[4], s[5], s[6], rim);
+        const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL, cplane = ncw * nch;
+        const float far[3] = {box[cell], box[cplane + cell], box[2 * cplane + cell]};
+        const float s0 = box[4 * cplane + cell], s3 = box[5 * cplane + cell];
+        const float delta[3] = {box[6 * cplane + cell], box[7 * cplane + cell], box[8 * cplane + cell]};
         const int clipped[3] = {c0, c1, c2};
-        /* trust in the far chroma (highlights.trust_in_far) */
-        float trust = agreement(far, rim, d);
+        /* trust in the far chroma (highlights.trust_in_far): agreement with the rim's (per cell) */
+        float trust = box[3 * cplane + cell];
         float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
         for (int c = 0; c < 3; c++) {
             fy[c] = clipped[c] ? 0.0f : v[c];
@@ -296,32 +353,65 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
         }
         if (count > 0) {                     /* the brightness far implies, against its references' */
             const float implied = sy / hl_max(sr, 1e-6f);
-            const float rise = s[0] > 0.0f ? implied * s[0] / hl_max(s[3], 1e-9f) : 0.0f;
+            const float rise = s0 > 0.0f ? implied * s0 / hl_max(s3, 1e-9f) : 0.0f;
             trust *= clamp((HL_RISE_HI - rise) / (HL_RISE_HI - HL_RISE_LO), 0.0f, 1.0f);
         }
         float rho[3];
         for (int c = 0; c < 3; c++)
             rho[c] = 1.0f + trust * (far[c] - 1.0f);
-        if (count == 0) {                    /* rim: reference colour, unless a surface of its own */
+        if (count == 0) {                    /* rim: white plus the surface's colour (surface_projection) */
             const float mean = (v[0] + v[1] + v[2]) / 3.0f;
             float own[3];
             for (int c = 0; c < 3; c++)
                 own[c] = mean > 0.0f ? v[c] / mean : 1.0f;
-            const float keep = s[0] / (s[0] + HL_EVIDENCE) * (1.0f - agreement(own, far, d));
-            for (int c = 0; c < 3; c++)
-                v[c] += (1.0f - keep) * (mean * rho[c] - v[c]);
+            const float keep = s0 / (s0 + HL_EVIDENCE) * (1.0f - agreement(own, far, d));
+            /* white plus the surface's chroma c: s = g . v in [0, mean], b = h . v - (a12 / a11) s */
+            const float c[3] = {box[9 * cplane + cell], box[10 * cplane + cell], box[11 * cplane + cell]};
+            const float sp = clamp(box[12 * cplane + cell] * v[0] + box[13 * cplane + cell] * v[1] +
+                                   box[14 * cplane + cell] * v[2], 0.0f, mean);
+            const float b = h[0] * v[0] + h[1] * v[1] + h[2] * v[2] - box[15 * cplane + cell] * sp;
+            for (int c2 = 0; c2 < 3; c2++)
+                v[c2] += (1.0f - keep) * (b + sp * c[c2] - v[c2]);
         } else {
-            float den = 0.0f;
+            float num = 0.0f, den = 0.0f, wsum = 0.0f;
             for (int c = 0; c < 3; c++)
-                if (!clipped[c])
-                    den += rho[c];
-            float k = sy / hl_max(den, 1e-6f);
+                if (!clipped[c]) {
+                    num += wt[c] * v[c];
+                    den += wt[c] * rho[c];
+                    wsum += wt[c];
+                }
+            float k = num / hl_max(den, 1e-6f);
             for (int c = 0; c < 3; c++)          /* a clipped record bounds the brightness below */
                 if (clipped[c] && rho[c] >= HL_RHO_MIN)
                     k = hl_max(k, v[c] / rho[c]);
+            /* the additive estimate (highlights.additive_estimate): white b plus s of the rim's Delta */
+            float pair = 0.0f, sfd = 0.0f, sfd2 = 0.0f, sfy = 0.0f, wy = 0.0f, wd = 0.0f;
+            const float dd = box[17 * cplane + cell];
+            for (int c = 0; c < 3; c++) {
+                if (!clipped[c]) {
+                    pair += v[c] * delta[c];
+                    sfd += delta[c];
+                    sfd2 += delta[c] * delta[c];
+                    sfy += v[c];
+                    wy += wt[c] * v[c];
+                    wd += wt[c] * delta[c];
+                }
+            }
+            const float prior = HL_ADD_PRIOR * dd;
+            float sa = count == 1 ? clamp((2.0f * pair - sfy * sfd + prior) / hl_max(2.0f * sfd2 - sfd * sfd + prior, 1e-12f),
+                                          0.0f, 1.0f) : 0.0f;
+            const float wfree = hl_max(wsum, 1e-12f);
+            const float b0 = hl_max((wy - sa * wd) / wfree, 0.0f);
+            const float size = sa * box[16 * cplane + cell];
+            if (size > HL_ADD_LIMIT * b0)
+                sa *= HL_ADD_LIMIT * b0 / hl_max(size, 1e-12f);
+            float b = (wy - sa * wd) / wfree;
             for (int c = 0; c < 3; c++)
                 if (clipped[c])
-                    v[c] = hl_max(v[c], k * rho[c]);
+                    b = hl_max(b, v[c] - sa * delta[c]);
+            for (int c = 0; c < 3; c++)
+                if (clipped[c])
+                    v[c] = hl_max(v[c], trust * k * rho[c] + (1.0f - trust) * (b + sa * delta[c]));
         }
     }
 #endif
