@@ -54,7 +54,7 @@ from clisp.pipeline import build_pipeline
 from clisp.sim.simulate import inverse_isp_matrix
 from clisp.noise_estimate import CLIP_FRACTION
 from clisp.modules.highlights.stage import Highlights, box_max
-from clisp.sim.highlight_scenes import highlight_scenes
+from clisp.sim.highlight_scenes import highlight_scenes, specular_rim
 
 PEAK = 4.0
 BLOCK = 16
@@ -236,25 +236,6 @@ def natural_scenes(data: Path, only: str) -> dict[str, np.ndarray]:
     scenes_.update(own_photos())
     scenes_.update(highlight_scenes(384))
     return {k: v for k, v in scenes_.items() if not only or only in k}
-
-
-RIM_REACH = 6
-"""The specular rim reaches this far (px, Chebyshev) from the clipped region."""
-
-
-def specular_rim(truth: np.ndarray, cfa: str) -> np.ndarray:
-    """H x W bool: issue 43's "specular rim": the pixels within RIM_REACH of the clipped region
-    (truth at or past CLIP_FRACTION in some raw channel) where at most one raw channel of the truth
-    is past it, so that two recorded channels say the colour: where a highlight's clipped core meets
-    the surface around it. (Where two channels clip, one record says only a brightness; where all
-    three do, not even that.)"""
-    a, _ = inverse_isp_matrix(cfa)
-    raw = truth @ a.T
-    clipped = raw.max(-1) >= CLIP_FRACTION
-    if not clipped.any():
-        return np.zeros(truth.shape[:2], dtype=bool)
-    grown = box_max(box_max(np.pad(clipped, RIM_REACH).astype(float), RIM_REACH, 0), RIM_REACH, 1) > 0
-    return grown & ((raw >= CLIP_FRACTION).sum(-1) <= 1)
 
 
 def gross_errors(out: np.ndarray, truth: np.ndarray) -> tuple[int, float]:

@@ -15,10 +15,16 @@ brightest camera channel is exactly the clip level and values past 1 are past it
   both of the above.
 
 Each returns an n x n x 3 float64 array; the values are deterministic (no random numbers).
+:func:`specular_rim` marks where a clipped highlight's core meets the surface around it, where
+issue 43 bounds every reconstructed pixel's error (tests/modules/test_highlights.py,
+tools/bench_highlights.py).
 """
 from __future__ import annotations
 
 import numpy as np
+
+from ..noise_estimate import CLIP_FRACTION
+from .simulate import inverse_isp_matrix
 
 SPHERES = ((0.78, 0.05, 0.04), (0.05, 0.52, 0.07), (0.04, 0.07, 0.72))
 """Diffuse colours of :func:`specular_ring`'s spheres: saturated red, green and blue."""
@@ -88,3 +94,33 @@ def light_beside(n: int = 192, peak: float = 3.0) -> np.ndarray:
 def highlight_scenes(n: int = 192) -> dict[str, np.ndarray]:
     """The three scenes by name (n x n each)."""
     return {"specular ring": specular_ring(n), "white shirt": white_shirt(n), "light beside": light_beside(n)}
+
+
+RIM_REACH = 6
+"""The specular rim reaches this far (px, Chebyshev) from the clipped region."""
+
+
+def specular_rim(truth: np.ndarray, cfa: str) -> np.ndarray:
+    """H x W bool: issue 43's "specular rim": the pixels within RIM_REACH of the clipped region
+    (truth at or past CLIP_FRACTION in some raw channel) where at most one raw channel of the truth
+    is past it, so that two recorded channels say the colour: where a highlight's clipped core meets
+    the surface around it. (Where two channels clip, one record says only a brightness; where all
+    three do, not even that.)"""
+    a, _ = inverse_isp_matrix(cfa)
+    raw = truth @ a.T
+    clipped = raw.max(-1) >= CLIP_FRACTION
+    if not clipped.any():
+        return np.zeros(truth.shape[:2], dtype=bool)
+    grown = _grow(clipped, RIM_REACH)
+    return grown & ((raw >= CLIP_FRACTION).sum(-1) <= 1)
+
+
+def _grow(mask: np.ndarray, k: int) -> np.ndarray:
+    """``mask`` (H x W bool) grown by k px (Chebyshev)."""
+    padded = np.pad(mask, k)
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    for dy in range(2 * k + 1):
+        for dx in range(2 * k + 1):
+            out |= padded[dy:dy + h, dx:dx + w]
+    return out
