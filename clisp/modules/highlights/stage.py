@@ -77,7 +77,7 @@ from functools import partial
 import numpy as np
 
 from ...errors import ClispError
-from ...noise_estimate import CLIP_FRACTION
+from ...noise_estimate import CLIP_FRACTION, NoiseEstimateError, raw_noise
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, camera_neutral
@@ -1017,7 +1017,6 @@ def channel_weights(raw, neutral: np.ndarray) -> np.ndarray:
 
 def raw_noise_or_none(raw):
     """The raw's channel noise (clisp.noise_estimate.raw_noise), None where it cannot be estimated."""
-    from ...noise_estimate import NoiseEstimateError, raw_noise
     try:
         return raw_noise(raw)
     except NoiseEstimateError:
