@@ -35,9 +35,10 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from .version import __version__
 from .errors import ClispError
-from .engine.runtime import get_runtime, save_built_programs
+from .engine.runtime import DEVICE_LOCK, get_runtime, save_built_programs
 from .io.rawfile import RAW_SUFFIXES, read_raw
-from .pipeline import DEFAULT_BUDGET, DEFAULT_PRESET, SKIP_WHERE_IT_PAYS, process_file, resolve_options
+from .pipeline import (DEFAULT_BUDGET, DEFAULT_PRESET, GPU_FILES_IN_FLIGHT, SKIP_WHERE_IT_PAYS, process_file,
+                       resolve_options)
 # clisp.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
 # tqdm and clisp.io.imageio are imported where they are used.
 
@@ -186,7 +187,8 @@ def process_one(job: Job, settings: BatchSettings, digest: str, run: str) -> dic
                       sha256=file_sha256(job.output))
     except Exception as exc:  # noqa: BLE001 - one bad file must not stop the batch
         record.update(status="error", error=error_line(job.input, exc))
-    save_built_programs()          # a worker's compiled programs kept for later processes (nothing new: no cost)
+    with DEVICE_LOCK:              # a worker's compiled programs kept for later processes (nothing new: no cost)
+        save_built_programs()
     record["seconds"] = round(time.perf_counter() - start, 4)
     return record
 
@@ -221,35 +223,72 @@ def worker_cache(key: Any, factory: Callable[[], Any]) -> Any:
 
 class RuntimePlugin:
     """Dask worker plugin: builds the worker process's OpenCL context (clisp.engine.runtime.get_runtime,
-    once per process) when the worker starts, not inside the first file's time."""
+    once per process) when the worker starts, not inside the first file's time. ``gpus``: the
+    local cluster's GPUs (local_gpus): worker i takes GPU i modulo their count (CLISP_DEVICE set
+    in its process before the context is made)."""
 
     name = "clisp-runtime"
 
+    def __init__(self, gpus: Sequence[str] = ()) -> None:
+        self.gpus = list(gpus)
+
     def setup(self, worker: Any) -> None:
+        if len(self.gpus) > 1:
+            try:
+                index = int(worker.name)
+            except (TypeError, ValueError):
+                index = abs(hash(worker.name))
+            os.environ["CLISP_DEVICE"] = self.gpus[index % len(self.gpus)]
         worker.clisp_device = get_runtime().describe()
 
     def teardown(self, worker: Any) -> None:
         pass
 
 
-def _worker_plugin() -> Any:
+def _worker_plugin(gpus: Sequence[str] = ()) -> Any:
     from distributed import WorkerPlugin        # deferred: distributed costs 0.2 s of start-up
 
     class _Plugin(RuntimePlugin, WorkerPlugin):
         pass
-    return _Plugin()
+    return _Plugin(gpus)
 
 
 # ------------------------------------------------------------------------------------------
 # the client's side: cluster, manifest, resume
 # ------------------------------------------------------------------------------------------
 
-def default_workers() -> int:
-    """Worker processes of a local cluster: the CPUs this process may run on."""
+def host_cpus() -> int:
+    """The CPUs this process may run on."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:
         return max(1, os.cpu_count() or 1)
+
+
+def local_gpus() -> list[str]:
+    """The GPUs a local cluster's workers run on, as CLISP_DEVICE specs ('P:D'): every GPU OpenCL
+    lists when CLISP_DEVICE is unset or 'gpu' (the default device is then a GPU), the one it names
+    when that is a GPU; none where the workers' device is a CPU or OpenCL cannot be asked."""
+    from .engine.runtime import choose_device, list_devices    # deferred: pyopencl, 0.1 s
+    spec = os.environ.get("CLISP_DEVICE", "").strip()
+    try:
+        cl = __import__("pyopencl")
+        found = list_devices()
+        if spec.lower() in ("", "gpu"):
+            return [f"{p}:{d}" for p, d, _, device in found if device.type & cl.device_type.GPU]
+        platform, device = choose_device(spec)
+    except Exception:  # noqa: BLE001 - no OpenCL here (ClispError, ImportError, cl.Error): the workers find out
+        return []
+    if not device.type & cl.device_type.GPU:
+        return []
+    return [f"{p}:{d}" for p, d, pl, dev in found if dev == device][:1]
+
+
+def default_workers() -> int:
+    """Worker processes of a local cluster: one per GPU where the workers' device is a GPU (one
+    context per GPU: sixteen processes sharing one GPU would each hold its context, programs and
+    buffers), else one per CPU this process may run on."""
+    return len(local_gpus()) or host_cpus()
 
 
 def local_worker_env(workers: int) -> dict[str, str]:
@@ -258,7 +297,7 @@ def local_worker_env(workers: int) -> dict[str, str]:
     the user set it. (2 workers on 2 CPUs: 1.3x the throughput, tools/bench_batch.py.)"""
     if workers <= 1 or "POCL_CPU_MAX_CU_NUM" in os.environ:
         return {}
-    return {"POCL_CPU_MAX_CU_NUM": str(max(1, default_workers() // workers))}
+    return {"POCL_CPU_MAX_CU_NUM": str(max(1, host_cpus() // workers))}
 
 
 class _WorkersCannotRun(Exception):
@@ -269,8 +308,9 @@ class _WorkersCannotRun(Exception):
 def dask_client(workers: int | None = None, scheduler: str | None = None,
                 timeout: float = START_TIMEOUT, worker_env: dict[str, str] | None = None) -> Iterator[Any]:
     """A ``distributed.Client``: on the cluster at ``scheduler`` (an address such as
-    tcp://host:8786), else on a new local cluster of ``workers`` processes (default: one per CPU)
-    with one thread each, on loopback, closed on exit. Each worker builds its OpenCL context
+    tcp://host:8786), else on a new local cluster on loopback, closed on exit, of ``workers``
+    processes (default: one per GPU where the workers' device is a GPU, local_gpus, each with
+    GPU_FILES_IN_FLIGHT threads whose files overlap; else one per CPU, one thread each). Each worker builds its OpenCL context
     once (:class:`RuntimePlugin`). ``timeout``: seconds for start-up and for a first worker
     (ClispError past it). ``worker_env``: environment of local workers (default
     :func:`local_worker_env`)."""
@@ -280,6 +320,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
     except ImportError as exc:
         raise ClispError("clisp batch needs Dask: pip install 'dask[distributed]'") from exc
     cluster = client = None
+    gpus: list[str] = []
     config = {"distributed.comm.timeouts.connect": f"{timeout}s",
               "distributed.scheduler.allowed-failures": 1}   # a file that kills a worker is retried once
     try:
@@ -287,15 +328,18 @@ def dask_client(workers: int | None = None, scheduler: str | None = None,
             if scheduler:
                 client = Client(scheduler, timeout=timeout)
             else:
-                n = workers or default_workers()
+                gpus = local_gpus()
+                n = workers or len(gpus) or host_cpus()
                 warnings.filterwarnings("ignore", message="Port .* is already in use")   # a free one is taken
-                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                       dashboard_address=None, silence_logs=logging.ERROR,
-                                       env=local_worker_env(n) if worker_env is None else dict(worker_env))
+                cluster = LocalCluster(n_workers=n, threads_per_worker=GPU_FILES_IN_FLIGHT if gpus else 1,
+                                       processes=True, host="127.0.0.1", dashboard_address=None,
+                                       silence_logs=logging.ERROR,
+                                       env=({} if gpus else local_worker_env(n)) if worker_env is None
+                                       else dict(worker_env))
                 client = Client(cluster, timeout=timeout)
             client.wait_for_workers(1, timeout=timeout)
             try:
-                client.register_plugin(_worker_plugin())
+                client.register_plugin(_worker_plugin(gpus))
             except Exception as exc:  # noqa: BLE001 - the workers' own error, e.g. no clisp there
                 raise _WorkersCannotRun(" ".join(str(exc).split())) from exc
     except (OSError, TimeoutError, _WorkersCannotRun) as exc:

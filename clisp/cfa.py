@@ -29,6 +29,7 @@ the Bayer layout: L where R was, M where G was, S where B was), else '<spectral>
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -106,25 +107,31 @@ class CFA:
         return np.bincount(self.pattern.ravel(), minlength=self.n_channels) / self.pattern.size
 
     def covering_radius(self, channel: int) -> int:
-        """Smallest r such that every (2r+1)^2 window holds a sample of ``channel`` (Chebyshev metric)."""
-        p = self.period
-        sites = np.argwhere(self.pattern == channel)
-        for r in range(p + 1):
-            ok = True
-            for y in range(p):
-                for x in range(p):
-                    dy = np.abs((sites[:, 0] - y + p // 2) % p - p // 2)
-                    dx = np.abs((sites[:, 1] - x + p // 2) % p - p // 2)
-                    if not np.any(np.maximum(dy, dx) <= r):
-                        ok = False
-            if ok:
-                return r
-        raise ClispError(f"CFA {self.name}: channel {self.channels[channel]} has no samples")
+        """Smallest r such that every (2r+1)^2 window holds a sample of ``channel`` (Chebyshev metric).
+        Memoised per pattern: the bilinear demosaic asks for it in every halo query, and the search
+        cost 12 ms of a 0.26 MP LMS call."""
+        radius = _covering_radius(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.period, int(channel))
+        if radius < 0:
+            raise ClispError(f"CFA {self.name}: channel {self.channels[channel]} has no samples")
+        return radius
 
     @property
     def dng_pattern(self) -> bytes:
         """CFAPattern tag bytes with DNG colour codes (0 red/L, 1 green/M, 2 blue/S)."""
         return bytes(int(v) for v in self.pattern.ravel())
+
+
+@lru_cache(maxsize=64)
+def _covering_radius(pattern: bytes, p: int, channel: int) -> int:
+    """:meth:`CFA.covering_radius` of the (p, p) int8 pattern ``pattern`` (its bytes); -1 when the
+    channel has no samples."""
+    sites = np.argwhere(np.frombuffer(pattern, dtype=np.int8).reshape(p, p) == channel)
+    if not len(sites):
+        return -1
+    ys, xs = np.divmod(np.arange(p * p), p)
+    dy = np.abs((sites[:, 0][:, None] - ys[None, :] + p // 2) % p - p // 2)
+    dx = np.abs((sites[:, 1][:, None] - xs[None, :] + p // 2) % p - p // 2)
+    return int(np.maximum(dy, dx).min(axis=0).max())       # the farthest pixel from its nearest site
 
 
 def spectral_of(channels: tuple[str, ...]) -> str:

@@ -7,6 +7,7 @@ and no output file (all writes go to a temporary name and are renamed on success
 from __future__ import annotations
 
 import argparse
+from collections import deque
 import json
 import os
 import sys
@@ -16,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -29,8 +30,9 @@ from .engine.streaming import progress_bar
 from .engine.tiling import Tile
 from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .modules.resize.stage import check_long_edge, resize_note
-from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, HALF_SIZE_NO_DENOISE, PRESETS,
-                       SKIP_WHERE_IT_PAYS, denoise_params, output_size, process_file, resolve_options)
+from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, FILES_IN_FLIGHT,
+                       GPU_FILES_IN_FLIGHT, HALF_SIZE_NO_DENOISE, PRESETS, SKIP_WHERE_IT_PAYS, denoise_params,
+                       output_size, process_file, resolve_options)
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
@@ -381,13 +383,18 @@ def is_many(inputs: Sequence[str], output: str, fmt: str | None) -> bool:
 
 def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
     """Read ``path``, process it into ``output`` and print its line (and --explain/--profile)."""
+    print(_run_one(args, path, output), flush=True)
+
+
+def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = True) -> str:
+    """Read ``path`` and process it into ``output``; returns its line (and --explain/--profile's)."""
     profile = _start_profile() if (args.profile or args.explain) and args.backend == "opencl" else None
     with host_timer("decode raw file (header, camera raw pixels)"):
         raw = read_raw(path, lazy=True)
     skip = (False if args.explain else None) if args.no_skip else SKIP_WHERE_IT_PAYS
     explained: dict = {}
     (height, width), stats = process_file(raw, output, tile=args.tile, budget=args.mem, backend=args.backend,
-                                          progress=True, compression=args.compression, preset=args.preset,
+                                          progress=progress, compression=args.compression, preset=args.preset,
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
                                           auto_exposure=args.auto_exposure, wb=args.wb, resize=args.resize,
@@ -395,19 +402,31 @@ def _process_one(args: argparse.Namespace, path: str, output: str) -> None:
                                           explain=explained if args.explain else None, crop=not args.no_crop)
     th, tw = stats.tile_shape
     size = resize_note(output_size(raw, not args.no_crop, args.half_size), (height, width), args.resize)
-    print(f"{output}: {width}x{height}{size} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
-          f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
-          f"of {tw}x{th})", flush=True)
+    lines = [f"{output}: {width}x{height}{size} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
+             f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
+             f"of {tw}x{th})"]
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         if args.half_size:
-            print(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
-                  f"{explained['pipeline'].describe()}")
-        print(explain_run(explained.get("pipeline"), stats, profile))
+            lines.append(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
+                         f"{explained['pipeline'].describe()}")
+        lines.append(explain_run(explained.get("pipeline"), stats, profile))
     if profile is not None and args.profile:
         wall = _process_seconds()
-        print(profile.report(stats.megapixels, wall))
-        print(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
+        lines.append(profile.report(stats.megapixels, wall))
+        lines.append(f"  {'process start-up (interpreter, imports, OpenCL)':<44}{_STARTUP.get('s', 0.0):8.3f}")
+    if profile is not None:
+        engine_profile.stop()                           # the next file's runs are not this file's
+    return "\n".join(lines)
+
+
+def files_in_flight(args: argparse.Namespace, count: int) -> int:
+    """How many of ``count`` files ``clisp process`` runs at once: one with --profile or --explain
+    (their figures are the one file's) or on the NumPy reference, else FILES_IN_FLIGHT (or
+    GPU_FILES_IN_FLIGHT on a discrete device: clisp.pipeline)."""
+    if count < 2 or args.profile or args.explain or args.backend != "opencl":
+        return 1
+    return FILES_IN_FLIGHT if get_runtime().host_unified else GPU_FILES_IN_FLIGHT
 
 
 def _process_many(args: argparse.Namespace) -> int:
@@ -426,12 +445,25 @@ def _process_many(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ClispError(f"{outdir}: cannot create the output folder ({exc.strerror or exc})") from None
     start, failed = time.perf_counter(), 0
-    for job in jobs:
+    in_flight = files_in_flight(args, len(jobs))
+
+    def one(job: Any) -> tuple[str, str]:
+        """(line for stdout, line for stderr) of one file."""
         try:
-            _process_one(args, job.input, job.output)
+            return _run_one(args, job.input, job.output, progress=in_flight == 1), ""
         except (ClispError, MemoryError) as exc:
-            failed += 1
-            print(error_line(file_error(job.input, exc)), file=sys.stderr, flush=True)
+            return "", error_line(file_error(job.input, exc))
+    with ThreadPoolExecutor(in_flight, thread_name_prefix="clisp-file") as files:
+        pending: deque = deque()
+        for job in jobs:                 # at most in_flight files read and held at once
+            pending.append(files.submit(one, job))
+            while len(pending) >= in_flight or (pending and job is jobs[-1]):
+                out, err = pending.popleft().result()      # lines in the inputs' order
+                if err:
+                    failed += 1
+                    print(err, file=sys.stderr, flush=True)
+                else:
+                    print(out, flush=True)
     done = len(jobs) - failed
     seconds = time.perf_counter() - start
     print(f"{done} of {len(jobs)} file{'s' if len(jobs) != 1 else ''} written to {outdir} in {seconds:.1f} s"

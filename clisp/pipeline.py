@@ -19,13 +19,13 @@ from .io.exif import output_attributes
 from .io.rawfile import read_raw
 from .io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
 from .engine.executor import DEFAULT_BUDGET, Pipeline, RunStats, device_limits
-from .engine.runtime import get_runtime
+from .engine.runtime import DEVICE_LOCK, get_runtime
 from .engine.stage import Stage
 from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
                                            space_for)
-from .modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
+from .modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_ri.stage import DemosaicRI
 from .modules.demosaic_bilinear.stage import DemosaicBilinear
@@ -76,7 +76,7 @@ raw with clipping spread over a fifth of it). Explicit options override."""
 DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
 """Largest ``--exposure`` in EV either way (a gain of 1024: past it a raw's quantisation shows)."""
-OUTPUTS = ("linear", "srgb", "srgb16")
+OUTPUTS = ("linear", "srgb", "srgb16", "srgb8")
 HALF_SIZE_DOWNSCALE = 2
 """Raw pixels per output pixel along each axis with ``--half-size``."""
 HALF_SIZE_HIGHLIGHTS = "clamp"
@@ -126,6 +126,17 @@ def make_demosaic(name: str, raw: RawImage) -> Stage:
     return DEMOSAICS[name].for_raw(raw)
 
 
+FILES_IN_FLIGHT = 2
+"""Files one process has under way at once on a device that shares host memory (``clisp process
+RAW... -o OUTDIR``): one on the device while the other is decoded or its last bands written and
+the file closed (clisp.engine.runtime.DEVICE_LOCK lets one thread at a time on the device).
+Twelve 3 MP Bayer raws to TIFF on 2 PoCL cores: quality 4.4-5.3 s against 5.1-6.3 s one at a
+time, fast 0.35-0.46 against 0.37-0.46 (docs/RESULTS.md, issue 41)."""
+
+GPU_FILES_IN_FLIGHT = 3
+"""The same on a discrete device, and the threads of a ``clisp batch`` worker there: decode the
+next, run this one, write the last, on the host's cores while the GPU runs."""
+
 SKIP_WHERE_IT_PAYS = "auto"
 """build_pipeline's ``skip`` for the CLI's default: skip where it pays on the device."""
 
@@ -139,7 +150,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     WB pass 2, tone curve.
 
     ``output='linear'`` ends in linear sRGB (for EXR); ``'srgb'`` appends the sRGB tone curve;
-    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG). ``demosaic``: a name
+    ``'srgb16'`` the tone curve to 16-bit codes, uint16 (for 16-bit TIFF/PNG); ``'srgb8'`` to 8-bit
+    codes, uint8 (for JPEG: the device writes the file's bytes). ``demosaic``: a name
     (DEMOSAICS; None = the preset's) or a configured demosaic stage, used as given. ``denoise``: None =
     the preset's depth, False = off, True = on (the preset's depth, at least 1 level), or explicit
     ChromaDenoiseParams; its noise comes from the raw's sensor model, else it is estimated from the
@@ -209,8 +221,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     output_gains = gains2 * 2.0 ** exposure
     if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(output_gains))
-    if output in ("srgb", "srgb16"):
-        stages.append(ToneCurve(quantize=output == "srgb16"))
+    tone = tone_curve_for(output)
+    if tone is not None:
+        stages.append(tone)
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
@@ -383,8 +396,9 @@ def _crop_image(image: np.ndarray, crop: tuple[int, int, int, int] | None) -> np
 def process_with_stats(raw: RawImage, tile: int | None = None, backend: str = "opencl", crop: bool = True,
                        **options: Any) -> tuple[np.ndarray, RunStats]:
     """:func:`process` for a RawImage, also returning the run's timing."""
-    pipeline = build_pipeline(raw, **options)
-    image = pipeline.run(raw.data, tile=tile, backend=backend)
+    with DEVICE_LOCK:                                # one thread at a time builds and runs on the device
+        pipeline = build_pipeline(raw, **options)
+        image = pipeline.run(raw.data, tile=tile, backend=backend)
     image = _crop_image(image, output_crop(crop_of(raw), pipeline, raw.shape) if crop else None)
     image = np.ascontiguousarray(orient(image, int(raw.metadata.get("flip", 0) or 0)))
     return image, pipeline.stats
@@ -431,65 +445,110 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     compression = compression or DEFAULT_COMPRESSION
     attributes = output_attributes(raw)
     kind = output_kind(path)
-    encoding = "srgb16" if kind == "srgb" else kind
+    encoding = encoded_output(path) if kind == "srgb" else kind
     scale = HALF_SIZE_DOWNSCALE if options.get("half_size") else 1
     region = scaled_crop(crop_of(raw), scale, raw.shape) if crop else None
     upright = output_size(raw, crop, options.get("half_size", False))
     target = upright if resize is None else resized_size(*upright, check_long_edge(resize))
     resized = target != upright
-    pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
-    notes = []                                                           # what was applied, in the file
-    if options.get("wb", "camera") != "camera":
-        notes.append(f"white balance {pipeline.wb_source} (clisp)")
-    if options.get("exposure") or options.get("auto_exposure"):
-        how = ", auto" if options.get("auto_exposure") else ""
-        notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
-    if resized:                                   # the size it had, in the file (no EXIF size is written)
-        notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
-                     f"(clisp, Lanczos-3 in linear light)")
-    if notes:
-        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
-    if explain is not None:                       # the caller reads the plan after the run
-        explain["pipeline"] = pipeline
     flip = int(raw.metadata.get("flip", 0) or 0)
     in_memory = bool(flip) or (resized and backend != "opencl")
-    resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
-        if resized and not in_memory else None
-    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
-                               extra=2 * resizer.window_bytes if resizer else 0)
-    if in_memory:               # rotated output rows are input columns: orient the whole result
-        image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
-        with closing(window_source(raw.data)) as source:
-            pipeline.stream(source, ArraySink(image), plan, backend)
-        oriented = orient(_crop_image(image, region), flip)
-        if resized:
-            _write_resized(path, oriented, target, encoding, backend, compression, attributes)
-        else:
-            write_image(path, oriented, compression=compression, attributes=attributes)
-        return target, pipeline.stats
-    (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
-    out_h, out_w = target
-    bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
-    start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
-            ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
-            (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
-             BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
-                      plan, width, channels, pipeline.out_dtype)) as sink, bar as update:
-        stats = pipeline.stream(source, sink, plan, backend, progress=update)
-    return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
+    with DeviceHold() as hold:        # the device's part; decoding and writing run outside (DEVICE_LOCK)
+        pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
+        notes = []                                                           # what was applied, in the file
+        if options.get("wb", "camera") != "camera":
+            notes.append(f"white balance {pipeline.wb_source} (clisp)")
+        if options.get("exposure") or options.get("auto_exposure"):
+            how = ", auto" if options.get("auto_exposure") else ""
+            notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
+        if resized:                                   # the size it had, in the file (no EXIF size is written)
+            notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
+                         f"(clisp, Lanczos-3 in linear light)")
+        if notes:
+            attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
+        if explain is not None:                       # the caller reads the plan after the run
+            explain["pipeline"] = pipeline
+        resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
+            if resized and not in_memory else None
+        plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
+                                   extra=2 * resizer.window_bytes if resizer else 0)
+        if in_memory:               # rotated output rows are input columns: orient the whole result
+            image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
+            with closing(window_source(raw.data)) as source:
+                pipeline.stream(source, ArraySink(image), plan, backend)
+            oriented = orient(_crop_image(image, region), flip)
+            if resized:
+                _write_resized(path, oriented, target, encoding, backend, compression, attributes)
+            else:
+                hold.release()
+                write_image(path, oriented, compression=compression, attributes=attributes)
+            return target, pipeline.stats
+        (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
+        out_h, out_w = target
+        bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
+        start = time.perf_counter()
+        with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
+                ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
+                (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
+                 BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
+                          plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
+                bar as update:
+            stats = pipeline.stream(source, sink, plan, backend, progress=update)
+            if resizer is None:
+                hold.release()                  # the bands left to write and the file's close need no device
+        return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
+
+
+class DeviceHold:
+    """This thread's hold of DEVICE_LOCK, taken on entering; :meth:`release` gives it up early
+    (once; leaving the block then does nothing), so that process_file's device work can end before
+    its file is written and closed."""
+
+    def __enter__(self) -> "DeviceHold":
+        DEVICE_LOCK.acquire()
+        self.held = True
+        return self
+
+    def release(self) -> None:
+        if self.held:
+            self.held = False
+            DEVICE_LOCK.release()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def _band_staging(backend: str) -> Any:
+    """Where process_file's output bands come from: the runtime's pinned staging buffers on a
+    discrete device (the downloads' destination, reused across files); None (plain arrays) on a
+    device sharing host memory, whose last kernel writes into the band itself."""
+    if backend != "opencl":
+        return None
+    rt = get_runtime()
+    return None if rt.host_unified else rt.staging
+
+
+def encoded_output(path: str | Path) -> str:
+    """The pipeline output an sRGB-encoded file takes: 8-bit codes for JPEG ('srgb8'), 16-bit codes
+    for TIFF and PNG ('srgb16').
+
+    >>> encoded_output("a.JPG"), encoded_output("b.tif")
+    ('srgb8', 'srgb16')
+    """
+    from .io.imageio import JPEG_EXTENSIONS       # deferred, as in process_file
+    return "srgb8" if Path(path).suffix.lower() in JPEG_EXTENSIONS else "srgb16"
 
 
 def _write_resized(path: str | Path, image: np.ndarray, target: tuple[int, int], encoding: str, backend: str,
                    compression: str, attributes: dict) -> None:
     """Write the linear H x W x 3 ``image`` resized to ``target`` (height, width) in ``encoding``
-    ('linear', 'srgb16'): on the device, band by band into the file; the NumPy reference (and
+    ('linear', 'srgb16', 'srgb8'): on the device, band by band into the file; the NumPy reference (and
     ToneCurve's) for ``backend`` 'reference'."""
     from .io.imageio import ImageWriter, write_image   # deferred, as in process_file
     if backend != "opencl":
         pixels = resize_reference(image, *target)
         if encoding != "linear":
-            pixels = ToneCurve(quantize=encoding == "srgb16").reference(pixels, (0, 0))
+            pixels = tone_curve_for(encoding).reference(pixels, (0, 0))
         write_image(path, pixels, compression=compression, attributes=attributes)
         return
     with ImageWriter(path, target[1], target[0], 3, compression, attributes) as writer:

@@ -30,3 +30,20 @@ def rt():
 @pytest.fixture(autouse=True)
 def fixed_resident_set(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(clisp.engine.memory, "resident_bytes", lambda: TEST_PROCESS_RSS)
+
+
+def has_cpu_device() -> bool:
+    """Whether OpenCL lists a CPU device here (PoCL, from the pocl-binary-distribution wheel); a
+    GPU-only machine (its driver's OpenCL, no PoCL) has none."""
+    from clisp.engine.runtime import list_devices
+    import pyopencl as cl
+    try:
+        return any(device.type & cl.device_type.CPU for _, _, _, device in list_devices())
+    except Exception:
+        return False
+
+
+needs_cpu_device = pytest.mark.skipif(not has_cpu_device(), reason="needs a CPU OpenCL device (PoCL); "
+                                      "this machine's OpenCL lists none (a GPU-only machine)")
+"""For tests that ask for the CPU device by name (``Runtime("cpu")``): skipped, with the reason, where
+there is none, instead of failing."""

@@ -171,3 +171,37 @@ def test_paper_sweep_on_cluster_matches_serial(tmp_path: Path, external_cluster)
     with reproduce_paper.sweep_mapper(external_cluster.scheduler_address) as mapper:
         remote = mapper(pt.table1_item, items, runner, timeout=RESULTS)
     assert remote == serial and len(serial[0]) == 4
+
+
+def test_one_worker_per_gpu(monkeypatch) -> None:
+    """A machine whose OpenCL lists GPUs starts one local worker per GPU (not one per CPU), each on
+    its own GPU; a CPU device (CLISP_DEVICE=cpu, or no GPU) one per CPU (issue 41, item 6)."""
+    from types import SimpleNamespace
+    import pyopencl as cl
+    import clisp.batch as batch
+    import clisp.engine.runtime as runtime
+    gpu = SimpleNamespace(type=cl.device_type.GPU, name="GPU")
+    gpu2 = SimpleNamespace(type=cl.device_type.GPU, name="GPU 2")
+    cpu = SimpleNamespace(type=cl.device_type.CPU, name="CPU")
+    nvidia, pocl = SimpleNamespace(name="NVIDIA CUDA"), SimpleNamespace(name="Portable Computing Language")
+    found = [(0, 0, nvidia, gpu), (0, 1, nvidia, gpu2), (1, 0, pocl, cpu)]
+    monkeypatch.setattr(runtime, "list_devices", lambda: found)
+    monkeypatch.delenv("CLISP_DEVICE", raising=False)
+    assert batch.local_gpus() == ["0:0", "0:1"] and batch.default_workers() == 2
+    monkeypatch.setenv("CLISP_DEVICE", "cpu")
+    assert batch.local_gpus() == [] and batch.default_workers() == batch.host_cpus()
+    monkeypatch.setenv("CLISP_DEVICE", "1")
+    assert batch.local_gpus() == []
+    monkeypatch.setenv("CLISP_DEVICE", "0:1")
+    assert batch.local_gpus() == ["0:1"]
+    monkeypatch.setattr(runtime, "list_devices", lambda: [found[2]])
+    monkeypatch.delenv("CLISP_DEVICE")
+    assert batch.local_gpus() == []
+
+    seen = []
+    monkeypatch.setattr(batch, "get_runtime", lambda: seen.append(os.environ["CLISP_DEVICE"]) or
+                        SimpleNamespace(describe=lambda: "fake"))
+    plugin = batch.RuntimePlugin(["0:0", "0:1"])
+    for name in (0, 1, 2):
+        plugin.setup(SimpleNamespace(name=name))
+    assert seen == ["0:0", "0:1", "0:0"]

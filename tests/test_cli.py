@@ -295,8 +295,11 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
     code, out, err = run(["process", raw_path, "-o", tmp_path / "o.tif", "--profile"], capsys)
     assert code == 0, err
     for expected in ("device: stage / kernel", "demosaic_ri", "ri_green_fit", "chroma_denoise", "joint_bilateral",
-                     "upload", "download", "write output", "device total", "start-up"):
+                     "upload", "download", "write output", "device total", "start-up",
+                     "% of the tile loop", "host per launch_named", "per enqueue", "launches per tile", "bytes moved"):
         assert expected in out, f"{expected!r} missing from the profile:\n{out}"
+    busy = int(re.search(r"device busy (\d+) % of the tile loop", out).group(1))
+    assert 0 < busy <= 100
     total = float(next(line for line in out.splitlines() if "device total" in line).split()[-1])
     assert total > 0
 
@@ -355,6 +358,8 @@ def test_process_many_inputs_into_a_folder(tmp_path: Path, scene_png: Path, caps
     assert sorted(p.name for p in out.iterdir()) == ["a.tif", "b.tif", "c.tif"]
     assert "3 of 4 files written" in text and "1 failed" in text
     assert err.count("\n") == 1 and "bad.dng" in err
+    written = [line.split(":")[0] for line in text.splitlines() if ".tif:" in line]
+    assert [Path(p).name for p in written] == ["a.tif", "b.tif", "c.tif"]          # in the inputs' order
     for name, path in (("a", folder / "a.dng"), ("c", lone)):
         single = tmp_path / f"{name}-single.tif"
         assert run(["process", path, "-o", single], capsys)[0] == 0

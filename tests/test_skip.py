@@ -286,7 +286,7 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     from clisp.engine.streaming import ArrayWindows
     rt = get_runtime()
     raw, pipe, sk = _skipper(1, "lms", smooth_scene())
-    monkeypatch.setattr(pipeline_module.Pipeline, "_device_source", staticmethod(lambda source: None))
+    monkeypatch.setattr(pipeline_module.Pipeline, "_device_source", staticmethod(lambda source, plan: None))
     seen: list = []
     host_input = rt.host_input
     monkeypatch.setattr(rt, "host_input", lambda array: seen.append(weakref.ref(array)) or host_input(array))

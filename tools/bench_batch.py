@@ -37,7 +37,7 @@ import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
 
-from clisp.batch import (BatchSettings, default_workers, local_worker_env, plan_jobs, process_one, read_manifest,
+from clisp.batch import (BatchSettings, host_cpus, local_worker_env, plan_jobs, process_one, read_manifest,
                          run_batch)
 from clisp.cli import image_size
 from clisp.io.rawfile import write_raw
@@ -104,7 +104,7 @@ def bench(args: argparse.Namespace, work: Path) -> int:
     paths = make_raws(work / "raws", args.count, width, height)
     mp_each = width * height / 1e6
     print(f"{args.count} raws of {width}x{height} ({mp_each:.2f} MP), preset {args.preset}, {args.format}; "
-          f"{default_workers()} CPUs; work {work}")
+          f"{host_cpus()} CPUs; work {work}")
     rows = []
     loop(paths, work / "out-warm-up", settings)     # fills PoCL's program cache on disk for every run
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as fresh:
@@ -114,7 +114,7 @@ def bench(args: argparse.Namespace, work: Path) -> int:
     rows.append(("loop, warm process (programs in memory)", warm, warm, warm, mp))
     runs = [(n, None) for n in (int(v) for v in args.workers.split(","))]
     if args.pocl_all:
-        runs += [(n, {"POCL_CPU_MAX_CU_NUM": str(default_workers())}) for n, _ in list(runs) if n > 1]
+        runs += [(n, {"POCL_CPU_MAX_CU_NUM": str(host_cpus())}) for n, _ in list(runs) if n > 1]
     batch_1 = None
     for n, env in runs:
         outdir = work / f"out-dask{n}{'-pocl-all' if env else ''}"

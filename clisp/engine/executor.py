@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import math
 import pickle
+import threading
 import time
+from collections import OrderedDict
 from contextlib import closing
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -21,11 +23,14 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from .disk_cache import device_identity, entry_name, read_json, write_json
+from . import profile
 from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
-from .streaming import READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
-from .tiling import DEVICE_SHARE, DeviceLimits, Tile, TileNeeds, TilePlan, make_plan
+from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, aligned_array, run_tiles,
+                        window_source)
+from .tiling import (DEVICE_SHARE, GPU_TARGET_TILE_PIXELS, TARGET_TILE_PIXELS, DeviceLimits, Tile, TileNeeds,
+                     TilePlan, make_plan)
 
 DEFAULT_BUDGET = 2**30
 """Memory budget in bytes. ``clisp process --mem`` / :func:`process_file`: the peak resident set
@@ -150,11 +155,20 @@ class Pipeline:
         On OpenCL the tiles' bytes are counted exactly (:meth:`tile_cost`); ``sink_bands``: also
         count the band buffers and writer rows of a streamed output file (process_file)."""
         limits = device_limits(backend)
+        key = self._key(True)
+        if key is not None:
+            key += repr((tuple(shape), np.dtype(raw_dtype).str, tile, budget, backend, sink_bands, limits)).encode()
+            plan = PLANS.get(key)
+            if plan is not None:
+                return plan
         needs = self.needs(raw_dtype)
         out_h, out_w = self.output_shape(shape)
         if backend == "opencl":
             needs = replace(needs, cost=self.tile_cost(raw_dtype, out_w, limits, sink_bands))
-        return make_plan(out_h, out_w, needs, tile, budget, limits)
+        plan = make_plan(out_h, out_w, needs, tile, budget, limits)
+        if key is not None:
+            PLANS.put(key, plan)
+        return plan
 
     def tile_cost(self, raw_dtype: Any, image_width: int, limits: DeviceLimits,
                   sink_bands: bool) -> Callable[[int, int], float]:
@@ -172,7 +186,11 @@ class Pipeline:
         out_px = self.out_channels * self.out_dtype.itemsize
         halo, scale = self.halo, self.downscale
         kept = _kept_metering_name(rt, schedule, raw_dtype)
-        metered: dict[str, list[int]] = (read_json("metering", kept) if kept else None) or {}
+        metered: dict[str, list[int]] | None = METERED.get(kept) if kept else None
+        if metered is None:
+            metered = (read_json("metering", kept) if kept else None) or {}
+            if kept:
+                METERED.put(kept, metered)
 
         def cost(rows: int, cols: int) -> float:
             window = (rows * scale + 2 * halo, cols * scale + 2 * halo)
@@ -221,7 +239,7 @@ class Pipeline:
         A read-only memory map of a raw file (``read_raw(path, lazy=True)``) is read tile by tile.
         """
         self._check(data.shape, backend)
-        out = np.empty(self.output_shape(data.shape) + (self.out_channels,), dtype=self.out_dtype)
+        out = aligned_array(self.output_shape(data.shape) + (self.out_channels,), self.out_dtype)
         plan = self.plan(data.shape, data.dtype, tile, budget, backend)
         with closing(window_source(data)) as source:
             self.stream(source, ArraySink(out), plan, backend, fuse)
@@ -234,34 +252,42 @@ class Pipeline:
         self._check(source.shape, backend)
         image = (int(source.shape[0]), int(source.shape[1]))     # the planner's alone; stages get it per window
         win_h, win_w = plan.window_shape
-        whole = self._device_source(source) if backend == "opencl" else None
+        whole = self._device_source(source, plan) if backend == "opencl" else None
         if backend == "opencl":                      # halo passed on: stages recompute it per call
-            get_runtime().trim_pool()                # the pool holds what this plan's tiles need
-            compute = partial(self._compute_opencl, self.schedule(fuse), plan, whole=whole, image=image)
+            schedule = self.schedule(fuse)           # the pool holds what this plan's tiles need
+            get_runtime().trim_pool(keep=_pool_key(schedule, plan, whole is not None, self.skipper))
+            compute = partial(self._compute_opencl, schedule, plan, whole=whole, image=image)
         else:
             compute = partial(self._compute_reference, plan, image=image)
 
         if self.skipper is not None:                 # per-tile paths (clisp.skip), on the raw's grid
             compute = self._path_compute(plan, backend, fuse, whole, compute, image)
 
-        windows = WindowPool()
+        rt = get_runtime() if backend == "opencl" else None
+        windows = WindowPool(staging=rt.staging if rt is not None and not rt.host_unified else None)
 
-        def read(t: Tile) -> np.ndarray | None:
-            if whole is not None:                    # the device gathers the window itself
-                return None
+        def read(t: Tile) -> np.ndarray:
             with host_timer("read tile windows"):
                 return source.read(*plan.window_origin(t), win_h, win_w, self.cfa.period,
                                    windows.take((win_h, win_w), source.window_dtype))
 
+        recording = profile.active()
+        loop = recording.begin_loop() if recording is not None else None
         start = time.perf_counter()
-        try:
-            run_tiles(plan, read, compute, sink, progress, release=None if whole is not None else windows.give)
+        try:                                         # where the device gathers each window: no reads
+            run_tiles(plan, None if whole is not None else read, compute, sink, progress,
+                      release=None if whole is not None else windows.give)
         finally:
             if backend == "opencl":
-                get_runtime().queue.finish()          # no copy may still target the sink's arrays
+                get_runtime().finish()                # no copy may still target the sink's arrays
+                if whole is not None:
+                    get_runtime().release(whole)      # a staged mosaic's buffers back to their pools
+            windows.close()
+        seconds = time.perf_counter() - start
+        if loop is not None:
+            recording.end_loop(loop, seconds, len(plan.tiles))
         height, width = source.shape
-        self.stats = RunStats(time.perf_counter() - start, height * width / 1e6, len(plan.tiles),
-                              (plan.tile_h, plan.tile_w))
+        self.stats = RunStats(seconds, height * width / 1e6, len(plan.tiles), (plan.tile_h, plan.tile_w))
         return self.stats
 
     def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,
@@ -387,14 +413,31 @@ class Pipeline:
         host[y:y + t.h, x0:x0 + t.w] = x
         return None
 
+    def _key(self, fuse: bool) -> bytes | None:
+        """:func:`_stages_key` of this pipeline's stages, pickled once per list of stage objects."""
+        ident = tuple(map(id, self.stages))
+        cached = self.__dict__.get("_keys")
+        if cached is None or cached[0] != ident:
+            cached = self.__dict__["_keys"] = (ident, {})
+        if fuse not in cached[1]:
+            cached[1][fuse] = _stages_key(self.stages, fuse)
+        return cached[1][fuse]
+
     def schedule(self, fuse: bool = True) -> list[Stage]:
         """The stages as run on OpenCL: fused where they compose, the last one writing the host's
-        interleaved layout when it can."""
-        schedule = fuse_stages(self.stages) if fuse else list(self.stages)
-        last = schedule[-1].with_interleaved_output()
-        if last is not None:
-            schedule[-1] = last
-        return schedule
+        interleaved layout when it can. Made once per process for equal stages (:data:`SCHEDULES`,
+        keyed by their pickle), so every call of one camera and settings launches the same stage
+        objects, whose kernels, sources and constants are resolved once."""
+        key = self._key(fuse)
+        schedule = SCHEDULES.get(key) if key is not None else None
+        if schedule is None:
+            schedule = fuse_stages(self.stages) if fuse else list(self.stages)
+            last = schedule[-1].with_interleaved_output()
+            if last is not None:
+                schedule[-1] = last
+            if key is not None:
+                SCHEDULES.put(key, schedule)
+        return list(schedule)
 
     @staticmethod
     def _enqueue_tile(rt: Any, schedule: list[Stage], src: Any, origin: tuple[int, int],
@@ -438,14 +481,19 @@ class Pipeline:
         return rt.host_image(host[y:y + h])
 
     @staticmethod
-    def _device_source(source: WindowSource) -> Any:
-        """A device image over the whole mosaic of an in-memory source that the device reads in
-        place (Runtime.host_source: a device sharing host memory, an aligned uint16 or float32
-        array), so that each tile's window is gathered by the device (Runtime.gather_window), not
-        copied by the host; None otherwise (files, discrete GPUs, other dtypes)."""
+    def _device_source(source: WindowSource, plan: TilePlan) -> Any:
+        """The whole mosaic of an in-memory source (uint16 or float32) on the device, so that each
+        tile's window is gathered there (Runtime.gather_window), not copied by the host; None where
+        the host reads the windows (files, other dtypes; see :func:`resident_policy`)."""
         if not isinstance(source, ArrayWindows) or source.data.dtype not in (np.uint16, np.float32):
             return None
-        return get_runtime().host_source(source.data)
+        rt = get_runtime()
+        in_place = rt.host_source(source.data)
+        if in_place is not None:
+            return in_place
+        if not resident_policy(rt, source.data.nbytes, len(plan.tiles)):
+            return None
+        return rt.resident_mosaic(source.data)
 
     def _compute_opencl(self, schedule: list[Stage], plan: TilePlan, t: Tile, window: np.ndarray | None,
                         target: tuple[np.ndarray, int, int], whole: Any = None,
@@ -486,7 +534,7 @@ class Pipeline:
             event = rt.settle_host_image(src)
         else:
             event = rt.download_region(src, host, y, x, t.h, t.w)
-            rt.release(src)                           # the in-order queue copies before reuse
+            rt.release(src, after=event)              # reused once the copy has read it
         rt.queue.flush()
         return event
 
@@ -545,5 +593,82 @@ def device_limits(backend: str) -> DeviceLimits:
     """The OpenCL device's memory limits (none for the NumPy reference)."""
     if backend != "opencl":
         return DeviceLimits()
-    device = get_runtime().device
-    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size))
+    rt = get_runtime()
+    device = rt.device
+    target = TARGET_TILE_PIXELS if rt.host_unified else GPU_TARGET_TILE_PIXELS
+    return DeviceLimits(int(device.global_mem_size), int(device.max_mem_alloc_size), target)
+
+
+class Memo:
+    """A small least-recently-used map of what a process works out once per camera and settings
+    (schedules, plans, metered tiles): ``get`` (None when absent) and ``put``; at most ``size``
+    entries, the oldest dropped first."""
+
+    def __init__(self, size: int = 32) -> None:
+        self.size = size
+        self._items: OrderedDict[Any, Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: Any) -> Any:
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+            return value
+
+    def put(self, key: Any, value: Any) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+SCHEDULES = Memo()
+"""Pipeline.schedule's fused stages, by the pickled stages (:func:`_stages_key`)."""
+
+PLANS = Memo()
+"""Pipeline.plan's TilePlans (frozen), by the pickled stages and the plan's arguments."""
+
+METERED = Memo()
+"""Pipeline.tile_cost's metered windows, by the kept name (also on disk: clisp.engine.disk_cache)."""
+
+
+def _stages_key(stages: list[Stage], fuse: bool) -> bytes | None:
+    """The memo key of ``stages`` (their pickle: every parameter, matrix and noise table) run with
+    ``fuse``, and the runtime's device; None when a stage does not pickle (nothing is memoised)."""
+    try:
+        return pickle.dumps((stages, fuse), protocol=4) + str(id(get_runtime())).encode()
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+
+
+def _pool_key(schedule: list[Stage], plan: TilePlan, gathered: bool, skipper: Any) -> Any:
+    """What a run's pooled buffers depend on (Runtime.trim_pool): the identity of its schedule's
+    stages (memoised per settings: Pipeline.schedule), its window shape and whether the device
+    gathers the windows; None (always trim) with a skipper, whose per-tile paths vary."""
+    if skipper is not None:
+        return None
+    return tuple(id(stage) for stage in schedule), plan.window_shape, plan.tile_h, plan.tile_w, gathered
+
+
+RESIDENT_SHARE = 0.25
+"""Largest share of a discrete device's global memory that a whole mosaic may take to stay on the
+device for a run (Runtime.resident_mosaic); its tiles' buffers keep the rest of DEVICE_SHARE. A
+24 MP uint16 mosaic is 48 MB: 0.06 % of an 80 GB GPU."""
+
+
+def resident_policy(rt: Any, nbytes: int, tiles: int) -> bool:
+    """Whether a run copies an in-memory mosaic the device cannot read in place (not aligned, or a
+    discrete device) to the device once (Runtime.resident_mosaic) instead of the host gathering
+    each tile's window: on a discrete device when it fits RESIDENT_SHARE of its memory (one upload
+    from pinned memory, then windows gathered on the device); on a device sharing host memory only
+    for a plan of one tile, where the host would copy the same pixels anyway and nothing overlaps
+    the copy (with several tiles the reader thread gathers windows while the device runs)."""
+    if rt.host_unified:
+        return tiles == 1
+    return nbytes <= RESIDENT_SHARE * int(rt.device.global_mem_size)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import bisect
 import os
+import threading
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
@@ -143,6 +145,7 @@ class DeviceImage:
     interleaved: bool = False
     capacity: int = 0           # bytes of ``buffer`` (at least nbytes: pooled buffers are reused larger)
     host: np.ndarray | None = None   # the host array that is the buffer's storage (Runtime.host_image)
+    staging: np.ndarray | None = None   # a staging buffer it was filled from (Runtime.resident_mosaic)
 
     @property
     def nbytes(self) -> int:
@@ -163,21 +166,53 @@ class Runtime:
         self.programs = Programs(cl, self.context, self.platform, self.device)
         self._kernels: dict[tuple[str, tuple[str, ...], str], Any] = {}
         self._signatures: dict[tuple[str, tuple[str, ...], str], tuple[Parameter, ...]] = {}
+        self._launchers: dict[tuple, tuple] = {}   # launch_named's kernel, names and conversions
         self._flag_cache: dict[tuple, tuple[str, ...]] = {}
         self.pool = BufferPool(lambda n: cl.Buffer(self.context, cl.mem_flags.READ_WRITE, n))
         self._constants: dict[tuple[str, tuple[int, ...], bytes], Any] = {}
         self._meter: BufferPool | None = None
+        self._pool_for: Any = None               # trim_pool's ``keep`` of the last run
         self.host_unified = bool(self.device.host_unified_memory)
+        self._transfer_queue: Any = None
+        self.staging = HostStaging(self)
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
         kernels are re-wrapped so that their launches are recorded (clisp.engine.profile)."""
         if not self.profiling:
-            self.queue.finish()
+            self.finish()
             self.queue = self.cl.CommandQueue(self.context,
                                               properties=self.cl.command_queue_properties.PROFILING_ENABLE)
+            self._transfer_queue = None
             self.profiling = True
             self._kernels.clear()
+            self._launchers.clear()
+
+    @property
+    def transfer_queue(self) -> Any:
+        """The queue of uploads and downloads between tiles: on a device that shares host memory
+        the compute queue itself (a copy is the same cores' memcpy); on a discrete device a second
+        in-order queue, so that a window's upload and a result's download overlap the kernels of
+        another tile (the DMA engines run beside the compute units). Kernels are only ever
+        enqueued on :attr:`queue`, from one thread: a ``cl.Kernel``'s arguments are state, and one
+        kernel object shared by two queues or threads would race."""
+        if self.host_unified:
+            return self.queue
+        if self._transfer_queue is None:
+            props = self.cl.command_queue_properties.PROFILING_ENABLE if self.profiling else 0
+            self._transfer_queue = self.cl.CommandQueue(self.context, properties=props)
+        return self._transfer_queue
+
+    def finish(self) -> None:
+        """Wait until every command of both queues has completed."""
+        self.queue.finish()
+        if self._transfer_queue is not None:
+            self._transfer_queue.finish()
+
+    def _after(self, event: Any) -> None:
+        """Make the compute queue's next commands wait for ``event`` (of the transfer queue)."""
+        if self.transfer_queue is not self.queue:
+            self.cl.enqueue_barrier(self.queue, wait_for=[event])
 
     def describe(self) -> str:
         """One line naming platform and device, e.g. for ``clisp info --device``."""
@@ -234,6 +269,7 @@ class Runtime:
                 kernel = _skipped_launch
             else:
                 kernel = self.cl.Kernel(self.program(name, defines, generated), kernel_name)
+                kernel.set_scalar_arg_dtypes(self.scalar_dtypes(name, kernel_name, defines, generated))
                 if self.profiling:
                     kernel = _ProfiledKernel(kernel, kernel_name)
             self._kernels[key] = kernel
@@ -249,6 +285,16 @@ class Runtime:
             self._signatures[key] = tuple(Parameter(*p) for p in
                                           self.programs.signature(name, flags, generated, kernel_name))
         return self._signatures[key]
+
+    def scalar_dtypes(self, name: str, kernel_name: str, defines: Mapping[str, Any] | None = None,
+                      generated: str = "") -> list[Any]:
+        """Per parameter of ``kernel_name``, the NumPy type its scalar value is packed as (None for a
+        pointer or a type SCALARS does not name): set on every kernel object (pyopencl's
+        ``set_scalar_arg_dtypes``), so a launch packs its scalars with one struct call. Untyped, pyopencl
+        converts each scalar through the buffer protocol: 26-35 us per launch of a three-argument
+        kernel on PoCL against 3-5 us typed (engine README)."""
+        return [None if p.pointer else SCALARS.get(p.type_name)
+                for p in self.signature(name, kernel_name, defines, generated)]
 
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
                      defines: Mapping[str, Any] | None = None, generated: str = "",
@@ -266,17 +312,29 @@ class Runtime:
         if self._meter is not None:
             self.program(name, defines, generated)              # built or noted: nothing launches
             return
-        params = self.signature(name, kernel_name, defines, generated)
-        names = [p.name for p in params]
-        missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
-        if missing or unknown:
+        recording = profile.active()
+        start = time.perf_counter() if recording is not None else 0.0
+        flags = self._flags(defines)
+        key = (name, flags, generated, kernel_name)
+        launcher = self._launchers.get(key)
+        if launcher is None:                     # resolved once per program, defines and kernel
+            params = self.signature(name, kernel_name, defines, generated)
+            launcher = self._launchers[key] = (self.kernel(name, kernel_name, defines, generated),
+                                               tuple(p.name for p in params), tuple(p.convert for p in params))
+        kernel, names, converts = launcher
+        try:
+            values = [convert(args[n]) for n, convert in zip(names, converts)]
+        except KeyError:
+            values = None
+        if values is None or len(args) != len(names):
+            missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
             raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
-        values = [p.convert(args[p.name]) for p in params]
-        kernel = self.kernel(name, kernel_name, defines, generated)
         if exact:
             launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
         else:
             self.launch(kernel, width, height, *values)
+        if recording is not None:
+            recording.named(time.perf_counter() - start)
 
     # -- buffers --------------------------------------------------------------------------
     def acquire(self, channels: int, height: int, width: int, dtype: Any = np.float32) -> DeviceImage:
@@ -285,20 +343,37 @@ class Runtime:
         nbytes = max(1, channels * height * width * np.dtype(dtype).itemsize)
         pool = self._meter if self._meter is not None else self.pool
         buf, capacity = pool.acquire(nbytes)
+        pending = pool.pending.pop(id(buf), None)
+        if pending is not None:                  # a download of the transfer queue still reads it
+            self._after(pending)
         return DeviceImage(buf, channels, height, width, np.dtype(dtype), capacity=capacity)
 
-    def release(self, image: DeviceImage) -> None:
-        """Return a device image's buffer to the pool (a host image's is not pooled: dropped)."""
+    def release(self, image: DeviceImage, after: Any = None) -> None:
+        """Return a device image's buffer to the pool (a host image's is not pooled: dropped; a
+        staged mosaic gives its staging buffer back). ``after``: an event of the transfer queue
+        that still reads the buffer (a download): whoever acquires it next waits for it on the
+        device (:meth:`acquire`), never on the host."""
+        if image.staging is not None:
+            self.staging.give(image.staging)
+            image.staging = None
         if image.host is not None:
             return
         pool = self._meter if self._meter is not None else self.pool
+        if after is not None and self.transfer_queue is not self.queue:
+            pool.pending[id(image.buffer)] = after
         pool.release(image.buffer, image.capacity)
 
-    def trim_pool(self) -> None:
+    def trim_pool(self, keep: Any = None) -> None:
         """Free every pooled buffer not in use (before a run whose tiles have other sizes, so that
-        the pool holds what this run needs and no more). Only when no queued work uses them."""
-        self.queue.finish()
+        the pool holds what this run needs and no more). Only when no queued work uses them.
+        ``keep``: what the run's buffers depend on (its schedule and window shape): when it equals
+        the last run's, the pool already holds exactly what the run needs, and is kept (a 0.26 MP
+        call then reuses its buffers instead of faulting in fresh pages)."""
+        if keep is not None and keep == self._pool_for:
+            return
+        self.finish()
         self.pool.trim()
+        self._pool_for = keep
 
     @contextmanager
     def metering(self) -> Iterator["BufferPool"]:
@@ -340,7 +415,39 @@ class Runtime:
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
         if self._meter is None:
-            _record("upload", self.cl.enqueue_copy(self.queue, image.buffer, array, is_blocking=False))
+            event = _record_copy("upload", array.nbytes,
+                                 self.cl.enqueue_copy(self.transfer_queue, image.buffer, array, is_blocking=False))
+            self._after(event)
+        return image
+
+    def resident_mosaic(self, array: np.ndarray) -> DeviceImage:
+        """The whole H x W mosaic ``array`` (uint16 or float32) on the device, for each tile's
+        window to be gathered there (:meth:`gather_window`): read in place where the device shares
+        host memory and the array is aligned (:meth:`host_source`); else copied once into a
+        staging buffer (:class:`HostStaging`: page-aligned, or pinned on a discrete device, and
+        reused across calls and files), which a shared-memory device then reads in place and a
+        discrete one receives in one upload of the transfer queue. :meth:`release` gives the
+        staging buffer back. Read in place, ``array`` must not change until the run's last event;
+        staged, it may change once this returns."""
+        whole = self.host_source(array)
+        if whole is not None:
+            return whole
+        staged = self.staging.take(array.nbytes)
+        view = staged[:array.nbytes].view(array.dtype).reshape(array.shape)
+        with profile.host_timer("stage the mosaic (host copy)", array.nbytes):
+            np.copyto(view, array)
+        if self.host_unified:
+            image = self._host_plane(view)
+            if image is None:
+                self.staging.give(staged)
+                raise RuntimeError("a staging buffer the device does not read in place")
+        else:
+            image = self.acquire(1, array.shape[0], array.shape[1], array.dtype)
+            event = _record_copy("upload", array.nbytes,
+                                 self.cl.enqueue_copy(self.transfer_queue, image.buffer, view, is_blocking=False))
+            self._after(event)
+            self.transfer_queue.flush()
+        image.staging = staged
         return image
 
     def interleave(self, image: DeviceImage) -> DeviceImage:
@@ -364,7 +471,8 @@ class Runtime:
         host = np.empty(shape, dtype=image.dtype) if into is None else into
         if host.shape != shape or not host.flags.c_contiguous:
             raise ValueError(f"download target {host.shape} does not match device image {shape}")
-        self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True)
+        _record("download", self.cl.enqueue_copy(self.queue, host, image.buffer, is_blocking=True),
+                host.nbytes, "download")
         return host
 
     def host_image(self, array: np.ndarray) -> DeviceImage | None:
@@ -391,8 +499,7 @@ class Runtime:
         return self._host_plane(array)
 
     def _host_plane(self, array: np.ndarray) -> DeviceImage | None:
-        align = max(1, int(self.device.mem_base_addr_align) // 8)
-        if array.ndim != 2 or array.ctypes.data % align:
+        if array.ndim != 2:
             return None
         height, width = array.shape
         return self._wrap_host(array, self.cl.mem_flags.READ_ONLY, 1, height, width, interleaved=False)
@@ -409,6 +516,10 @@ class Runtime:
         dst = self.acquire(1, h, w, whole.dtype)
         raw_t = "ushort" if whole.dtype == np.uint16 else "float"
         args = (whole.buffer, dst.buffer, np.int32(src_h), np.int32(src_w), np.int32(y0), np.int32(x0), np.int32(w))
+        if h * w <= GATHER_ONE_LAUNCH:          # one launch of the mirroring kernel over the whole window
+            edge = self.kernel("gather", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 1})
+            edge(self.queue, (w, h), None, *args)
+            return dst
         inside = (min(max(-x0, 0), w), min(max(src_w - x0, 0), w))      # window columns inside the mosaic
         if inside[1] > inside[0]:
             kernel = self.kernel("gather", "gather_window", {"RAW_T": raw_t, "CFA_PERIOD": period, "MIRROR_X": 0})
@@ -422,9 +533,12 @@ class Runtime:
     def _wrap_host(self, array: np.ndarray, access: Any, channels: int, height: int, width: int,
                    interleaved: bool) -> DeviceImage | None:
         """A USE_HOST_PTR device image over ``array`` (host_image, host_input); None where the
-        device does not share host memory, while metering, or for an empty or strided array."""
+        device does not share host memory, while metering, or for an empty, strided or unaligned
+        array (below the device's base address alignment)."""
         if not self.host_unified or self._meter is not None or not array.flags.c_contiguous or array.size == 0:
             return None
+        if array.ctypes.data % max(1, int(self.device.mem_base_addr_align) // 8):
+            return None            # PoCL would keep an aligned copy of it, copied in and out around each use
         buffer = self.cl.Buffer(self.context, access | self.cl.mem_flags.USE_HOST_PTR, hostbuf=array)
         return DeviceImage(buffer, channels, height, width, array.dtype, interleaved=interleaved,
                            capacity=array.nbytes, host=array)
@@ -435,7 +549,7 @@ class Runtime:
         event after which the host may read the array."""
         mapped, _ = self.cl.enqueue_map_buffer(self.queue, image.buffer, self.cl.map_flags.READ, 0,
                                                (image.nbytes,), np.uint8, is_blocking=False)
-        return _record("download", mapped.base.release(self.queue))
+        return _record("download", mapped.base.release(self.queue), image.nbytes, "in place")
 
     def download_region(self, image: DeviceImage, into: np.ndarray, y0: int, x0: int,
                         rows: int, cols: int) -> Any:
@@ -448,16 +562,86 @@ class Runtime:
             raise ValueError(f"download target {into.shape} {into.dtype} does not fit device image "
                              f"{image.height}x{image.width}x{image.channels} {image.dtype}")
         pixel = image.channels * np.dtype(image.dtype).itemsize
-        return _record("download", self.cl.enqueue_copy(
-            self.queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
+        queue = self.transfer_queue
+        wait = None if queue is self.queue else [self.cl.enqueue_marker(self.queue)]   # after the tile's kernels
+        self.queue.flush()
+        event = _record_copy("download", rows * cols * pixel, self.cl.enqueue_copy(
+            queue, into, image.buffer, is_blocking=False, buffer_origin=(0, 0, 0),
             host_origin=(x0 * pixel, y0, 0), region=(cols * pixel, rows, 1),
-            buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,)))
+            buffer_pitches=(image.width * pixel,), host_pitches=(into.shape[1] * pixel,), wait_for=wait))
+        queue.flush()
+        return event
 
     def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
         """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
         lx, ly = LOCAL_SIZE
         gsize = ((width + lx - 1) // lx * lx, (height + ly - 1) // ly * ly)
         kernel(self.queue, gsize, LOCAL_SIZE, *args)
+
+
+def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
+    """An uninitialised uint8 array of ``nbytes`` whose data starts on an ``align``-byte boundary
+    (a page: a device sharing host memory then uses it in place, Runtime._wrap_host)."""
+    raw = np.empty(nbytes + align, dtype=np.uint8)
+    start = -raw.ctypes.data % align
+    return raw[start:start + nbytes]
+
+
+GATHER_ONE_LAUNCH = 1 << 20
+"""Windows of at most this many pixels are gathered in one launch of the kernel that mirrors both
+axes, not in a vectorised launch over the inside columns (up to four: launch_exact's block and
+strips) and one per mirrored side: on PoCL a launch costs tens of microseconds of the host and of
+the device's dispatch, more than the mirroring costs a 0.26 MP window (6 launches were about 0.3 ms
+of a 2.3 ms call)."""
+
+
+class HostStaging:
+    """Host buffers that hand data to the device and back: page-aligned arrays on a device that
+    shares host memory (it reads them in place), pinned memory on a discrete device (buffers made
+    with ALLOC_HOST_PTR and mapped once: the DMA engine reads and writes them at the bus's speed,
+    where a pageable array is first copied by the driver). Reused across tiles, calls and files:
+    ``take(nbytes)`` hands out the smallest free buffer of at least ``nbytes`` (uint8, possibly
+    longer), else a new one; ``give`` takes it back. Nothing handed to a caller is ever a staging
+    buffer: a later call would overwrite it."""
+
+    def __init__(self, rt: "Runtime") -> None:
+        self._rt = rt
+        self._free: list[np.ndarray] = []
+        self._keep: dict[int, Any] = {}          # id(array) -> its pinned cl.Buffer (kept alive, mapped)
+        self._lock = threading.Lock()
+
+    def take(self, nbytes: int) -> np.ndarray:
+        with self._lock:
+            fits = [b for b in self._free if b.size >= nbytes]
+            if fits:
+                best = min(fits, key=len)
+                self._free = [b for b in self._free if b is not best]
+                return best
+        return self._new(max(int(nbytes), 1))
+
+    def give(self, array: np.ndarray) -> None:
+        with self._lock:
+            if all(b is not array for b in self._free):
+                self._free.append(array)
+
+    def trim(self) -> None:
+        """Drop the free buffers (their pinned memory goes back to the driver)."""
+        with self._lock:
+            for array in self._free:
+                self._keep.pop(id(array), None)
+            self._free = []
+
+    def _new(self, nbytes: int) -> np.ndarray:
+        rt = self._rt
+        if rt.host_unified:
+            return aligned_empty(nbytes)
+        cl = rt.cl
+        buffer = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR, nbytes)
+        array, _ = cl.enqueue_map_buffer(rt.transfer_queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE, 0,
+                                         (nbytes,), np.uint8, is_blocking=True)
+        with self._lock:
+            self._keep[id(array)] = buffer
+        return array
 
 
 class BufferPool:
@@ -474,6 +658,7 @@ class BufferPool:
         self._buffers: list[Any] = []
         self.created = 0
         self.largest = 0
+        self.pending: dict[int, Any] = {}    # id(buffer) -> an event that still reads it (Runtime.release)
 
     def acquire(self, nbytes: int) -> tuple[Any, int]:
         """(buffer, its size in bytes) of at least ``nbytes``."""
@@ -498,7 +683,7 @@ class BufferPool:
             release = getattr(buffer, "release", None)
             if release is not None:
                 release()
-        self._sizes, self._buffers = [], []
+        self._sizes, self._buffers, self.pending = [], [], {}
 
 
 def _skipped_launch(*args: Any, **kwargs: Any) -> None:
@@ -506,22 +691,34 @@ def _skipped_launch(*args: Any, **kwargs: Any) -> None:
     return None
 
 
-def _record(what: str, event: Any) -> Any:
-    """Hand ``event`` to the active profile (clisp.engine.profile), if any; returns it."""
+def _record(what: str, event: Any, nbytes: int = 0, transfer: str = "") -> Any:
+    """Hand ``event`` to the active profile (clisp.engine.profile), if any; returns it. A copy's
+    ``nbytes`` count under ``transfer`` ('upload', 'download', 'in place')."""
     active = profile.active()
     if active is not None:
-        active.record(what, event)
+        active.record(what, event, nbytes, transfer)
     return event
 
 
+def _record_copy(transfer: str, nbytes: int, event: Any) -> Any:
+    """:func:`_record` of a copy named after its ``transfer``."""
+    return _record(transfer, event, nbytes, transfer)
+
+
 class _ProfiledKernel:
-    """A kernel whose every launch is recorded in the active profile (profiling runtimes only)."""
+    """A kernel whose every launch is recorded in the active profile, with the host time of its
+    enqueue (profiling runtimes only)."""
 
     def __init__(self, kernel: Any, name: str) -> None:
         self.kernel, self.name = kernel, name
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        return _record(self.name, self.kernel(*args, **kwargs))
+        start = time.perf_counter()
+        event = self.kernel(*args, **kwargs)
+        active = profile.active()
+        if active is not None:
+            active.enqueued(time.perf_counter() - start)
+        return _record(self.name, event)
 
 
 WORK_GROUP = (64, 4)
@@ -558,12 +755,25 @@ def save_built_programs() -> None:
         _RUNTIME.save_programs()
 
 
+DEVICE_LOCK = threading.RLock()
+"""Held by whatever enqueues on the process's runtime or changes its pools: building a pipeline
+(the noise calibration's kernels, the planner's metering runs, which swap the kernel cache) and a
+run's tile loop (clisp.pipeline.process_file, process_with_stats). Several files then go through
+one process at once (``clisp process RAW... -o OUTDIR``, a batch worker's threads) with their
+decoding and writing overlapping another file's device work, while one thread at a time launches:
+a ``cl.Kernel`` holds its arguments as state, and the runtime shares one per program and defines.
+Reentrant: a locked caller may call locked code."""
+
+
 def get_runtime(profiling: bool = False) -> Runtime:
     """The process-wide runtime, created on first use. ``profiling``: create it with event
-    profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue)."""
+    profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue),
+    as it is whenever a profile is being recorded (clisp.engine.profile.recording)."""
     global _RUNTIME
-    if _RUNTIME is None:
-        _RUNTIME = Runtime(profiling=profiling)
-    elif profiling:
-        _RUNTIME.enable_profiling()
-    return _RUNTIME
+    profiling = profiling or profile.active() is not None      # a recording (profile.recording) needs its events
+    with DEVICE_LOCK:
+        if _RUNTIME is None:
+            _RUNTIME = Runtime(profiling=profiling)
+        elif profiling and not _RUNTIME.profiling:
+            _RUNTIME.enable_profiling()
+        return _RUNTIME

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import ClispError
 from .profile import host_timer
+from .runtime import aligned_empty
 from .tiling import Tile, TilePlan, gather, gather_window, window_indices
 
 
@@ -155,13 +156,17 @@ class BandSink:
     to ``write(y0, rows)`` (rows: h x W x C of ``dtype``) on a writer thread, in order.
 
     ``buffers`` band buffers rotate, so writing band b overlaps computing band b+1; a new band
-    waits for the write of the band that last used its buffer. Use as a context manager: leaving
+    waits for the write of the band that last used its buffer. ``staging``: a HostStaging
+    (Runtime.staging) to take the band buffers from and give them back to on leaving: on a discrete
+    device pinned memory, which the downloads fill at the bus's speed, reused across files. Use as a context manager: leaving
     waits for the writes and re-raises their errors.
     """
 
     def __init__(self, write: Callable[[int, np.ndarray], None], plan: TilePlan, width: int,
-                 channels: int = 3, dtype: Any = np.float32, buffers: int = 2) -> None:
+                 channels: int = 3, dtype: Any = np.float32, buffers: int = 2, staging: Any = None) -> None:
         self.write = write
+        self.staging = staging                  # where band buffers come from (Runtime.staging), if given
+        self._taken: list[np.ndarray] = []      # the staging buffers taken
         self.dtype = np.dtype(dtype)
         self.shape = (plan.tile_h, width, channels)
         self.band_h = plan.tile_h
@@ -182,6 +187,10 @@ class BandSink:
                     future.result()
         finally:
             self.executor.shutdown(wait=True, cancel_futures=True)
+            if self.staging is not None:              # nothing writes them any more: back to the pool
+                for taken in self._taken:
+                    self.staging.give(taken)
+                self._taken, self.buffers = [], [None] * len(self.buffers)
 
     def _slot(self, tile: Tile) -> int:
         return tile.y0 // self.band_h % len(self.buffers)
@@ -193,7 +202,12 @@ class BandSink:
                 self.pending[slot].result()                  # that buffer's band is written
             self.pending[slot] = None
         if self.buffers[slot] is None:
-            self.buffers[slot] = np.empty(self.shape, dtype=self.dtype)
+            if self.staging is None:          # page-aligned: the device writes it in place (aligned_array)
+                self.buffers[slot] = aligned_array(self.shape, self.dtype)
+            else:                                       # pinned memory, reused across files (a GPU's downloads)
+                nbytes = int(np.prod(self.shape)) * self.dtype.itemsize
+                self._taken.append(self.staging.take(nbytes))
+                self.buffers[slot] = self._taken[-1][:nbytes].view(self.dtype).reshape(self.shape)
         return self.buffers[slot], 0, tile.x0
 
     def done(self, tile: Tile) -> None:
@@ -203,11 +217,13 @@ class BandSink:
             self.pending[slot] = self.executor.submit(self.write, tile.y0, self.buffers[slot][:tile.h])
 
 
-def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
-    """An uninitialised uint8 array of ``nbytes`` whose data starts on an ``align``-byte boundary."""
-    raw = np.empty(nbytes + align, dtype=np.uint8)
-    start = -raw.ctypes.data % align
-    return raw[start:start + nbytes]
+def aligned_array(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    """An uninitialised C-contiguous array of ``shape`` and ``dtype`` starting on a page boundary:
+    a device sharing host memory writes it in place (Runtime.host_image). Over an unaligned array
+    PoCL keeps its own aligned copy and copies it in on the launch and out on the map: 0.5 ms of
+    a 2 ms call for the 1.5 MB output of a 0.26 MP raw."""
+    dtype = np.dtype(dtype)
+    return aligned_empty(int(np.prod(shape)) * dtype.itemsize).view(dtype).reshape(shape)
 
 
 def aligned_copy(data: np.ndarray, dtype: Any = None) -> np.ndarray:
@@ -235,13 +251,17 @@ class WindowPool:
     reused ones on this 2-core machine (bench_bandwidth). Buffers are page-aligned, so a device
     that shares host memory reads them in place (Runtime.host_input). ``take`` never blocks: with
     run_tiles' order (READ_AHEAD windows read while two tiles are in flight) READ_AHEAD + 2 buffers
-    suffice, and another is made only if a caller holds more.
+    suffice, and another is made only if a caller holds more. ``staging``: a HostStaging
+    (Runtime.staging) to take new buffers from, given back by :meth:`close` (pinned memory on a
+    discrete device, reused across runs and files).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, staging: Any = None) -> None:
         self._free: list[np.ndarray] = []
         self._taken: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._lock = threading.Lock()
+        self._staging = staging          # a HostStaging to take buffers from (pinned, on a GPU), or None
+        self._from_staging: list[np.ndarray] = []
 
     def take(self, shape: tuple[int, int], dtype: Any) -> np.ndarray:
         """An uninitialised array of ``shape`` and ``dtype`` over a free buffer (or a new one)."""
@@ -252,7 +272,11 @@ class WindowPool:
             buffer = min(fits, key=len) if fits else None
             if buffer is not None:
                 self._free = [b for b in self._free if b is not buffer]
-        if buffer is None:
+        if buffer is None and self._staging is not None:      # pinned: the upload runs at the bus's speed
+            buffer = self._staging.take(max(nbytes, 1))
+            with self._lock:
+                self._from_staging.append(buffer)
+        elif buffer is None:
             buffer = aligned_empty(max(nbytes, 1))
         window = buffer[:nbytes].view(dtype).reshape(shape)
         with self._lock:
@@ -266,47 +290,90 @@ class WindowPool:
             if entry is not None:
                 self._free.append(entry[1])
 
+    def close(self) -> None:
+        """The run is over (every window given back): staging buffers go back to their pool."""
+        with self._lock:
+            taken, self._from_staging, self._free = self._from_staging, [], []
+        for buffer in taken:
+            self._staging.give(buffer)
 
-def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray],
-              compute: Callable[[Tile, np.ndarray, tuple[np.ndarray, int, int]], Any],
+
+def run_tiles(plan: TilePlan, read: Callable[[Tile], np.ndarray] | None,
+              compute: Callable[[Tile, np.ndarray | None, tuple[np.ndarray, int, int]], Any],
               sink: TileSink, progress: Callable[[Tile], None] | None = None,
               release: Callable[[np.ndarray], None] | None = None, read_ahead: int = READ_AHEAD) -> None:
     """Run every tile of ``plan`` in order, overlapping host I/O with the device.
 
-    ``read(tile)`` returns the tile's input window (called on a reader thread, ``read_ahead``
-    tiles ahead); ``compute(tile, window, target)`` enqueues the tile and returns an event whose
-    ``wait()`` means its pixels are in ``target`` and nothing reads its window any more (or None
-    when it finished synchronously). Tile n-1 is handed to ``sink.done`` (and ``progress``), and
-    its window to ``release``, only after tile n is enqueued, so the device always has the next
-    tile queued while the host writes.
+    ``read(tile)`` returns the tile's input window (called on the reader thread, ``read_ahead``
+    tiles ahead; for a plan of one tile on this thread, since nothing could overlap it); None where
+    the device gathers every window itself (compute then gets None). ``compute(tile, window,
+    target)`` enqueues the tile and returns an event whose ``wait()`` means its pixels are in
+    ``target`` and nothing reads its window any more (or None when it finished synchronously).
+    Tile n-1 is handed to ``sink.done`` (and ``progress``), and its window to ``release``, only
+    after tile n is enqueued, so the device always has the next tile queued while the host writes.
     """
     tiles = plan.tiles
-    with ThreadPoolExecutor(1, thread_name_prefix="clisp-read") as reader:
-        ahead = deque(reader.submit(read, t) for t in tiles[:read_ahead])
-        previous: tuple[Tile, Any, np.ndarray] | None = None
-        try:
-            for i, tile in enumerate(tiles):
-                with host_timer("wait for reader (main thread)"):
-                    window = ahead.popleft().result()
-                if i + read_ahead < len(tiles):
-                    ahead.append(reader.submit(read, tiles[i + read_ahead]))
-                event = compute(tile, window, sink.target(tile))
-                if previous is not None:
-                    _finish(*previous, sink, progress, release)
-                previous = (tile, event, window)
+    if read is None or len(tiles) == 1:
+        windows: Callable[[int], Any] = (lambda i: None) if read is None else (lambda i: read(tiles[i]))
+        _loop(tiles, windows, compute, sink, progress, release)
+        return
+    reader = _reader()
+    ahead = deque(reader.submit(read, t) for t in tiles[:read_ahead])
+
+    def window(i: int) -> np.ndarray:
+        with host_timer("wait for reader (main thread)"):
+            got = ahead.popleft().result()
+        if i + read_ahead < len(tiles):
+            ahead.append(reader.submit(read, tiles[i + read_ahead]))
+        return got
+    try:
+        _loop(tiles, window, compute, sink, progress, release)
+    except BaseException:
+        for future in ahead:
+            future.cancel()
+        for future in ahead:                       # none still writes into a window of this run
+            if not future.cancelled():
+                try:
+                    future.result()
+                except BaseException:
+                    pass
+        raise
+
+
+def _loop(tiles: Sequence[Tile], window: Callable[[int], Any], compute: Callable[..., Any], sink: TileSink,
+          progress: Callable[[Tile], None] | None, release: Callable[[np.ndarray], None] | None) -> None:
+    """run_tiles' loop: tile i's window (``window(i)``), its compute, then the previous tile's finish."""
+    previous: tuple[Tile, Any, Any] | None = None
+    for i, tile in enumerate(tiles):
+        w = window(i)
+        event = compute(tile, w, sink.target(tile))
+        if previous is not None:
             _finish(*previous, sink, progress, release)
-        except BaseException:
-            for future in ahead:
-                future.cancel()
-            raise
+        previous = (tile, event, w)
+    if previous is not None:
+        _finish(*previous, sink, progress, release)
 
 
-def _finish(tile: Tile, event: Any, window: np.ndarray, sink: TileSink,
+_READER: ThreadPoolExecutor | None = None
+_READER_LOCK = threading.Lock()
+
+
+def _reader() -> ThreadPoolExecutor:
+    """The process's reader thread (one, made on first use): starting a thread pool per run cost
+    0.7-0.8 ms of a 6 ms call."""
+    global _READER
+    with _READER_LOCK:
+        if _READER is None:
+            _READER = ThreadPoolExecutor(1, thread_name_prefix="clisp-read")
+        return _READER
+
+
+def _finish(tile: Tile, event: Any, window: np.ndarray | None, sink: TileSink,
             progress: Callable[[Tile], None] | None, release: Callable[[np.ndarray], None] | None) -> None:
     if event is not None:
         with host_timer("wait for device (main thread)"):
             event.wait()
-    if release is not None:
+    if release is not None and window is not None:
         release(window)
     sink.done(tile)
     if progress is not None:

@@ -20,10 +20,17 @@ import numpy as np
 from ..errors import ClispError
 
 TARGET_TILE_PIXELS = 2_000_000
-"""Automatic tiles stop growing at about this many window pixels even when the memory budget
-allows more: 2 MP bands ran at 1.08-1.46x the whole image's throughput, 4-16 MP bands at
-0.85-1.15x (PoCL, 25 MP LMS; README.md). Measured on a CPU device only: a GPU may want
-larger launches."""
+"""On a device that shares host memory (a CPU device: PoCL), automatic tiles stop growing at about
+this many window pixels even when the memory budget allows more: 2 MP bands ran at 1.08-1.46x the
+whole image's throughput, 4-16 MP bands at 0.85-1.15x (PoCL, 25 MP LMS; README.md)."""
+
+GPU_TARGET_TILE_PIXELS = 64_000_000
+"""The same target on a discrete device (a GPU): large enough for a 24 MP raw and the quality
+path's 107 px halo in one window, so the whole image is one launch per kernel and the raw one
+upload; the device's memory (DEVICE_SHARE) and the host's budget bound it as they bound any tile.
+A choice from the GPU's shape (a 24 MP stage is milliseconds of kernels there, a tile's Python
+launches a fixed cost: docs/RESULTS.md, issue 41), to be re-measured with tools/bench_tiling.py
+--sweep on the GPU (README.md)."""
 
 MIN_BAND_ROWS = 32
 """Automatic tiles are full-width bands (one read per band, scanline output, no assembly). A
@@ -78,10 +85,13 @@ class TileNeeds:
 
 @dataclass(frozen=True)
 class DeviceLimits:
-    """CL_DEVICE_GLOBAL_MEM_SIZE and CL_DEVICE_MAX_MEM_ALLOC_SIZE in bytes (None: no device)."""
+    """CL_DEVICE_GLOBAL_MEM_SIZE and CL_DEVICE_MAX_MEM_ALLOC_SIZE in bytes (None: no device), and
+    the window size automatic tiles aim for on that kind of device (TARGET_TILE_PIXELS on a device
+    sharing host memory, GPU_TARGET_TILE_PIXELS on a discrete one)."""
 
     global_mem: int | None = None
     max_alloc: int | None = None
+    target_pixels: int = TARGET_TILE_PIXELS
 
 
 @dataclass(frozen=True)
@@ -132,7 +142,7 @@ def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None
     (rounded down to ``needs.align``).
     """
     if tile is None and needs.cost is not None:
-        step_h, step_w = costed_tile_shape(height, width, needs, budget)
+        step_h, step_w = costed_tile_shape(height, width, needs, budget, limits.target_pixels)
     elif tile is None:
         step_h, step_w = auto_tile_shape(height, width, needs, budget, limits)
     elif tile == 0 or tile >= max(height, width):
@@ -145,13 +155,13 @@ def make_plan(height: int, width: int, needs: TileNeeds, tile: int | None = None
 
 def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
                     limits: DeviceLimits = DeviceLimits()) -> tuple[int, int]:
-    """Tile (rows, columns) for an H x W image: the whole image if it fits TARGET_TILE_PIXELS
-    and the memory limits, else full-width bands, else (images too wide for even MIN_TILE rows
+    """Tile (rows, columns) for an H x W image: the whole image if it fits the device kind's target
+    (``limits.target_pixels``) and the memory limits, else full-width bands, else (images too wide for even MIN_TILE rows
     within ``budget``) squares. Sides are split evenly over the image (the last tile is no
     sliver) and aligned. Raises ClispError when not even a MIN_TILE square fits."""
     most = max_window_pixels(needs, budget, limits)
     halo, align, s = needs.halo, needs.align, needs.downscale
-    target = min(most, max(TARGET_TILE_PIXELS, halo_target_pixels(width * s, halo)))
+    target = min(most, max(limits.target_pixels, halo_target_pixels(width * s, halo)))
     if math.prod(needs.window(height, width)) <= target:
         return height, width
     row_pixels = width * s + 2 * halo
@@ -167,14 +177,15 @@ def auto_tile_shape(height: int, width: int, needs: TileNeeds, budget: int,
     return even_split(height, side, align), even_split(width, side, align)
 
 
-def costed_tile_shape(height: int, width: int, needs: TileNeeds, budget: float) -> tuple[int, int]:
-    """Tile (rows, columns) as :func:`auto_tile_shape` chooses them, with ``needs.cost`` deciding
-    what fits ``budget``: the whole image if it fits the target size; else full-width bands of the
+def costed_tile_shape(height: int, width: int, needs: TileNeeds, budget: float,
+                      target_pixels: int = TARGET_TILE_PIXELS) -> tuple[int, int]:
+    """Tile (rows, columns) as :func:`auto_tile_shape` chooses them (aiming at ``target_pixels`` per
+    window), with ``needs.cost`` deciding what fits ``budget``: the whole image if it fits the target size; else full-width bands of the
     target height (at least MIN_BAND_ROWS), or the tallest that fit; else the largest squares.
     Raises ClispError naming the smallest tile's bytes when not even a MIN_TILE square fits."""
     cost, halo, align, s = needs.cost, needs.halo, needs.align, needs.downscale
     assert cost is not None
-    target = max(TARGET_TILE_PIXELS, halo_target_pixels(width * s, halo))
+    target = max(target_pixels, halo_target_pixels(width * s, halo))
     if math.prod(needs.window(height, width)) <= target and cost(height, width) <= budget:
         return height, width
     want = max((target // (width * s + 2 * halo) - 2 * halo) // s, MIN_BAND_ROWS)
@@ -267,19 +278,23 @@ def window_indices(y0: int, x0: int, h: int, w: int, shape: tuple[int, int],
     return rows, cols
 
 
-def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
-    """Split an index array into (dst_start, src_start, length) runs of consecutive indices."""
+def _longest_run(idx: np.ndarray) -> tuple[int, int, int]:
+    """(dst_start, src_start, length) of the longest run of consecutive indices in ``idx``: a
+    window's interior (its padded border lines are mirrored, so each is a run of its own)."""
     breaks = np.flatnonzero(np.diff(idx) != 1) + 1
     starts = np.concatenate(([0], breaks))
     ends = np.concatenate((breaks, [len(idx)]))
-    return [(int(a), int(idx[a]), int(b - a)) for a, b in zip(starts, ends)]
+    i = int(np.argmax(ends - starts))
+    return int(starts[i]), int(idx[starts[i]]), int(ends[i] - starts[i])
 
 
 def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``data[rows][:, cols]`` as a contiguous copy, copied as slices of consecutive rows and
-    columns (the interior is one block, each padded border line its own short run), which is much
-    faster than fancy indexing on large windows. ``out``: a len(rows) x len(cols) array of
-    ``data``'s dtype to fill instead of a new one (a reused buffer spares the new pages' faults)."""
+    """``data[rows][:, cols]`` as a contiguous copy: the interior (the longest runs of consecutive
+    rows and columns) as one block copy, the padded border rows and columns by fancy indexing.
+    Copying each border line as its own slice cost 19 ms for a 0.26 MP window with a 71 px halo
+    (every mirrored row times every mirrored column a slice) against 1 ms with a 1 px halo.
+    ``out``: a len(rows) x len(cols) array of ``data``'s dtype to fill instead of a new one (a
+    reused buffer spares the new pages' faults)."""
     shape = (len(rows), len(cols))
     if out is None:
         window = np.empty(shape, dtype=data.dtype)
@@ -287,10 +302,15 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
         raise ValueError(f"gather target {out.shape} {out.dtype} does not fit window {shape} {data.dtype}")
     else:
         window = out
-    col_runs = _runs(cols)
-    for dy, sy, ny in _runs(rows):
-        for dx, sx, nx in col_runs:
-            window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
+    dy, sy, ny = _longest_run(rows)
+    dx, sx, nx = _longest_run(cols)
+    window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
+    edge_cols = np.r_[0:dx, dx + nx:shape[1]]
+    if edge_cols.size:
+        window[dy:dy + ny, edge_cols] = data[sy:sy + ny, cols[edge_cols]]
+    for a, b in ((0, dy), (dy + ny, shape[0])):            # the border rows above and below, whole
+        if b > a:
+            window[a:b] = data[rows[a:b]][:, cols]
     return window
 
 

@@ -87,6 +87,15 @@ def quantize16(encoded: np.ndarray) -> np.ndarray:
     return np.floor(np.clip(encoded, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
 
 
+def quantize8(encoded: np.ndarray) -> np.ndarray:
+    """Encoded values in [0, 1] (clipped) to the nearest 8-bit code, uint8 (as clisp/modules/colour/srgb.h).
+
+    >>> quantize8(np.array([0.0, 0.5, 1.0, 1.2])).tolist()
+    [0, 128, 255, 255]
+    """
+    return np.floor(np.clip(encoded, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
 def srgb_decode(v: np.ndarray) -> np.ndarray:
     """sRGB-encoded in [0, 1] -> linear (IEC 61966-2-1). Same shape and dtype."""
     v = np.asarray(v)

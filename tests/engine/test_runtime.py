@@ -6,6 +6,7 @@ import pytest
 
 from clisp.errors import ClispError
 from clisp.engine.runtime import Runtime, choose_device, get_runtime, list_devices
+from conftest import needs_cpu_device
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +50,7 @@ def test_choose_device_malformed_index_raises_clisp_error(spec):
         choose_device(spec)
 
 
+@needs_cpu_device
 def test_choose_device_cpu(cl):
     platform, device = choose_device("cpu")
     assert device.type & cl.device_type.CPU
@@ -70,6 +72,7 @@ def test_choose_device_default():
     assert any(device == d for _, _, _, d in list_devices())
 
 
+@needs_cpu_device
 def test_runtime_reads_clisp_device(monkeypatch, cl):
     monkeypatch.setenv("CLISP_DEVICE", "no-such-device-xyzzy")
     with pytest.raises(ClispError, match="no-such-device-xyzzy"):
@@ -83,6 +86,7 @@ def test_runtime_reads_clisp_device(monkeypatch, cl):
 # programs
 # ------------------------------------------------------------------------------------------
 
+@needs_cpu_device
 def test_build_failure_names_file_and_log():
     fresh = Runtime("cpu")
     defines = {"CFA_PERIOD": 2, "NOUT": 3, "RADIUS": 1, "RAW_T": "float", "PHASE_Y": 0, "PHASE_X": 0,
@@ -258,6 +262,7 @@ def test_warm_builds_what_a_run_needs(tmp_path):
 # buffers and transfers
 # ------------------------------------------------------------------------------------------
 
+@needs_cpu_device
 def test_buffer_pool_reuses_released_buffers():
     fresh = Runtime("cpu")
     a = fresh.acquire(3, 17, 19)

@@ -93,8 +93,9 @@ def test_every_preset_tiled_equals_whole(name: str, kind: str) -> None:
 @pytest.mark.parametrize("output", ["linear", "srgb16"])
 def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind: str, output: str) -> None:
     """Full-width bands of the fast pipeline: on a device that shares host memory the last kernel
-    writes straight into the output (Runtime.host_image); the last, ragged band, whose window's
-    output would run past the image, is downloaded. The result equals the download path's and
+    writes straight into the output where the band's first row is aligned (Runtime.host_image);
+    the others, and the last, ragged band, whose window's output would run past the image, are
+    downloaded. The result equals the download path's and
     the reference."""
     raw = make_raw(kind, shape=(301, 517))
     # highlights off: the random raw passes white, and the highlight stage's halo would make squares
@@ -111,9 +112,11 @@ def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind
     monkeypatch.setattr(rt, "host_image", counting)
     plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
     assert len(plan.tiles) > 2 and plan.tile_w == raw.shape[1] and raw.shape[0] % plan.tile_h != 0
-    out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+    out = clisp.engine.streaming.aligned_array(raw.shape + (3,), pipeline.out_dtype)
     pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
-    assert len(made) == len(plan.tiles) - 1 and all(made) == rt.host_unified
+    align = int(rt.device.mem_base_addr_align) // 8                # a band's first row must be aligned
+    row = raw.shape[1] * 3 * out.itemsize
+    assert made == [rt.host_unified and t.y0 * row % align == 0 for t in plan.tiles[:-1]] and made[0] == rt.host_unified
     monkeypatch.setattr(rt, "host_unified", False)                # the download path
     downloaded = pipeline.run(raw.data, tile=0)
     ref = pipeline.run(raw.data, backend="reference")
@@ -204,7 +207,8 @@ def test_metering_run_counts_what_the_tile_creates() -> None:
     pipeline.run(raw.data, tile=0)             # one tile: window = image + halo
     window = (301 + 2 * pipeline.halo, 517 + 2 * pipeline.halo)
     expected = pipeline.metered_tile(pipeline.schedule(), window, raw.data.dtype)[0]
-    if pipeline._device_source(ArrayWindows(raw.data)) is not None:
+    from clisp.engine.executor import resident_policy
+    if rt.host_source(raw.data) is not None or resident_policy(rt, raw.data.nbytes, tiles=1):
         expected += window[0] * window[1] * raw.data.dtype.itemsize     # the gathered window (pooled)
     assert expected == rt.pool.created - held
     assert 0 < largest <= created
@@ -405,9 +409,14 @@ def unaligned(data: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["bayer", "lms"])
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32])
-def test_device_gather_equals_host_gather(kind: str, dtype: type) -> None:
-    """Runtime.gather_window (clisp/modules/raw_scale/raw_scale.cl) equals tiling.gather_window, the CFA mirror included:
-    windows inside, across every edge, wider and taller than the image."""
+@pytest.mark.parametrize("one_launch", [True, False])
+def test_device_gather_equals_host_gather(kind: str, dtype: type, one_launch: bool,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runtime.gather_window (clisp/engine/gather.cl) equals tiling.gather_window, the CFA mirror included:
+    windows inside, across every edge, wider and taller than the image; gathered in one launch (a
+    small window) or in the vectorised launch over the inside columns and one per mirrored side."""
+    import clisp.engine.runtime as runtime
+    monkeypatch.setattr(runtime, "GATHER_ONE_LAUNCH", 1 << 20 if one_launch else 0)
     rt = get_runtime()
     data = make_raw(kind, shape=(37, 45), dtype=dtype).data
     whole = rt.upload(data)
@@ -608,3 +617,16 @@ def test_option_parsing() -> None:
     for bad in ("100", "0x5", "ax3", "1x2x3"):
         with pytest.raises(argparse.ArgumentTypeError):
             image_size(bad)
+
+
+def test_threads_share_the_device_safely() -> None:
+    """clisp.process from several threads at once (DEVICE_LOCK lets one at a time build and launch):
+    every result equals the same call made alone."""
+    from concurrent.futures import ThreadPoolExecutor
+    raws = [make_raw(kind, shape=(150, 190), seed=seed) for kind in ("lms", "bayer") for seed in (1, 2)]
+    alone = [clisp.process(raw, preset=preset, output="srgb16") for raw in raws for preset in ("fast", "quality")]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda rp: clisp.process(rp[0], preset=rp[1], output="srgb16"),
+                                 [(raw, preset) for raw in raws for preset in ("fast", "quality")]))
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)

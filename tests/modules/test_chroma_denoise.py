@@ -129,6 +129,40 @@ def test_kernels_match_reference(rt, monkeypatch, name, vec):
         assert_close(run_stage(rt, stage, x, origin), stage.reference(x, origin), f"{name} {shape} {origin}")
 
 
+@pytest.mark.parametrize("vec", [1, 8])
+@pytest.mark.parametrize("interleaved", [False, True])
+@pytest.mark.parametrize("output", ["srgb", "srgb16", "srgb8"])
+def test_tone_curve_folded_into_the_merge(rt, monkeypatch, output, interleaved, vec):
+    """The pipeline's tone curve folded into chroma_merge's store (ChromaDenoise.fuse(ToneCurve)):
+    the stage then outputs what the tone curve would, from the merge's own float32 values: encoded
+    floats within the tolerance rule, codes within one code of the reference (where the curve's
+    error meets a half code), for both vector widths and both layouts; a white balance pass 2
+    before it still folds into the merge, nothing after it."""
+    from clisp.modules.colour.stage import WhiteBalance2, tone_curve_for
+    monkeypatch.setattr(cd, "vector_width", lambda rt: vec)
+    plain = ChromaDenoise(SPACES["lms"], random_table(SPACES["lms"], seed=2))
+    tone = tone_curve_for(output)
+    stage = plain.fuse(WhiteBalance2(np.array([1.2, 1.0, 0.8]))).fuse(tone)
+    assert stage.tone == tone and stage.fuse(tone) is None and stage.out_dtype == tone.out_dtype
+    if interleaved:
+        stage = stage.with_interleaved_output()
+    for i, (shape, origin) in enumerate(WINDOWS[:3]):
+        x = noisy_camera(shape, seed=10 + i) * 1.3          # past white: the curve clips
+        ref = stage.reference(x, origin)
+        src = rt.upload(np.ascontiguousarray(np.moveaxis(x, -1, 0)).astype(np.float32))
+        dst = stage.enqueue(rt, src, origin)
+        assert dst.dtype == tone.out_dtype and dst.interleaved == interleaved
+        got = rt.download(dst)
+        got = got if interleaved else np.moveaxis(got, 0, -1)
+        rt.release(src)
+        rt.release(dst)
+        if output == "srgb":
+            assert_close(got, ref, f"{output} {shape} {origin}")
+        else:
+            diff = np.abs(got.astype(np.int32) - ref)
+            assert diff.max() <= 1 and np.mean(diff > 0) < 0.05, f"{output} {shape} {origin}"
+
+
 @pytest.mark.parametrize("params", [
     ChromaDenoiseParams(shrink="wiener"), ChromaDenoiseParams(shrink="none"),
     ChromaDenoiseParams(shrink_guide=False, k_luma=0.0), ChromaDenoiseParams(levels=2, radius=2, shrink_radius=1),

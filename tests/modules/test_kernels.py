@@ -379,24 +379,48 @@ def test_srgb_polynomial_within_three_hundredths_of_a_code(rt):
     assert np.abs(got - exact).max() * 65535 <= 0.03
 
 
-def test_tone_curve_to_16_bit_codes(rt):
-    """ToneCurve(quantize=True): the nearest 16-bit code of the encoded value, interleaved or not;
-    the OpenCL codes equal the reference's except where the encoded value lies within the curve's
-    error (0.02 code) of a half code: there they are one code off."""
-    x = random_rgb(seed=62)
-    stage = ToneCurve(quantize=True)
+@pytest.mark.parametrize("bits, dtype, seed", [(16, np.uint16, 62), (8, np.uint8, 63)])
+def test_tone_curve_to_codes(rt, bits, dtype, seed):
+    """ToneCurve(quantize=True): the nearest 16-bit code (TIFF, PNG) or 8-bit code (JPEG) of the
+    encoded value, interleaved or not; the OpenCL codes equal the reference's except where the
+    encoded value lies within the curve's error (0.02 of a 16-bit code) of a half code: there they
+    are one code off."""
+    x = random_rgb(seed=seed)
+    stage = ToneCurve(quantize=True, bits=bits)
     ref = stage.reference(x, (0, 0))
-    assert ref.dtype == np.uint16 and ref.max() == 65535 and ref.min() == 0
+    assert ref.dtype == dtype and ref.max() == np.iinfo(dtype).max and ref.min() == 0
     for interleaved in (False, True):
         s = stage.with_interleaved_output() if interleaved else stage
         src = to_device(rt, x)
         dst = s.enqueue(rt, src, (0, 0))
-        assert dst.dtype == np.uint16 and dst.interleaved == interleaved
+        assert dst.dtype == dtype and dst.interleaved == interleaved
         got = from_device(rt, dst)
         rt.release(src)
         rt.release(dst)
         diff = np.abs(got.astype(np.int32) - ref)
-        assert diff.max() <= 1 and np.mean(diff > 0) < 0.05
+        assert diff.max() <= 1 and np.mean(diff > 0) < (0.05 if bits == 16 else 0.001)
+
+
+@pytest.mark.parametrize("quantize, bits", [(False, 16), (True, 16), (True, 8)])
+def test_tone_curve_eight_per_item_equals_the_scalar_kernel(rt, quantize, bits):
+    """srgb_encode8 (eight pixels per work-item, the interleaved output on CPU devices) gives
+    exactly srgb_encode's values: every exponent of [2^-9, 1], the linear segment, values past 1
+    and below 0, on rows whose width is not a multiple of 8 (the last work-item overlaps)."""
+    from clisp.modules.colour import stage as colour_stage
+    if not colour_stage.eight_per_item(rt):
+        pytest.skip("srgb_encode8 runs on CPU devices only")
+    patterns = np.arange(np.float32(2.0 ** -9).view(np.uint32), np.float32(1.0).view(np.uint32) + 1, 97,
+                     dtype=np.uint32)
+    x = np.concatenate([patterns.view(np.float32), np.linspace(-0.5, 0.0031308, 1001, dtype=np.float32),
+                        np.array([0.0, 1.0, 1.5, 7.0, -0.0, 2.0 ** -9], dtype=np.float32)])
+    x = np.resize(x, (3, 301, 203)).astype(np.float32)
+    src = rt.upload(x)
+    planar = ToneCurve(quantize=quantize, bits=bits).enqueue(rt, src, (0, 0))
+    eight = ToneCurve(quantize=quantize, interleaved=True, bits=bits).enqueue(rt, src, (0, 0))
+    a, b = rt.download(planar), rt.download(eight)
+    for image in (src, planar, eight):
+        rt.release(image)
+    np.testing.assert_array_equal(b, np.moveaxis(a, 0, -1))
 
 
 def test_colour_references():

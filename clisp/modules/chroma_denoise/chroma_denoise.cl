@@ -330,12 +330,39 @@ __kernel void haar_synthesize(__global const float *restrict approx, __global co
     }
 }
 
+/* The output element of chroma_merge: float, or with ENCODE_SRGB (the pipeline's tone curve folded
+ * into this stage's store; the host prepends clisp/modules/colour/srgb.h) the sRGB-encoded value,
+ * as QUANTIZE codes of CODE_BITS (16: ushort, 8: uchar) or float. ENC1 encodes one value, ENC8
+ * eight (encode_srgb8: only what PoCL compiles inline). */
+#if ENCODE_SRGB && QUANTIZE && CODE_BITS == 8
+typedef uchar out_t;
+typedef uchar8 out8_u __attribute__((aligned(1)));
+#define ENC1(v) quantize8(encode_srgb(v))
+#define ENC8(v) quantize8x8(encode_srgb8(v))
+#elif ENCODE_SRGB && QUANTIZE
+typedef ushort out_t;
+typedef ushort8 out8_u __attribute__((aligned(2)));
+#define ENC1(v) quantize16(encode_srgb(v))
+#define ENC8(v) quantize16x8(encode_srgb8(v))
+#elif ENCODE_SRGB
+typedef float out_t;
+typedef float8 out8_u __attribute__((aligned(4)));
+#define ENC1(v) encode_srgb(v)
+#define ENC8(v) encode_srgb8(v)
+#else
+typedef float out_t;
+typedef float8 out8_u __attribute__((aligned(4)));
+#define ENC1(v) (v)
+#define ENC8(v) (v)
+#endif
+
 /* chroma_merge: RGB = m . (Y, c_1..c_n), m row-major (3 x NPLANES). Output (u, v) reads chroma
  * (u + c_shift_y, v + c_shift_x) of c_w x c_h planes and Y (u + y_shift_y, v + y_shift_x) of the
  * level-0 image (y_w wide). Halo 0. INTERLEAVED (define): write H x W x 3 (the host layout, when
- * this is the pipeline's last stage) instead of 3 planes. VEC consecutive pixels per work item
- * (width >= VEC; the last one of a row starts at width - VEC). */
-__kernel void chroma_merge(__global const float *restrict level, __global const float *restrict chroma, __global float *restrict dst,
+ * this is the pipeline's last stage) instead of 3 planes; ENCODE_SRGB: store the tone curve's
+ * output (out_t above). VEC consecutive pixels per work item (width >= VEC; the last one of a row
+ * starts at width - VEC). */
+__kernel void chroma_merge(__global const float *restrict level, __global const float *restrict chroma, __global out_t *restrict dst,
                            const int y_w, const int y_shift_y, const int y_shift_x,
                            const int c_w, const int c_h, const int c_shift_y, const int c_shift_x,
                            const int width, const int height, __constant const float *restrict m)
@@ -362,18 +389,23 @@ __kernel void chroma_merge(__global const float *restrict level, __global const 
     const int i = y * width + x;
 #if INTERLEAVED && VEC == 8
     const float8 r = rgb[0], g = rgb[1], b = rgb[2];
-    __global floatv_u *o = (__global floatv_u *)(dst + 3 * i);
-    o[0] = (float8)(r.s0, g.s0, b.s0, r.s1, g.s1, b.s1, r.s2, g.s2);
-    o[1] = (float8)(b.s2, r.s3, g.s3, b.s3, r.s4, g.s4, b.s4, r.s5);
-    o[2] = (float8)(g.s5, b.s5, r.s6, g.s6, b.s6, r.s7, g.s7, b.s7);
+    __global out8_u *o = (__global out8_u *)(dst + 3 * i);
+    o[0] = ENC8(((float8)(r.s0, g.s0, b.s0, r.s1, g.s1, b.s1, r.s2, g.s2)));
+    o[1] = ENC8(((float8)(b.s2, r.s3, g.s3, b.s3, r.s4, g.s4, b.s4, r.s5)));
+    o[2] = ENC8(((float8)(g.s5, b.s5, r.s6, g.s6, b.s6, r.s7, g.s7, b.s7)));
 #elif INTERLEAVED
-    dst[3 * i] = rgb[0];
-    dst[3 * i + 1] = rgb[1];
-    dst[3 * i + 2] = rgb[2];
+    dst[3 * i] = ENC1(rgb[0]);
+    dst[3 * i + 1] = ENC1(rgb[1]);
+    dst[3 * i + 2] = ENC1(rgb[2]);
+#elif VEC == 8
+    const int plane = width * height;
+    #pragma unroll
+    for (int r = 0; r < 3; ++r)
+        *(__global out8_u *)(dst + r * plane + i) = ENC8(rgb[r]);
 #else
     const int plane = width * height;
     #pragma unroll
     for (int r = 0; r < 3; ++r)
-        STOREV(rgb[r], dst + r * plane + i);
+        dst[r * plane + i] = ENC1(rgb[r]);
 #endif
 }

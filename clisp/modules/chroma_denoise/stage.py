@@ -62,7 +62,7 @@ import hashlib
 import io
 import pickle
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -73,7 +73,8 @@ from ...engine.disk_cache import cache_dir, device_identity, entry_name, keep_by
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
-from ..colour.stage import ColourMatrix
+from ...sim.colorimetry import SRGB_ENCODING
+from ..colour.stage import ColourMatrix, ToneCurve, srgb_source
 
 BT601 = np.array([0.299, 0.587, 0.114])
 """BT.601 luma weights of R, G, B."""
@@ -488,9 +489,17 @@ class ChromaDenoise(Stage):
     noise: NoiseTable | None = None
     params: ChromaDenoiseParams = field(default_factory=ChromaDenoiseParams)
     interleaved: bool = False
+    tone: ToneCurve | None = None
+    """The pipeline's tone curve folded into the merge's store (:meth:`fuse`): the stage then
+    outputs what the ToneCurve would (encoded float, 16- or 8-bit codes), one pass fewer."""
     name = "chroma_denoise"
     in_channels = 3
     out_channels = 3
+    writes_into = True
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        return np.dtype(np.float32) if self.tone is None else self.tone.out_dtype
 
     def __post_init__(self) -> None:
         if self.noise is None:
@@ -565,14 +574,20 @@ class ChromaDenoise(Stage):
         y0 = ys[0][m[0]:ys[0].shape[0] - m[0], m[0]:ys[0].shape[1] - m[0]]
         rgb = chroma_merge(y0, c, sp.merge_matrix)
         (cy, cx), (oh, ow) = plan.crop, plan.out
-        return np.moveaxis(rgb[:, cy:cy + oh, cx:cx + ow], 0, -1)
+        out = np.moveaxis(rgb[:, cy:cy + oh, cx:cx + ow], 0, -1)
+        return out if self.tone is None else self.tone.reference(out, origin)
 
     # -- OpenCL ---------------------------------------------------------------------------------
     def fuse(self, following: Stage) -> Stage | None:
         """A following colour matrix M (e.g. white balance pass 2) folds into the merge:
         M (from_luma Y + from_chroma c) = (M from_luma) Y + (M from_chroma) c. Y, c and the
-        denoising are unchanged."""
-        if not isinstance(following, ColourMatrix) or self.interleaved:
+        denoising are unchanged. A following ToneCurve folds into the merge's store (``tone``);
+        nothing folds after it."""
+        if self.interleaved or self.tone is not None:
+            return None
+        if isinstance(following, ToneCurve):
+            return replace(self, tone=replace(following, interleaved=False))
+        if not isinstance(following, ColourMatrix):
             return None
         m = np.asarray(following.matrix, dtype=np.float64)
         sp = self.space
@@ -581,7 +596,7 @@ class ChromaDenoise(Stage):
         return ChromaDenoise(space, self.noise, self.params)
 
     def with_interleaved_output(self) -> "ChromaDenoise":
-        return ChromaDenoise(self.space, self.noise, self.params, interleaved=True)
+        return replace(self, interleaved=True)
 
     def defines(self) -> dict[str, int]:
         """Compile-time constants of chroma_denoise.cl; JOINT_RANGE (joint_bilateral) and INTERLEAVED
@@ -662,7 +677,9 @@ class ChromaDenoise(Stage):
         record["metric"] = np.zeros(n * n) if metric is None else metric.ravel()
         return record
 
-    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
+                out: DeviceImage | None = None) -> DeviceImage:
+        target = out                    # ``out``: the host's band to write (Runtime.host_image), if given
         prm, sp, n = self.params, self.space, self.space.n_chroma
         plan = make_plan(prm.levels, prm.radius, src.height, src.width, origin)
         defines = self.defines()
@@ -728,12 +745,16 @@ class ChromaDenoise(Stage):
             rt.release(d)
             c, start = up, 2 * m[j]
         (cy, cx), (oh, ow) = plan.crop, plan.out
-        dst = rt.acquire(3, oh, ow)
+        dst = target if target is not None else rt.acquire(3, oh, ow, self.out_dtype)
         v = vec if ow >= vec else 1
+        tone = self.tone
+        store = {"ENCODE_SRGB": 0, "QUANTIZE": 0, "CODE_BITS": 16} if tone is None else \
+            {**SRGB_ENCODING, "ENCODE_SRGB": 1, "QUANTIZE": int(tone.quantize), "CODE_BITS": tone.bits}
         rt.launch_named("chroma_denoise", "chroma_merge", -(-ow // v), oh, dict(
             level=levels[0], chroma=c, dst=dst, y_w=nx, y_shift_y=m[0] + cy, y_shift_x=m[0] + cx, c_w=c.width,
             c_h=c.height, c_shift_y=cy, c_shift_x=cx, width=ow, height=oh, m=rt.constant(as_f32(sp.merge_matrix))),
-            {**defines, "INTERLEAVED": int(self.interleaved), "VEC": v}, exact=False)
+            {**defines, **store, "INTERLEAVED": int(self.interleaved), "VEC": v}, exact=False,
+            generated="" if tone is None else srgb_source(rt))
         rt.release(c)
         for lvl in levels:
             rt.release(lvl)

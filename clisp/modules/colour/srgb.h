@@ -32,3 +32,60 @@ inline ushort quantize16(const float v)
 {
     return (ushort)(int)(v * 65535.0f + 0.5f);         /* through int: vectorises */
 }
+
+/* encode_srgb8: encode_srgb of eight values at once, for kernels that handle eight pixels per
+ * work-item (their stores interleave channels: PoCL turns a scalar kernel's interleaved stores
+ * into scattered scalar stores). The same operations in the same order, element-wise; only what
+ * PoCL 3.0 compiles inline: no convert_* (out-of-line calls), integer <-> float by the 1.5 2^23
+ * trick (exact for |values| < 2^22), selects by the vector ?: operator. */
+inline float8 encode_srgb8(const float8 x)
+{
+    const float8 magic = (float8)12582912.0f;                           /* 1.5 2^23 */
+    const float8 lo = (float8)SRGB_THRESHOLD, one = (float8)1.0f;
+    const float8 v = x < lo ? lo : (x > one ? one : x);
+    const uint8 bits = as_uint8(v);
+    const float8 u = as_float8((bits & (uint8)0x007fffffu) | (uint8)0x3f800000u) * SRGB_M_SCALE + SRGB_M_OFFSET;
+    const float8 pm = (((((SRGB_M6 * u + SRGB_M5) * u + SRGB_M4) * u + SRGB_M3) * u + SRGB_M2) * u
+                      + SRGB_M1) * u + SRGB_M0;
+    const float8 e = as_float8(as_int8(magic) + (as_int8(bits >> 23) - 127)) - magic;   /* (float)(e) */
+    const float8 y = e * SRGB_INV_GAMMA;                                             /* e / 2.4 <= 0 */
+    const float8 t = y + 64.0f;
+    const float8 r = (t + magic) - magic;                                            /* round(t) */
+    const float8 fl = r > t ? r - 1.0f : r;                                          /* floor(t) */
+    const int8 n = (as_int8(fl + magic) - as_int8(magic)) - 64;                      /* floor(y) */
+    const float8 w = (y - (fl - 64.0f)) * SRGB_F_SCALE + SRGB_F_OFFSET;
+    const float8 pf = ((((SRGB_F5 * w + SRGB_F4) * w + SRGB_F3) * w + SRGB_F2) * w + SRGB_F1) * w + SRGB_F0;
+    const float8 curve = pm * pf * as_float8((n + 127) << 23) - SRGB_OFFSET;
+    const float8 zero = (float8)0.0f;
+    const float8 linear = x > zero ? SRGB_SLOPE * x : zero;
+    return x <= lo ? linear : curve;
+}
+
+/* quantize16x8: quantize16 of eight encoded values in [0, 1 + 1e-6]: the 16-bit code by the
+ * 1.5 2^23 trick on v * 65535 + 0.5 truncated (as quantize16's (int) cast: the value is >= 0). */
+inline ushort8 quantize16x8(const float8 v)
+{
+    const float8 magic = (float8)12582912.0f;
+    const float8 t = v * 65535.0f + 0.5f;
+    const float8 r = (t + magic) - magic;
+    const float8 fl = r > t ? r - 1.0f : r;                                           /* trunc = floor */
+    const uint8 code = as_uint8(fl + magic) - as_uint8(magic);
+    return (ushort8)(code.s0, code.s1, code.s2, code.s3, code.s4, code.s5, code.s6, code.s7);
+}
+
+/* quantize8 / quantize8x8: an encoded value (one, eight) to the nearest 8-bit code, as quantize16
+ * and quantize16x8 (JPEG output: the device writes the file's bytes, a third of float's). */
+inline uchar quantize8(const float v)
+{
+    return (uchar)(int)(v * 255.0f + 0.5f);
+}
+
+inline uchar8 quantize8x8(const float8 v)
+{
+    const float8 magic = (float8)12582912.0f;
+    const float8 t = v * 255.0f + 0.5f;
+    const float8 r = (t + magic) - magic;
+    const float8 fl = r > t ? r - 1.0f : r;
+    const uint8 code = as_uint8(fl + magic) - as_uint8(magic);
+    return (uchar8)(code.s0, code.s1, code.s2, code.s3, code.s4, code.s5, code.s6, code.s7);
+}

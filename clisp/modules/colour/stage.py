@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...sim.colorimetry import SRGB_ENCODING, quantize16, srgb_encode, srgb_poly_defines
+from ...sim.colorimetry import SRGB_ENCODING, quantize8, quantize16, srgb_encode, srgb_poly_defines
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from ...engine.stage import Stage, as_f32
 
@@ -65,41 +65,82 @@ def camera_neutral(colour_matrix: np.ndarray, target: np.ndarray | None = None) 
 
 def srgb_source(rt: Runtime) -> str:
     """Program text that defines ``encode_srgb`` and ``quantize16`` (the polynomial's constants, then
-    clisp/modules/colour/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`."""
-    constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
-    return "\n".join(constants + [rt.header("srgb.h")])
+    clisp/modules/colour/srgb.h); pass as ``generated`` to :meth:`Runtime.kernel`. Made once per
+    process (it read the header on every tile)."""
+    global _SRGB_SOURCE
+    if _SRGB_SOURCE is None:
+        constants = [f"#define {key} {value!r}f" for key, value in srgb_poly_defines().items()]
+        _SRGB_SOURCE = "\n".join(constants + [rt.header("srgb.h")])
+    return _SRGB_SOURCE
+
+
+_SRGB_SOURCE: str | None = None
 
 
 @dataclass
 class ToneCurve(Stage):
     """Linear sRGB -> sRGB-encoded in [0, 1] (clip, then IEC 61966-2-1); H x W x 3.
 
-    ``quantize``: output 16-bit codes (uint16, for TIFF/PNG) instead of float32, so the device
-    downloads half the bytes and the writer converts nothing. ``interleaved``: write H x W x 3
-    (the host layout; set by the pipeline when this is the last stage)."""
+    ``quantize``: output codes of ``bits`` (16: uint16, for TIFF/PNG; 8: uint8, for JPEG) instead
+    of float32, so the device downloads the file's own bytes and the writer converts nothing.
+    ``interleaved``: write H x W x 3 (the host layout; set by the pipeline when this is the last
+    stage)."""
 
     quantize: bool = False
     interleaved: bool = False
+    bits: int = 16
     name = "tone_curve"
     writes_into = True
 
+    def __post_init__(self) -> None:
+        if self.bits not in (8, 16):
+            raise ValueError(f"ToneCurve codes have 8 or 16 bits, not {self.bits}")
+
     @property
     def out_dtype(self) -> np.dtype:
-        return np.dtype(np.uint16 if self.quantize else np.float32)
+        if not self.quantize:
+            return np.dtype(np.float32)
+        return np.dtype(np.uint8 if self.bits == 8 else np.uint16)
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         encoded = srgb_encode(x.astype(np.float64))
-        return quantize16(encoded) if self.quantize else encoded
+        if not self.quantize:
+            return encoded
+        return quantize8(encoded) if self.bits == 8 else quantize16(encoded)
 
     def with_interleaved_output(self) -> "ToneCurve":
         return replace(self, interleaved=True)
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
                 out: DeviceImage | None = None) -> DeviceImage:
-        defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "INTERLEAVED": int(self.interleaved)}
-        kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
+        defines = {**SRGB_ENCODING, "QUANTIZE": int(self.quantize), "CODE_BITS": self.bits,
+                   "INTERLEAVED": int(self.interleaved)}
         dst = out if out is not None else rt.acquire(3, src.height, src.width, self.out_dtype)
-        launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer,
-                  np.int32(src.width), np.int32(src.height))
+        if self.interleaved and src.width >= 8 and eight_per_item(rt):
+            kernel = rt.kernel("colour", "srgb_encode8", defines, srgb_source(rt))
+            rt.launch(kernel, -(-src.width // 8), src.height, src.buffer, dst.buffer, src.width, src.height)
+        else:
+            kernel = rt.kernel("colour", "srgb_encode", defines, srgb_source(rt))
+            launch_exact(rt, kernel, src.width, src.height, src.buffer, dst.buffer, src.width, src.height)
         dst.interleaved = self.interleaved
         return dst
+
+
+def eight_per_item(rt: Runtime) -> bool:
+    """Whether the interleaved tone curve takes eight pixels per work-item (kernel srgb_encode8): on
+    CPU devices, where PoCL scatters a scalar kernel's interleaved stores (24 MP to 16-bit codes:
+    177 MP/s scalar; README.md); GPUs keep one pixel per lane (coalesced by the hardware)."""
+    return bool(rt.device.type & rt.cl.device_type.CPU)
+
+
+def tone_curve_for(output: str, interleaved: bool = False) -> ToneCurve | None:
+    """The ToneCurve that ends a pipeline of ``output`` ('linear': none; 'srgb': encoded float32;
+    'srgb16' / 'srgb8': 16- or 8-bit codes).
+
+    >>> tone_curve_for("srgb8").out_dtype, tone_curve_for("linear")
+    (dtype('uint8'), None)
+    """
+    if output == "linear":
+        return None
+    return ToneCurve(quantize=output in ("srgb16", "srgb8"), interleaved=interleaved,
+                     bits=8 if output == "srgb8" else 16)

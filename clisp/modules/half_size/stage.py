@@ -211,7 +211,7 @@ class HalfSize(FusedColourMatrix, Stage):
             return replace(self, cap=following.white * following.neutral, matrix=following.matrix)
         if isinstance(following, ColourMatrix):
             return super().fuse(following)
-        if isinstance(following, ToneCurve):
+        if isinstance(following, ToneCurve) and following.bits == 16:      # 8-bit codes: the curve's own kernel
             return replace(self, tone="uint16" if following.quantize else "float",
                            interleaved=following.interleaved)
         return None

@@ -262,6 +262,6 @@ class LinearPhaseFilter(Stage):
             return replace(self, weights=np.einsum("ij,kjt->kit", m, self.weights),
                            bias=self.bias @ m.T, support=mixed,
                            mix=None if self.mix is None else m @ self.mix)
-        if isinstance(following, ToneCurve) and FUSE_TONE_CURVE:
+        if isinstance(following, ToneCurve) and FUSE_TONE_CURVE and following.bits == 16:
             return replace(self, encode=True, quantize=following.quantize)
         return None

@@ -47,7 +47,7 @@ from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime, get_runtime
 from ...engine.streaming import BandSink, aligned_empty
 from ...engine.tiling import Tile, TilePlan
-from ..colour.stage import ToneCurve
+from ..colour.stage import ToneCurve, tone_curve_for
 
 LOBES = 3
 """Lanczos-3: the kernel's half-width in output pixels (sinc(x) sinc(x / LOBES), |x| < LOBES)."""
@@ -59,7 +59,7 @@ CHUNK_ROWS = 64
 """Input rows per ``resize_rows`` launch. The device window holds 2 x (vertical taps) + CHUNK_ROWS
 rows of the output's width (2.4 MiB for 6000 x 4000 to 2048), whatever the pipeline's band height."""
 
-OUTPUTS = ("linear", "srgb", "srgb16")
+OUTPUTS = ("linear", "srgb", "srgb16", "srgb8")
 """What :class:`StreamingResize` hands on: linear float32, sRGB-encoded float32, 16-bit sRGB codes
 (clisp.pipeline.build_pipeline's output kinds)."""
 
@@ -173,7 +173,7 @@ class StreamingResize:
     """Rows of an image in, rows of the resized image out, on the device, in order.
 
     ``source``: (height, width) of the image to resize; ``target``: (out_h, out_w); ``output``:
-    'linear' (float32), 'srgb' (encoded float32) or 'srgb16' (16-bit codes), the tone curve
+    'linear' (float32), 'srgb' (encoded float32), 'srgb16' or 'srgb8' (16- or 8-bit codes), the tone curve
     applied after the resampling. ``offset``: (top, left) of the image inside the rows pushed
     (a crop: pushed rows are that many rows and columns larger; the rest is dropped).
     :meth:`push` enqueues and returns at once; every call comes from one thread (the runtime's
@@ -188,8 +188,8 @@ class StreamingResize:
         self.in_h, self.in_w = (int(v) for v in source)
         self.out_h, self.out_w = (int(v) for v in target)
         self.top, self.left = (int(v) for v in offset)
-        self.tone = None if output == "linear" else ToneCurve(quantize=output == "srgb16", interleaved=True)
-        self.out_dtype = np.dtype(np.uint16 if output == "srgb16" else np.float32)
+        self.tone = tone_curve_for(output, interleaved=True)
+        self.out_dtype = np.dtype(np.float32) if self.tone is None else self.tone.out_dtype
         self.defines = {"INTERLEAVED": int(self.tone is None)}     # resize_columns' output layout
         self.rows = filter_taps(self.in_w, self.out_w)
         self.columns = filter_taps(self.in_h, self.out_h)

@@ -1,0 +1,166 @@
+"""The path a discrete GPU takes, run on this machine's device with its shared memory switched off
+(Runtime.host_unified False): the whole mosaic uploaded once from a pinned staging buffer and the
+windows gathered on the device, uploads and downloads on a second queue beside the kernels, a
+download's buffer reused only after it (issue 41, items 2 and 5). Every output equals the
+shared-memory path's, bit for bit: the same kernels run on the same pixels."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clisp.engine.executor import Pipeline, RESIDENT_SHARE, resident_policy
+from clisp.engine.runtime import get_runtime
+from clisp.engine.streaming import ArraySink, ArrayWindows
+from clisp.pipeline import build_pipeline, process_file
+
+from test_streaming import make_raw, unaligned
+
+
+@pytest.fixture()
+def discrete(monkeypatch: pytest.MonkeyPatch):
+    """The runtime as a discrete device sees it; its second queue and staging buffers made anew
+    and dropped after the test."""
+    rt = get_runtime()
+    rt.finish()
+    monkeypatch.setattr(rt, "host_unified", False)
+    monkeypatch.setattr(rt, "_transfer_queue", None)
+    rt.trim_pool()
+    yield rt
+    rt.finish()
+    rt.trim_pool()
+    rt.staging.trim()
+
+
+@pytest.mark.parametrize("kind, preset", [("bayer", "fast"), ("lms", "quality"), ("bayer", "quality")])
+def test_discrete_path_equals_shared_memory(kind: str, preset: str, discrete) -> None:
+    raw = make_raw(kind, shape=(301, 517))
+    pipeline = build_pipeline(raw, preset=preset, output="srgb16")
+    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**23 if preset == "quality" else 2**20)
+    assert len(plan.tiles) > 2
+    rt = discrete
+    uploads, gathers = [], []
+    resident, gather = rt.resident_mosaic, rt.gather_window
+    rt.resident_mosaic = lambda a: uploads.append(a.shape) or resident(a)
+    rt.gather_window = lambda *a: gathers.append(a[1:3]) or gather(*a)
+    try:
+        out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
+        pipeline.stream(ArrayWindows(unaligned(raw.data)), ArraySink(out), plan)
+    finally:
+        del rt.resident_mosaic, rt.gather_window
+    assert uploads == [raw.shape] and len(gathers) == len(plan.tiles)        # one upload, windows on the device
+    assert rt.transfer_queue is not rt.queue
+    rt.host_unified = True
+    shared = np.zeros_like(out)
+    pipeline.stream(ArrayWindows(unaligned(raw.data)), ArraySink(shared), plan)
+    np.testing.assert_array_equal(out, shared)
+
+
+def test_staging_is_reused_and_never_handed_out(discrete) -> None:
+    """Two calls stage their mosaics in the same pinned buffer; the arrays returned are the
+    caller's own (a later call never writes into an earlier result)."""
+    raw = make_raw("bayer", shape=(200, 240))
+    pipeline = build_pipeline(raw, preset="fast")
+    rt = discrete
+    made = []
+    new = rt.staging._new
+    rt.staging._new = lambda n: made.append(n) or new(n)
+    try:
+        first = pipeline.run(unaligned(raw.data), tile=64)
+        kept = first.copy()
+        second = pipeline.run(unaligned(raw.data[::-1].copy()), tile=64)
+    finally:
+        del rt.staging._new
+    assert len(made) == 1
+    np.testing.assert_array_equal(first, kept)
+    assert not np.array_equal(first, second)
+
+
+def test_download_buffer_waits_for_its_copy(discrete) -> None:
+    """A result buffer released after its download (on the transfer queue) makes the next
+    acquirer's commands wait for that copy on the device: no host wait, no torn result."""
+    rt = discrete
+    src = rt.acquire(3, 64, 48)
+    rt.cl.enqueue_copy(rt.queue, src.buffer, np.arange(64 * 48 * 3, dtype=np.float32))
+    src.interleaved = True
+    host = np.zeros((64, 48, 3), np.float32)
+    event = rt.download_region(src, host, 0, 0, 64, 48)
+    rt.release(src, after=event)
+    assert id(src.buffer) in rt.pool.pending
+    again = rt.acquire(3, 64, 48)
+    assert again.buffer is src.buffer and id(src.buffer) not in rt.pool.pending
+    event.wait()
+    np.testing.assert_array_equal(host.ravel(), np.arange(64 * 48 * 3, dtype=np.float32))
+    rt.release(again)
+
+
+def test_whole_process_on_the_discrete_path(tmp_path: Path, discrete) -> None:
+    """process_file of an in-memory camera-style raw writes the same TIFF on both paths."""
+    import tifffile
+    raw = make_raw("lms", shape=(180, 260))
+    raw.data = unaligned(raw.data)
+    process_file(raw, tmp_path / "d.tif", tile=64, preset="quality")
+    discrete.host_unified = True
+    process_file(raw, tmp_path / "s.tif", tile=64, preset="quality")
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "d.tif"), tifffile.imread(tmp_path / "s.tif"))
+
+
+def test_resident_policy() -> None:
+    """Shared memory: only a one-tile plan stages (the reader overlaps the device otherwise);
+    discrete: whenever the mosaic fits RESIDENT_SHARE of the device's memory."""
+    from types import SimpleNamespace
+    shared = SimpleNamespace(host_unified=True, device=SimpleNamespace(global_mem_size=2**34))
+    gpu = SimpleNamespace(host_unified=False, device=SimpleNamespace(global_mem_size=2**34))
+    assert resident_policy(shared, 48 << 20, 1) and not resident_policy(shared, 48 << 20, 13)
+    assert resident_policy(gpu, 48 << 20, 13) and not resident_policy(gpu, int(RESIDENT_SHARE * 2**34) + 1, 1)
+
+
+def test_plans_per_device_kind(discrete) -> None:
+    """A discrete device plans a 24 MP raw of the quality path as one window (GPU_TARGET_TILE_PIXELS,
+    its memory permitting); a device sharing host memory as bands (TARGET_TILE_PIXELS, or more
+    rows where the halo asks for them: tiling.HALO_ROWS_FACTOR)."""
+    from clisp.engine.tiling import halo_target_pixels
+    raw = make_raw("lms", shape=(64, 64))
+    pipeline = build_pipeline(raw, preset="quality")
+    gpu = pipeline.plan((4000, 6000), np.uint16, budget=8 * 2**30)
+    discrete.host_unified = True
+    cpu = pipeline.plan((4000, 6000), np.uint16, budget=8 * 2**30)
+    assert len(gpu.tiles) == 1
+    assert len(cpu.tiles) > 4 and np.prod(cpu.window_shape) <= 1.1 * halo_target_pixels(6000, pipeline.halo)
+
+
+def test_band_buffers_are_pinned_and_reused_across_files(tmp_path: Path, discrete) -> None:
+    """On a discrete device process_file's output bands come from the runtime's staging buffers and
+    go back to them: a second file takes the same ones (pinned memory is allocated once)."""
+    first, second = staging_made_by_two_files(discrete, make_raw("bayer", shape=(160, 200)), tmp_path)
+    assert first >= 2 and second == 0
+
+
+def test_file_windows_read_into_pinned_staging(tmp_path: Path, discrete) -> None:
+    """A raw read from its file (FileWindows) on a discrete device: the windows are read into
+    staging buffers (pinned), given back when the run ends, and a second file reuses them."""
+    from clisp.io.rawfile import read_raw, write_raw
+    write_raw(tmp_path / "r.dng", make_raw("bayer", shape=(200, 300)))
+    raw = read_raw(tmp_path / "r.dng", lazy=True)
+    first, second = staging_made_by_two_files(discrete, raw, tmp_path)
+    assert first > 2 and second == 0                   # windows and bands: made once, then reused
+    discrete.host_unified = True
+    process_file(raw, tmp_path / "s.tif", tile=64, preset="fast")
+    import tifffile
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "a.tif"), tifffile.imread(tmp_path / "s.tif"))
+
+
+def staging_made_by_two_files(rt, raw, folder: Path) -> tuple[int, int]:
+    """Staging buffers made while process_file writes ``raw`` twice (fast preset, 64 px tiles):
+    (during the first file, during the second)."""
+    made = []
+    new = rt.staging._new
+    rt.staging._new = lambda n: made.append(n) or new(n)
+    try:
+        process_file(raw, folder / "a.tif", tile=64, preset="fast")
+        first = len(made)
+        process_file(raw, folder / "b.tif", tile=64, preset="fast")
+    finally:
+        del rt.staging._new
+    return first, len(made) - first
