@@ -100,7 +100,7 @@ REFS = 18
 CELL = 4
 """The references are summed over cells of CELL x CELL px on the image's grid, and a pixel's
 reference colour over the (2 k + 1)^2 cells around its cell, k = :func:`cell_radius` (RADIUS 16:
-7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of seven planes cost
+7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of the reference planes cost
 more than the rest of the stage."""
 
 REF = 0.9
@@ -428,7 +428,7 @@ class Highlights(Stage):
 SAMPLES = ((0, 0), (1, 2), (2, 1), (3, 3))
 """The pixels of each CELL x CELL cell (dy, dx, on the image's grid) whose reference weights the
 cell sums: one in four, on every CFA phase of the Bayer and LMS patterns (R, G, G, B; L, M, S, L),
-so a demosaic's error at one phase does not colour the references; the seven planes of weights
+so a demosaic's error at one phase does not colour the references; the SUMS planes of weights
 cost a quarter (the cells were the stage's largest kernel on the D30 DNG). The box over 7 x 7
 cells still sums 196 pixels."""
 
