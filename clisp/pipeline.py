@@ -10,10 +10,11 @@ import time
 from contextlib import closing, nullcontext
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .corrections import only_isolated_clips, sensor_corrections
 from .errors import ClispError, clip
 from .io.exif import output_attributes
 from .io.rawfile import read_raw
@@ -57,7 +58,7 @@ stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA l
 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear", "other": "bilinear"}, "denoise_levels": 0,
-             "highlights": "clamp"},
+             "highlights": "clamp", "bad_pixels": "off"},
     "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse", "other": "bilinear"}, "denoise_levels": 2,
                  "highlights": "reconstruct"},
     "quality": {"demosaic": {"lms": "guided", "bayer": "ri", "other": "bilinear"}, "denoise_levels": 3,
@@ -71,7 +72,9 @@ serves the other layouts). The colour side (camera constants, chroma space) foll
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
-raw with clipping spread over a fifth of it). Explicit options override."""
+raw with clipping spread over a fifth of it). ``bad_pixels``: the defect search's default where it is
+not 'auto' (fast: off; the search is a pass of its own there, since the fast path folds the
+normalisation into the demosaic: +15 % on a 24 MP raw; docs/RESULTS.md). Explicit options override."""
 
 DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
@@ -145,7 +148,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera", half_size: bool = False) -> Pipeline:
+                   wb: str = "camera", half_size: bool = False, bad_pixels: Any = None,
+                   dark: Sequence[str] = (), flat: Sequence[str] = (), opcodes: bool = True) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -179,6 +183,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
     ``demosaic`` or ``denoise`` is refused: the binning averages the samples), its highlight mode
     is HALF_SIZE_HIGHLIGHTS unless ``highlights`` says otherwise.
+    ``bad_pixels`` ('auto', 'off' or a map file; None: the preset's, auto but for fast), ``dark`` and
+    ``flat`` (frames' paths) and ``opcodes``
+    (apply the DNG's opcodes): the sensor corrections (clisp.corrections), a first stage on the
+    mosaic and, for gains, one after the chroma stage; the pipeline's ``corrections`` says what they did.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -201,6 +209,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
             noise = raw_noise(raw)
         except NoiseEstimateError:
             noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+    if bad_pixels is None:                                  # the preset's (fast: off), else auto
+        bad_pixels = options.get("bad_pixels", "auto")
+    corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, noise)
+    noise = corrections.noise(noise)                        # the dark frame's own noise added
     choice = None
     if adapt and noise is not None:                         # the cheapest demosaic its noise allows
         demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
@@ -209,11 +221,18 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+    if corrections.pre is not None:
+        stages.insert(0, corrections.pre)
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2,
                                 noise=noise, scale=2 if half_size else 1)
+    if highlight is not None and only_isolated_clips(raw, corrections.pre):
+        highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
+    shade = corrections.shade(raw.colour_matrix, HALF_SIZE_DOWNSCALE if half_size else 1)
+    if shade is not None:                                   # the smooth gain, after highlights and denoiser
+        stages.append(shade)
     if auto_exposure:
         from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
         exposure = float(np.clip(exposure + auto_exposure_ev(raw, gains2, EXPOSURE_LIMIT),
@@ -226,6 +245,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
         stages.append(tone)
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         stage_choice=choice)
+    pipeline.corrections = corrections
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
