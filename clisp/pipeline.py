@@ -228,7 +228,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     if corrections.pre is not None:
         stages.insert(0, corrections.pre)
-    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
+    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2,
+                                noise=noise, scale=2 if half_size else 1)
     if highlight is not None and only_isolated_clips(raw, corrections.pre):
         highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
