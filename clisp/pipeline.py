@@ -66,8 +66,8 @@ PRESETS: dict[str, dict[str, Any]] = {
              "highlights": "reconstruct"},
 }
 """Named parameter sets (``--preset``); an option is one value or a dict per CFA layout (clisp.cfa
-``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer takes the Bayer demosaics, the any-CFA bilinear
-serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
+``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer and L doubled on the Bayer layout (``ML/LS``) take
+the Bayer demosaics, the any-CFA bilinear serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
