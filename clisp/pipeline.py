@@ -24,7 +24,7 @@ from .engine.stage import Stage
 from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
-                                           space_for)
+                                           space_for_cfa)
 from .modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_ri.stage import DemosaicRI
@@ -251,7 +251,7 @@ def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoisePara
     noise = raw_noise(raw) if noise is None else noise
     if is_noiseless(noise) or params.noise_scale == 0:
         return ColourMatrix(raw.colour_matrix)
-    space = space_for(raw.cfa.spectral, raw.colour_matrix, params.strengths)
+    space = space_for_cfa(raw.cfa, raw.colour_matrix, params.luma, raw.pass1_gains(), params.strengths)
     table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, rt=rt)
     return ChromaDenoise(space, table, params)
 
