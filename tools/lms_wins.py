@@ -4,7 +4,8 @@ camera with its strongest chroma denoiser under one protocol, and the acceptance
     python tools/lms_wins.py [--data ../shared/data] [--subset N] [--dead-leaves 8]
         [--gains none,4,16,64] [--crossover-gains 8,32] [--tune-size 384] [--seeds 2]
         [--bound-subset 6] [--bound-dead-leaves 3] [--bound-train 8] [--bound-support 11] [--no-bound]
-        [--csv docs/lms_wins.csv] [--results docs/RESULTS.md]
+        [--csv docs/lms_wins.csv] [--results docs/RESULTS.md] [--cameras bayer,lms]
+    python tools/lms_wins.py --from-csv PART.csv [PART2.csv ...] [--results docs/RESULTS.md]
 
 Cameras (CAMERAS): a CFA and the strongest demosaic clisp has for its layout: RGB Bayer with RI (the
 quality preset's Bayer demosaic), the paper's 4 x 4 LMS CFA with ``guided``, L doubled on the Bayer
@@ -468,12 +469,16 @@ def csv_rows(run: Run, command: str, facts: str) -> list[dict[str, object]]:
     return rows
 
 
-def run_from_csv(path: Path) -> tuple[Run, str, str]:
-    """(Run, command, facts) from :func:`csv_rows`' file."""
+def run_from_csv(paths: Path | Sequence[Path]) -> tuple[Run, str, str]:
+    """(Run, command, facts) from :func:`csv_rows`' file, or from several (the parts of one run made
+    with ``--cameras``: their rows together, their commands and facts joined by ' + ' and '; ')."""
     import csv
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    head = next(r for r in rows if r["part"] == "run")
+    rows = []
+    for path in ([paths] if isinstance(paths, Path) else paths):
+        with open(path, newline="") as f:
+            rows += list(csv.DictReader(f))
+    heads = [r for r in rows if r["part"] == "run"]
+    head = {"set": " + ".join(r["set"] for r in heads), "cfa": "; ".join(r["cfa"] for r in heads)}
 
     def g(text: str):
         return None if text == "noiseless" else float(text)
@@ -565,8 +570,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bound-support", type=int, default=11)
     ap.add_argument("--no-bound", action="store_true", help="skip the linear bound")
     ap.add_argument("--csv", type=Path, default=None, help="write every measured figure here")
-    ap.add_argument("--from-csv", type=Path, default=None,
-                    help="measure nothing: write the section from a --csv of an earlier run (its command and facts)")
+    ap.add_argument("--cameras", default=None,
+                    help="measure only these of CAMERAS (CFA names, comma-separated; default all): a part of a run, "
+                         "for parts run side by side and joined by --from-csv. Crossover gains need bayer and lms, "
+                         "the paper's Bayer's SNR bayer; the linear bound always covers every camera")
+    ap.add_argument("--from-csv", type=Path, nargs="+", default=None,
+                    help="measure nothing: write the section from the --csv of an earlier run, or of its "
+                         "--cameras parts (their commands and facts)")
     ap.add_argument("--results", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.from_csv is not None:
@@ -587,7 +597,8 @@ def main(argv: list[str] | None = None) -> int:
         bound_images = {s: len(v) for s, v in bsc.items()}
         print(f"linear bound: {(time.perf_counter() - t0) / 60:.1f} min", flush=True)
 
-    best, tuning = tune(CAMERAS, args.tune_size)
+    cameras = CAMERAS if args.cameras is None else tuple(c for c in CAMERAS if c[0] in args.cameras.split(","))
+    best, tuning = tune(cameras, args.tune_size)
     for camera, d in best.items():
         print(f"strongest for {camera}: {d.label}", flush=True)
 
@@ -595,10 +606,12 @@ def main(argv: list[str] | None = None) -> int:
 
     def chosen(camera: tuple[str, str]) -> list[Denoiser]:
         return [DEFAULT] + ([best[camera]] if best[camera] != DEFAULT else [])
-    judged = mean(evaluate(scenes, CAMERAS, chosen, args.gains, progress="judging"))
-    if args.crossover_gains:
-        judged.update(mean(evaluate(scenes, (BAYER, LMS), chosen, args.crossover_gains, progress="crossover")))
-    snr = panel_snrs({**{c: chosen(c) for c in CAMERAS}, PAPER_BAYER: [DEFAULT]}, args.seeds)
+    judged = mean(evaluate(scenes, cameras, chosen, args.gains, progress="judging"))
+    pair = tuple(c for c in (BAYER, LMS) if c in cameras)
+    if args.crossover_gains and pair:
+        judged.update(mean(evaluate(scenes, pair, chosen, args.crossover_gains, progress="crossover")))
+    snr = panel_snrs({**{c: chosen(c) for c in cameras}, **({PAPER_BAYER: [DEFAULT]} if BAYER in cameras else {})},
+                     args.seeds)
 
     run = Run(list(scenes), list(args.gains), list(args.crossover_gains), best, tuning, judged, snr, bound_scores,
               {s: len(v) for s, v in scenes.items()}, bound_images)
@@ -606,10 +619,13 @@ def main(argv: list[str] | None = None) -> int:
     argv_used = sys.argv[1:] if argv is None else argv
     command = ("python tools/lms_wins.py " + " ".join(shlex.quote(a) for a in argv_used)).strip()
     facts = run_facts(minutes)
-    text = markdown(run, command, minutes, facts)
-    print(text)
     if args.csv is not None:
         toolkit.write_csv(csv_rows(run, command, facts), args.csv)
+    if cameras != CAMERAS:
+        print(f"a part ({', '.join(c[0] for c in cameras)}): the section comes from --from-csv over every part's CSV")
+        return 0
+    text = markdown(run, command, minutes, facts)
+    print(text)
     if args.results is not None:
         toolkit.update_results(args.results, text, SECTION)
         print(f"wrote the {SECTION} section of {args.results}")

@@ -73,3 +73,18 @@ def test_the_section_reads_back_from_its_csv(tmp_path):
     again, command, facts = lms_wins.run_from_csv(path)
     assert (command, facts) == ("python tools/lms_wins.py", "facts")
     assert lms_wins.markdown(again, command, 0.0, facts) == lms_wins.markdown(run, command, 0.0, facts)
+
+
+def test_parts_run_side_by_side_join_into_the_same_section(tmp_path):
+    """``--cameras`` parts, each with its own CSV, read back together as the whole run."""
+    run = synthetic_run()
+    rows = lms_wins.csv_rows(run, "python tools/lms_wins.py", "facts")
+    first = {lms_wins.BAYER[0], lms_wins.LMS[0]}
+    paths = []
+    for i, keep in enumerate((lambda r: r["cfa"] in first, lambda r: r["cfa"] not in first)):
+        part = [rows[0]] + [r for r in rows[1:] if keep(r)]
+        paths.append(tmp_path / f"part{i}.csv")
+        lms_wins.toolkit.write_csv(part, paths[-1])
+    again, command, facts = lms_wins.run_from_csv(paths)
+    assert command == "python tools/lms_wins.py + python tools/lms_wins.py" and facts == "facts; facts"
+    assert lms_wins.markdown(again, command, 0.0, facts) == lms_wins.markdown(run, command, 0.0, facts)
