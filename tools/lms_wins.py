@@ -294,6 +294,15 @@ class Run:
     def strongest(self, camera: tuple[str, str]) -> str:
         return self.best[camera].label
 
+    @property
+    def cameras(self) -> tuple[tuple[str, str], ...]:
+        """The cameras measured, in CAMERAS' order (all of them unless parts are missing)."""
+        return tuple(c for c in CAMERAS if c in self.best)
+
+    @property
+    def lms_cameras(self) -> tuple[tuple[str, str], ...]:
+        return tuple(c for c in self.cameras if c in LMS_CAMERAS)
+
 
 def cell(values: Sequence[float], fmt: str = "{:.2f}") -> str:
     return " / ".join("-" if np.isnan(v) else fmt.format(v) for v in values)
@@ -302,7 +311,7 @@ def cell(values: Sequence[float], fmt: str = "{:.2f}") -> str:
 def md_bound(run: Run) -> list[str]:
     gains = run.gains
     lines = ["| layout | " + " | ".join(gname(g) for g in gains) + " |", "|---|" + "---|" * len(gains)]
-    for camera in CAMERAS:
+    for camera in (c for c in CAMERAS if all((s, c[0], g) in run.bound for s in run.sets for g in gains)):
         cfa = cfa_from_name(camera[0])
         shares = "/".join(str(int(round(d * 16))) for d in cfa.densities())
         lines.append(f"| `{camera[0]}` (L/M or R/G/B in 16ths: {shares}) | "
@@ -334,7 +343,7 @@ def md_leads(run: Run, gains) -> list[str]:
     lines = ["| LMS camera (denoiser) | against Bayer RI with | " + " | ".join(gname(g) for g in gains) + " |",
              "|---|---|" + "---|" * len(gains)]
     bayer_best = run.strongest(BAYER)
-    for camera in LMS_CAMERAS:
+    for camera in run.lms_cameras:
         for lab, blab, what in ((DEFAULT.label, DEFAULT.label, "the default"),
                                 (run.strongest(camera), bayer_best, f"its strongest ({bayer_best})")):
             d = leads(run, camera, lab, blab, gains)
@@ -391,7 +400,7 @@ def paragraph(run: Run) -> list[str]:
     d_def = leads(run, LMS, DEFAULT.label, DEFAULT.label, gains)
     d_best = leads(run, LMS, lms_best, bayer_best, gains)
     goal = {(s, g): d_best[(s, g)] >= need for s in photos for g, need in ((4, 0.3), (16, 1.0)) if (s, g) in d_best}
-    best_lms_camera = {g: max(LMS_CAMERAS, key=lambda c: np.mean([run.psnr(s, c, run.strongest(c), g) for s in photos]))
+    best_lms_camera = {g: max(run.lms_cameras, key=lambda c: np.mean([run.psnr(s, c, run.strongest(c), g) for s in photos]))
                        for g in gains}
 
     def fig(d: dict, g) -> str:
@@ -418,7 +427,7 @@ def paragraph(run: Run) -> list[str]:
            "denoiser touches."]
     if run.bound is not None:
         gaps = [run.bound[(s, BAYER[0], g)] - run.bound[(s, c[0], g)] for s in run.sets for g in run.gains
-                for c in LMS_CAMERAS]
+                for c in LMS_CAMERAS if (s, c[0], g) in run.bound]
         why.append(f"The linear bound with noise shows what sampling and matrix cost before any algorithm: Bayer's "
                    f"best linear estimator leads every LMS layout's at every gain run by {min(gaps):+.2f} to "
                    f"{max(gaps):+.2f} dB" if min(gaps) > 0 else
@@ -460,7 +469,8 @@ def csv_rows(run: Run, command: str, facts: str) -> list[dict[str, object]]:
                 "gain": gname(gain), "db": repr(float(value)), "images": images}
     rows = [{"part": "run", "set": command, "cfa": facts, "demosaic": "", "denoiser": "", "gain": "", "db": "",
              "images": ""}]
-    rows += [row("judged", s, c, lab, g, v, run.images[s]) for (s, c, lab, g), v in run.judged.items()]
+    rows += [row("judged" if g in run.gains else "crossover", s, c, lab, g, v, run.images[s])
+             for (s, c, lab, g), v in run.judged.items()]
     rows += [row("tuning", s, c, lab, g, v) for (s, c, lab, g), v in run.tuning.items()]
     rows += [row("gray_snr", "demo chart", c, lab, g, v) for (c, lab, g), v in run.snr.items()]
     if run.bound:
@@ -485,7 +495,7 @@ def run_from_csv(paths: Path | Sequence[Path]) -> tuple[Run, str, str]:
     judged, tuning, snr, bnd, images, bimages = {}, {}, {}, {}, {}, {}
     for r in rows:
         camera, v = (r["cfa"], r["demosaic"]), float(r["db"] or "nan")
-        if r["part"] == "judged":
+        if r["part"] in ("judged", "crossover"):
             judged[(r["set"], camera, r["denoiser"], g(r["gain"]))] = v
             images[r["set"]] = int(r["images"])
         elif r["part"] == "tuning":
@@ -497,9 +507,9 @@ def run_from_csv(paths: Path | Sequence[Path]) -> tuple[Run, str, str]:
             bimages[r["set"]] = int(r["images"])
     grid = search()
     best = {c: max(grid, key=lambda d: np.mean([tuning[("tuning", c, d.label, t)] for t in TUNE_GAINS]))
-            for c in CAMERAS}
-    every = {k[3] for k in judged if k[1] not in (BAYER, LMS)}
-    both = {k[3] for k in judged} - every
+            for c in CAMERAS if any(k[1] == c for k in tuning)}
+    every = {g(r["gain"]) for r in rows if r["part"] == "judged"}
+    both = {g(r["gain"]) for r in rows if r["part"] == "crossover"}
     gains = sorted(every, key=lambda x: -1 if x is None else x)
     run = Run(list(images), gains, sorted(both), best, tuning, judged, snr, bnd or None, images, bimages)
     return run, head["set"], head["cfa"]
@@ -530,8 +540,8 @@ def markdown(run: Run, command: str, minutes: float, facts: str) -> str:
     lines += ["### Each camera with its strongest chroma denoiser (tuned on scenes made in code)", "",
               "Mean PSNR over the tuning scenes and gains 4 and 16: the strongest of the 18 settings, the default "
               "(bilateral paper x1), and the best of each class in each luminance (its setting in brackets):", "",
-              *md_tuning(run, CAMERAS), "",
-              "### End to end, judged", "", *md_judged(run, CAMERAS, run.gains), ""]
+              *md_tuning(run, run.cameras), "",
+              "### End to end, judged", "", *md_judged(run, run.cameras, run.gains), ""]
     if run.crossover:
         lines += ["Bayer and the paper's LMS at the gains between:", "",
                   *md_judged(run, (BAYER, LMS), run.crossover), ""]

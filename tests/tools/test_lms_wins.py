@@ -88,3 +88,15 @@ def test_parts_run_side_by_side_join_into_the_same_section(tmp_path):
     again, command, facts = lms_wins.run_from_csv(paths)
     assert command == "python tools/lms_wins.py + python tools/lms_wins.py" and facts == "facts; facts"
     assert lms_wins.markdown(again, command, 0.0, facts) == lms_wins.markdown(run, command, 0.0, facts)
+
+
+def test_a_missing_part_leaves_its_cameras_out():
+    """The section from the Bayer and LMS part alone: no row of the other cameras, the goal still read."""
+    run = synthetic_run()
+    keep = (lms_wins.BAYER, lms_wins.LMS)
+    run.best = {c: d for c, d in run.best.items() if c in keep}
+    run.judged = {k: v for k, v in run.judged.items() if k[1] in keep}
+    run.tuning = {k: v for k, v in run.tuning.items() if k[1] in keep}
+    run.snr = {k: v for k, v in run.snr.items() if k[0] in keep}
+    text = lms_wins.markdown(run, "python tools/lms_wins.py", 0.0, "facts")
+    assert "| `ML/LS` (ri)" not in text and "| `lms` (guided)" in text and "**not met**" in text
