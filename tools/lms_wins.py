@@ -4,7 +4,8 @@ camera with its strongest chroma denoiser under one protocol, and the acceptance
     python tools/lms_wins.py [--data ../shared/data] [--subset N] [--dead-leaves 8]
         [--gains none,4,16,64] [--crossover-gains 8,32] [--tune-size 384] [--seeds 2]
         [--bound-subset 6] [--bound-dead-leaves 3] [--bound-train 8] [--bound-support 11] [--no-bound]
-        [--csv docs/lms_wins.csv] [--results docs/RESULTS.md] [--cameras bayer,lms]
+        [--csv docs/lms_wins.csv] [--results docs/RESULTS.md] [--cameras bayer,lms] [--strongest-from CSV]
+        [--section lms-wins]
     python tools/lms_wins.py --from-csv PART.csv [PART2.csv ...] [--results docs/RESULTS.md]
 
 Cameras (CAMERAS): a CFA and the strongest demosaic clisp has for its layout: RGB Bayer with RI (the
@@ -422,9 +423,13 @@ def paragraph(run: Run) -> list[str]:
                + ", ".join(f"{s} gain {g:g} {d_best[(s, g)]:+.2f}" for (s, g) in goal) + ". ")
     out[0] += ("The best LMS camera per gain (photos' mean): "
                + ", ".join(f"{gname(g)} {best_lms_camera[g][0]}" for g in gains) + ".")
-    why = ["**Why.** Noiseless and at low gain the LMS camera loses on demosaic error, which its colour "
-           "matrix amplifies (eq. (1) multiplies L - M error by 8.60, Bayer's R - G by 1.81) and which no chroma "
-           "denoiser touches."]
+    noiseless = leads(run, LMS, DEFAULT.label, DEFAULT.label, [None]) if None in run.gains else {}
+    why = ["**Why.** Noiseless the LMS camera trails ("
+           + ", ".join(f"{s} {v:+.2f}" for (s, _), v in noiseless.items())
+           + " dB) on demosaic error, which its colour matrix amplifies (eq. (1) multiplies L - M error by 8.60, "
+           "Bayer's R - G by 1.81) and which no chroma denoiser touches; the more saturated the scene, the more of "
+           "the error is chroma (McMaster's saturated colours trail Kodak's, dead leaves, drawn uniformly in RGB, "
+           "trail at every gain)."]
     if run.bound is not None:
         gaps = [run.bound[(s, BAYER[0], g)] - run.bound[(s, c[0], g)] for s in run.sets for g in run.gains
                 for c in LMS_CAMERAS if (s, c[0], g) in run.bound]
@@ -444,12 +449,14 @@ def paragraph(run: Run) -> list[str]:
                    + ", ".join(f"{v:+.2f}" for v in snr_lead.values()) + " dB at gains "
                    + ", ".join(f"{g:g}" for g in snr_lead) + " (both strongest; with the default for both "
                    + ", ".join(f"{v:+.2f}" for v in snr_def.values()) + "): the broad, overlapping cones' (L + M) / 2 "
-                   "carries more signal than Bayer's luminance, and that lead grows in the output's PSNR as the "
+                   "(or the CFA's baseband luminance) carries more signal than Bayer's, and that lead grows in the "
+                   "output's PSNR as the "
                    "noise grows past the LMS camera's demosaic error.")
     lay = {g: best_lms_camera[g][0] for g in gains}
     why.append("The other layouts give up the L/M quincunx that the guided demosaic and the luminance ride on: "
-               "doubling L (`ML/LS`) or M (`lms-bayer`) on 2 x 2 buys S samples but halves the other cone's, whose "
-               "error reaches red 4-5x; the best LMS layout by gain: "
+               "doubling L (`ML/LS`) or M (`lms-bayer`) on 2 x 2 buys S samples (1/4 of the pixels, not 1/8) "
+               "but leaves the other cone 1/4, so L - M, the difference eq. (1) amplifies most, is sampled more "
+               "coarsely; the best LMS layout by gain (photos' mean): "
                + ", ".join(f"{gname(g)} `{v}`" for g, v in lay.items()) + ".")
     why = " ".join(why)
     return out + ["", why]
@@ -515,8 +522,8 @@ def run_from_csv(paths: Path | Sequence[Path]) -> tuple[Run, str, str]:
     return run, head["set"], head["cfa"]
 
 
-def markdown(run: Run, command: str, minutes: float, facts: str) -> str:
-    start, end = toolkit.markers(SECTION)
+def markdown(run: Run, command: str, minutes: float, facts: str, section: str = SECTION) -> str:
+    start, end = toolkit.markers(section)
     sets = " / ".join(run.sets)
     lines = [
         start,
@@ -584,6 +591,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="measure only these of CAMERAS (CFA names, comma-separated; default all): a part of a run, "
                          "for parts run side by side and joined by --from-csv. Crossover gains need bayer and lms, "
                          "the paper's Bayer's SNR bayer; the linear bound always covers every camera")
+    ap.add_argument("--strongest-from", type=Path, nargs="+", default=None,
+                    help="tune nothing: each camera's strongest denoiser (and the tuning table) from the --csv "
+                         "of an earlier run or its parts; judge on this run's sets")
+    ap.add_argument("--section", default=SECTION, help=f"the RESULTS section's marker name (default {SECTION})")
     ap.add_argument("--from-csv", type=Path, nargs="+", default=None,
                     help="measure nothing: write the section from the --csv of an earlier run, or of its "
                          "--cameras parts (their commands and facts)")
@@ -591,11 +602,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.from_csv is not None:
         run, command, facts = run_from_csv(args.from_csv)
-        text = markdown(run, command, 0.0, facts)
+        text = markdown(run, command, 0.0, facts, args.section)
         print(text)
         if args.results is not None:
-            toolkit.update_results(args.results, text, SECTION)
-            print(f"wrote the {SECTION} section of {args.results}")
+            toolkit.update_results(args.results, text, args.section)
+            print(f"wrote the {args.section} section of {args.results}")
         return 0
     t0 = time.perf_counter()
 
@@ -608,7 +619,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"linear bound: {(time.perf_counter() - t0) / 60:.1f} min", flush=True)
 
     cameras = CAMERAS if args.cameras is None else tuple(c for c in CAMERAS if c[0] in args.cameras.split(","))
-    best, tuning = tune(cameras, args.tune_size)
+    if args.strongest_from is not None:
+        earlier = run_from_csv(args.strongest_from)[0]
+        missing = [c[0] for c in cameras if c not in earlier.best]
+        if missing:
+            ap.error(f"{args.strongest_from[0]}: no tuning rows for {', '.join(missing)}")
+        best = {c: earlier.best[c] for c in cameras}
+        tuning = {k: v for k, v in earlier.tuning.items() if k[1] in cameras}
+    else:
+        best, tuning = tune(cameras, args.tune_size)
     for camera, d in best.items():
         print(f"strongest for {camera}: {d.label}", flush=True)
 
@@ -632,13 +651,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.csv is not None:
         toolkit.write_csv(csv_rows(run, command, facts), args.csv)
     if cameras != CAMERAS:
-        print(f"a part ({', '.join(c[0] for c in cameras)}): the section comes from --from-csv over every part's CSV")
-        return 0
-    text = markdown(run, command, minutes, facts)
+        print(f"a part ({', '.join(c[0] for c in cameras)}): the whole section comes from --from-csv over every "
+              "part's CSV; this part's alone:")
+    text = markdown(run, command, minutes, facts, args.section)
     print(text)
     if args.results is not None:
-        toolkit.update_results(args.results, text, SECTION)
-        print(f"wrote the {SECTION} section of {args.results}")
+        toolkit.update_results(args.results, text, args.section)
+        print(f"wrote the {args.section} section of {args.results}")
     return 0
 
 
