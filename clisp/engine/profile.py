@@ -242,13 +242,12 @@ def stop() -> None:
 
 @contextmanager
 def recording() -> Iterator[Profile]:
-    """Record every run in the block into a new :class:`Profile` (the process's runtime switched
-    to event profiling first), for an in-process caller: its :meth:`Profile.summary` holds the
+    """Record every run in the block into a new :class:`Profile` (the process's runtime switches to
+    event profiling when the block's first run asks for it: clisp.engine.runtime.get_runtime), for
+    an in-process caller: its :meth:`Profile.summary` holds the
     figures ``clisp process --profile`` prints (device busy, host time per launch, launches per
     tile, bytes moved), :meth:`Profile.report` the whole table."""
     global _ACTIVE
-    from .runtime import get_runtime              # deferred: the runtime imports this module
-    get_runtime(profiling=True)
     previous = _ACTIVE
     profile = start()
     try:

@@ -425,7 +425,8 @@ class Runtime:
         staging buffer (:class:`HostStaging`: page-aligned, or pinned on a discrete device, and
         reused across calls and files), which a shared-memory device then reads in place and a
         discrete one receives in one upload of the transfer queue. :meth:`release` gives the
-        staging buffer back; ``array`` may change once this returns."""
+        staging buffer back. Read in place, ``array`` must not change until the run's last event;
+        staged, it may change once this returns."""
         whole = self.host_source(array)
         if whole is not None:
             return whole
@@ -576,6 +577,14 @@ class Runtime:
         kernel(self.queue, gsize, LOCAL_SIZE, *args)
 
 
+def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
+    """An uninitialised uint8 array of ``nbytes`` whose data starts on an ``align``-byte boundary
+    (a page: a device sharing host memory then uses it in place, Runtime._wrap_host)."""
+    raw = np.empty(nbytes + align, dtype=np.uint8)
+    start = -raw.ctypes.data % align
+    return raw[start:start + nbytes]
+
+
 GATHER_ONE_LAUNCH = 1 << 20
 """Windows of at most this many pixels are gathered in one launch of the kernel that mirrors both
 axes, not in a vectorised launch over the inside columns (up to four: launch_exact's block and
@@ -623,7 +632,6 @@ class HostStaging:
     def _new(self, nbytes: int) -> np.ndarray:
         rt = self._rt
         if rt.host_unified:
-            from .streaming import aligned_empty     # deferred: streaming imports the runtime's users
             return aligned_empty(nbytes)
         cl = rt.cl
         buffer = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR, nbytes)
@@ -757,11 +765,13 @@ Reentrant: a locked caller may call locked code."""
 
 def get_runtime(profiling: bool = False) -> Runtime:
     """The process-wide runtime, created on first use. ``profiling``: create it with event
-    profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue)."""
+    profiling on (``clisp process --profile``; an existing runtime switches to a profiling queue),
+    as it is whenever a profile is being recorded (clisp.engine.profile.recording)."""
     global _RUNTIME
+    profiling = profiling or profile.active() is not None      # a recording (profile.recording) needs its events
     with DEVICE_LOCK:
         if _RUNTIME is None:
             _RUNTIME = Runtime(profiling=profiling)
-        elif profiling:
+        elif profiling and not _RUNTIME.profiling:
             _RUNTIME.enable_profiling()
         return _RUNTIME

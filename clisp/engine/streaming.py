@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import ClispError
 from .profile import host_timer
+from .runtime import aligned_empty
 from .tiling import Tile, TilePlan, gather, gather_window, window_indices
 
 
@@ -214,13 +215,6 @@ class BandSink:
         if self.left[tile.y0] == 0:
             slot = self._slot(tile)
             self.pending[slot] = self.executor.submit(self.write, tile.y0, self.buffers[slot][:tile.h])
-
-
-def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:
-    """An uninitialised uint8 array of ``nbytes`` whose data starts on an ``align``-byte boundary."""
-    raw = np.empty(nbytes + align, dtype=np.uint8)
-    start = -raw.ctypes.data % align
-    return raw[start:start + nbytes]
 
 
 def aligned_array(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
