@@ -27,7 +27,7 @@ seeds 2002-2003, and the demo chart; gains 4 and 16, noise seed 0). Kodak, McMas
 dead-leaves charts of seeds 0.. judge, at every level of ``--gains`` (all cameras) and of
 ``--crossover-gains`` (Bayer and the paper's LMS, to place the crossover).
 
-Pipelines (the protocol of tools/paper_tables.py's Runner: what ``--highlights off`` runs): normalise,
+Pipelines (the protocol of tools/paper_tables.py's Runner: what ``--highlights off --bad-pixels off`` runs): normalise,
 white balance pass 1, the demosaic (clisp.pipeline.make_demosaic: configured for the raw's noise),
 then the chroma denoiser with its noise table calibrated through that demosaic on the device, or
 at no noise the plain colour matrix (the denoiser does not run). ``nlm`` runs in NumPy on the
@@ -534,7 +534,7 @@ def markdown(run: Run, command: str, minutes: float, facts: str, section: str = 
         f"Run: {facts}. Judged on "
         + ", ".join(f"{n} {s}" for s, n in run.images.items())
         + f" images; cells {sets}, mean PSNR dB (tone-mapped, 10 px border), noise seed 0; no highlight stage "
-          "(`--highlights off` for both cameras, as the issue asks).",
+          "(`--highlights off` for both cameras, as the issue asks) and no defect search (`--bad-pixels off`).",
         "",
         *paragraph(run),
         "",
