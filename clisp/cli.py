@@ -60,7 +60,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cfa", default="lms",
                    help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx), lms-bayer (L, M, S on "
                         "the RGGB layout; lms-bayer-grbg, ...) or a pattern string of L, M, S or R, G, B letters, "
-                        "rows joined by '/' (LMMS, LMLS/MLML/LSLM/MLML)")
+                        "rows joined by '/' (LMMS, ML/LS: L doubled on the Bayer layout, LMLS/MLML/LSLM/MLML)")
     noise = p.add_mutually_exclusive_group()
     noise.add_argument("--gain", type=float, default=None, help="analog gain 1..64 (default 1)")
     noise.add_argument("--noiseless", action="store_true", help="no noise, no quantisation, no clipping (float raw)")

@@ -25,7 +25,7 @@ from .engine.stage import Stage
 from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
-                                           space_for)
+                                           space_for_cfa)
 from .modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_ri.stage import DemosaicRI
@@ -67,8 +67,8 @@ PRESETS: dict[str, dict[str, Any]] = {
              "highlights": "reconstruct"},
 }
 """Named parameter sets (``--preset``); an option is one value or a dict per CFA layout (clisp.cfa
-``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer takes the Bayer demosaics, the any-CFA bilinear
-serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
+``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer and L doubled on the Bayer layout (``ML/LS``) take
+the Bayer demosaics, the any-CFA bilinear serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
@@ -277,7 +277,7 @@ def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoisePara
     noise = raw_noise(raw) if noise is None else noise
     if is_noiseless(noise) or params.noise_scale == 0:
         return ColourMatrix(raw.colour_matrix)
-    space = space_for(raw.cfa.spectral, raw.colour_matrix, params.strengths)
+    space = space_for_cfa(raw.cfa, raw.colour_matrix, params.luma, raw.pass1_gains(), params.strengths)
     table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, rt=rt)
     return ChromaDenoise(space, table, params)
 
