@@ -81,7 +81,9 @@ def test_with_white_balance_choices() -> None:
     assert np.allclose(chosen.wb, [2.0, 1.0, 1.5]) and chosen.metadata["wb_source"] == "multipliers (--wb)"
     assert np.array_equal(chosen.data, raw.data) and raw.metadata.get("wb_source") is None   # raw untouched
     auto = with_white_balance(raw, "auto")
-    assert auto.metadata["wb_source"] == "auto (grey pixels)" and not np.allclose(auto.wb, raw.wb, rtol=1e-6)
+    assert auto.metadata["wb_source"].startswith("auto (") and not np.allclose(auto.wb, raw.wb, rtol=1e-6)
+    unknown = with_white_balance(replace(raw, metadata={}), "auto")    # no known D65 white: grey pixels
+    assert unknown.metadata["wb_source"] == "auto (grey pixels)" and "no daylight" in unknown.metadata["wb_explain"]
     camera_like = replace(raw, metadata={"daylight_multipliers": [2.2, 1.0, 1.4]})
     assert np.allclose(with_white_balance(camera_like, "daylight").wb, [2.2, 1.0, 1.4])
     with pytest.raises(ClispError, match="has no daylight white balance"):
