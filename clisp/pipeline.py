@@ -224,7 +224,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if tone is not None:
         stages.append(tone)
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
-                        stage_choice=choice)
+                        wb_explain=str(raw.metadata.get("wb_explain", "")) if wb == "auto" else "", stage_choice=choice)
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
