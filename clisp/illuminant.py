@@ -297,22 +297,22 @@ class Evidence:
     is refined REFINE times finer around the grid's best."""
     duv: tuple[float, float, float] = (-0.02, 0.02, 0.004)
     """The lights' grid in Duv: first, last, step."""
-    bright_share: float = 0.2
+    bright_share: float = 0.025
     """Share of the blocks whose soft maximum is a bright candidate (the brightest ones)."""
-    bright_sigma: float = 0.14
+    bright_sigma: float = 0.2
     """Chroma scale of the bright candidates' kernel (Cauchy: 1 / (1 + (chroma / sigma)^2))."""
-    bright_weight: float = 1.0
+    bright_weight: float = 2.0
     """Weight of the bright term's log-likelihood."""
     grey_sigma: float = 0.2
     """Chroma scale of the grey-edge cells' kernel."""
-    grey_weight: float = 0.5
+    grey_weight: float = 0.25
     """Weight of the grey-edge term's log-likelihood."""
     grey_brightness: float = 4.0
     """A block's grey-edge cells weigh (their weight) x (their mean level / the 98th percentile) ^ this:
     bright grey edges (whites, metal) count, dark ones (noise, shadows) barely."""
     mean_sigma: float = 0.7
     """Chroma scale of the gray-world term (a Gaussian on the chroma of the scene's mean)."""
-    mean_weight: float = 0.3
+    mean_weight: float = 0.1
     """Weight of the gray-world term's log-likelihood."""
     prior_mired: float = 150.0
     """The prior's most likely light, mired (6667 K: daylight between sun and shade)."""

@@ -188,21 +188,35 @@ def with_white_balance(raw: RawImage, choice: str = "camera") -> RawImage:
 
 def auto_gains(raw: RawImage) -> tuple[np.ndarray, str, dict[str, str]]:
     """``--wb auto``'s pass-1 multipliers (reference channel = 1), its short name (the output
-    file's description) and ``{'wb_explain': line}`` (what ``--explain`` prints).
-
-    With the camera's D65 white known (its daylight multipliers, :func:`daylight_gains`), the light
-    is estimated among the plausible ones from the raw's block statistics
-    (clisp.illuminant.estimate_light); without it, the scene's grey pixels (:func:`grey_pixel_gains`)."""
-    from .illuminant import CameraLights, block_statistics, estimate_light
+    file's description) and ``{'wb_explain': line}`` (what ``--explain`` prints): :func:`scene_light_gains`
+    with the raw's daylight multipliers where it has them (:func:`daylight_gains`)."""
     try:
         daylight = daylight_gains(raw)
     except ClispError:
-        gains, source = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level)
-        return gains, source, {"wb_explain": f"white balance auto: {source} (the raw has no daylight multipliers, "
-                                             f"so no plausible lights to choose among)"}
-    stats = block_statistics(raw.data, raw.cfa, raw.black_level, raw.white_level)
-    estimate = estimate_light(stats, CameraLights(raw.colour_matrix, daylight), reference_channel(raw.cfa))
-    return estimate.gains, f"auto ({estimate.temperature:.0f} K)", {"wb_explain": estimate.describe()}
+        daylight = None
+    gains, source, explain = scene_light_gains(raw.data, raw.cfa, raw.black_level, raw.white_level,
+                                               raw.colour_matrix, daylight)
+    return gains, source, {"wb_explain": explain}
+
+
+def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
+                      matrix: np.ndarray, daylight: np.ndarray | None) -> tuple[np.ndarray, str, str]:
+    """(multipliers, short name, explanation line) of the scene's light, reference channel = 1.
+
+    With the camera's D65 white known (``daylight``: its D65 pass-1 multipliers; ``matrix``:
+    white-balanced camera -> linear sRGB) the light is estimated among the plausible ones from the
+    mosaic's block statistics (clisp.illuminant.estimate_light); without it (None), from the
+    scene's grey pixels (:func:`grey_pixel_gains`), which need no matrix."""
+    if daylight is None:
+        gains, source = grey_pixel_gains(data, cfa, black_level, white_level)
+        return gains, source, (f"white balance auto: {source} (no daylight multipliers, so no plausible "
+                               f"lights to choose among)")
+    from .illuminant import CameraLights, block_statistics, estimate_light
+    ref = reference_channel(cfa)
+    daylight = np.asarray(daylight, dtype=np.float64) / float(daylight[ref])
+    stats = block_statistics(data, cfa, black_level, white_level)
+    estimate = estimate_light(stats, CameraLights(np.asarray(matrix, dtype=np.float64), daylight), ref)
+    return estimate.gains, f"auto ({estimate.temperature:.0f} K)", estimate.describe()
 
 
 def daylight_gains(raw: RawImage) -> np.ndarray:
