@@ -288,7 +288,7 @@ def block_statistics(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
 @dataclass(frozen=True)
 class Evidence:
     """The estimate's constants (:func:`estimate_light`), tuned on scenes made in code only
-    (tools/wb_scenes.py; tools/bench_wb_auto.py --tune). Chroma is measured on the implied surface's
+    (tools/wb_scenes.py; tools/tune_wb_auto.py --tune). Chroma is measured on the implied surface's
     linear sRGB, as log(channel) less the mean of the three logs (0 for a neutral; 0.1 is about
     10 % between channels)."""
 
