@@ -109,3 +109,14 @@ def test_wb_reaches_the_pipeline_and_the_output(tmp_path) -> None:
         note = oiio.ImageInput.open(str(out)).spec().getattribute("ImageDescription") or ""
         assert ("white balance multipliers (--wb)" in note) == (wb != "camera")
     assert outputs["2,1,1"][0] > outputs["camera"][0] * 1.02        # R multiplier 2 against the camera's
+
+
+def test_explain_says_what_auto_found(tmp_path, capsys) -> None:
+    """``--explain`` prints auto's light, its confidence and what decided it."""
+    from clisp.cli import main
+    from clisp.io.rawfile import write_raw
+    write_raw(tmp_path / "r.dng", simulate(_wood_and_steel(64, 96), "bayer", gain=4, optics="none").raw)
+    assert main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "a.tif"), "--wb", "auto", "--explain",
+                 "--preset", "fast"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("explain: white balance auto: "))
+    assert " K, Duv " in line and "confidence" in line and "decided by" in line
