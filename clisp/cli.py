@@ -28,7 +28,7 @@ from .engine.profile import host_timer
 from .engine.runtime import get_runtime, list_devices, save_built_programs
 from .engine.streaming import progress_bar
 from .engine.tiling import Tile
-from .io.rawfile import is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
+from .io.rawfile import RAW_SUFFIXES, is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
 from .modules.resize.stage import check_long_edge, resize_note
 from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, FILES_IN_FLIGHT,
                        GPU_FILES_IN_FLIGHT, HALF_SIZE_NO_DENOISE, PRESETS, SKIP_WHERE_IT_PAYS, denoise_params,
@@ -69,7 +69,74 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
                    help="repeat the scene (alternate copies mirrored) to W x H and write raw and truth "
                         "band by band, for images larger than memory; the noise is seeded per band, "
                         "so the result is reproducible but not bit-identical to a run without --size")
+    _add_sensor_defect_options(p)
     p.set_defaults(func=cmd_simulate)
+
+
+def _add_sensor_defect_options(p: argparse.ArgumentParser) -> None:
+    """simulate's sensor defects (clisp.sim.defects), the frames that match them and how the raw
+    records them; ``--truth`` stays the ideal sensor's image."""
+    g = p.add_argument_group("sensor defects (--truth stays the defect-free image)")
+    g.add_argument("--hot-pixels", default=None, metavar="F[:LEVEL]",
+                   help="fraction F of hot pixels (dark-current defects), excess LEVEL of full scale (default 0.5)")
+    g.add_argument("--warm-pixels", default=None, metavar="F[:LEVEL]",
+                   help="fraction F of warm pixels, excess LEVEL of full scale (default 0.05)")
+    g.add_argument("--dead-pixels", default=None, metavar="F", help="fraction F of dead pixels (no response)")
+    g.add_argument("--dark-current", default=None, metavar="E", help="dark current, electrons per second "
+                   "(its fixed pattern: a lognormal per-pixel rate, std 0.4 of the mean)")
+    g.add_argument("--exposure-time", default=None, metavar="S", help="exposure time in seconds (default 0.01)")
+    g.add_argument("--shading", default=None, metavar="CORNER",
+                   help="lens shading: relative illumination at the corners (cos^4 law, e.g. 0.5), with a "
+                        "colour shading that differs per channel")
+    g.add_argument("--prnu", default=None, metavar="STD", help="photo-response non-uniformity, std (e.g. 0.01)")
+    g.add_argument("--sensor-seed", type=int, default=None, metavar="N",
+                   help="seed of the defects' fixed pattern (default: --seed)")
+    g.add_argument("--dark-frames", type=int, default=0, metavar="N",
+                   help="also write N dark frames (same exposure, gain and pattern, no light) as OUT_dark01.dng ...")
+    g.add_argument("--flat-frames", type=int, default=0, metavar="N",
+                   help="also write N flat frames (an even light through the same shading and PRNU, base gain) "
+                        "as OUT_flat01.dng ...")
+    g.add_argument("--gainmap", action="store_true",
+                   help="record the lens shading in the DNG as GainMap opcodes (OpcodeList2), as a phone does")
+    g.add_argument("--bad-pixel-list", action="store_true",
+                   help="record the hot, warm and dead pixels in the DNG as FixBadPixelsList (OpcodeList1)")
+
+
+def _sensor_defects(args: argparse.Namespace):
+    """The SensorDefects simulate's options ask for, or None; ClispError for a malformed value."""
+    from .sim.defects import SensorDefects
+    values: dict = {}
+
+    def number(option: str, text: str, what: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not np.isfinite(value) or value < 0:
+            raise ClispError(f"{option} {text!r}: {what}")
+        return value
+
+    for kind in ("hot", "warm"):
+        text = getattr(args, f"{kind}_pixels")
+        if text is not None:
+            fraction, colon, level = text.partition(":")
+            values[kind] = number(f"--{kind}-pixels", fraction, "needs a fraction from 0 to 0.5, optionally :LEVEL")
+            if colon:
+                values[f"{kind}_level"] = number(f"--{kind}-pixels", level, "LEVEL is a share of full scale >= 0")
+    for option, key, what in (("--dead-pixels", "dead", "needs a fraction from 0 to 0.5"),
+                              ("--dark-current", "dark_current", "needs electrons per second >= 0"),
+                              ("--exposure-time", "exposure_time", "needs seconds > 0"),
+                              ("--shading", "shading", "needs the corners' relative illumination, in (0, 1]"),
+                              ("--prnu", "prnu", "needs a standard deviation from 0 to 0.5")):
+        text = getattr(args, key if key != "dead" else "dead_pixels")
+        if text is not None:
+            values[key] = number(option, text, what)
+    if args.dark_frames < 0 or args.flat_frames < 0:
+        raise ClispError("--dark-frames and --flat-frames take a number of frames >= 0")
+    if not values and not (args.dark_frames or args.flat_frames or args.gainmap or args.bad_pixel_list):
+        return None
+    seed = args.sensor_seed if args.sensor_seed is not None else args.seed
+    return SensorDefects(**values, seed=int(seed))
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
@@ -120,6 +187,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-crop", action="store_true",
                    help="keep the whole mosaic; by default the output is the crop the raw declares "
                         "(a DNG's DefaultCrop inside its ActiveArea, a camera's recommended crop)")
+    _add_sensor_options(p)
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl",
                    help="opencl kernels (default) or the NumPy reference")
     p.add_argument("--explain", action="store_true",
@@ -133,6 +201,39 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
                    help="print where the time went: device time per stage and kernel (OpenCL event "
                         "profiling), host time for decode, reading, writing and waiting")
     p.set_defaults(func=cmd_process)
+
+
+def _add_sensor_options(p: argparse.ArgumentParser) -> None:
+    """process's sensor corrections (clisp.corrections)."""
+    p.add_argument("--bad-pixels", default=None, metavar="auto|off|MAP",
+                   help="defective pixels: auto (default; preset fast: off) finds them against the sensor's noise "
+                        "model and replaces them from neighbours of their channel, with the DNG's FixBadPixels "
+                        "lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
+                        "off: none")
+    p.add_argument("--dark", action="append", default=[], metavar="DARK",
+                   help="a dark frame (same camera, exposure and ISO, no light; a raw file, or a folder of "
+                        "them), subtracted; repeat for several, averaged; scaled by exposure time when both "
+                        "raws state it")
+    p.add_argument("--flat", action="append", default=[], metavar="FLAT",
+                   help="a flat frame (an even light through the same lens; a raw file or a folder), "
+                        "normalised per channel, dividing the raw (lens shading and PRNU); repeat for several")
+    p.add_argument("--no-opcodes", action="store_true",
+                   help="apply none of the DNG's opcodes (GainMap, FixVignetteRadial, FixBadPixels), as LibRaw")
+
+
+def frame_files(paths: Sequence[str]) -> list[str]:
+    """--dark / --flat values: files as given, folders as the raw files directly inside them (sorted)."""
+    out: list[str] = []
+    for path in paths:
+        p = Path(path)
+        if p.is_dir():
+            found = sorted(str(f) for f in p.iterdir() if f.is_file() and f.suffix.lower() in RAW_SUFFIXES)
+            if not found:
+                raise ClispError(f"no raw files in {path}")
+            out += found
+        else:
+            out.append(path)
+    return out
 
 
 def _add_resize_option(p: argparse.ArgumentParser) -> None:
@@ -273,18 +374,51 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if is_raw_file(args.scene):
         raise ClispError(f"{args.scene}: is a raw file, not a scene; simulate takes an sRGB PNG/TIFF or a "
                          f"linear EXR (clisp process turns a raw into one)")
+    defects = _sensor_defects(args)
     scene = read_scene(args.scene)
     if args.size:
+        if defects is not None:
+            raise ClispError("--size repeats a scene band by band and simulates no sensor defects; "
+                             "leave out the defect options or --size")
         return _simulate_large(args, scene, gain)
-    result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
+    result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed, defects=defects)
     result.raw.metadata["scene"] = Path(args.scene).name
+    extra = _record_defects(args, result.raw, defects, gain)
     write_raw(args.output, result.raw)
     if args.truth:
         write_image(args.truth, result.truth)
     h, w = result.raw.shape
     noise = "noiseless" if gain is None else f"gain {gain:g}"
-    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw, {noise}, optics {args.optics}, seed {args.seed}")
+    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw, {noise}, optics {args.optics}, seed {args.seed}"
+          + extra)
     return 0
+
+
+def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) -> str:
+    """Write the frames simulate was asked for beside ``args.output`` and record the defects in the
+    raw as a camera would (GainMap, FixBadPixelsList); the note for simulate's line."""
+    if defects is None:
+        return ""
+    from .sim import defects as sd
+    ops = []
+    if args.gainmap:
+        ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)
+    if args.bad_pixel_list:
+        ops.append(sd.bad_pixel_list_opcode(defects, raw.shape))
+    if ops:
+        raw.metadata["opcodes"] = ops
+    stem = Path(args.output).with_suffix("")
+    written = []
+    for kind, count, seed in (("dark", args.dark_frames, args.seed + 1000), ("flat", args.flat_frames, args.seed + 2000)):
+        for i, frame in enumerate(sd.frames(raw, defects, kind, count, gain, seed)):
+            path = f"{stem}_{kind}{i + 1:02d}.dng"
+            write_raw(path, frame)
+            written.append(path)
+    parts = [name for name, on in (("GainMap", args.gainmap), ("FixBadPixelsList", args.bad_pixel_list)) if on]
+    note = "; sensor defects" + (f", {' and '.join(parts)} in the DNG" if parts else "")
+    if written:
+        note += f"; {args.dark_frames} dark and {args.flat_frames} flat frames beside it ({Path(written[0]).name} ...)"
+    return note
 
 
 def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
@@ -398,15 +532,22 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
                                           demosaic=args.demosaic, denoise=_denoise_option(args), wb2=args.wb2,
                                           skip=skip, highlights=args.highlights, exposure=args.exposure,
                                           auto_exposure=args.auto_exposure, wb=args.wb, resize=args.resize,
-                                          half_size=args.half_size,
-                                          explain=explained if args.explain else None, crop=not args.no_crop)
+                                          half_size=args.half_size, bad_pixels=args.bad_pixels,
+                                          dark=frame_files(args.dark), flat=frame_files(args.flat),
+                                          opcodes=not args.no_opcodes,
+                                          explain=explained, crop=not args.no_crop)
     th, tw = stats.tile_shape
     size = resize_note(output_size(raw, not args.no_crop, args.half_size), (height, width), args.resize)
     lines = [f"{output}: {width}x{height}{size} from {raw.cfa.name} raw, {stats.megapixels:.1f} MP in "
              f"{stats.seconds:.2f} s ({stats.mp_per_s:.1f} MP/s, {stats.tiles} tile{'s' if stats.tiles != 1 else ''} "
              f"of {tw}x{th})"]
+    corrections = getattr(explained.get("pipeline"), "corrections", None)
+    for name in corrections.unapplied if corrections is not None else ():
+        print(f"clisp: note: {path}: DNG opcode {name} not applied", file=sys.stderr, flush=True)
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
+        if corrections is not None:
+            lines.append(corrections.explain(get_runtime() if args.backend == "opencl" else None))
         if args.half_size:
             lines.append(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
                          f"{explained['pipeline'].describe()}")

@@ -10,10 +10,11 @@ import time
 from contextlib import closing, nullcontext
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .corrections import only_isolated_clips, sensor_corrections
 from .errors import ClispError, clip
 from .io.exif import output_attributes
 from .io.rawfile import read_raw
@@ -57,7 +58,7 @@ stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA l
 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear", "other": "bilinear"}, "denoise_levels": 0,
-             "highlights": "clamp"},
+             "highlights": "clamp", "bad_pixels": "off"},
     "balanced": {"demosaic": {"lms": "hybrid", "bayer": "dlmmse", "other": "bilinear"}, "denoise_levels": 2,
                  "highlights": "reconstruct"},
     "quality": {"demosaic": {"lms": "guided", "bayer": "ri", "other": "bilinear"}, "denoise_levels": 3,
@@ -71,7 +72,9 @@ serves the other layouts). The colour side (camera constants, chroma space) foll
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
-raw with clipping spread over a fifth of it). Explicit options override."""
+raw with clipping spread over a fifth of it). ``bad_pixels``: the defect search's default where it is
+not 'auto' (fast: off; the search is a pass of its own there, since the fast path folds the
+normalisation into the demosaic: +15 % on a 24 MP raw; docs/RESULTS.md). Explicit options override."""
 
 DEFAULT_PRESET = "quality"
 EXPOSURE_LIMIT = 10.0
@@ -145,7 +148,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                    output: str = "linear", denoise: ChromaDenoiseParams | bool | None = None,
                    wb2: str = "metadata", skip: bool | str | None = None,
                    highlights: str | None = None, exposure: float = 0.0, auto_exposure: bool = False,
-                   wb: str = "camera", half_size: bool = False) -> Pipeline:
+                   wb: str = "camera", half_size: bool = False, bad_pixels: Any = None,
+                   dark: Sequence[str] = (), flat: Sequence[str] = (), opcodes: bool = True) -> Pipeline:
     """Stages for ``raw``: normalise, WB pass 1, demosaic, highlights, colour (+ chroma denoise),
     WB pass 2, tone curve.
 
@@ -180,6 +184,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
     ``demosaic`` or ``denoise`` is refused: the binning averages the samples), its highlight mode
     is HALF_SIZE_HIGHLIGHTS unless ``highlights`` says otherwise.
+    ``bad_pixels`` ('auto', 'off' or a map file; None: the preset's, auto but for fast), ``dark`` and
+    ``flat`` (frames' paths) and ``opcodes``
+    (apply the DNG's opcodes): the sensor corrections (clisp.corrections), a first stage on the
+    mosaic and, for gains, one after the chroma stage; the pipeline's ``corrections`` says what they did.
     """
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
@@ -202,6 +210,10 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
             noise = raw_noise(raw)
         except NoiseEstimateError:
             noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+    if bad_pixels is None:                                  # the preset's (fast: off), else auto
+        bad_pixels = options.get("bad_pixels", "auto")
+    corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, noise)
+    noise = corrections.noise(noise)                        # the dark frame's own noise added
     choice = None
     if adapt and noise is not None:                         # the cheapest demosaic its noise allows
         demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
@@ -210,10 +222,17 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     gains2 = _wb2_gains(raw, wb2)
     stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+    if corrections.pre is not None:
+        stages.insert(0, corrections.pre)
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
+    if highlight is not None and only_isolated_clips(raw, corrections.pre):
+        highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
+    shade = corrections.shade(raw.colour_matrix, HALF_SIZE_DOWNSCALE if half_size else 1)
+    if shade is not None:                                   # the smooth gain, after highlights and denoiser
+        stages.append(shade)
     if auto_exposure:
         from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
         exposure = float(np.clip(exposure + auto_exposure_ev(raw, gains2, EXPOSURE_LIMIT),
@@ -227,6 +246,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: read-time auto
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         wb_explain=explain_wb, stage_choice=choice)
+    pipeline.corrections = corrections
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
@@ -442,7 +462,7 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     output carries the raw's metadata (clisp.io.exif.output_attributes). Atomic: on failure no file.
     Returns the output's (height, width) and the run's stats.
     """
-    from .io.imageio import DEFAULT_COMPRESSION, output_kind   # deferred: 2 ms of start-up
+    from .io.imageio import DEFAULT_COMPRESSION, ImageWriter, output_kind, write_image   # deferred: 2 ms of start-up
     compression = compression or DEFAULT_COMPRESSION
     attributes = output_attributes(raw)
     kind = output_kind(path)
@@ -454,80 +474,69 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
     resized = target != upright
     flip = int(raw.metadata.get("flip", 0) or 0)
     in_memory = bool(flip) or (resized and backend != "opencl")
-    hold = DeviceHold()               # the device's part; decoding and writing run outside (DEVICE_LOCK)
-    try:
-        return _process_locked(raw, path, tile, budget, backend, progress, compression, explain, region,
-                               upright, target, encoding, attributes, flip, in_memory, options, hold)
-    finally:
-        hold.release()
+    with DeviceHold() as hold:        # the device's part; decoding and writing run outside (DEVICE_LOCK)
+        pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
+        notes = []                                                           # what was applied, in the file
+        if options.get("wb", "camera") != "camera":
+            notes.append(f"white balance {pipeline.wb_source} (clisp)")
+        if options.get("exposure") or options.get("auto_exposure"):
+            how = ", auto" if options.get("auto_exposure") else ""
+            notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
+        if resized:                                   # the size it had, in the file (no EXIF size is written)
+            notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
+                         f"(clisp, Lanczos-3 in linear light)")
+        if notes:
+            attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
+        if explain is not None:                       # the caller reads the plan after the run
+            explain["pipeline"] = pipeline
+        resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
+            if resized and not in_memory else None
+        plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
+                                   extra=2 * resizer.window_bytes if resizer else 0)
+        if in_memory:               # rotated output rows are input columns: orient the whole result
+            image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
+            with closing(window_source(raw.data)) as source:
+                pipeline.stream(source, ArraySink(image), plan, backend)
+            oriented = orient(_crop_image(image, region), flip)
+            if resized:
+                _write_resized(path, oriented, target, encoding, backend, compression, attributes)
+            else:
+                hold.release()
+                write_image(path, oriented, compression=compression, attributes=attributes)
+            return target, pipeline.stats
+        (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
+        out_h, out_w = target
+        bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
+        start = time.perf_counter()
+        with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
+                ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
+                (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
+                 BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
+                          plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
+                bar as update:
+            stats = pipeline.stream(source, sink, plan, backend, progress=update)
+            if resizer is None:
+                hold.release()                  # the bands left to write and the file's close need no device
+        return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
 
 
 class DeviceHold:
-    """This thread's hold of DEVICE_LOCK (taken when made), given up by :meth:`release` (once; later
-    calls do nothing), so that a function can end its device work before its ``with`` blocks end."""
+    """This thread's hold of DEVICE_LOCK, taken on entering; :meth:`release` gives it up early
+    (once; leaving the block then does nothing), so that process_file's device work can end before
+    its file is written and closed."""
 
-    def __init__(self) -> None:
+    def __enter__(self) -> "DeviceHold":
         DEVICE_LOCK.acquire()
         self.held = True
+        return self
 
     def release(self) -> None:
         if self.held:
             self.held = False
             DEVICE_LOCK.release()
 
-
-def _process_locked(raw: RawImage, path: str | Path, tile: int | None, budget: int, backend: str, progress: bool,
-                    compression: str, explain: dict | None, region: tuple[int, int, int, int] | None,
-                    upright: tuple[int, int], target: tuple[int, int], encoding: str, attributes: dict,
-                    flip: int, in_memory: bool, options: dict, hold: DeviceHold) -> tuple[tuple[int, int], RunStats]:
-    """:func:`process_file` from the pipeline on, called with ``hold`` of DEVICE_LOCK; a plain file
-    (no resize, no rotation) gives it up once its tile loop has ended, so that its last bands are
-    written and the file closed while another thread's file runs on the device."""
-    from .io.imageio import ImageWriter, write_image   # deferred: 2 ms of start-up
-    resized = target != upright
-    pipeline = build_pipeline(raw, output="linear" if resized else encoding, **options)
-    notes = []                                                           # what was applied, in the file
-    if options.get("wb", "camera") != "camera":
-        notes.append(f"white balance {pipeline.wb_source} (clisp)")
-    if options.get("exposure") or options.get("auto_exposure"):
-        how = ", auto" if options.get("auto_exposure") else ""
-        notes.append(f"exposure {pipeline.exposure_ev:+.2f} EV (clisp{how})")
-    if resized:                                   # the size it had, in the file (no EXIF size is written)
-        notes.append(f"resized from {upright[1]}x{upright[0]} to {target[1]}x{target[0]} "
-                     f"(clisp, Lanczos-3 in linear light)")
-    if notes:
-        attributes["ImageDescription"] = "; ".join(filter(None, [attributes.get("ImageDescription"), *notes]))
-    if explain is not None:                       # the caller reads the plan after the run
-        explain["pipeline"] = pipeline
-    resizer = StreamingResize(get_runtime(), upright, target, encoding, offset=region[:2] if region else (0, 0)) \
-        if resized and not in_memory else None
-    plan = _whole_process_plan(pipeline, raw, path, tile, budget, backend, in_memory=in_memory,
-                               extra=2 * resizer.window_bytes if resizer else 0)
-    if in_memory:               # rotated output rows are input columns: orient the whole result
-        image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
-        with closing(window_source(raw.data)) as source:
-            pipeline.stream(source, ArraySink(image), plan, backend)
-        oriented = orient(_crop_image(image, region), flip)
-        if resized:
-            _write_resized(path, oriented, target, encoding, backend, compression, attributes)
-        else:
-            hold.release()
-            write_image(path, oriented, compression=compression, attributes=attributes)
-        return target, pipeline.stats
-    (height, width), channels = pipeline.output_shape(raw.shape), pipeline.out_channels
-    out_h, out_w = target
-    bar = progress_bar(plan.tiles, Path(path).name) if progress else nullcontext(None)
-    start = time.perf_counter()
-    with closing(window_source(raw.data)) as source, closing(resizer) if resizer else nullcontext(), \
-            ImageWriter(path, out_w, out_h, channels, compression, attributes) as writer, \
-            (ResizeSink(writer.write_rows, plan, width, resizer) if resizer else
-             BandSink(writer.write_rows if region is None else cropped_writes(writer.write_rows, region),
-                      plan, width, channels, pipeline.out_dtype, staging=_band_staging(backend))) as sink, \
-            bar as update:
-        stats = pipeline.stream(source, sink, plan, backend, progress=update)
-        if resizer is None:
-            hold.release()                  # the bands left to write and the file's close need no device
-    return (out_h, out_w), replace(stats, seconds=time.perf_counter() - start)    # the last write included
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def _band_staging(backend: str) -> Any:

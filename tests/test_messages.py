@@ -72,6 +72,17 @@ def files(tmp_path_factory) -> dict[str, Path]:
     write_raw(f["tiny.dng"], tiny)
     f["nodaylight.dng"] = d / "nodaylight.dng"     # one of our raws that is no simulation: no known light
     write_raw(f["nodaylight.dng"], dataclasses.replace(raw, metadata={}))
+    small = simulate(scene[:16, :24], cfa="bayer", gain=4, optics="none").raw
+    f["dark_small.dng"] = d / "dark_small.dng"
+    write_raw(f["dark_small.dng"], small)
+    f["dark_black.dng"] = d / "dark_black.dng"
+    write_raw(f["dark_black.dng"], dataclasses.replace(raw, black_level=np.full(3, 60.0)))
+    f["flat_dark.dng"] = d / "flat_dark.dng"
+    write_raw(f["flat_dark.dng"], dataclasses.replace(raw, data=np.full_like(raw.data, 64)))
+    (d / "map_bad.txt").write_text("# column row\n3 4\n12 x\n")
+    f["map_bad.txt"] = d / "map_bad.txt"
+    (d / "map_out.txt").write_text("100 4\n")
+    f["map_out.txt"] = d / "map_out.txt"
     import OpenImageIO as oiio
     buf = oiio.ImageBuf(oiio.ImageSpec(4, 4, 3, "float"))
     oiio.ImageBufAlgo.fill(buf, (float("nan"), 0.0, 0.0))
@@ -168,6 +179,29 @@ MESSAGES = {
                     r"--resize 8: the long edge must be a whole number of pixels, at least 16"),
     "mem-too-small": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--mem", "1M"],
                       r".*o\.exr: --mem 1M is below the minimum of \d+M for this 48x32 raw .*"),
+    "dark-mismatch": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--dark", f["dark_small.dng"]],
+                      r".*dark_small\.dng: dark frame does not match .*good\.dng: size 24x16, the raw's 48x32"),
+    "dark-levels": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--dark", f["dark_black.dng"]],
+                    r".*dark_black\.dng: dark frame does not match .*good\.dng: black 60 and white 1023, the raw's "
+                    r"64 and 1023"),
+    "flat-mismatch": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--flat", f["float"]],
+                      r".*float\.dng: flat frame does not match .*good\.dng: CFA lms, the raw's bayer-rggb"),
+    "flat-no-light": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--flat", f["flat_dark.dng"]],
+                      r".*flat_dark\.dng: flat frame has no light in channel R \(its brightest region reads 0 DN "
+                      r"above black\)"),
+    "bad-pixel-map-missing": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--bad-pixels", t / "nomap.txt"],
+                              r".*nomap\.txt: cannot read bad pixel map \(no such file; --bad-pixels is auto, off "
+                              r"or a map file\)"),
+    "bad-pixel-map-line": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--bad-pixels", f["map_bad.txt"]],
+                           r".*map_bad\.txt: bad pixel map line 3: '12 x' is not 'column row'"),
+    "bad-pixel-map-outside": (lambda f, t: ["process", f["good"], "-o", t / "o.exr", "--bad-pixels",
+                                            f["map_out.txt"]],
+                              r".*map_out\.txt: bad pixel map line 1: pixel \(100, 4\) lies outside the 48x32 mosaic"),
+    "defect-option": (lambda f, t: ["simulate", f["scene"], "-o", t / "r.dng", "--hot-pixels", "lots"],
+                      r"--hot-pixels 'lots': needs a fraction from 0 to 0\.5, optionally :LEVEL"),
+    "defects-with-size": (lambda f, t: ["simulate", f["scene"], "-o", t / "r.dng", "--size", "64x64", "--prnu", "0.01"],
+                          r"--size repeats a scene band by band and simulates no sensor defects; leave out the "
+                          r"defect options or --size"),
     "scene-unreadable": (lambda f, t: ["simulate", f["scene_bad.png"], "-o", t / "r.dng"],
                          r".*scene_bad\.png: .*"),
     "scene-not-finite": (lambda f, t: ["simulate", f["nan.exr"], "-o", t / "r.dng"],

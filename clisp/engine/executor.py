@@ -27,7 +27,8 @@ from . import profile
 from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
-from .streaming import READ_AHEAD, ArraySink, aligned_array, ArrayWindows, TileSink, WindowPool, WindowSource, run_tiles, window_source
+from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, aligned_array, run_tiles,
+                        window_source)
 from .tiling import (DEVICE_SHARE, GPU_TARGET_TILE_PIXELS, TARGET_TILE_PIXELS, DeviceLimits, Tile, TileNeeds,
                      TilePlan, make_plan)
 
@@ -416,10 +417,10 @@ class Pipeline:
 
     def _key(self, fuse: bool) -> bytes | None:
         """:func:`_stages_key` of this pipeline's stages, pickled once per list of stage objects."""
-        ident = (tuple(map(id, self.stages)), fuse)
+        ident = tuple(map(id, self.stages))
         cached = self.__dict__.get("_keys")
-        if cached is None or cached[0] != ident[0]:
-            cached = self.__dict__["_keys"] = (ident[0], {})
+        if cached is None or cached[0] != ident:
+            cached = self.__dict__["_keys"] = (ident, {})
         if fuse not in cached[1]:
             cached[1][fuse] = _stages_key(self.stages, fuse)
         return cached[1][fuse]

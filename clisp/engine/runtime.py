@@ -425,7 +425,8 @@ class Runtime:
         staging buffer (:class:`HostStaging`: page-aligned, or pinned on a discrete device, and
         reused across calls and files), which a shared-memory device then reads in place and a
         discrete one receives in one upload of the transfer queue. :meth:`release` gives the
-        staging buffer back; ``array`` may change once this returns."""
+        staging buffer back. Read in place, ``array`` must not change until the run's last event;
+        staged, it may change once this returns."""
         whole = self.host_source(array)
         if whole is not None:
             return whole

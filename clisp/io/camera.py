@@ -119,8 +119,38 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
     linear_max = _linear_max(raw, pattern, colours, cfa)
     if linear_max is not None:
         metadata["linear_max"] = linear_max
+    if p.suffix.lower() == ".dng":                  # LibRaw applies no opcode: read them here
+        try:
+            ops = dng_opcodes(p, (int(sizes.top_margin), int(sizes.left_margin)),
+                              (int(sizes.raw_height), int(sizes.raw_width)), data.shape)
+        except ClispError as exc:
+            metadata["opcodes_unreadable"] = clip(exc, 120)
+            ops = []
+        if ops:
+            metadata["opcodes"] = ops
     return RawImage(data=data, cfa=cfa, black_level=black, white_level=float(raw.white_level),
                     wb=wb, colour_matrix=matrix, exposure=1.0, metadata=metadata, source=str(p))
+
+
+def dng_opcodes(p: Path, margins: tuple[int, int], raw_shape: tuple[int, int],
+                shape: tuple[int, int]) -> list:
+    """The OpcodeList1-3 of a camera DNG's raw image (the largest CFA image among its IFDs and
+    SubIFDs), placed on the mosaic LibRaw returns (clisp.io.opcodes): OpcodeList1 acts on the
+    stored raw, whose (0, 0) lies ``margins`` (LibRaw's top and left margin: the ActiveArea)
+    above and left of the mosaic, lists 2 and 3 on the ActiveArea, the mosaic itself."""
+    import tifffile
+    from .opcodes import read_opcode_tags
+    from .rawfile import PHOTOMETRIC_CFA
+    with library_output(), tifffile.TiffFile(p) as tif:
+        pages = []
+        for page in tif.pages:
+            pages.append(page)
+            pages.extend(getattr(page, "pages", None) or [])
+        cfa_pages = [pg for pg in pages if int(getattr(pg, "photometric", 0) or 0) == PHOTOMETRIC_CFA]
+        if not cfa_pages:
+            return []
+        page = max(cfa_pages, key=lambda pg: int(pg.shape[0]) * int(pg.shape[-1]))
+        return read_opcode_tags(page, str(p), (-margins[0], -margins[1]), raw_shape, tuple(shape))
 
 
 def _linear_max(raw: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> list[float] | None:

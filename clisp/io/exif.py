@@ -109,7 +109,8 @@ def output_attributes(raw: RawImage) -> dict[str, Any]:
     else:                                                # one of our simulated raws
         attrs[MAKE], attrs[MODEL] = camera_make_model(raw)
     if "simulator" in md:
-        attrs["ImageDescription"] = "clisp simulated raw: " + json.dumps(md, sort_keys=True, default=str)
+        attrs["ImageDescription"] = "clisp simulated raw: " + json.dumps(
+            {k: v for k, v in md.items() if k != "opcodes"}, sort_keys=True, default=str)
     if ISO in attrs:
         attrs[ISO_SPEED] = attrs[ISO]
     attrs["Orientation"] = 1

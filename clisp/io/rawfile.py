@@ -27,6 +27,7 @@ from ..cfa import CFA, cfa_from_name
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import camera_make_model, simulated_model_name
+from .opcodes import opcode_tags, opcodes_of, read_opcode_tags
 from .rawimage import RawImage, check_levels
 
 ROWS_PER_STRIP = 16
@@ -188,6 +189,7 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
     if isinstance(crop, (list, tuple)) and len(crop) == 4:     # (x, y) and (width, height)
         tags += [(TAG_DEFAULT_CROP_ORIGIN, T_LONG, 2, (int(crop[1]), int(crop[0])), True),
                  (TAG_DEFAULT_CROP_SIZE, T_LONG, 2, (int(crop[3]), int(crop[2])), True)]
+    tags += opcode_tags(opcodes_of(raw.metadata))          # OpcodeList1-3 (GainMap, bad pixels): tags, not JSON
     private = PRIVATE_PREFIX + json.dumps(_metadata_json(raw), default=_json_default).encode("utf-8")
     tags.append((TAG_DNG_PRIVATE_DATA, T_BYTE, len(private), private, True))
     return tags
@@ -258,7 +260,7 @@ def _metadata_json(raw: RawImage) -> dict[str, Any]:
         "cfa": {"name": raw.cfa.name, "kind": raw.cfa.kind, "channels": list(raw.cfa.channels),
                 "pattern": raw.cfa.pattern.tolist()},
         **_calibration(raw),
-        "metadata": raw.metadata,
+        "metadata": {k: v for k, v in raw.metadata.items() if k != "opcodes"},   # the opcodes are tags
     }
 
 
@@ -386,9 +388,16 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     for key, name in _INFO_EXIF.items():
         if key in exif:
             info[name] = exif[key]
-    for key in ("wb_source", "colour_matrix_source", "flip", "crop"):
+    for key in ("wb_source", "colour_matrix_source", "flip", "crop", "sensor"):
         if key in md:
             info[key] = md[key]
+    ops = opcodes_of(md)
+    if ops:
+        counts: dict[str, int] = {}
+        for op in ops:
+            key = f"{op.name} (OpcodeList{op.list_no})"
+            counts[key] = counts.get(key, 0) + 1
+        info["opcodes"] = [f"{k} x{n}" if n > 1 else k for k, n in counts.items()]
     return info
 
 
@@ -444,11 +453,16 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
             if meta is None:
                 return None, None
             data = _read_pixels(page, p, meta, lazy)
+            shape = tuple(int(v) for v in page.shape)
+            ops = read_opcode_tags(page, str(p), (0, 0), shape, shape)
     except ClispError:
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
         return None, clip(one_line(exc))
-    return _rebuild(meta, data, p), None
+    raw = _rebuild(meta, data, p)
+    if ops:
+        raw.metadata["opcodes"] = ops
+    return raw, None
 
 
 def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:

@@ -25,6 +25,7 @@ from ..cfa import CFA, cfa_from_name
 from .colorimetry import camera_constants
 from ..errors import ClispError
 from .noise import NoiseModel, check_gain
+from .defects import SensorDefects, capture
 from .optics import airy_kernel, blur_channel
 from ..io.rawimage import RawImage
 from ..engine.tiling import Tile, cfa_mirror_index, grid
@@ -140,7 +141,7 @@ def _metadata(cfa: CFA, gain: float | None, noise: NoiseModel, kernel: np.ndarra
 
 def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = None,
              optics: str | None = "airy", seed: int | None = 0, r0: float = 1.0,
-             noise: NoiseModel = NoiseModel()) -> SimResult:
+             noise: NoiseModel = NoiseModel(), defects: SensorDefects | None = None) -> SimResult:
     """Simulate a raw capture of a linear sRGB scene (docs/model.md sections 2 and 3).
 
     scene  H x W x 3 linear sRGB, white = 1.0 (any real dtype; values above 1 are allowed).
@@ -150,6 +151,8 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     optics 'airy' (pixel-integrated Airy PSF, first-zero radius r0 px) or 'none'.
     seed   seed of np.random.default_rng for the noise; the same seed gives identical data.
     noise  the sensor model (black/white level, read noise, conversion gain).
+    defects  the sensor's defects (clisp.sim.defects: hot, warm and dead pixels, dark current,
+           lens shading, PRNU), kept in ``metadata['sensor']``; the truth stays the ideal sensor's.
     Returns SimResult(raw=RawImage with uint16 (noisy) or float32 (noiseless) H x W DN,
     truth=H x W x 3 float32 blurred linear sRGB).
     """
@@ -157,9 +160,14 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     cfa, gain_value, kernel, seed = _check_options(cfa, gain, optics, r0, seed, noise)
     a, k_exp = inverse_isp_matrix(cfa.spectral)
     truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
-    data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))
+    if defects is not None and defects.any:
+        data = capture(raw, defects, cfa, gain_value, noise, np.random.default_rng(seed))
+    else:
+        data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))
     del raw
     metadata = _metadata(cfa, gain_value, noise, kernel, r0, seed, k_exp)
+    if defects is not None and defects.any:
+        metadata["sensor"] = defects.to_dict()
     return SimResult(raw=_raw_image(data, cfa, noise, k_exp, metadata), truth=truth)
 
 

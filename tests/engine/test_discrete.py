@@ -133,17 +133,8 @@ def test_plans_per_device_kind(discrete) -> None:
 def test_band_buffers_are_pinned_and_reused_across_files(tmp_path: Path, discrete) -> None:
     """On a discrete device process_file's output bands come from the runtime's staging buffers and
     go back to them: a second file takes the same ones (pinned memory is allocated once)."""
-    raw = make_raw("bayer", shape=(160, 200))
-    made = []
-    new = discrete.staging._new
-    discrete.staging._new = lambda n: made.append(n) or new(n)
-    try:
-        process_file(raw, tmp_path / "a.tif", tile=64, preset="fast")
-        first = len(made)
-        process_file(raw, tmp_path / "b.tif", tile=64, preset="fast")
-    finally:
-        del discrete.staging._new
-    assert first >= 2 and len(made) == first
+    first, second = staging_made_by_two_files(discrete, make_raw("bayer", shape=(160, 200)), tmp_path)
+    assert first >= 2 and second == 0
 
 
 def test_file_windows_read_into_pinned_staging(tmp_path: Path, discrete) -> None:
@@ -152,17 +143,24 @@ def test_file_windows_read_into_pinned_staging(tmp_path: Path, discrete) -> None
     from clisp.io.rawfile import read_raw, write_raw
     write_raw(tmp_path / "r.dng", make_raw("bayer", shape=(200, 300)))
     raw = read_raw(tmp_path / "r.dng", lazy=True)
-    made = []
-    new = discrete.staging._new
-    discrete.staging._new = lambda n: made.append(n) or new(n)
-    try:
-        process_file(raw, tmp_path / "a.tif", tile=64, preset="fast")
-        first = len(made)
-        process_file(raw, tmp_path / "b.tif", tile=64, preset="fast")
-    finally:
-        del discrete.staging._new
-    assert first > 2 and len(made) == first           # windows and bands: made once, then reused
+    first, second = staging_made_by_two_files(discrete, raw, tmp_path)
+    assert first > 2 and second == 0                   # windows and bands: made once, then reused
     discrete.host_unified = True
     process_file(raw, tmp_path / "s.tif", tile=64, preset="fast")
     import tifffile
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "a.tif"), tifffile.imread(tmp_path / "s.tif"))
+
+
+def staging_made_by_two_files(rt, raw, folder: Path) -> tuple[int, int]:
+    """Staging buffers made while process_file writes ``raw`` twice (fast preset, 64 px tiles):
+    (during the first file, during the second)."""
+    made = []
+    new = rt.staging._new
+    rt.staging._new = lambda n: made.append(n) or new(n)
+    try:
+        process_file(raw, folder / "a.tif", tile=64, preset="fast")
+        first = len(made)
+        process_file(raw, folder / "b.tif", tile=64, preset="fast")
+    finally:
+        del rt.staging._new
+    return first, len(made) - first

@@ -379,44 +379,26 @@ def test_srgb_polynomial_within_three_hundredths_of_a_code(rt):
     assert np.abs(got - exact).max() * 65535 <= 0.03
 
 
-def test_tone_curve_to_16_bit_codes(rt):
-    """ToneCurve(quantize=True): the nearest 16-bit code of the encoded value, interleaved or not;
-    the OpenCL codes equal the reference's except where the encoded value lies within the curve's
-    error (0.02 code) of a half code: there they are one code off."""
-    x = random_rgb(seed=62)
-    stage = ToneCurve(quantize=True)
+@pytest.mark.parametrize("bits, dtype, seed", [(16, np.uint16, 62), (8, np.uint8, 63)])
+def test_tone_curve_to_codes(rt, bits, dtype, seed):
+    """ToneCurve(quantize=True): the nearest 16-bit code (TIFF, PNG) or 8-bit code (JPEG) of the
+    encoded value, interleaved or not; the OpenCL codes equal the reference's except where the
+    encoded value lies within the curve's error (0.02 of a 16-bit code) of a half code: there they
+    are one code off."""
+    x = random_rgb(seed=seed)
+    stage = ToneCurve(quantize=True, bits=bits)
     ref = stage.reference(x, (0, 0))
-    assert ref.dtype == np.uint16 and ref.max() == 65535 and ref.min() == 0
+    assert ref.dtype == dtype and ref.max() == np.iinfo(dtype).max and ref.min() == 0
     for interleaved in (False, True):
         s = stage.with_interleaved_output() if interleaved else stage
         src = to_device(rt, x)
         dst = s.enqueue(rt, src, (0, 0))
-        assert dst.dtype == np.uint16 and dst.interleaved == interleaved
+        assert dst.dtype == dtype and dst.interleaved == interleaved
         got = from_device(rt, dst)
         rt.release(src)
         rt.release(dst)
         diff = np.abs(got.astype(np.int32) - ref)
-        assert diff.max() <= 1 and np.mean(diff > 0) < 0.05
-
-
-def test_tone_curve_to_8_bit_codes(rt):
-    """ToneCurve(quantize=True, bits=8), JPEG's output: the nearest 8-bit code of the encoded value,
-    interleaved or not; the OpenCL codes equal the reference's but where the encoded value lies
-    within the curve's error of a half code."""
-    x = random_rgb(seed=63)
-    stage = ToneCurve(quantize=True, bits=8)
-    ref = stage.reference(x, (0, 0))
-    assert ref.dtype == np.uint8 and ref.max() == 255 and ref.min() == 0
-    for interleaved in (False, True):
-        s = stage.with_interleaved_output() if interleaved else stage
-        src = to_device(rt, x)
-        dst = s.enqueue(rt, src, (0, 0))
-        assert dst.dtype == np.uint8 and dst.interleaved == interleaved
-        got = from_device(rt, dst)
-        rt.release(src)
-        rt.release(dst)
-        diff = np.abs(got.astype(np.int32) - ref)
-        assert diff.max() <= 1 and np.mean(diff > 0) < 0.001
+        assert diff.max() <= 1 and np.mean(diff > 0) < (0.05 if bits == 16 else 0.001)
 
 
 @pytest.mark.parametrize("quantize, bits", [(False, 16), (True, 16), (True, 8)])

@@ -1,0 +1,344 @@
+/* Sensor corrections (clisp/modules/sensor/stage.py: the definition of correct, its reference).
+ *
+ * Defines from the host (no defaults here):
+ *   RAW_T         the mosaic's sample type (ushort, float)
+ *   CFA_PERIOD    side of the CFA's repeating tile
+ *   SC_HALO       3: the window's margin (the same-channel neighbours within SC_RADIUS, and the
+ *                 4 nearest pixels of each, which the replacement's Y reads)
+ *   SC_RADIUS     2: the same-channel neighbourhood's radius
+ *   SC_NB_MAX     most same-channel neighbours of a phase within SC_RADIUS (table stride)
+ *   SC_PAIRS_MAX  most opposite neighbour pairs of a phase (table stride)
+ *   SC_DETECT     1: search defective pixels against the noise model (the auto test)
+ *   SC_MASK       1: a plane of known bad pixels (a map file, the DNG's FixBadPixels opcodes)
+ *   SC_DARK       1: a per-pixel dark level (DN) replaces the black level
+ *   SC_FLAT       1: a per-pixel flat-field gain
+ *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
+ *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
+ *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_FLOOR   the auto test's constants (float literals)
+ *   SC_TERM_SIZE  floats per packed gain term
+ */
+
+#include "sensor.h"
+
+/* The window's geometry and the per-pixel steps shared by both kernels. src is the window,
+ * (width + 2 SC_HALO) x (height + 2 SC_HALO), i.e. (width + 6) x (height + 6); (x, y) an output
+ * pixel; the image pixel is (y + SC_HALO + oy, x + SC_HALO + ox). */
+#define W_AT(q) ((float)src[q] * g1 - OFF(q))
+#if SC_DARK
+#define OFF(q) dark[q]
+#else
+#define OFF(q) black[c]
+#endif
+#define SC_ARGS __global const RAW_T *restrict src, __global float *restrict dst, \
+        const int width, const int height, const int oy, const int ox, \
+        __constant const char *restrict pattern, \
+        __constant const float *restrict black, __constant const float *restrict inv_range, \
+        __constant const float *restrict out_scale, __constant const float *restrict out_offset, \
+        __constant const float *restrict noise_a, __constant const float *restrict noise_b, \
+        __global const ushort *restrict mask, __global const float *restrict dark, \
+        __global const float *restrict flat, \
+        __constant const float *restrict terms, __global const float *restrict maps, \
+        __global const float *restrict grid, const int gh, const int gw, const float inv_cell, \
+        const int img_h, const int img_w
+
+/* gain_after: r(p) = flat(p) g2(p) / G_c(p), the gains after the bad-pixel step (step 3). */
+inline float gain_after(__global const float *flat, __constant const float *terms, __global const float *maps,
+                        __global const float *grid, const int gh, const int gw, const float inv_cell,
+                        const int i, const int c, const int gy, const int gx)
+{
+    float r = 1.0f;
+#if SC_FLAT
+    r *= flat[i];
+#endif
+#if SC_TERMS
+    r *= list_gain(terms, maps, 2, gy, gx);
+#endif
+#if SC_GRID
+    r /= grid_gain(grid, gh, gw, inv_cell, c, (float)gy, (float)gx);
+#endif
+    return r;
+}
+
+/* sensor_screen: 8 pixels of a row per work-item, over the window less the halo (2): the steps
+ * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
+ * frame or the black level; r: gain_after), and the candidates for sensor_fix appended to ``list``
+ * (``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
+ * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
+ * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
+ * (at their level; at 0 for a dark one) plus SC_FLOOR plus SC_ALPHA times their range: sensor_fix's
+ * test restricted to a subset of its neighbours, so a pixel it would replace is never left out (the pixels within 2 of the image's edge, whose neighbours the padding
+ * mirrors, are appended by sensor_edges instead). The 8 lanes are explicit float8 (PoCL's implicit
+ * vectoriser gives up on the atomic append: 8 against 50 ms for 6 MP); the test is branch-free
+ * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
+ * than 8 pixels takes the scalar path. */
+#define LANES 8
+inline int screen_one(__global const RAW_T *src, __constant const char *pattern, __constant const float *black,
+                      __constant const float *inv_range, __constant const float *noise_a,
+                      __constant const float *noise_b, __global const ushort *mask, __global const float *dark,
+                      const float g1, const int i, const int sw, const int c, const float w)
+{
+    int cand = 0;
+#if SC_DETECT
+    const float d0 = W_AT(i - 2 * sw - 2), d1 = W_AT(i - 2 * sw + 2), d2 = W_AT(i + 2 * sw - 2), d3 = W_AT(i + 2 * sw + 2);
+    const float m0 = d0 > d1 ? d0 : d1, m1 = d2 > d3 ? d2 : d3, n0 = d0 < d1 ? d0 : d1, n1 = d2 < d3 ? d2 : d3;
+    const float s = inv_range[c];
+    const float up = w * s, uhi = (m0 > m1 ? m0 : m1) * s, ulo = (n0 < n1 ? n0 : n1) * s;
+    const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+    const float eh = up - uhi - spread, el = ulo - up - spread;
+    const float level = uhi > 0.0f ? uhi : 0.0f;
+    cand = ((eh > 0.0f) && (eh * eh > SC_K * SC_K * (noise_a[c] * level + noise_b[c])))
+         || ((el > 0.0f) && (el * el > SC_K * SC_K * noise_b[c])) || !SC_DIAG;
+#endif
+#if SC_MASK
+    cand |= mask[i] != 0;
+#endif
+    return cand;
+}
+
+inline void append(__global uint *list, __global uint *count, const uint cap, const uint p)
+{
+    const uint k = atomic_inc(count);
+    if (k < cap)
+        list[k] = p;
+}
+
+__kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint *restrict count, const uint cap,
+                            __constant const float *restrict lanes8)
+{
+    const int xg = get_global_id(0);
+    const int y = get_global_id(1);
+    const int x0 = xg * LANES;
+    if (x0 >= width || y >= height)
+        return;
+    const int sw = width + 2 * SC_HALO;
+    const int gy = y + SC_HALO + oy, gx0 = x0 + SC_HALO + ox;
+    const int i0 = (y + SC_HALO) * sw + x0 + SC_HALO;
+    const int edge_row = gy < 2 || gy >= img_h - 2;
+    if (x0 + LANES > width || SC_TERMS || SC_GRID) {          /* the scalar path */
+        for (int k = 0; k < LANES && x0 + k < width; k++) {
+            const int i = i0 + k, gx = gx0 + k;
+            const int c = cfa_channel(pattern, gy, gx);
+#if SC_TERMS
+            const float g1 = list_gain(terms, maps, 1, gy, gx);
+#else
+            const float g1 = 1.0f;
+#endif
+            const float w = W_AT(i);
+#if SC_DETECT || SC_MASK
+            if (screen_one(src, pattern, black, inv_range, noise_a, noise_b, mask, dark, g1, i, sw, c, w)
+                && !edge_row && gx >= 2 && gx < img_w - 2)
+                append(list, count, cap, (uint)(y * width + x0 + k));
+#endif
+            dst[y * width + x0 + k] = w * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx)
+                                      * out_scale[c] + out_offset[c];
+        }
+        return;
+    }
+    /* the 8 lanes' channel constants: lanes8[((py P + px) 6 + j) 8 + k], j = black, 1 / range,
+     * noise a, noise b, out scale, out offset, for lane k of a group starting at phase (py, px) */
+    const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx0 % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
+    __constant const float *lc = lanes8 + (py * CFA_PERIOD + px) * 6 * LANES;
+    const float8 blk = vload8(0, lc), inv = vload8(1, lc), na = vload8(2, lc), nb8 = vload8(3, lc);
+    const float8 osc = vload8(4, lc), oof = vload8(5, lc);
+#if SC_DARK
+#define OFF8(q) vload8(0, dark + (q))
+#else
+#define OFF8(q) blk
+#endif
+#define W8(q) (convert_float8(vload8(0, src + (q))) - OFF8(q))
+    const float8 w = W8(i0);
+#if SC_DETECT || SC_MASK
+    int8 cand = (int8)(0);
+#if SC_DETECT
+    /* the highest and lowest of the same-channel neighbours at (+-2, +-2) (the same channel in the
+     * Bayer and LMS CFAs) and, SC_EVEN (a 2 x 2 CFA: every even offset has the pixel's channel), at
+     * (0, +-2), (+-2, 0): ternaries, which PoCL vectorises (select() and fmax() it does not) */
+    float8 hi = W8(i0 - 2 * sw - 2), lo = hi;
+#define NB(dy, dx) { const float8 v = W8(i0 + (dy) * sw + (dx)); hi = v > hi ? v : hi; lo = v < lo ? v : lo; }
+    NB(-2, 2) NB(2, -2) NB(2, 2)
+#if SC_EVEN
+    NB(0, -2) NB(0, 2) NB(-2, 0) NB(2, 0)
+#endif
+    const float8 up = w * inv, uhi = hi * inv, ulo = lo * inv;
+    const float8 spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+    const float8 eh = up - uhi - spread, el = ulo - up - spread;
+    const float8 level = uhi > 0.0f ? uhi : (float8)(0.0f);
+    cand = ((eh > 0.0f) & (eh * eh > SC_K * SC_K * (na * level + nb8)))
+         | ((el > 0.0f) & (el * el > SC_K * SC_K * nb8));
+#endif
+#if SC_MASK
+    cand |= convert_int8(vload8(0, mask + i0)) != 0;
+#endif
+    if (any(cand)) {
+        for (int k = 0; k < LANES; k++) {
+            const int gx = gx0 + k;
+            if (((int *)&cand)[k] && !edge_row && gx >= 2 && gx < img_w - 2)
+                append(list, count, cap, (uint)(y * width + x0 + k));
+        }
+    }
+#endif
+    float8 r = (float8)(1.0f);
+#if SC_FLAT
+    r = vload8(0, flat + i0);
+#endif
+    vstore8(w * r * osc + oof, 0, dst + y * width + x0);
+}
+
+/* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
+ * window's pixels within 2 of the image's edge: sensor_fix tests them with the neighbours inside the
+ * image only). Halo 0; one work-item per pixel, bounds checked. */
+__kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
+                           const int width, const int y0, const int x0, const int rows, const int cols)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= cols || y >= rows)
+        return;
+    const uint k = atomic_inc(count);
+    if (k < cap)
+        list[k] = (uint)((y0 + y) * width + x0 + x);
+}
+
+/* y_near: Y at window index q (image pixel (gy, gx)): the mean of its 4 nearest pixels, each
+ * (raw g1 - off) / (white - black) times its channel's white balance. */
+inline float y_near(__global const RAW_T *src, __constant const char *pattern, __constant const float *black,
+                    __constant const float *inv_range, __constant const float *wb, __global const float *dark,
+                    const float g1, const int q, const int sw, const int gy, const int gx)
+{
+    float total = 0.0f;
+    for (int e = 0; e < 4; e++) {
+        const int dy = e == 0 ? -1 : e == 1 ? 1 : 0, dx = e == 2 ? -1 : e == 3 ? 1 : 0;
+        const int cq = cfa_channel(pattern, gy + dy, gx + dx);
+        const int qq = q + dy * sw + dx;
+#if SC_DARK
+        total += ((float)src[qq] * g1 - dark[qq]) * inv_range[cq] * wb[cq];
+#else
+        total += ((float)src[qq] * g1 - black[cq]) * inv_range[cq] * wb[cq];
+#endif
+    }
+    return 0.25f * total;
+}
+
+/* sensor_fix: the candidates of sensor_screen, one work-item each (halo 3):
+ *   the replacement: along the opposite same-channel pair (within 2 pixels, inside the image, not
+ *   known bad) that differs least in the channel and in Y (y_near), the pair's mean plus the colour
+ *   difference Y(p) - Y(pair) (the channel follows the other channels' detail, as a demosaic
+ *   assumes); without a pair, the good neighbours' mean.
+ *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
+ *   beyond every same-channel neighbour by SC_K noise sigmas (the sensor model at that neighbour's
+ *   level) plus SC_FLOOR plus SC_ALPHA times their range, and its 4 nearest pixels carry less than
+ *   SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess: an optical detail
+ *   lights its neighbours through the lens, a hot pixel does not); its output is then rewritten.
+ * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx), pairs_n[k]
+ * opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
+__kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
+                         const uint cap, __constant const char *restrict nb, __constant const char *restrict nb_n,
+                         __constant const char *restrict pairs, __constant const char *restrict pairs_n,
+                         __constant const float *restrict wb, __global uint *restrict found)
+{
+    /* the list, row by row; a work-item takes every stride-th entry, so a list longer than the launch
+     * (a mosaic of noise, where most pixels pass the screen) is still fixed whole */
+    const uint total = min(*count, cap), stride = get_global_size(0) * get_global_size(1);
+    for (uint j0 = get_global_id(1) * get_global_size(0) + get_global_id(0); j0 < total; j0 += stride) {
+        const int p = (int)list[j0];
+        const int y = p / width, x = p - y * width;
+        const int sw = width + 2 * SC_HALO;
+        const int gy = y + SC_HALO + oy, gx = x + SC_HALO + ox;
+        const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
+        const int k = py * CFA_PERIOD + px;
+        const int c = pattern[k];
+        const int i = (y + SC_HALO) * sw + x + SC_HALO;
+#if SC_TERMS
+        const float g1 = list_gain(terms, maps, 1, gy, gx);
+#else
+        const float g1 = 1.0f;
+#endif
+        const float w = W_AT(i);
+#if SC_MASK
+        int bad = mask[i] != 0;
+#else
+        int bad = 0;
+#endif
+        const int n = nb_n[k];
+        __constant const char *o = nb + 2 * k * SC_NB_MAX;
+#define OUTSIDE(j) (gy + o[2 * (j)] < 0 || gy + o[2 * (j)] >= img_h || gx + o[2 * (j) + 1] < 0 || gx + o[2 * (j) + 1] >= img_w)
+#if SC_MASK
+#define SKIP(q, j) (OUTSIDE(j) || mask[q])
+#else
+#define SKIP(q, j) OUTSIDE(j)
+#endif
+        const float wbc = wb[c], s = inv_range[c];
+#if SC_DETECT
+        int extreme = 0;
+        if (!bad) {                      /* first the cheap test over every same-channel neighbour */
+            float hi = -INFINITY, lo = INFINITY;
+            int used = 0;
+            for (int j = 0; j < n; j++) {
+                const int q = i + o[2 * j] * sw + o[2 * j + 1];
+                if (SKIP(q, j))
+                    continue;
+                const float wq = W_AT(q);
+                hi = fmax(hi, wq);
+                lo = fmin(lo, wq);
+                used++;
+            }
+            const float up = w * s, uhi = hi * s, ulo = lo * s;
+            const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+            const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
+            const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
+            extreme = used && (hot > 0.0f || cold > 0.0f);
+            if (!extreme)
+                continue;
+        }
+#endif
+        const float yp = y_near(src, pattern, black, inv_range, wb, dark, g1, i, sw, gy, gx);
+        float best = INFINITY, est = 0.0f, ybar = 0.0f, wbar = 0.0f;
+        __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
+        for (int j = 0; j < pairs_n[k]; j++) {
+            const int a = pr[2 * j], b = pr[2 * j + 1];
+            const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
+            if (SKIP(qa, a) || SKIP(qb, b))
+                continue;
+            const float wa = W_AT(qa), wb_ = W_AT(qb);
+            const float ya = y_near(src, pattern, black, inv_range, wb, dark, g1, qa, sw, gy + o[2 * a], gx + o[2 * a + 1]);
+            const float yb = y_near(src, pattern, black, inv_range, wb, dark, g1, qb, sw, gy + o[2 * b], gx + o[2 * b + 1]);
+            const float d = fabs(wa - wb_) * s + fabs(ya - yb) / wbc;
+            if (d < best) {
+                best = d;
+                ybar = 0.5f * (ya + yb);
+                wbar = 0.5f * (wa + wb_);
+                est = wbar + (yp - ybar) / (wbc * s);
+            }
+        }
+        if (best == INFINITY) {
+            float sum = 0.0f;
+            int good = 0;
+            for (int j = 0; j < n; j++) {
+                const int q = i + o[2 * j] * sw + o[2 * j + 1];
+                if (SKIP(q, j))
+                    continue;
+                sum += W_AT(q);
+                good++;
+            }
+            est = good ? sum / (float)good : w;
+        }
+#if SC_DETECT
+        if (!bad && extreme) {
+            /* the support test: how much of the excess over the pair the 4 nearest pixels carry */
+            const float excess = (w - wbar) * s * wbc;
+            /* the noise of Y(p) - Y(pair) (4 and 8 samples of about the pixel's channel): the support
+             * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
+             * look unsupported */
+            const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
+            bad = fabs(excess) > 0.0f && (best == INFINITY || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
+                                          + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
+            if (bad && gy >= 0 && gy < img_h && gx >= 0 && gx < img_w)    /* a mirrored copy is no pixel */
+                atomic_inc(found);
+        }
+#endif
+        if (!bad)
+            continue;
+        dst[p] = est * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx) * out_scale[c] + out_offset[c];
+#undef OUTSIDE
+#undef SKIP
+    }
+}

@@ -1,0 +1,655 @@
+"""Sensor corrections: defective pixels, dark frame, flat field and the DNG's gain opcodes (issue 44).
+
+Two stages, one at each end of the colour pipeline::
+
+    step                   halo  launches  what
+    sensor_screen             3         1  first stage, on the raw mosaic (DN in): OpcodeList1's gains,
+                                           the dark frame (or the black level), the flat field and
+                                           OpcodeList2's gains less their smooth part G; candidates
+                                           for the defect test listed
+    sensor_edges              0       0-4  the window's pixels near the image's edge, listed
+    sensor_fix                3         1  each candidate: the defect test against the noise model
+                                           (or the known bad pixels), and its replacement
+    sensor_shade              0         1  after the chroma stage: G, per camera channel
+                                           (out = M diag(G) M^-1 in, M the colour matrix)
+
+Why the smooth gain is applied after the chroma stage: a lens-shading gain raises the corners'
+signal, their clip level and their noise alike. The highlight stage compares the demosaiced
+values with one clip level per channel and the chroma denoiser reads one noise table, so both
+would be wrong in the corners of a gained image. The product is the same where it is applied
+(the gain is smooth: a demosaic sees it as a constant over its window), so the per-pixel part
+(the flat's PRNU, the difference between a channel's sites) is applied on the mosaic where the
+DNG specification places it, and the smooth part G_c(x) (a grid of nodes every GRID_CELL pixels,
+bilinear) after the highlight stage and the denoiser: they see the image as the sensor recorded
+it, with its own clip level and noise, which is what "the clip level moves per pixel" and "the
+noise table follows the gain" mean.
+
+The auto test (``sensor_screen`` and ``sensor_fix``, constants K, ALPHA, GAMMA; what each step
+does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
+normalised value lies beyond every same-channel neighbour within RADIUS (above the highest for a
+hot pixel, below the lowest for a dead one) by K noise sigmas at that neighbour's level plus
+ALPHA times their spread, and its 4 nearest pixels carry less than GAMMA of its excess over the
+opposite same-channel pair that differs least. It is replaced by that pair's mean plus the colour
+difference of its 4 nearest pixels.
+
+Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> x = np.full((12, 12), 300.0); x[6, 6] = 1000.0
+    >>> st = SensorCorrect(bayer_cfa(), black=np.full(3, 64.0), white=1023.0, test=DefectTest.noiseless(3))
+    >>> out = st.reference(x, (0, 0))
+    >>> out.shape, float(out[3, 3]), float(out.max())
+    ((6, 6), 300.0, 300.0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ...cfa import CFA
+from ...engine.runtime import DeviceImage, Runtime
+from ...engine.stage import Stage, as_f32, image_extent
+from ...engine.tiling import gather_window
+from ...io.opcodes import FixVignetteRadial, GainMap, gain_map_at, selects, vignette_at
+from ..raw_scale.stage import CfaAffine
+
+HALO = 3
+"""Pixels each output reads on every side: the same-channel neighbours within 2 (Bayer R and B: the
+nearest same-colour pixels are 2 away), and the 4 nearest pixels of each of them (the replacement's Y)."""
+
+RADIUS = 2
+"""Radius of the same-channel neighbourhood."""
+
+K = 6.0
+"""Noise sigmas (at the neighbours' level) by which a bad pixel lies beyond every same-channel
+neighbour (tools/bench_sensor.py --tune; README.md)."""
+
+ALPHA = 0.0
+"""Times the same-channel neighbours' spread (their range) a bad pixel must also exceed (texture):
+none; the support test keeps texture out (tools/bench_sensor.py --tune: 0.25 and 0.5 lose 0.1-0.2 dB
+on raws with defects for 0.07-0.09 dB on raws without)."""
+
+GAMMA = 0.08
+"""Largest share of a bad pixel's excess over its pair its 4 nearest pixels may carry (beyond the
+pair's own): the optics spread a real point of light to them (the simulated Airy PSF: about 6 %
+more than to the pair's), a hot pixel lights none (tools/bench_sensor.py --tune: 0.05 loses 0.03-0.08 dB)."""
+
+Z = 1.0
+"""Noise sigmas of Y(p) - Y(pair) by which the support must lie below GAMMA: at high gain the noise
+of the 4 nearest pixels is larger than the 6 % a lit point gives them, and a glint would look
+unsupported (tools/bench_sensor.py --false-positives); 2 cost 0.05-0.1 dB more on raws with defects at
+gain 16 (--tune --z)."""
+
+GRID_CELL = 16
+"""Pixels between the smooth gain's nodes (bilinear in between): the DNG GainMaps of phones have
+their points hundreds of pixels apart, so a 16 px grid follows them to 1e-4."""
+
+TERM_SIZE = 24
+"""Floats per packed gain term (sensor.cl: T_*)."""
+
+FLOOR = 1e-3
+"""Least excess (normalised units: 0.1 % of the range) of a pixel the auto test replaces: on a
+noiseless raw every local extremum would otherwise qualify."""
+
+LANES = 8
+"""Pixels of a row per work-item of sensor_screen (its float8 lanes)."""
+
+FIX_ROW = 256
+"""sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
+
+CANDIDATES = 8
+"""sensor_fix runs one work-item per CANDIDATES pixels of a window, each taking every so-many-th
+entry of the candidates list (the screen passes about 1-5 % of a textured mosaic's pixels at gain
+1-16: README.md). The list itself has room for every pixel: a mosaic of noise passes most of them,
+and a list that drops some (in the order of the atomic appends) would make the output vary from
+run to run."""
+
+
+# --------------------------------------------------------------------------------------------
+# Tables and parameters
+# --------------------------------------------------------------------------------------------
+
+def neighbour_tables(cfa: CFA, radius: int = RADIUS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per CFA phase k = py P + px: the same-channel neighbours within ``radius`` (nb: P^2 x NB x 2
+    int8 (dy, dx), nb_n: their counts) and the opposite pairs among them (pairs: P^2 x NP x 2 int8
+    indices into nb[k], pairs_n).
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> nb, n, pairs, pn = neighbour_tables(bayer_cfa())
+    >>> n.tolist(), pn.tolist()
+    ([8, 12, 12, 8], [4, 6, 6, 4])
+    """
+    p = cfa.period
+    lists, pair_lists = [], []
+    for k in range(p * p):
+        ky, kx = divmod(k, p)
+        c = cfa.pattern[ky, kx]
+        offs = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
+                if (dy or dx) and cfa.pattern[(ky + dy) % p, (kx + dx) % p] == c]
+        lists.append(offs)
+        pair_lists.append([(i, offs.index((-dy, -dx))) for i, (dy, dx) in enumerate(offs)
+                           if (-dy, -dx) in offs and offs.index((-dy, -dx)) > i])
+    nmax, pmax = max(1, max(map(len, lists))), max(1, max(map(len, pair_lists)))
+    nb = np.zeros((p * p, nmax, 2), np.int8)
+    pairs = np.zeros((p * p, pmax, 2), np.int8)
+    for k in range(p * p):
+        if lists[k]:
+            nb[k, :len(lists[k])] = lists[k]
+        if pair_lists[k]:
+            pairs[k, :len(pair_lists[k])] = pair_lists[k]
+    return (nb, np.array([len(v) for v in lists], np.int8), pairs, np.array([len(v) for v in pair_lists], np.int8))
+
+
+@dataclass(frozen=True)
+class DefectTest:
+    """The auto search's noise model and constants: var(u) = a_c max(u, 0) + b_c for a normalised
+    sample u of CFA channel c ((DN - black) / (white - black)); ``wb`` the pass-1 gains, which put the
+    channels on one footing for the support test."""
+
+    noise_a: tuple[float, ...]
+    noise_b: tuple[float, ...]
+    wb: tuple[float, ...]
+    k: float = K
+    alpha: float = ALPHA
+    gamma: float = GAMMA
+    z: float = Z
+
+    @classmethod
+    def from_noise(cls, noise: Any, pass1_gains: np.ndarray) -> "DefectTest":
+        """From the raw's ChannelNoise (white-balanced units: var_s = shot s + floor, s = w u):
+        a = shot / w, b = floor / w^2."""
+        w = np.asarray(pass1_gains, dtype=np.float64)
+        return cls(tuple(float(v) for v in np.asarray(noise.shot) / w),
+                   tuple(float(v) for v in np.asarray(noise.floor) / (w * w)), tuple(float(v) for v in w))
+
+    @classmethod
+    def noiseless(cls, n_channels: int, wb: np.ndarray | None = None) -> "DefectTest":
+        w = np.ones(n_channels) if wb is None else np.asarray(wb, dtype=np.float64)
+        return cls((0.0,) * n_channels, (0.0,) * n_channels, tuple(float(v) for v in w))
+
+
+@dataclass
+class GainTerms:
+    """The gain opcodes a mosaic stage applies (GainMap and FixVignetteRadial of OpcodeLists 1 and
+    2), placed on the mosaic (clisp.io.opcodes)."""
+
+    ops: list[Any]
+
+    def gain(self, list_no: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        """Product of list ``list_no``'s gains at mosaic pixels (ys, xs broadcast), float64."""
+        ys, xs = np.broadcast_arrays(np.asarray(ys), np.asarray(xs))
+        out = np.ones(ys.shape)
+        for op in self.ops:
+            if op.list_no != list_no:
+                continue
+            if isinstance(op, GainMap):
+                out = np.where(selects(op, ys, xs), out * gain_map_at(op, ys, xs, op.plane), out)
+            elif isinstance(op, FixVignetteRadial):
+                out = out * vignette_at(op, ys, xs)
+        return out
+
+    def pack(self) -> tuple[np.ndarray, np.ndarray]:
+        """(terms: n x TERM_SIZE float32, maps: the GainMaps' planes, float32) for sensor.cl."""
+        terms, maps = [], []
+        offset = 0
+        for op in self.ops:
+            t = np.zeros(TERM_SIZE)
+            oy, ox = op.origin
+            height, width = op.image
+            t[1] = op.list_no
+            if isinstance(op, GainMap):
+                pv, ph, mp = op.gains.shape
+                top, left, bottom, right = op.area
+                t[0] = 1
+                t[2:6] = (top + oy, left + ox, bottom + oy, right + ox) if bottom > top and right > left else (0, 0, 0, 0)
+                t[6:8] = (op.row_pitch, op.col_pitch)
+                t[8:10] = (oy, ox)
+                t[10:12] = (1.0 / height, 1.0 / width)
+                t[12:14] = (pv, ph)
+                t[14:16] = (1.0 / op.spacing[0], 1.0 / op.spacing[1])
+                t[16:18] = op.origin_rel
+                t[18] = offset
+                plane = op.gains[:, :, min(op.plane, mp - 1)].astype(np.float32).reshape(-1)
+                maps.append(plane)
+                offset += plane.size
+            else:
+                cy, cx = op.center[1] * height, op.center[0] * width
+                t[0] = 2
+                t[12:17] = op.k
+                t[17:19] = (cy + oy, cx + ox)
+                t[19] = 1.0 / max(max(cy, height - cy) ** 2 + max(cx, width - cx) ** 2, 1e-12)
+            terms.append(t)
+        packed = np.asarray(terms, dtype=np.float32).reshape(-1, TERM_SIZE)
+        return packed, (np.concatenate(maps) if maps else np.zeros(1, np.float32))
+
+
+@dataclass
+class SmoothGain:
+    """G_c(y, x): per channel, nodes every ``cell`` pixels of the image (node (i, j) at pixel
+    (i cell, j cell)), bilinear between them, clamped at the edges; ``grid`` C x GH x GW float32."""
+
+    grid: np.ndarray
+    cell: int = GRID_CELL
+
+    def at(self, c: np.ndarray | int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        """G at (ys, xs) (image pixels, floats allowed) of channel(s) c, broadcast; float64."""
+        g = self.grid.astype(np.float64)
+        gh, gw = g.shape[1:]
+        gy = np.clip(np.asarray(ys, dtype=np.float64) / self.cell, 0, gh - 1)
+        gx = np.clip(np.asarray(xs, dtype=np.float64) / self.cell, 0, gw - 1)
+        i0, j0 = np.minimum(gy.astype(np.int64), max(gh - 2, 0)), np.minimum(gx.astype(np.int64), max(gw - 2, 0))
+        i1, j1 = np.minimum(i0 + 1, gh - 1), np.minimum(j0 + 1, gw - 1)
+        fy, fx = gy - i0, gx - j0
+        c = np.asarray(c)
+        return ((g[c, i0, j0] * (1 - fx) + g[c, i0, j1] * fx) * (1 - fy)
+                + (g[c, i1, j0] * (1 - fx) + g[c, i1, j1] * fx) * fy)
+
+    @classmethod
+    def nodes(cls, shape: tuple[int, int], cell: int = GRID_CELL) -> tuple[np.ndarray, np.ndarray]:
+        """The node coordinates (ys, xs) of an image of ``shape``: 0, cell, ... up to the last pixel."""
+        return (np.arange(-(-(shape[0] - 1) // cell) + 1) * cell, np.arange(-(-(shape[1] - 1) // cell) + 1) * cell)
+
+    def device(self, rt: Runtime) -> tuple[Any, int, int, float]:
+        g = np.ascontiguousarray(self.grid, dtype=np.float32)
+        return rt.constant(g), int(g.shape[1]), int(g.shape[2]), 1.0 / self.cell
+
+
+def window_of(plane: np.ndarray, origin: tuple[int, int], shape: tuple[int, int], period: int) -> np.ndarray:
+    """The ``shape`` window of a whole-image ``plane`` at ``origin``, CFA-mirror padded outside the
+    image exactly as the engine pads the raw (tiling.gather_window)."""
+    return gather_window(plane, int(origin[0]), int(origin[1]), int(shape[0]), int(shape[1]), period)
+
+
+# --------------------------------------------------------------------------------------------
+# The mosaic stage
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class SensorCorrect(Stage):
+    """Raw mosaic (DN) -> the corrected mosaic, float32 (module doc, kernel ``sensor_correct``).
+
+    black      (C,) black level per channel (DN), the offset where there is no dark frame
+    white      white level (DN)
+    out_scale, out_offset  (C,) out = w r out_scale + out_offset; (1, black) keeps DN, a following
+               normalisation and white balance fold in (:meth:`fuse`)
+    test       the auto search (None: off)
+    mask       H x W uint16 of the whole image, 1 = known bad pixel (None: none)
+    dark       H x W float32 dark level in DN (None: the black level)
+    flat       H x W float32 flat-field gain (None: none)
+    terms      OpcodeList1 / 2 gain opcodes (None: none)
+    smooth     G, divided out here and applied by :class:`SensorShade` (None: none)
+    """
+
+    cfa: CFA
+    black: np.ndarray
+    white: float
+    test: DefectTest | None = None
+    mask: np.ndarray | None = field(default=None, repr=False, compare=False)
+    dark: np.ndarray | None = field(default=None, repr=False, compare=False)
+    flat: np.ndarray | None = field(default=None, repr=False, compare=False)
+    terms: GainTerms | None = field(default=None, repr=False, compare=False)
+    smooth: SmoothGain | None = field(default=None, repr=False, compare=False)
+    out_scale: np.ndarray | None = None
+    out_offset: np.ndarray | None = None
+    name = "sensor"
+    in_channels = 1
+    out_channels = 1
+
+    def __post_init__(self) -> None:
+        n = self.cfa.n_channels
+        self.black = np.broadcast_to(np.asarray(self.black, dtype=np.float64), (n,)).copy()
+        self.white = float(self.white)
+        self.out_scale = np.ones(n) if self.out_scale is None else np.asarray(self.out_scale, dtype=np.float64)
+        self.out_offset = self.black.copy() if self.out_offset is None else np.asarray(self.out_offset, dtype=np.float64)
+        self._devices: dict[int, dict[str, Any]] = {}
+
+    @property
+    def halo(self) -> int:
+        return HALO
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """The output and the windows of the planes it reads (mask 2, dark and flat 4 bytes)."""
+        return 4.0 * 2 + 2.0 * (self.mask is not None) + 4.0 * (self.dark is not None) + 4.0 * (self.flat is not None)
+
+    def fuse(self, following: Stage) -> Stage | None:
+        """A following per-channel affine (normalisation, white balance pass 1) folds into the output."""
+        if isinstance(following, CfaAffine):
+            o, s = np.asarray(following.offset, dtype=np.float64), np.asarray(following.scale, dtype=np.float64)
+            fused = replace(self, out_scale=self.out_scale * s, out_offset=(self.out_offset - o) * s)
+            fused._devices = self._devices        # one device state (and count of pixels found) for both
+            return fused
+        return None
+
+    # ------------------------------------------------------------------------------- reference
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        return self.correct(x, origin)[0]
+
+    def correct(self, x: np.ndarray, origin: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(the corrected window less the halo, float64; the bool map of the pixels the auto test found)."""
+        x = np.asarray(x, dtype=np.float64)
+        height, width = x.shape
+        oy, ox = int(origin[0]), int(origin[1])
+        cfa, p, r = self.cfa, self.cfa.period, HALO
+        ch = cfa.channel_map(height, width, origin)
+        ys = np.arange(height)[:, None] + oy
+        xs = np.arange(width)[None, :] + ox
+        g1 = self.terms.gain(1, ys, xs) if self.terms is not None else np.ones((height, width))
+        off = window_of(self.dark, origin, x.shape, p).astype(np.float64) if self.dark is not None else self.black[ch]
+        raw = x
+        mask = window_of(self.mask, origin, x.shape, p) != 0 if self.mask is not None else np.zeros(x.shape, bool)
+        extent = image_extent(origin) or (1 << 30, 1 << 30)
+        outside = ~(((ys >= 0) & (ys < extent[0])) & ((xs >= 0) & (xs < extent[1])))   # left out as neighbours
+        out_h, out_w = height - 2 * r, width - 2 * r
+        w_out = np.empty((out_h, out_w))
+        found = np.zeros((out_h, out_w), bool)
+        nb, nb_n, pairs, pairs_n = neighbour_tables(cfa)
+        inv_range = 1.0 / (self.white - self.black)
+        for k in range(p * p):
+            ky, kx = divmod(k, p)
+            rows = np.arange((ky - oy - r) % p, out_h, p) + r           # window rows of this phase
+            cols = np.arange((kx - ox - r) % p, out_w, p) + r
+            if not len(rows) or not len(cols):
+                continue
+            c = int(cfa.pattern[ky, kx])
+            gp = g1[np.ix_(rows, cols)]
+
+            def w_at(dy: int, dx: int) -> np.ndarray:
+                idx = np.ix_(rows + dy, cols + dx)
+                return raw[idx] * gp - (off[idx] if np.ndim(off) == 2 else off[idx])
+
+            def masked(dy: int, dx: int) -> np.ndarray:
+                idx = np.ix_(rows + dy, cols + dx)
+                return mask[idx] | (outside[idx] if (dy or dx) else False)
+
+            w = w_at(0, 0)
+            bad = masked(0, 0).copy()
+            offs = [tuple(int(v) for v in nb[k, j]) for j in range(nb_n[k])]
+            t = self.test or DefectTest.noiseless(cfa.n_channels)
+            wb = np.asarray(t.wb)
+
+            def y_at(dy: int, dx: int) -> np.ndarray:            # Y: the 4 nearest pixels, white-balanced
+                total = 0.0
+                for ey, ex in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                    idx = np.ix_(rows + dy + ey, cols + dx + ex)
+                    cq = ch[idx]
+                    total = total + (raw[idx] * gp - (off[idx] if np.ndim(off) == 2 else off[idx])) * inv_range[cq] * wb[cq]
+                return total / 4.0
+
+            est, y_bar, w_bar = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
+            if self.test is not None and offs:
+                vals = np.stack([np.where(masked(*o), np.nan, w_at(*o)) for o in offs])
+                used = np.any(~np.isnan(vals), axis=0)
+                with np.errstate(all="ignore"):
+                    hi, lo = np.nanmax(vals, axis=0), np.nanmin(vals, axis=0)
+                up, uhi, ulo = w * inv_range[c], hi * inv_range[c], lo * inv_range[c]
+                spread = t.alpha * (uhi - ulo) + FLOOR
+                hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
+                cold = ulo - up - t.k * np.sqrt(t.noise_a[c] * np.maximum(ulo, 0) + t.noise_b[c]) - spread
+                cand = ~bad & used & ((hot > 0) | (cold > 0))
+                with np.errstate(all="ignore"):
+                    excess = (w - w_bar) * inv_range[c] * wb[c]
+                    var = wb[c] * t.noise_a[c] * np.maximum(np.nan_to_num(y_bar), 0) + wb[c] ** 2 * t.noise_b[c]
+                    lit = (y_at(0, 0) - y_bar) * np.sign(excess) + t.z * np.sqrt(0.375 * var)
+                    unsupported = np.isnan(y_bar) | (lit < t.gamma * np.abs(excess))
+                new = cand & (np.abs(excess) > 0) & unsupported
+                found[np.ix_(rows - r, cols - r)] = new
+                bad = bad | new
+            if bad.any():
+                w = np.where(bad, est, w)
+            gain = np.ones_like(w)
+            if self.flat is not None:
+                gain = gain * window_of(self.flat, origin, x.shape, p)[np.ix_(rows, cols)]
+            if self.terms is not None:
+                gain = gain * self.terms.gain(2, (rows + oy)[:, None], (cols + ox)[None, :])
+            if self.smooth is not None:
+                gain = gain / self.smooth.at(c, (rows + oy)[:, None], (cols + ox)[None, :])
+            w_out[np.ix_(rows - r, cols - r)] = w * gain * self.out_scale[c] + self.out_offset[c]
+        return w_out, found
+
+    @staticmethod
+    def _estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range_c, wb_c):
+        """(the replacement, the chosen pair's mean Y, its mean w) per pixel: along the opposite
+        same-channel pair that differs least (in the channel and in Y, the white-balanced mean of
+        each member's 4 nearest pixels), the pair's mean plus the colour difference Y(p) - Y(pair)
+        (the channel follows the other channels' detail, as a demosaic assumes); without a pair the
+        good neighbours' mean (Y of the pair NaN, its w 0: the support test then passes)."""
+        best = np.full(w.shape, np.inf)
+        est = np.zeros(w.shape)
+        y_bar = np.full(w.shape, np.nan)
+        w_bar = np.zeros(w.shape)
+        y_p = y_at(0, 0)
+        for j in range(pairs_n[k]):
+            a, b = offs[pairs[k, j, 0]], offs[pairs[k, j, 1]]
+            wa, wb_ = w_at(*a), w_at(*b)
+            ya, yb = y_at(*a), y_at(*b)
+            d = np.where(masked(*a) | masked(*b), np.inf, np.abs(wa - wb_) * inv_range_c + np.abs(ya - yb) / wb_c)
+            better = d < best
+            best = np.where(better, d, best)
+            mean_y, mean_w = 0.5 * (ya + yb), 0.5 * (wa + wb_)
+            est = np.where(better, mean_w + (y_p - mean_y) / (wb_c * inv_range_c), est)
+            y_bar = np.where(better, mean_y, y_bar)
+            w_bar = np.where(better, mean_w, w_bar)
+        if offs:
+            good = np.stack([~masked(*o) for o in offs])
+            vals = np.stack([w_at(*o) for o in offs])
+            n = good.sum(axis=0)
+            with np.errstate(all="ignore"):
+                mean = np.where(n > 0, (vals * good).sum(axis=0) / np.maximum(n, 1), w)
+        else:
+            mean = w
+        return np.where(np.isinf(best), mean, est), y_bar, w_bar
+
+    # ------------------------------------------------------------------------------- OpenCL
+
+    def defines(self, raw_dtype: np.dtype) -> dict[str, object]:
+        nb, _, pairs, _ = neighbour_tables(self.cfa)
+        t = self.test
+        return {"RAW_T": "ushort" if np.dtype(raw_dtype) == np.uint16 else "float", "CFA_PERIOD": self.cfa.period,
+                "SC_HALO": HALO, "SC_RADIUS": RADIUS, "SC_NB_MAX": nb.shape[1], "SC_PAIRS_MAX": pairs.shape[1],
+                "SC_DETECT": int(t is not None), "SC_DIAG": int(diagonals_same_channel(self.cfa)),
+                "SC_EVEN": int(self.cfa.period == 2),
+                "SC_MASK": int(self.mask is not None),
+                "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
+                "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
+                "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE,
+                "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
+                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
+
+    def lane_constants(self) -> np.ndarray:
+        """sensor_screen's per-lane channel constants: for each phase (py, px) of a group's first pixel
+        and lane k, the channel's black, 1 / range, noise a, noise b, out scale, out offset (float32)."""
+        p, t = self.cfa.period, self.test or DefectTest.noiseless(self.cfa.n_channels)
+        per = np.stack([self.black, 1.0 / (self.white - self.black), np.asarray(t.noise_a), np.asarray(t.noise_b),
+                        self.out_scale, self.out_offset])                      # 6 x C
+        out = np.zeros((p, p, 6, LANES), np.float32)
+        for py in range(p):
+            for px in range(p):
+                channels = self.cfa.pattern[py, (px + np.arange(LANES)) % p]
+                out[py, px] = per[:, channels]
+        return out
+
+    def _device(self, rt: Runtime) -> dict[str, Any]:
+        """What the kernels read besides the window, once per runtime: the tables, the whole planes
+        the device gathers windows from, the packed terms, the counter of pixels found."""
+        state = self._devices.get(id(rt))
+        if state is not None:
+            return state
+        nb, nb_n, pairs, pairs_n = neighbour_tables(self.cfa)
+        t = self.test or DefectTest.noiseless(self.cfa.n_channels)
+        state = {"nb": rt.constant(nb), "nb_n": rt.constant(nb_n), "pairs": rt.constant(pairs),
+                 "pairs_n": rt.constant(pairs_n), "noise_a": rt.constant(as_f32(t.noise_a)),
+                 "noise_b": rt.constant(as_f32(t.noise_b)), "wb": rt.constant(as_f32(t.wb))}
+        terms, maps = self.terms.pack() if self.terms is not None else (np.zeros((1, TERM_SIZE), np.float32),
+                                                                         np.zeros(1, np.float32))
+        state["terms"], state["maps"] = rt.constant(terms), rt.constant(maps)
+        if self.smooth is not None:
+            state["grid"], state["gh"], state["gw"], state["inv_cell"] = self.smooth.device(rt)
+        else:
+            state["grid"], state["gh"], state["gw"], state["inv_cell"] = rt.constant(np.ones(1, np.float32)), 1, 1, 1.0
+        for key, plane in (("mask", self.mask), ("dark", self.dark), ("flat", self.flat)):
+            state[key] = rt.host_source(plane) if plane is not None else None
+        if not _metering(rt):
+            flags = rt.cl.mem_flags.READ_WRITE | rt.cl.mem_flags.COPY_HOST_PTR
+            state["found"] = rt.cl.Buffer(rt.context, flags, hostbuf=np.zeros(1, np.uint32))
+            self._devices[id(rt)] = state
+        else:
+            state["found"] = rt.constant(np.zeros(1, np.uint32))
+        return state
+
+    def found(self, rt: Runtime) -> int | None:
+        """Pixels the auto test found in the runs on ``rt`` so far (None: no run, or no test). A pixel
+        that two skip paths of one tile computed counts once per path."""
+        state = self._devices.get(id(rt))
+        if state is None or self.test is None:
+            return None
+        count = np.zeros(1, np.uint32)
+        rt.cl.enqueue_copy(rt.queue, count, state["found"], is_blocking=True)
+        return int(count[0])
+
+    def _window(self, rt: Runtime, state: dict[str, Any], key: str, origin: tuple[int, int], src: DeviceImage,
+                dtype: Any) -> tuple[Any, list[DeviceImage]]:
+        """The window of plane ``key`` matching ``src`` (a device gather where the device reads the
+        plane in place, else gathered on the host and uploaded), or a placeholder buffer."""
+        plane = getattr(self, key)
+        if plane is None:
+            return rt.constant(np.zeros(1, dtype)), []
+        whole = state.get(key)
+        if _metering(rt):                                    # a metering run: count the buffer only
+            img = rt.acquire(1, src.height, src.width, dtype)
+        elif whole is not None:
+            img = rt.gather_window(whole, int(origin[0]), int(origin[1]), src.height, src.width, self.cfa.period)
+        else:
+            img = rt.upload(window_of(plane, origin, (src.height, src.width), self.cfa.period))
+        return img, [img]
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        state = self._device(rt)
+        width, height = src.width - 2 * HALO, src.height - 2 * HALO
+        extent = image_extent(origin) or (1 << 30, 1 << 30)
+        dst = rt.acquire(1, height, width)
+        held: list[DeviceImage] = []
+        planes = {}
+        for key, dtype in (("mask", np.uint16), ("dark", np.float32), ("flat", np.float32)):
+            planes[key], extra = self._window(rt, state, key, origin, src, dtype)
+            held += extra
+        args = dict(src=src, dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]),
+                    pattern=rt.constant(self.cfa.pattern), black=rt.constant(as_f32(self.black)),
+                    inv_range=rt.constant(as_f32(1.0 / (self.white - self.black))),
+                    out_scale=rt.constant(as_f32(self.out_scale)), out_offset=rt.constant(as_f32(self.out_offset)),
+                    noise_a=state["noise_a"], noise_b=state["noise_b"], mask=planes["mask"], dark=planes["dark"],
+                    flat=planes["flat"], terms=state["terms"], maps=state["maps"], grid=state["grid"],
+                    gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], img_h=extent[0], img_w=extent[1])
+        defines = self.defines(src.dtype)
+        screening = self.test is not None or self.mask is not None
+        cap = width * height                        # every pixel may be a candidate
+        fix_items = max(1024, cap // CANDIDATES)
+        if screening:
+            count = rt.acquire(1, 1, 1, np.uint32)
+            candidates = rt.acquire(1, 1, cap, np.uint32)
+            if not _metering(rt):
+                rt.cl.enqueue_fill_buffer(rt.queue, count.buffer, np.uint32(0), 0, 4)
+            args.update(count=count, cap=cap)
+            held += [count, candidates]
+        else:
+            candidates = rt.constant(np.zeros(1, np.uint32))
+            args.update(count=rt.constant(np.zeros(1, np.uint32)), cap=0)
+        rt.launch_named("sensor", "sensor_screen", -(-width // LANES), height,
+                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants())), defines, exact=False)
+        if self.test is not None:
+            for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
+                rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
+                                width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
+        if screening:
+            rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
+                args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
+                pairs_n=state["pairs_n"], wb=state["wb"], found=state["found"]), defines, exact=False)
+        for img in held:
+            rt.release(img)
+        return dst
+
+
+def edge_strips(origin: tuple[int, int], width: int, height: int,
+                extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+    """(y0, x0, rows, cols) in output coordinates of the output window's pixels within RADIUS of the
+    image's edge or beyond it (the mirrored pixels a later stage's halo reads; an output window of
+    ``width`` x ``height`` whose pixel (0, 0) is image pixel origin + HALO): the rows along the top
+    and bottom, then the columns between them, each pixel once. The screen leaves these pixels out;
+    sensor_fix tests them with the neighbours inside the image only, as the reference does.
+
+    >>> edge_strips((-4, -3), 10, 8, (8, 10))       # one row above the image
+    [(0, 0, 3, 10), (7, 0, 1, 10), (3, 0, 4, 2), (3, 8, 4, 2)]
+    >>> edge_strips((-3, -3), 10, 8, (8, 10))
+    [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
+    """
+    ty, tx = origin[0] + HALO, origin[1] + HALO
+    out = []
+    top, bottom = 0, height                   # the rows the row strips leave to the column strips
+    far = 1 << 30                              # pixels beyond the image (a later stage's halo) count too
+    for lo, hi, is_top in ((-far, RADIUS, True), (extent[0] - RADIUS, far, False)):
+        a, b = max(lo - ty, 0), min(hi - ty, height)
+        if b > a:
+            out.append((a, 0, b - a, width))
+            if is_top:
+                top = max(top, b)
+            else:
+                bottom = min(bottom, a)
+    for lo, hi in ((-far, RADIUS), (extent[1] - RADIUS, far)):
+        a, b = max(lo - tx, 0), min(hi - tx, width)
+        if b > a and bottom > top:
+            out.append((top, a, bottom - top, b - a))
+    return out
+
+
+def _metering(rt: Runtime) -> bool:
+    """Whether ``rt`` is in a metering run (Runtime.metering: nothing is allocated or launched)."""
+    return getattr(rt, "_meter", None) is not None
+
+
+def diagonals_same_channel(cfa: CFA) -> bool:
+    """Whether the 4 pixels at (+-2, +-2) have every pixel's own channel (sensor_screen's neighbours):
+    true for the Bayer and LMS CFAs and any 2 x 2 one."""
+    p = cfa.period
+    return all(cfa.pattern[(ky + dy) % p, (kx + dx) % p] == cfa.pattern[ky, kx]
+               for ky in range(p) for kx in range(p) for dy in (-2, 2) for dx in (-2, 2))
+
+
+# --------------------------------------------------------------------------------------------
+# The smooth gain, after the chroma stage
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class SensorShade(Stage):
+    """The smooth gain G on the chroma stage's output (linear sRGB): out = M diag(G) M^-1 in, G_c
+    per camera channel at each pixel (kernel ``sensor_shade``, halo 0). ``scale``: raw pixels per
+    pixel of its input (2 after the half-size binning)."""
+
+    smooth: SmoothGain = field(repr=False, compare=False)
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
+    scale: int = 1
+    name = "sensor_shade"
+
+    def __post_init__(self) -> None:
+        self.matrix = np.asarray(self.matrix, dtype=np.float64).reshape(3, 3)
+
+    def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+        height, width = x.shape[:2]
+        s = float(self.scale)
+        ys = (np.arange(height)[:, None] + origin[0] + 0.5) * s - 0.5
+        xs = (np.arange(width)[None, :] + origin[1] + 0.5) * s - 0.5
+        cam = np.asarray(x, dtype=np.float64) @ np.linalg.inv(self.matrix).T
+        g = np.stack([self.smooth.at(c, ys, xs) for c in range(3)], axis=-1)
+        return (cam * g) @ self.matrix.T
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
+        dst = rt.acquire(3, src.height, src.width)
+        grid, gh, gw, inv_cell = self.smooth.device(rt)
+        rt.launch_named("sensor_shade", "sensor_shade", src.width, src.height, dict(
+            src=src, dst=dst, width=src.width, height=src.height, oy=int(origin[0]), ox=int(origin[1]),
+            scale=float(self.scale), m=rt.constant(as_f32(self.matrix)),
+            m_inv=rt.constant(as_f32(np.linalg.inv(self.matrix))), grid=grid, gh=gh, gw=gw, inv_cell=inv_cell),
+            {}, exact=False)
+        return dst

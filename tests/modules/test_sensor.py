@@ -1,0 +1,212 @@
+"""The sensor corrections stage (clisp/modules/sensor: sensor.cl's sensor_screen, sensor_edges and
+sensor_fix, sensor_shade.cl's sensor_shade) against their NumPy reference, tiled against whole, and
+what they do to raws with and without defects (clisp.corrections, the pipeline)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from clisp.cfa import bayer_cfa, lms_cfa
+from clisp.corrections import only_isolated_clips, sensor_corrections
+from clisp.engine.runtime import get_runtime
+from clisp.engine.stage import Origin
+from clisp.engine.tiling import gather_window
+from clisp.io.opcodes import FixVignetteRadial, GainMap
+from clisp.modules.sensor.stage import (HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
+                                        neighbour_tables)
+from clisp.pipeline import build_pipeline
+from clisp.sim import defects as sd
+from clisp.sim.simulate import simulate
+from tolerance import assert_close
+
+H, W = 56, 72
+
+
+def scene(h: int = H, w: int = W, seed: int = 0) -> np.ndarray:
+    """A textured scene made in code: smooth gradients, stripes and a few sharp dots."""
+    y, x = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
+    img = np.stack([0.2 + 0.5 * x, 0.3 + 0.2 * np.sin(9 * y), 0.25 + 0.2 * (x * y)], axis=-1)
+    img[:, w // 3:w // 3 + 2] *= 1.8
+    rng = np.random.default_rng(seed)
+    img += 0.05 * rng.random((h, w, 1))
+    return img
+
+
+def stage_with_everything(cfa, raw_dtype=np.uint16, rng=np.random.default_rng(1)) -> tuple[SensorCorrect, np.ndarray]:
+    x = (300 + 40 * rng.standard_normal((H, W))).clip(0, 1023)
+    x[10, 11], x[30, 40], x[20, 20], x[1, 5] = 1000, 64, 900, 1010         # hot, dead, hot, hot at the edge
+    x = x.astype(raw_dtype) if raw_dtype == np.float32 else np.round(x).astype(np.uint16)
+    mask = np.zeros((H, W), np.uint16)
+    mask[5, 5] = mask[40, 41] = 1
+    dark = (64 + rng.uniform(0, 5, (H, W))).astype(np.float32)
+    flat = (1 + 0.02 * rng.standard_normal((H, W))).astype(np.float32)
+    gm = GainMap((1, 0, H, W), 0, 1, 2, 1, (0.5, 0.5), (0.0, 0.0), (1 + rng.uniform(0, 0.5, (3, 3, 1))).astype(np.float32),
+                 list_no=2, image=(H, W))
+    vr = FixVignetteRadial((0.3, 0.1, 0, 0, 0), (0.5, 0.5), list_no=1, image=(H, W))
+    ny, nx = SmoothGain.nodes((H, W))
+    grid = (1 + 0.1 * rng.random((3, len(ny), len(nx)))).astype(np.float32)
+    test = DefectTest((1e-3,) * 3, (1e-5,) * 3, (1.0, 1.2, 2.0))
+    return SensorCorrect(cfa, np.full(3, 64.0), 1023.0, test, mask, dark, flat, GainTerms([gm, vr]),
+                         SmoothGain(grid)), x
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), bayer_cfa("GBRG"), lms_cfa()], ids=lambda c: c.name)
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32], ids=["uint16", "float32"])
+def test_sensor_correct_kernel_equals_reference(cfa, dtype):
+    """sensor.cl (screen, edges, fix) against the reference: every step on, whole image and a window."""
+    rt = get_runtime()
+    stage, x = stage_with_everything(cfa, dtype)
+    total = 0
+    for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
+                          (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36))):
+        window = gather_window(x, origin[0], origin[1], shape[0], shape[1], cfa.period)
+        before = stage.found(rt) or 0
+        expected, found = stage.correct(window, origin)
+        got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+        assert_close(got, expected, f"sensor_correct {cfa.name} at {tuple(origin)}")
+        assert stage.found(rt) - before == int(found.sum())
+        total += int(found.sum())
+    assert total >= 1
+
+
+def test_screen_misses_nothing_the_test_finds():
+    """A noisy textured raw at gain 1 (many candidates): the screened kernel equals the full test."""
+    rt = get_runtime()
+    for cfa in ("bayer", "lms"):
+        sim = simulate(scene(96, 128), cfa=cfa, gain=1, seed=4, defects=sd.SensorDefects(hot=0.003, dead=0.003, seed=2))
+        corr = sensor_corrections(sim.raw)
+        h, w = sim.raw.shape
+        origin = Origin(-HALO, -HALO, (h, w))
+        window = gather_window(sim.raw.data, -HALO, -HALO, h + 2 * HALO, w + 2 * HALO, sim.raw.cfa.period)
+        expected, found = corr.pre.correct(window, origin)
+        got = rt.download(corr.pre.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+        assert_close(got, expected, f"screened sensor_correct, {cfa}")
+        assert found.sum() > 0.5 * sd.bad_sites(sd.SensorDefects(hot=0.003, dead=0.003, seed=2), (h, w)).sum()
+
+
+def test_sensor_shade_kernel_equals_reference():
+    rt = get_runtime()
+    ny, nx = SmoothGain.nodes((40, 60))
+    grid = (1 + np.random.default_rng(2).random((3, len(ny), len(nx)))).astype(np.float32)
+    m = np.array([[1.8, -0.5, -0.3], [-0.3, 1.4, -0.1], [-0.1, -0.3, 1.4]])
+    for scale in (1, 2):
+        stage = SensorShade(SmoothGain(grid), m, scale)
+        x = np.random.default_rng(3).random((3, 20, 30)).astype(np.float32)
+        ref = stage.reference(np.moveaxis(x, 0, -1), (5, 7))
+        got = rt.download(stage.enqueue(rt, rt.upload(x), (5, 7)))
+        assert_close(np.moveaxis(got.reshape(3, 20, 30), 0, -1), ref, f"sensor_shade scale {scale}")
+
+
+def test_neighbour_tables_are_same_channel():
+    for cfa in (bayer_cfa(), lms_cfa(), lms_cfa((1, 2))):
+        nb, n, pairs, pn = neighbour_tables(cfa)
+        p = cfa.period
+        for k in range(p * p):
+            ky, kx = divmod(k, p)
+            for dy, dx in nb[k, :n[k]]:
+                assert cfa.pattern[(ky + dy) % p, (kx + dx) % p] == cfa.pattern[ky, kx]
+            for a, b in pairs[k, :pn[k]]:
+                assert tuple(nb[k, a]) == tuple(-nb[k, b])
+
+
+@pytest.fixture(scope="module")
+def defective():
+    """A Bayer raw with every defect, its frames, and the defect-free raw of the same scene."""
+    d = sd.SensorDefects(hot=0.002, dead=0.001, dark_current=50.0, exposure_time=1.0, shading=0.6, prnu=0.01, seed=3)
+    sim = simulate(scene(64, 96), cfa="bayer", gain=4, seed=5, defects=d)
+    sim.raw.metadata["opcodes"] = sd.gain_map_opcodes(d, sim.raw.cfa, sim.raw.shape)
+    clean = simulate(scene(64, 96), cfa="bayer", gain=4, seed=5)
+    return d, sim, clean
+
+
+def test_tiled_equals_whole(defective):
+    """Every correction on (search, dark, flat, GainMap smooth gain, highlights and denoiser between):
+    tiles of 32 px give the whole image's output."""
+    d, sim, _ = defective
+    dark = sd.frames(sim.raw, d, "dark", 2, 4.0, 10)
+    for options in ({"dark": dark}, {"flat": sd.frames(sim.raw, d, "flat", 2, 4.0, 20)}, {}):
+        pipe = build_pipeline(sim.raw, preset="balanced", **options)
+        names = [s.name for s in pipe.stages]
+        assert names[0] == "sensor" and "sensor_shade" in names
+        whole = pipe.run(sim.raw.data)
+        tiled = pipe.run(sim.raw.data, tile=32)
+        assert_close(tiled, whole, f"tiled = whole with {list(options) or 'the GainMap'}")
+
+
+def test_corrections_bring_the_raw_back(defective):
+    """Dark frames, flats and the search: the corrected output is closer to the truth than the raw
+    left alone, and the auto search found most of the hot and dead pixels."""
+    from clisp.metrics import psnr
+    d, sim, clean = defective
+    off = build_pipeline(sim.raw, preset="fast", bad_pixels="off", opcodes=False).run(sim.raw.data)
+    pipe = build_pipeline(sim.raw, preset="fast", bad_pixels="auto", dark=sd.frames(sim.raw, d, "dark", 4, 4.0, 10),
+                          flat=sd.frames(sim.raw, d, "flat", 4, 4.0, 20))
+    fixed = pipe.run(sim.raw.data)
+    assert psnr(fixed, clean.truth) > psnr(off, clean.truth) + 3
+    text = pipe.corrections.explain(get_runtime())
+    assert "dark: 4 frames averaged, scaled by the exposure times" in text
+    assert "the flat replaces the DNG's 4 gain opcodes" in text
+    assert "the auto test found and replaced" in text
+
+
+def test_no_false_corrections_on_a_smooth_raw_at_gain_64():
+    """A defect-free raw of a smooth scene at the highest gain: the search changes nothing."""
+    raw = simulate(scene(64, 96) * 0 + np.linspace(0.05, 0.8, 96)[None, :, None], cfa="lms", gain=64, seed=8).raw
+    on = build_pipeline(raw, preset="fast", bad_pixels="auto").run(raw.data)
+    off = build_pipeline(raw, preset="fast", bad_pixels="off").run(raw.data)
+    assert_close(on, off, "the search on a defect-free gain-64 raw")
+
+
+def test_fast_preset_searches_only_when_asked(defective):
+    _, sim, _ = defective
+    assert build_pipeline(sim.raw, preset="fast", opcodes=False).corrections.pre is None
+    assert build_pipeline(sim.raw, preset="fast", bad_pixels="auto", opcodes=False).corrections.pre.test is not None
+    assert build_pipeline(sim.raw, preset="balanced", opcodes=False).corrections.pre.test is not None
+
+
+def test_map_file_used_as_given(tmp_path, defective):
+    from clisp.corrections import read_bad_pixel_map, write_bad_pixel_map
+    d, sim, _ = defective
+    truth = sd.bad_sites(d, sim.raw.shape)
+    write_bad_pixel_map(tmp_path / "map.txt", truth)
+    assert np.array_equal(read_bad_pixel_map(str(tmp_path / "map.txt"), sim.raw.shape), truth)
+    corr = sensor_corrections(sim.raw, bad_pixels=str(tmp_path / "map.txt"), opcodes=False)
+    assert corr.pre.test is None and int(corr.pre.mask.sum()) == int(truth.sum())
+
+
+def test_dark_frame_scaled_by_exposure_time(defective):
+    d, sim, _ = defective
+    half = sd.frames(sim.raw, dataclasses.replace(d, exposure_time=0.5), "dark", 1, 4.0, 30)[0]
+    corr = sensor_corrections(sim.raw, dark=[half], opcodes=False)
+    expected = sd.expected_dark(d, sim.raw.shape, 4.0, sd.NoiseModel())
+    lit = expected - 64 > 5
+    ratio = (corr.pre.dark[lit] - 64) / (expected[lit] - 64)
+    assert abs(float(np.median(ratio)) - 1.0) < 0.1                      # the half-time frame, doubled
+
+
+def test_hot_pixels_are_not_clipped_light():
+    raw = simulate(0.4 * scene(), cfa="bayer", gain=2, seed=1, defects=sd.SensorDefects(hot=0.002, hot_level=1.5, seed=4)).raw
+    pre = sensor_corrections(raw).pre
+    assert only_isolated_clips(raw, pre)
+    assert not only_isolated_clips(raw, None)
+    blob = raw.data.copy()
+    blob[20:26, 30:36] = 1023
+    assert not only_isolated_clips(dataclasses.replace(raw, data=blob), pre)
+    assert build_pipeline(raw).describe().count("highlights") == 0
+    assert "highlights" in build_pipeline(raw, bad_pixels="off").describe()
+
+
+def test_cli_names_unapplied_opcodes(tmp_path, capfd):
+    from clisp.cli import main
+    from clisp.io.opcodes import OtherOpcode
+    from clisp.io.rawfile import write_raw
+    sim = simulate(scene(), cfa="bayer", gain=2, seed=1)
+    sim.raw.metadata["opcodes"] = [OtherOpcode(1, bytes(8), list_no=3), OtherOpcode(1, bytes(8), list_no=3)]
+    write_raw(tmp_path / "r.dng", sim.raw)
+    assert main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "o.exr"), "--preset", "fast",
+                 "--bad-pixels", "auto", "--explain"]) == 0
+    out, err = capfd.readouterr()
+    assert err.count("DNG opcode WarpRectilinear (OpcodeList3) not applied") == 1
+    assert "sensor: bad pixels auto" in out

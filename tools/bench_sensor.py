@@ -1,0 +1,337 @@
+"""The sensor corrections against their oracles (issue 44).
+
+    python tools/bench_sensor.py [--sets kodak,mcmaster] [--cfa lms,bayer] [--gains 1,16]
+                                 [--cases pixels,dark,shading,prnu,gainmap] [--subset N] [--frames 16]
+                                 [--csv PATH] [--results docs/RESULTS.md]
+    python tools/bench_sensor.py --tune [...]          the auto test's constants on the pixels case
+    python tools/bench_sensor.py --false-positives --gains 64   defect-free raws: auto against off
+    python tools/bench_sensor.py --gainmap-flatness    a grey field through a GainMap DNG, rawpy beside
+
+Every scene is simulated once without defects (``defect-free``, processed with the defaults) and
+once per case with the sensor defects of that case (same scene, CFA, gain and noise seed; the
+truth is the ideal sensor's). Each defective raw is processed three ways: ``corrected`` (what a
+user does: the defaults, the dark or flat frames the simulator makes, the DNG's GainMap),
+``oracle`` (the same correction given the true defect: the true bad-pixel map, the noiseless dark
+frame, the true shading and PRNU) and ``off`` (the correction left out). Scores: PSNR against the
+truth (tone-mapped, 10 px border, clisp.metrics.psnr) and, for the pixels case, the pixels whose
+output lies more than 0.1 (sRGB-encoded, any channel) off the truth.
+
+Cases (the defects; clisp.sim.defects):
+
+* ``pixels``   hot pixels (0.05 %, level 0.5 of full scale) and dead pixels (0.05 %): 0.1 % of the sensor
+* ``dark``     dark current 5 e-/s over 2 s with its fixed pattern (DSNU 0.4), corrected by FRAMES dark frames
+* ``shading``  lens shading to 0.5 at the corners with its colour shading, corrected by FRAMES flat frames
+* ``prnu``     PRNU 2 %, corrected by FRAMES flat frames
+* ``gainmap``  the shading of ``shading`` recorded in the raw as GainMap opcodes (OpcodeList2), applied
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import toolkit
+
+CASES = ("pixels", "dark", "shading", "prnu", "gainmap")
+SEED = 1
+DEFECT_SEED = 7
+
+
+def defects_for(case: str):
+    from clisp.sim.defects import SensorDefects
+    return {"pixels": SensorDefects(hot=0.0005, dead=0.0005, seed=DEFECT_SEED),
+            "dark": SensorDefects(dark_current=5.0, exposure_time=2.0, seed=DEFECT_SEED),
+            "shading": SensorDefects(shading=0.5, seed=DEFECT_SEED),
+            "prnu": SensorDefects(prnu=0.02, seed=DEFECT_SEED),
+            "gainmap": SensorDefects(shading=0.5, seed=DEFECT_SEED)}[case]
+
+
+def far_off(output: np.ndarray, truth: np.ndarray, border: int = 10) -> int:
+    """Pixels whose sRGB-encoded output lies more than 0.1 off the truth in any channel."""
+    from clisp.metrics import tone_map
+    a = tone_map(np.clip(output, 0, 1))[border:-border, border:-border]
+    b = tone_map(np.clip(truth, 0, 1))[border:-border, border:-border]
+    return int(np.count_nonzero(np.abs(a - b).max(axis=-1) > 0.1))
+
+
+def variants(case: str, sim, gain, frames: int) -> dict[str, dict]:
+    """The process options of corrected / oracle / off for one defective raw."""
+    from clisp.sim import defects as sd
+    d = defects_for(case)
+    raw = sim.raw
+    if case == "pixels":
+        return {"corrected": {}, "oracle": {"bad_pixels": sd.bad_sites(d, raw.shape)}, "off": {"bad_pixels": "off"}}
+    if case == "dark":
+        return {"corrected": {"dark": sd.frames(raw, d, "dark", frames, gain, 1000)},
+                "oracle": {"dark": [sd.oracle_frame(raw, d, "dark", gain)]}, "off": {}}
+    if case in ("shading", "prnu"):
+        return {"corrected": {"flat": sd.frames(raw, d, "flat", frames, gain, 2000)},
+                "oracle": {"flat": [sd.oracle_frame(raw, d, "flat", gain)]}, "off": {}}
+    return {"corrected": {}, "oracle": {"flat": [sd.oracle_frame(raw, d, "flat", gain)]}, "off": {"opcodes": False}}
+
+
+def simulate_case(scene: np.ndarray, cfa: str, gain: float, case: str):
+    from clisp.sim import defects as sd
+    from clisp.sim.simulate import simulate
+    d = defects_for(case)
+    sim = simulate(scene, cfa=cfa, gain=gain, seed=SEED, defects=d)
+    if case == "gainmap":
+        sim.raw.metadata["opcodes"] = sd.gain_map_opcodes(d, sim.raw.cfa, sim.raw.shape)
+    return sim
+
+
+def study(args: argparse.Namespace) -> list[dict]:
+    import clisp
+    from clisp.metrics import psnr
+    from clisp.sim.simulate import simulate
+    rows = []
+    scenes = scene_list(args)
+    start = time.perf_counter()
+    for set_name, scene in scenes:
+        for cfa in args.cfa:
+            for gain in args.gains:
+                clean = simulate(scene.image, cfa=cfa, gain=gain, seed=SEED)
+                out = clisp.process(clean.raw)
+                base = dict(set=set_name, image=scene.name, cfa=cfa, gain=gain)
+                rows.append(dict(base, case="-", variant="defect-free", psnr=psnr(out, clean.truth),
+                                 far_off=far_off(out, clean.truth)))
+                for case in args.cases:
+                    sim = simulate_case(scene.image, cfa, gain, case)
+                    for name, options in variants(case, sim, gain, args.frames).items():
+                        out = clisp.process(sim.raw, **options)
+                        rows.append(dict(base, case=case, variant=name, psnr=psnr(out, clean.truth),
+                                         far_off=far_off(out, clean.truth) if case == "pixels" else ""))
+                print(f"{time.perf_counter() - start:7.0f} s  {set_name} {scene.name} {cfa} gain {gain:g}: "
+                      + "  ".join(f"{r['case']}/{r['variant']} {r['psnr']:.2f}" for r in rows[-(1 + 3 * len(args.cases)):]),
+                      flush=True)
+    return rows
+
+
+def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
+    out = []
+    for set_name in args.sets:
+        loader = toolkit.kodak if set_name == "kodak" else toolkit.mcmaster
+        scenes = loader(args.data)
+        out += [(set_name, s) for s in scenes[::args.subset]]
+    return out
+
+
+def summary(rows: list[dict]) -> list[str]:
+    """Per set, CFA, gain and case: mean PSNR of each variant, corrected - oracle, corrected -
+    defect-free, off - corrected (the loss the correction prevents), and the far-off counts."""
+    lines = ["| set | CFA | gain | case | defect-free | corrected | oracle | off | corrected - oracle | "
+             "corrected - defect-free | loss prevented | pixels > 0.1 off: corrected / defect-free |",
+             "|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    keys = sorted({(r["set"], r["cfa"], r["gain"]) for r in rows}, key=lambda k: (k[0], k[1], k[2]))
+    for s, cfa, gain in keys:
+        sub = [r for r in rows if (r["set"], r["cfa"], r["gain"]) == (s, cfa, gain)]
+        free = [r for r in sub if r["variant"] == "defect-free"]
+        free_psnr = statistics.mean(r["psnr"] for r in free)
+        for case in CASES:
+            got = {v: [r for r in sub if r["case"] == case and r["variant"] == v] for v in ("corrected", "oracle", "off")}
+            if not got["corrected"]:
+                continue
+            m = {v: statistics.mean(r["psnr"] for r in rs) for v, rs in got.items()}
+            far = ""
+            if case == "pixels":
+                far = f"{sum(r['far_off'] for r in got['corrected'])} / {sum(r['far_off'] for r in free)}"
+            lines.append(f"| {s} | {cfa} | {gain:g} | {case} | {free_psnr:.2f} | {m['corrected']:.2f} | "
+                         f"{m['oracle']:.2f} | {m['off']:.2f} | {m['corrected'] - m['oracle']:+.3f} | "
+                         f"{m['corrected'] - free_psnr:+.3f} | {m['corrected'] - m['off']:+.2f} | {far} |")
+    return lines
+
+
+def tune(args: argparse.Namespace) -> None:
+    """PSNR of the pixels case (corrected, and the defect-free raw with the search on and off) for
+    a grid of the auto test's constants."""
+    import clisp
+    import clisp.corrections as corr
+    from clisp.metrics import psnr
+    from clisp.sim.simulate import simulate
+    original = corr.defect_test
+    from clisp.modules.sensor.stage import Z
+    grid = [(k, a, g, z) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])]
+    results: dict = {p: [] for p in grid}
+    for set_name, scene in scene_list(args):
+        for cfa in args.cfa:
+            for gain in args.gains:
+                clean = simulate(scene.image, cfa=cfa, gain=gain, seed=SEED)
+                sim = simulate_case(scene.image, cfa, gain, "pixels")
+                free_off = clisp.process(clean.raw, bad_pixels="off")
+                for p in grid:
+                    corr.defect_test = lambda raw, noise=None, p=p: (
+                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3]), "tuned")
+                    out = clisp.process(sim.raw)
+                    free = clisp.process(clean.raw)
+                    results[p].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
+                                       far_off(out, clean.truth), far_off(free_off, clean.truth), cfa, gain))
+                corr.defect_test = original
+        print(f"{scene.name} done", flush=True)
+    for p, res in results.items():
+        for cfa in args.cfa:
+            for gain in args.gains:
+                r = [x for x in res if x[5] == cfa and x[6] == gain]
+                if not r:
+                    continue
+                c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
+                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} {cfa} gain {gain:g}: corrected - defect-free "
+                      f"(search off) {c - fo:+.3f} dB, search on the defect-free raw {f - fo:+.3f} dB, far off "
+                      f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
+
+
+def false_positives(args: argparse.Namespace) -> None:
+    """Defect-free raws: the search on against off, per image (pixels the test replaced, the largest
+    output difference; the tolerance rule is 1e-5)."""
+    import clisp
+    import clisp.corrections as corr
+    from clisp.pipeline import build_pipeline
+    from clisp.engine.runtime import get_runtime
+    from clisp.sim.simulate import simulate
+    original = corr.defect_test
+    if args.z is not None:                 # another z than the stage's (--z: the first value)
+        corr.defect_test = lambda raw, noise=None: (dataclasses.replace(original(raw, noise)[0], z=args.z[0]), "z")
+    total = changed = 0
+    for set_name, scene in scene_list(args):
+        for cfa in args.cfa:
+            for gain in args.gains:
+                clean = simulate(scene.image, cfa=cfa, gain=gain, seed=SEED)
+                pipe = build_pipeline(clean.raw)
+                on = pipe.run(clean.raw.data)
+                found = pipe.corrections.pre.found(get_runtime())
+                off = clisp.process(clean.raw, bad_pixels="off")
+                err = float(np.max(np.abs(on - off) / np.maximum(1.0, np.abs(off))))
+                total += 1
+                changed += err > 1e-5
+                print(f"{set_name} {scene.name} {cfa} gain {gain:g}: {found} pixels replaced, largest difference "
+                      f"{err:.2e}{' CHANGED' if err > 1e-5 else ''}", flush=True)
+    print(f"{changed} of {total} defect-free raws changed beyond the tolerance rule (1e-5)")
+
+
+def gainmap_flatness(args: argparse.Namespace) -> None:
+    """A grey field (0.18) through a lens with shading 0.5 and its colour shading, recorded as GainMap
+    opcodes in our DNG (written and read back): the mean corner-to-centre luminance ratio, its
+    difference to the defect-free raw's (%), and the largest CIEDE2000 between an output's corner
+    colour and the defect-free output's (each corner scaled to the defect-free corner's luminance,
+    so this is the colour alone), for clisp with the opcodes, clisp --no-opcodes and rawpy's output of
+    the same DNG (LibRaw applies no opcode; Bayer only)."""
+    import tempfile
+    import clisp
+    from clisp.io.rawfile import read_raw, write_raw
+    from clisp.metrics import ciede2000
+    from clisp.sim import defects as sd
+    from clisp.sim.simulate import simulate
+    grey = np.full((args.size[1], args.size[0], 3), 0.18)
+    for cfa in args.cfa:
+        for gain in args.gains:
+            d = defects_for("gainmap")
+            clean = simulate(grey, cfa=cfa, gain=gain, seed=SEED, optics="none")
+            sim = simulate(grey, cfa=cfa, gain=gain, seed=SEED, optics="none", defects=d)
+            sim.raw.metadata["opcodes"] = sd.gain_map_opcodes(d, sim.raw.cfa, sim.raw.shape)
+            with tempfile.TemporaryDirectory() as tmp:
+                path = Path(tmp) / "gainmap.dng"
+                write_raw(path, sim.raw)
+                raw = read_raw(path)
+                outs = {"clisp": clisp.process(raw), "clisp --no-opcodes": clisp.process(raw, opcodes=False)}
+                free = clisp.process(clean.raw)
+                if cfa == "bayer":
+                    outs["rawpy (LibRaw)"] = rawpy_linear(path)
+                    free_rawpy = rawpy_linear_raw(clean.raw)
+            ref_ratio, ref_corners, _ = corner_colours(free)
+            print(f"{cfa} gain {gain:g} defect-free: corner/centre luminance {ref_ratio:.4f}")
+            for name, out in outs.items():
+                ratio, corners, _ = corner_colours(out)
+                base_ratio, base_corners = (ref_ratio, ref_corners)
+                if name.startswith("rawpy"):             # against rawpy's own defect-free output
+                    base_ratio, base_corners, _ = corner_colours(free_rawpy)
+                lum = np.array([0.2126, 0.7152, 0.0722])
+                de = max(ciede2000((c * (b @ lum) / (c @ lum))[None, None], b[None, None], clip=False)
+                         for c, b in zip(corners, base_corners))
+                print(f"{cfa} gain {gain:g} {name:<20} corner/centre luminance {ratio:.4f} "
+                      f"({100 * (ratio / base_ratio - 1):+.2f} % against the defect-free raw), corner colour "
+                      f"CIEDE2000 {de:.2f}")
+
+
+def rawpy_linear(path: Path) -> np.ndarray:
+    """rawpy's linear sRGB of a DNG: postprocess with the camera white balance, no auto-bright,
+    linear gamma, 16 bit (LibRaw applies no opcode)."""
+    import rawpy
+    with rawpy.imread(str(path)) as raw:
+        rgb = raw.postprocess(use_camera_wb=True, no_auto_bright=True, gamma=(1, 1), output_bps=16,
+                              output_color=rawpy.ColorSpace.sRGB, user_flip=0)
+    return rgb.astype(np.float64) / 65535.0
+
+
+def rawpy_linear_raw(raw) -> np.ndarray:
+    import tempfile
+    from clisp.io.rawfile import write_raw
+    with tempfile.TemporaryDirectory() as tmp:
+        write_raw(Path(tmp) / "free.dng", raw)
+        return rawpy_linear(Path(tmp) / "free.dng")
+
+
+def corner_colours(img: np.ndarray) -> tuple[float, list[np.ndarray], np.ndarray]:
+    """(mean of the 4 corners' luminance over the centre's; the 4 corner patches' mean colours; the
+    centre's): patches of 1/8 of each side, 8 px in from the edges."""
+    h, w = img.shape[:2]
+    ph, pw = h // 8, w // 8
+    def patch(y, x):
+        return img[y:y + ph, x:x + pw].reshape(-1, 3).mean(axis=0)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    centre = patch(h // 2 - ph // 2, w // 2 - pw // 2)
+    corners = [patch(8, 8), patch(8, w - pw - 8), patch(h - ph - 8, 8), patch(h - ph - 8, w - pw - 8)]
+    return float(np.mean([c @ lum for c in corners]) / (centre @ lum)), corners, centre
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    toolkit.add_data_option(p)
+    p.add_argument("--sets", type=lambda s: s.split(","), default=["kodak", "mcmaster"])
+    p.add_argument("--cfa", type=lambda s: s.split(","), default=["lms", "bayer"])
+    p.add_argument("--gains", type=lambda s: [float(v) for v in s.split(",")], default=[1.0, 16.0])
+    p.add_argument("--cases", type=lambda s: s.split(","), default=list(CASES))
+    p.add_argument("--subset", type=int, default=1, help="every Nth image of each set")
+    p.add_argument("--frames", type=int, default=16, help="dark or flat frames the corrected runs average")
+    p.add_argument("--csv", type=Path, default=None)
+    p.add_argument("--results", type=Path, default=None, help="rewrite the bench_sensor block of this Markdown file")
+    p.add_argument("--tune", action="store_true")
+    p.add_argument("--k", type=lambda s: [float(v) for v in s.split(",")], default=[6.0])
+    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=[0.0])
+    p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=[0.08])
+    p.add_argument("--z", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="the support test's noise margin(s) (default: the stage's Z)")
+    p.add_argument("--false-positives", action="store_true")
+    p.add_argument("--gainmap-flatness", action="store_true")
+    p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.tune:
+        tune(args)
+        return 0
+    if args.false_positives:
+        false_positives(args)
+        return 0
+    if args.gainmap_flatness:
+        gainmap_flatness(args)
+        return 0
+    rows = study(args)
+    text = "\n".join(summary(rows))
+    print(text)
+    if args.csv:
+        toolkit.write_csv(rows, args.csv)
+    if args.results:
+        header = (f"Measured with `python tools/bench_sensor.py {' '.join(sys.argv[1:])}` "
+                  f"({len(rows)} runs).\n\n")
+        toolkit.update_results(args.results, header + text, "bench_sensor")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
