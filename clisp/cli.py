@@ -552,6 +552,8 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
             lines.append(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
                          f"{explained['pipeline'].describe()}")
         lines.append(explain_run(explained.get("pipeline"), stats, profile))
+        if getattr(explained.get("pipeline"), "wb_explain", ""):
+            lines.append(f"explain: {explained['pipeline'].wb_explain}")
     if profile is not None and args.profile:
         wall = _process_seconds()
         lines.append(profile.report(stats.megapixels, wall))

@@ -182,7 +182,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     highlight reconstruction and the denoiser's noise model see the raw as it is.
     ``auto_exposure``: add LibRaw's auto-bright exposure, estimated from the raw (clisp.exposure).
     The pipeline's ``exposure_ev`` says what was applied. ``wb``: white balance pass 1, 'camera'
-    (as shot), 'auto' (grey pixels), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
+    (as shot), 'auto' (the scene's light, clisp.illuminant; ``Pipeline.wb_explain`` says what it
+    found), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
     ``half_size``: the preview path (``--half-size``): normalise, WB pass 1 and a 2 x 2 binning in
     one stage (clisp.modules.half_size), then highlights, colour, WB pass 2 and tone curve at half
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
@@ -248,8 +249,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     tone = tone_curve_for(output)
     if tone is not None:
         stages.append(tone)
+    explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: read-time auto
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
-                        stage_choice=choice)
+                        wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
