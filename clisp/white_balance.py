@@ -211,7 +211,7 @@ def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white
         gains, source = grey_pixel_gains(data, cfa, black_level, white_level)
         return gains, source, (f"white balance auto: {source} (no daylight multipliers, so no plausible "
                                f"lights to choose among)")
-    from .illuminant import CameraLights, block_statistics, estimate_light
+    from .illuminant import CameraLights, block_statistics, estimate_light   # deferred: only --wb auto estimates
     ref = reference_channel(cfa)
     daylight = np.asarray(daylight, dtype=np.float64) / float(daylight[ref])
     stats = block_statistics(data, cfa, black_level, white_level)

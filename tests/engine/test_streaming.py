@@ -173,9 +173,10 @@ def test_metered_tiles_are_kept_per_pipeline_and_code(tmp_path: Path, monkeypatc
     """A tile's metered bytes are kept on disk: a later plan of the same pipeline (same stages and
     parameters, device, raw dtype) reads them without a metering run and gets the same costs; other
     parameters, or an edited clisp (its code fingerprint), meter anew."""
-    from clisp.engine import disk_cache
+    from clisp.engine import disk_cache, executor
     from clisp.engine.executor import Pipeline
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
+    executor.METERED.clear()          # what this process metered before (an earlier test's pipeline) is not on this disk
     raw = make_raw("lms", shape=(301, 517))
     rt = get_runtime()
     limits = DeviceLimits(int(rt.device.global_mem_size), int(rt.device.max_mem_alloc_size))
