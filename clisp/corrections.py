@@ -36,7 +36,7 @@ import numpy as np
 from .errors import ClispError, clip
 from .io.opcodes import FixVignetteRadial, GainMap, bad_pixel_mask, opcodes_of, unapplied
 from .io.rawimage import RawImage
-from .modules.sensor.stage import (GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain)
+from .modules.sensor.stage import (FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain)
 from .sim.noise import ChannelNoise
 
 BAD_PIXEL_MODES = ("auto", "off")
@@ -91,12 +91,12 @@ class Corrections:
         floor = tuple(float(f + a) for f, a in zip(noise.floor, self.added_floor))
         return ChannelNoise(tuple(noise.shot), floor, noise.source)
 
-    def explain(self, rt: Any = None) -> str:
-        """``--explain``'s lines: what each correction did (after the run: how many pixels the auto
-        test found on ``rt``)."""
+    def explain(self, stats: Any = None) -> str:
+        """``--explain``'s lines: what each correction did (after the run, ``stats`` its RunStats:
+        how many pixels the auto test found in it; none on the reference backend)."""
         lines = [f"sensor: {note}" for note in self.notes] or ["sensor: no corrections (--bad-pixels off, no frames)"]
-        if self.pre is not None and self.pre.test is not None and rt is not None:
-            found = self.pre.found(rt)
+        if self.pre is not None and self.pre.test is not None and stats is not None:
+            found = getattr(stats, "counts", {}).get(FOUND)
             if found is not None:
                 lines.append(f"sensor: the auto test found and replaced {found} pixels")
         if self.unapplied:

@@ -14,7 +14,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.engine.stage import Origin
 from clisp.engine.tiling import gather_window
 from clisp.io.opcodes import FixVignetteRadial, GainMap
-from clisp.modules.sensor.stage import (HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
+from clisp.modules.sensor.stage import (FOUND, HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
                                         neighbour_tables)
 from clisp.pipeline import build_pipeline
 from clisp.sim import defects as sd
@@ -62,11 +62,11 @@ def test_sensor_correct_kernel_equals_reference(cfa, dtype):
     for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
                           (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36))):
         window = gather_window(x, origin[0], origin[1], shape[0], shape[1], cfa.period)
-        before = stage.found(rt) or 0
+        before = rt.read_counters().get(FOUND, 0)
         expected, found = stage.correct(window, origin)
         got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
         assert_close(got, expected, f"sensor_correct {cfa.name} at {tuple(origin)}")
-        assert stage.found(rt) - before == int(found.sum())
+        assert rt.read_counters()[FOUND] - before == int(found.sum())
         total += int(found.sum())
     assert total >= 1
 
@@ -145,10 +145,29 @@ def test_corrections_bring_the_raw_back(defective):
                           flat=sd.frames(sim.raw, d, "flat", 4, 4.0, 20))
     fixed = pipe.run(sim.raw.data)
     assert psnr(fixed, clean.truth) > psnr(off, clean.truth) + 3
-    text = pipe.corrections.explain(get_runtime())
+    text = pipe.corrections.explain(pipe.stats)
     assert "dark: 4 frames averaged, scaled by the exposure times" in text
     assert "the flat replaces the DNG's 4 gain opcodes" in text
     assert "the auto test found and replaced" in text
+
+
+def test_explain_counts_each_run_its_own_pixels():
+    """Two raws of one camera and settings in one process share the memoised schedule (and its
+    sensor stage object): each run's --explain count is its own, the count a fresh process gives."""
+    from clisp.engine.executor import SCHEDULES
+
+    def found_in(raw) -> str:
+        pipe = build_pipeline(raw, preset="balanced")
+        pipe.run(raw.data)
+        return [line for line in pipe.corrections.explain(pipe.stats).splitlines() if "found" in line][0]
+
+    raws = [simulate(scene(48, 64), cfa="bayer", gain=2, seed=5, defects=sd.SensorDefects(hot=hot, seed=s)).raw
+            for hot, s in ((0.004, 1), (0.01, 2))]
+    SCHEDULES.clear()
+    alone = found_in(raws[1])
+    SCHEDULES.clear()
+    first, second = found_in(raws[0]), found_in(raws[1])
+    assert second == alone and first != second, (first, second, alone)
 
 
 def test_no_false_corrections_on_a_smooth_raw_at_gain_64():

@@ -99,6 +99,9 @@ LANES = 8
 FIX_ROW = 256
 """sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
 
+FOUND = "sensor_found"
+"""The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
+
 CANDIDATES = 8
 """sensor_screen keeps at most one candidate per CANDIDATES pixels of a window for sensor_fix (the
 screen passes about 1-5 % of a textured mosaic's pixels at gain 1-16: README.md)."""
@@ -316,7 +319,7 @@ class SensorCorrect(Stage):
         if isinstance(following, CfaAffine):
             o, s = np.asarray(following.offset, dtype=np.float64), np.asarray(following.scale, dtype=np.float64)
             fused = replace(self, out_scale=self.out_scale * s, out_offset=(self.out_offset - o) * s)
-            fused._devices = self._devices        # one device state (and count of pixels found) for both
+            fused._devices = self._devices        # one device state for both
             return fused
         return None
 
@@ -471,7 +474,8 @@ class SensorCorrect(Stage):
 
     def _device(self, rt: Runtime) -> dict[str, Any]:
         """What the kernels read besides the window, once per runtime: the tables, the whole planes
-        the device gathers windows from, the packed terms, the counter of pixels found."""
+        the device gathers windows from, the packed terms (the count of pixels found is the run's:
+        Runtime.counter FOUND)."""
         state = self._devices.get(id(rt))
         if state is not None:
             return state
@@ -490,22 +494,8 @@ class SensorCorrect(Stage):
         for key, plane in (("mask", self.mask), ("dark", self.dark), ("flat", self.flat)):
             state[key] = rt.host_source(plane) if plane is not None else None
         if not _metering(rt):
-            flags = rt.cl.mem_flags.READ_WRITE | rt.cl.mem_flags.COPY_HOST_PTR
-            state["found"] = rt.cl.Buffer(rt.context, flags, hostbuf=np.zeros(1, np.uint32))
             self._devices[id(rt)] = state
-        else:
-            state["found"] = rt.constant(np.zeros(1, np.uint32))
         return state
-
-    def found(self, rt: Runtime) -> int | None:
-        """Pixels the auto test found in the runs on ``rt`` so far (None: no run, or no test). A pixel
-        that two skip paths of one tile computed counts once per path."""
-        state = self._devices.get(id(rt))
-        if state is None or self.test is None:
-            return None
-        count = np.zeros(1, np.uint32)
-        rt.cl.enqueue_copy(rt.queue, count, state["found"], is_blocking=True)
-        return int(count[0])
 
     def _window(self, rt: Runtime, state: dict[str, Any], key: str, origin: tuple[int, int], src: DeviceImage,
                 dtype: Any) -> tuple[Any, list[DeviceImage]]:
@@ -562,7 +552,8 @@ class SensorCorrect(Stage):
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-cap // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
-                pairs_n=state["pairs_n"], wb=state["wb"], found=state["found"]), defines, exact=False)
+                pairs_n=state["pairs_n"], wb=state["wb"],
+                found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
