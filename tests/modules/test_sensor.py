@@ -55,12 +55,16 @@ def stage_with_everything(cfa, raw_dtype=np.uint16, rng=np.random.default_rng(1)
 @pytest.mark.parametrize("cfa", [bayer_cfa(), bayer_cfa("GBRG"), lms_cfa()], ids=lambda c: c.name)
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32], ids=["uint16", "float32"])
 def test_sensor_correct_kernel_equals_reference(cfa, dtype):
-    """sensor.cl (screen, edges, fix) against the reference: every step on, whole image and a window."""
+    """sensor.cl (screen, compact, edges, fix) against the reference: every step on (the screen's
+    scalar path), then without the gain terms (its vector path, with the dark frame, flat and mask);
+    whole image and a window."""
     rt = get_runtime()
-    stage, x = stage_with_everything(cfa, dtype)
+    everything, x = stage_with_everything(cfa, dtype)
     total = 0
-    for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
-                          (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36))):
+    for stage, origin, shape in ((stage, origin, shape)
+                                 for stage in (everything, dataclasses.replace(everything, terms=None, smooth=None))
+                                 for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
+                                                       (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36)))):
         window = gather_window(x, origin[0], origin[1], shape[0], shape[1], cfa.period)
         before = rt.read_counters().get(FOUND, 0)
         expected, found = stage.correct(window, origin)

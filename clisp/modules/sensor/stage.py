@@ -543,8 +543,17 @@ class SensorCorrect(Stage):
         else:
             candidates = rt.constant(np.zeros(1, np.uint32))
             args.update(count=rt.constant(np.zeros(1, np.uint32)), cap=0)
-        rt.launch_named("sensor", "sensor_screen", -(-width // LANES), height,
-                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants())), defines, exact=False)
+        groups = -(-width // LANES)
+        flags = rt.acquire(1, height, groups, np.uint8) if screening else None
+        rt.launch_named("sensor", "sensor_screen", groups, height,
+                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants()),
+                             flags=flags if flags is not None else rt.constant(np.zeros(1, np.uint8))),
+                        defines, exact=False)
+        if flags is not None:
+            rt.launch_named("sensor", "sensor_compact", -(-groups // 64), height, dict(
+                flags=flags, list=candidates, count=count, cap=cap, width=width, height=height, groups=groups,
+                oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
+            held.append(flags)
         if self.test is not None:
             for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
                 rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
