@@ -61,8 +61,9 @@ inline float gain_after(__global const float *flat, __constant const float *term
 
 /* sensor_screen: 8 pixels of a row per work-item, over the window less the halo (2): the steps
  * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
- * frame or the black level; r: gain_after), and the candidates for sensor_fix appended to ``list``
- * (``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
+ * frame or the black level; r: gain_after), and the candidates for sensor_fix flagged in ``flags``
+ * (a byte per 8 pixels, listed by sensor_compact; the scalar path appends them to ``list`` itself,
+ * ``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
  * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
  * (at their level; at 0 for a dark one) plus SC_FLOOR plus SC_ALPHA times their range: sensor_fix's

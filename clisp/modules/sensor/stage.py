@@ -6,7 +6,8 @@ Two stages, one at each end of the colour pipeline::
     sensor_screen             3         1  first stage, on the raw mosaic (DN in): OpcodeList1's gains,
                                            the dark frame (or the black level), the flat field and
                                            OpcodeList2's gains less their smooth part G; candidates
-                                           for the defect test listed
+                                           for the defect test flagged (a bit per pixel)
+    sensor_compact            0         1  the flagged pixels listed
     sensor_edges              0       0-4  the window's pixels near the image's edge, listed
     sensor_fix                3         1  each candidate: the defect test against the noise model
                                            (or the known bad pixels), and its replacement
