@@ -4,6 +4,7 @@ what they do to raws with and without defects (clisp.corrections, the pipeline).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -73,6 +74,16 @@ def test_sensor_correct_kernel_equals_reference(cfa, dtype):
         assert rt.read_counters()[FOUND] - before == int(found.sum())
         total += int(found.sum())
     assert total >= 1
+
+
+def test_reference_quiet_outside_the_image():
+    """A window wholly outside the image (a tile's margin past the edge): no neighbour is inside, so
+    nothing is tested, and NumPy warns of nothing (an All-NaN slice before)."""
+    stage, _ = stage_with_everything(bayer_cfa())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = stage.reference(np.full((12, 14), 300.0), Origin(H + 4, W + 4, (H, W)))
+    assert out.shape == (6, 8) and np.isfinite(out).all()
 
 
 def test_screen_misses_nothing_the_test_finds():

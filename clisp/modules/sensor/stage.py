@@ -383,9 +383,10 @@ class SensorCorrect(Stage):
             est, y_bar, w_bar = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
             if self.test is not None and offs:
                 vals = np.stack([np.where(masked(*o), np.nan, w_at(*o)) for o in offs])
-                used = np.any(~np.isnan(vals), axis=0)
-                with np.errstate(all="ignore"):
-                    hi, lo = np.nanmax(vals, axis=0), np.nanmin(vals, axis=0)
+                missing = np.isnan(vals)                 # masked, or outside the image
+                used = np.any(~missing, axis=0)          # without any (a window outside the image): 0, not tested
+                hi = np.where(used, np.max(np.where(missing, -np.inf, vals), axis=0), 0.0)
+                lo = np.where(used, np.min(np.where(missing, np.inf, vals), axis=0), 0.0)
                 up, uhi, ulo = w * inv_range[c], hi * inv_range[c], lo * inv_range[c]
                 spread = t.alpha * (uhi - ulo) + FLOOR
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
