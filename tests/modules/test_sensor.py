@@ -200,6 +200,30 @@ def test_fast_preset_searches_only_when_asked(defective):
     assert build_pipeline(sim.raw, preset="balanced", opcodes=False).corrections.pre.test is not None
 
 
+def test_frames_read_once_a_process(tmp_path, defective, monkeypatch):
+    """Two raws of one process with the same dark and flat files: the frames are read for the first
+    only (the second's masters are the first's); a frame file written again is read again."""
+    import os
+    import clisp.io.rawfile as rawfile
+    d, sim, _ = defective
+    paths = {}
+    for kind in ("dark", "flat"):
+        paths[kind] = [str(tmp_path / f"{kind}{i}.dng") for i in range(2)]
+        for path, frame in zip(paths[kind], sd.frames(sim.raw, d, kind, 2, 4.0, 30)):
+            rawfile.write_raw(path, frame)
+    reads = []
+    real = rawfile.read_raw
+    monkeypatch.setattr(rawfile, "read_raw", lambda path, lazy=False: reads.append(path) or real(path, lazy))
+    first = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert len(reads) == 4
+    second = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert len(reads) == 4 and second.notes == first.notes
+    assert np.array_equal(second.pre.dark, first.pre.dark) and np.array_equal(second.pre.flat, first.pre.flat)
+    os.utime(paths["dark"][1], ns=(1, 1))                    # "written again": another modification time
+    sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert reads[4:] == paths["dark"]
+
+
 def test_map_file_used_as_given(tmp_path, defective):
     from clisp.corrections import read_bad_pixel_map, write_bad_pixel_map
     d, sim, _ = defective
