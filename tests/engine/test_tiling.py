@@ -155,7 +155,7 @@ def untiled(kind: str, dtype, output: str, backend: str) -> np.ndarray:
     key = (kind, dtype, output, backend)
     if key not in _UNTILED:
         raw = make_raw(kind, dtype)
-        pipeline = build_pipeline(raw, demosaic="bilinear", output=output, denoise=False)
+        pipeline = build_pipeline(raw, demosaic="bilinear", output=output, denoise=False, bad_pixels="off")
         _UNTILED[key] = pipeline.run(raw.data, tile=None, backend=backend)
         assert pipeline.stats.tiles == 1
     return _UNTILED[key]
@@ -171,7 +171,11 @@ CASES = [(kind, dtype, output) for kind in ("lms", "bayer") for dtype in (np.uin
                          ids=[f"{k}-{d.__name__}-{o}" for k, d, o in CASES])
 def test_tiled_equals_untiled(kind, dtype, output, backend, tile):
     raw = make_raw(kind, dtype)
-    pipeline = build_pipeline(raw, demosaic="bilinear", output=output, denoise=False)
+    # bad_pixels off: on uniform noise the search replaces about 7 % of the pixels, each along the
+    # same-channel pair that differs least, and pairs that tie on integer data can be chosen
+    # differently in float32 and float64 (1e-5 off the reference); the sensor stage's own tests
+    # (tests/modules/test_sensor.py) cover its tiling on raws with sparse defects
+    pipeline = build_pipeline(raw, demosaic="bilinear", output=output, denoise=False, bad_pixels="off")
     tiled = pipeline.run(raw.data, tile=tile, backend=backend)
     assert tiled.shape == IMAGE_SHAPE + (3,) and tiled.dtype == np.float32
     step = tile // raw.cfa.period * raw.cfa.period
@@ -192,7 +196,7 @@ def test_untiled_opencl_matches_reference(kind):
 def test_unaligned_tile_size_reference():
     """A tile size that is not a multiple of the CFA period is rounded down, output unchanged."""
     raw = make_raw("lms", np.float32)
-    pipeline = build_pipeline(raw, demosaic="bilinear", output="linear", denoise=False)
+    pipeline = build_pipeline(raw, demosaic="bilinear", output="linear", denoise=False, bad_pixels="off")
     tiled = pipeline.run(raw.data, tile=70, backend="reference")       # step 68
     assert pipeline.stats.tiles == -(-301 // 68) * -(-517 // 68)
     assert_close(tiled, untiled("lms", np.float32, "linear", "reference"), "tile 70")

@@ -289,106 +289,110 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
                          __constant const char *restrict pairs, __constant const char *restrict pairs_n,
                          __constant const float *restrict wb, __global uint *restrict found)
 {
-    const uint j0 = get_global_id(1) * get_global_size(0) + get_global_id(0);   /* the list, row by row */
-    if (j0 >= min(*count, cap))
-        return;
-    const int p = (int)list[j0];
-    const int y = p / width, x = p - y * width;
-    const int sw = width + 2 * SC_HALO;
-    const int gy = y + SC_HALO + oy, gx = x + SC_HALO + ox;
-    const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
-    const int k = py * CFA_PERIOD + px;
-    const int c = pattern[k];
-    const int i = (y + SC_HALO) * sw + x + SC_HALO;
+    /* the list, row by row; a work-item takes every stride-th entry, so a list longer than the launch
+     * (a mosaic of noise, where most pixels pass the screen) is still fixed whole */
+    const uint total = min(*count, cap), stride = get_global_size(0) * get_global_size(1);
+    for (uint j0 = get_global_id(1) * get_global_size(0) + get_global_id(0); j0 < total; j0 += stride) {
+        const int p = (int)list[j0];
+        const int y = p / width, x = p - y * width;
+        const int sw = width + 2 * SC_HALO;
+        const int gy = y + SC_HALO + oy, gx = x + SC_HALO + ox;
+        const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
+        const int k = py * CFA_PERIOD + px;
+        const int c = pattern[k];
+        const int i = (y + SC_HALO) * sw + x + SC_HALO;
 #if SC_TERMS
-    const float g1 = list_gain(terms, maps, 1, gy, gx);
+        const float g1 = list_gain(terms, maps, 1, gy, gx);
 #else
-    const float g1 = 1.0f;
+        const float g1 = 1.0f;
 #endif
-    const float w = W_AT(i);
+        const float w = W_AT(i);
 #if SC_MASK
-    int bad = mask[i] != 0;
+        int bad = mask[i] != 0;
 #else
-    int bad = 0;
+        int bad = 0;
 #endif
-    const int n = nb_n[k];
-    __constant const char *o = nb + 2 * k * SC_NB_MAX;
+        const int n = nb_n[k];
+        __constant const char *o = nb + 2 * k * SC_NB_MAX;
 #define OUTSIDE(j) (gy + o[2 * (j)] < 0 || gy + o[2 * (j)] >= img_h || gx + o[2 * (j) + 1] < 0 || gx + o[2 * (j) + 1] >= img_w)
 #if SC_MASK
 #define SKIP(q, j) (OUTSIDE(j) || mask[q])
 #else
 #define SKIP(q, j) OUTSIDE(j)
 #endif
-    const float wbc = wb[c], s = inv_range[c];
+        const float wbc = wb[c], s = inv_range[c];
 #if SC_DETECT
-    int extreme = 0;
-    if (!bad) {                      /* first the cheap test over every same-channel neighbour */
-        float hi = -INFINITY, lo = INFINITY;
-        int used = 0;
-        for (int j = 0; j < n; j++) {
-            const int q = i + o[2 * j] * sw + o[2 * j + 1];
-            if (SKIP(q, j))
+        int extreme = 0;
+        if (!bad) {                      /* first the cheap test over every same-channel neighbour */
+            float hi = -INFINITY, lo = INFINITY;
+            int used = 0;
+            for (int j = 0; j < n; j++) {
+                const int q = i + o[2 * j] * sw + o[2 * j + 1];
+                if (SKIP(q, j))
+                    continue;
+                const float wq = W_AT(q);
+                hi = fmax(hi, wq);
+                lo = fmin(lo, wq);
+                used++;
+            }
+            const float up = w * s, uhi = hi * s, ulo = lo * s;
+            const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
+            const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
+            const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
+            extreme = used && (hot > 0.0f || cold > 0.0f);
+            if (!extreme)
                 continue;
-            const float wq = W_AT(q);
-            hi = fmax(hi, wq);
-            lo = fmin(lo, wq);
-            used++;
         }
-        const float up = w * s, uhi = hi * s, ulo = lo * s;
-        const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
-        const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
-        const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
-        extreme = used && (hot > 0.0f || cold > 0.0f);
-        if (!extreme)
-            return;
-    }
 #endif
-    const float yp = y_near(src, pattern, black, inv_range, wb, dark, g1, i, sw, gy, gx);
-    float best = INFINITY, est = 0.0f, ybar = 0.0f, wbar = 0.0f;
-    __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
-    for (int j = 0; j < pairs_n[k]; j++) {
-        const int a = pr[2 * j], b = pr[2 * j + 1];
-        const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
-        if (SKIP(qa, a) || SKIP(qb, b))
+        const float yp = y_near(src, pattern, black, inv_range, wb, dark, g1, i, sw, gy, gx);
+        float best = INFINITY, est = 0.0f, ybar = 0.0f, wbar = 0.0f;
+        __constant const char *pr = pairs + 2 * k * SC_PAIRS_MAX;
+        for (int j = 0; j < pairs_n[k]; j++) {
+            const int a = pr[2 * j], b = pr[2 * j + 1];
+            const int qa = i + o[2 * a] * sw + o[2 * a + 1], qb = i + o[2 * b] * sw + o[2 * b + 1];
+            if (SKIP(qa, a) || SKIP(qb, b))
+                continue;
+            const float wa = W_AT(qa), wb_ = W_AT(qb);
+            const float ya = y_near(src, pattern, black, inv_range, wb, dark, g1, qa, sw, gy + o[2 * a], gx + o[2 * a + 1]);
+            const float yb = y_near(src, pattern, black, inv_range, wb, dark, g1, qb, sw, gy + o[2 * b], gx + o[2 * b + 1]);
+            const float d = fabs(wa - wb_) * s + fabs(ya - yb) / wbc;
+            if (d < best) {
+                best = d;
+                ybar = 0.5f * (ya + yb);
+                wbar = 0.5f * (wa + wb_);
+                est = wbar + (yp - ybar) / (wbc * s);
+            }
+        }
+        if (best == INFINITY) {
+            float sum = 0.0f;
+            int good = 0;
+            for (int j = 0; j < n; j++) {
+                const int q = i + o[2 * j] * sw + o[2 * j + 1];
+                if (SKIP(q, j))
+                    continue;
+                sum += W_AT(q);
+                good++;
+            }
+            est = good ? sum / (float)good : w;
+        }
+#if SC_DETECT
+        if (!bad && extreme) {
+            /* the support test: how much of the excess over the pair the 4 nearest pixels carry */
+            const float excess = (w - wbar) * s * wbc;
+            /* the noise of Y(p) - Y(pair) (4 and 8 samples of about the pixel's channel): the support
+             * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
+             * look unsupported */
+            const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
+            bad = fabs(excess) > 0.0f && (best == INFINITY || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
+                                          + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
+            if (bad && gy >= 0 && gy < img_h && gx >= 0 && gx < img_w)    /* a mirrored copy is no pixel */
+                atomic_inc(found);
+        }
+#endif
+        if (!bad)
             continue;
-        const float wa = W_AT(qa), wb_ = W_AT(qb);
-        const float ya = y_near(src, pattern, black, inv_range, wb, dark, g1, qa, sw, gy + o[2 * a], gx + o[2 * a + 1]);
-        const float yb = y_near(src, pattern, black, inv_range, wb, dark, g1, qb, sw, gy + o[2 * b], gx + o[2 * b + 1]);
-        const float d = fabs(wa - wb_) * s + fabs(ya - yb) / wbc;
-        if (d < best) {
-            best = d;
-            ybar = 0.5f * (ya + yb);
-            wbar = 0.5f * (wa + wb_);
-            est = wbar + (yp - ybar) / (wbc * s);
-        }
+        dst[p] = est * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx) * out_scale[c] + out_offset[c];
+#undef OUTSIDE
+#undef SKIP
     }
-    if (best == INFINITY) {
-        float sum = 0.0f;
-        int good = 0;
-        for (int j = 0; j < n; j++) {
-            const int q = i + o[2 * j] * sw + o[2 * j + 1];
-            if (SKIP(q, j))
-                continue;
-            sum += W_AT(q);
-            good++;
-        }
-        est = good ? sum / (float)good : w;
-    }
-#if SC_DETECT
-    if (!bad && extreme) {
-        /* the support test: how much of the excess over the pair the 4 nearest pixels carry */
-        const float excess = (w - wbar) * s * wbc;
-        /* the noise of Y(p) - Y(pair) (4 and 8 samples of about the pixel's channel): the support
-         * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
-         * look unsupported */
-        const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
-        bad = fabs(excess) > 0.0f && (best == INFINITY || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
-                                      + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
-        if (bad)
-            atomic_inc(found);
-    }
-#endif
-    if (!bad)
-        return;
-    dst[p] = est * gain_after(flat, terms, maps, grid, gh, gw, inv_cell, i, c, gy, gx) * out_scale[c] + out_offset[c];
 }

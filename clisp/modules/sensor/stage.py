@@ -104,8 +104,11 @@ FOUND = "sensor_found"
 """The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
 
 CANDIDATES = 8
-"""sensor_screen keeps at most one candidate per CANDIDATES pixels of a window for sensor_fix (the
-screen passes about 1-5 % of a textured mosaic's pixels at gain 1-16: README.md)."""
+"""sensor_fix runs one work-item per CANDIDATES pixels of a window, each taking every so-many-th
+entry of the candidates list (the screen passes about 1-5 % of a textured mosaic's pixels at gain
+1-16: README.md). The list itself has room for every pixel: a mosaic of noise passes most of them,
+and a list that drops some (in the order of the atomic appends) would make the output vary from
+run to run."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -534,7 +537,8 @@ class SensorCorrect(Stage):
                     gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], img_h=extent[0], img_w=extent[1])
         defines = self.defines(src.dtype)
         screening = self.test is not None or self.mask is not None
-        cap = max(1024, width * height // CANDIDATES)
+        cap = width * height                        # every pixel may be a candidate
+        fix_items = max(1024, cap // CANDIDATES)
         if screening:
             count = rt.acquire(1, 1, 1, np.uint32)
             candidates = rt.acquire(1, 1, cap, np.uint32)
@@ -561,7 +565,7 @@ class SensorCorrect(Stage):
                 rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
                                 width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
         if screening:
-            rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-cap // FIX_ROW), dict(
+            rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
                 pairs_n=state["pairs_n"], wb=state["wb"],
                 found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
@@ -573,16 +577,21 @@ class SensorCorrect(Stage):
 def edge_strips(origin: tuple[int, int], width: int, height: int,
                 extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
     """(y0, x0, rows, cols) in output coordinates of the output window's pixels within RADIUS of the
-    image's edge (an output window of ``width`` x ``height`` whose pixel (0, 0) is image pixel
-    origin + HALO): the rows along the top and bottom, then the columns between them, each pixel once.
+    image's edge or beyond it (the mirrored pixels a later stage's halo reads; an output window of
+    ``width`` x ``height`` whose pixel (0, 0) is image pixel origin + HALO): the rows along the top
+    and bottom, then the columns between them, each pixel once. The screen leaves these pixels out;
+    sensor_fix tests them with the neighbours inside the image only, as the reference does.
 
+    >>> edge_strips((-4, -3), 10, 8, (8, 10))       # one row above the image
+    [(0, 0, 3, 10), (7, 0, 1, 10), (3, 0, 4, 2), (3, 8, 4, 2)]
     >>> edge_strips((-3, -3), 10, 8, (8, 10))
     [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
     """
     ty, tx = origin[0] + HALO, origin[1] + HALO
     out = []
     top, bottom = 0, height                   # the rows the row strips leave to the column strips
-    for lo, hi, is_top in ((0, RADIUS, True), (extent[0] - RADIUS, extent[0], False)):
+    far = 1 << 30                              # pixels beyond the image (a later stage's halo) count too
+    for lo, hi, is_top in ((-far, RADIUS, True), (extent[0] - RADIUS, far, False)):
         a, b = max(lo - ty, 0), min(hi - ty, height)
         if b > a:
             out.append((a, 0, b - a, width))
@@ -590,7 +599,7 @@ def edge_strips(origin: tuple[int, int], width: int, height: int,
                 top = max(top, b)
             else:
                 bottom = min(bottom, a)
-    for lo, hi in ((0, RADIUS), (extent[1] - RADIUS, extent[1])):
+    for lo, hi in ((-far, RADIUS), (extent[1] - RADIUS, far)):
         a, b = max(lo - tx, 0), min(hi - tx, width)
         if b > a and bottom > top:
             out.append((top, a, bottom - top, b - a))
