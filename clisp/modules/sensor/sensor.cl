@@ -16,6 +16,7 @@
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
  *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
+ *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
  */
 
 #include "sensor.h"
@@ -239,17 +240,22 @@ __kernel void sensor_compact(__global const uchar *restrict flags, __global uint
 }
 
 /* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
- * window's pixels within 2 of the image's edge: sensor_fix tests them with the neighbours inside the
- * image only). Halo 0; one work-item per pixel, bounds checked. */
+ * window's pixels within 2 of the image's edge and beyond it: sensor_fix tests them with the
+ * neighbours inside the image only). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
+ * atomic for them (an atomic per pixel made the strips beyond the image cost as much as the
+ * screen), bounds checked. */
 __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
                            const int width, const int y0, const int x0, const int rows, const int cols)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= cols || y >= rows)
+    const int xs = get_global_id(0) * SC_EDGE_RUN, y = get_global_id(1);
+    if (xs >= cols || y >= rows)
         return;
-    const uint k = atomic_inc(count);
-    if (k < cap)
-        list[k] = (uint)((y0 + y) * width + x0 + x);
+    const int m = min(SC_EDGE_RUN, cols - xs);
+    const uint k = atomic_add(count, (uint)m);
+    const uint p = (uint)((y0 + y) * width + x0 + xs);
+    for (int j = 0; j < m; j++)
+        if (k + j < cap)
+            list[k + j] = p + j;
 }
 
 /* y_near: Y at window index q (image pixel (gy, gx)): the mean of its 4 nearest pixels, each

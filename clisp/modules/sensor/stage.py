@@ -100,6 +100,9 @@ LANES = 8
 FIX_ROW = 256
 """sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
 
+EDGE_RUN = 64
+"""Pixels of a row each work-item of sensor_edges appends, with one atomic (sensor.cl's SC_EDGE_RUN)."""
+
 FOUND = "sensor_found"
 """The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
 
@@ -460,7 +463,7 @@ class SensorCorrect(Stage):
                 "SC_MASK": int(self.mask is not None),
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
-                "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE,
+                "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE, "SC_EDGE_RUN": EDGE_RUN,
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
                 "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
@@ -562,7 +565,7 @@ class SensorCorrect(Stage):
             held.append(flags)
         if self.test is not None:
             for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
-                rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
+                rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(list=candidates, count=count, cap=cap,
                                 width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
