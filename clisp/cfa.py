@@ -21,10 +21,19 @@ A CFA has two independent properties, and each stage reads the one it depends on
   the colour pipeline: the simulated camera's constants (colour matrix, white balance), the
   chroma denoiser's space.
 * ``layout`` (from the pattern): 'bayer' (2 x 2 with one channel doubled on a diagonal, the other
-  two once each), 'lms' (the paper's 4 x 4, any phase) or 'other'. It picks the demosaic.
+  two once each: any channel may be the doubled one), 'lms' (the paper's 4 x 4, any phase) or
+  'other'. It picks the demosaic.
 
-``kind`` names the pair: 'lms' (LMS on the 4 x 4), 'bayer' (RGB on 2 x 2), 'lms-bayer' (L, M, S on
-the Bayer layout: L where R was, M where G was, S where B was), else '<spectral>-<layout>'.
+``kind`` names the pair: 'lms' (LMS on the 4 x 4), 'bayer' (RGB on 2 x 2, G doubled), 'lms-bayer'
+(L, M, S on the Bayer layout: L where R was, M where G was, S where B was), 'lms-bayer-double-l'
+(the Bayer layout with L doubled, the paper's "double L" step applied there: ``ML/LS``), likewise
+'<spectral>-bayer-double-<letter>' for another doubled channel, else '<spectral>-<layout>'.
+
+The Bayer demosaics read a Bayer layout by *roles* (:meth:`CFA.bayer_roles`): the doubled channel
+plays G, the other two R and B (in channel order). RGB Bayer and lms-bayer have the roles of their
+channel order (R, G, B and L, M, S); ``ML/LS`` reads L as G, M as R, S as B. A demosaic works on
+the CFA relabelled by roles (:meth:`CFA.role_cfa`) and hands its output back in the CFA's channel
+order (:meth:`CFA.role_matrix`).
 """
 from __future__ import annotations
 
@@ -86,11 +95,47 @@ class CFA:
 
     def bayer_phase(self, origin: tuple[int, int] = (0, 0)) -> str:
         """The Bayer phase name (RGGB, GRBG, GBRG or BGGR) of a window whose pixel (0, 0) is image pixel
-        ``origin``, channels 0, 1, 2 read as R, G, B (L, M, S on lms-bayer). ClispError unless the
-        layout is 'bayer'."""
+        ``origin``, the channels read by their roles (:meth:`bayer_roles`: L, M, S on lms-bayer as R, G,
+        B; on ``ML/LS`` M, L, S). ClispError unless the layout is 'bayer'."""
+        roles = self.role_cfa()
+        return "".join("RGB"[int(c)] for c in roles.channel_map(2, 2, origin).ravel())
+
+    @property
+    def bayer_roles(self) -> tuple[int, int, int]:
+        """(r, g, b): the channel indices a Bayer demosaic reads as R, G and B: g the channel doubled on a
+        diagonal, r and b the other two in channel order. (0, 1, 2) for RGB Bayer and lms-bayer, (1, 0, 2)
+        for ``ML/LS``. ClispError unless the layout is 'bayer'.
+
+        >>> cfa_from_name("ML/LS").bayer_roles
+        (1, 0, 2)
+        """
         if self.layout != "bayer":
-            raise ClispError(f"CFA {self.name} does not have the Bayer layout (2x2, channel 1 doubled on a diagonal)")
-        return "".join("RGB"[int(c)] for c in self.channel_map(2, 2, origin).ravel())
+            raise ClispError(f"CFA {self.name} does not have the Bayer layout (2x2, one channel doubled on a diagonal)")
+        g = doubled_channel(self.pattern)
+        r, b = (c for c in range(3) if c != g)
+        return r, g, b
+
+    def role_cfa(self) -> "CFA":
+        """This CFA with each channel replaced by its role index (:meth:`bayer_roles`; 0 R, 1 G, 2 B) and
+        channels named in role order: what a Bayer demosaic reads. ``self`` when the roles are the
+        channel order (RGB Bayer, lms-bayer)."""
+        roles = self.bayer_roles
+        if roles == (0, 1, 2):
+            return self
+        role_of = np.argsort(roles)                        # channel -> its role
+        pattern = role_of[self.pattern].astype(np.int8)
+        channels = tuple(self.channels[c] for c in roles)
+        return CFA(name=f"{self.name} (roles {''.join(channels)})", kind="bayer", channels=("R", "G", "B"),
+                   pattern=pattern)
+
+    def role_matrix(self) -> np.ndarray:
+        """(3, 3) permutation taking a Bayer demosaic's output in role order (R, G, B) to this CFA's
+        channel order: out[c] = sum_k role_matrix[c, k] roles_out[k]; the identity for RGB Bayer and
+        lms-bayer."""
+        perm = np.zeros((3, 3))
+        for role, channel in enumerate(self.bayer_roles):
+            perm[channel, role] = 1.0
+        return perm
 
     def channel_map(self, height: int, width: int, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
         """Channel index of every pixel of an H x W window whose (0, 0) is image pixel ``origin``.
@@ -139,16 +184,27 @@ def spectral_of(channels: tuple[str, ...]) -> str:
     return next((name for name, names in CHANNEL_SETS.items() if tuple(channels) == names), "other")
 
 
+def doubled_channel(pattern: np.ndarray) -> int | None:
+    """The channel of a 2 x 2 pattern of indices 0, 1, 2 that sits twice on a diagonal while the other
+    two sit once each, else None (another shape, a channel missing, the pair on a row or column)."""
+    pattern = np.asarray(pattern)
+    if pattern.shape != (2, 2):
+        return None
+    counts = np.bincount(pattern.ravel().astype(np.int64), minlength=3)
+    if len(counts) != 3 or sorted(counts.tolist()) != [1, 1, 2]:
+        return None
+    g = int(np.argmax(counts))
+    return g if pattern[0, 0] == pattern[1, 1] == g or pattern[0, 1] == pattern[1, 0] == g else None
+
+
 def layout_of(pattern: np.ndarray) -> str:
-    """The layout of a (p, p) pattern of channel indices 0, 1, 2: 'bayer' (2 x 2, channel 1 twice on a
-    diagonal, 0 and 2 once: the Bayer demosaics read them as R, G, B), 'lms' (a translate of LMS_TILE:
-    channel 0 on half the pixels, 1 on 3/8, 2 on 1/8) or 'other' (any other pattern, such as L doubled
-    on 2 x 2: the any-CFA demosaic serves it)."""
+    """The layout of a (p, p) pattern of channel indices 0, 1, 2: 'bayer' (2 x 2, one channel twice on a
+    diagonal, the other two once: the Bayer demosaics read them by role, CFA.bayer_roles), 'lms' (a
+    translate of LMS_TILE: channel 0 on half the pixels, 1 on 3/8, 2 on 1/8) or 'other' (any other
+    pattern, such as L twice on a row of the 2 x 2: the any-CFA demosaic serves it)."""
     pattern = np.asarray(pattern)
     if pattern.shape == (2, 2):
-        counts = np.bincount(pattern.ravel().astype(np.int64), minlength=3)
-        diagonal = pattern[0, 0] == pattern[1, 1] == 1 or pattern[0, 1] == pattern[1, 0] == 1
-        return "bayer" if counts.tolist() == [1, 2, 1] and diagonal else "other"
+        return "bayer" if doubled_channel(pattern) is not None else "other"
     if pattern.shape == (4, 4):
         for dy in range(4):
             for dx in range(4):
@@ -159,11 +215,23 @@ def layout_of(pattern: np.ndarray) -> str:
 
 def make_kind(channels: tuple[str, ...], pattern: np.ndarray) -> str:
     """The ``kind`` of a CFA with these channels and pattern (module doc): 'lms', 'bayer', 'lms-bayer',
-    else '<spectral>-<layout>'."""
+    '<spectral>-bayer-double-<letter>' (the Bayer layout with another channel than the second doubled:
+    'lms-bayer-double-l' for ``ML/LS``), else '<spectral>-<layout>'."""
     spectral = spectral_of(channels)
     layout = layout_of(pattern)
+    if layout == "bayer" and doubled_channel(pattern) != 1:
+        return f"{spectral}-bayer-double-{channels[doubled_channel(pattern)].lower()}"
     named = {("lms", "lms"): "lms", ("rgb", "bayer"): "bayer", ("lms", "bayer"): "lms-bayer"}
     return named.get((spectral, layout), f"{spectral}-{layout}")
+
+
+def kind_before_issue45(cfa: CFA) -> str:
+    """The kind clisp gave ``cfa`` before the Bayer layout took any doubled channel (issue 45): a 2 x 2
+    with L (or R, B) doubled on a diagonal was '<spectral>-other'. Raw files written then store it;
+    their reader accepts it (clisp.io.rawfile)."""
+    if cfa.layout == "bayer" and doubled_channel(cfa.pattern) != 1:
+        return f"{cfa.spectral}-other"
+    return cfa.kind
 
 
 def lms_cfa(phase: tuple[int, int] = (0, 0)) -> CFA:

@@ -36,6 +36,8 @@ from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOS
 from .sim.colorimetry import srgb_decode
 from .sim.noise import GAIN_MAX, GAIN_MIN
 from .sim.simulate import simulate, simulate_large
+from .sim import defects as sd
+from .sim.defects import SensorDefects
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
 # they use them, to keep `import clisp.cli` light (issue 11).
 
@@ -58,7 +60,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cfa", default="lms",
                    help="lms or bayer (also bayer-grbg, bayer-gbrg, bayer-bggr, lms@dy,dx), lms-bayer (L, M, S on "
                         "the RGGB layout; lms-bayer-grbg, ...) or a pattern string of L, M, S or R, G, B letters, "
-                        "rows joined by '/' (LMMS, LMLS/MLML/LSLM/MLML)")
+                        "rows joined by '/' (LMMS, ML/LS: L doubled on the Bayer layout, LMLS/MLML/LSLM/MLML)")
     noise = p.add_mutually_exclusive_group()
     noise.add_argument("--gain", type=float, default=None, help="analog gain 1..64 (default 1)")
     noise.add_argument("--noiseless", action="store_true", help="no noise, no quantisation, no clipping (float raw)")
@@ -104,7 +106,6 @@ def _add_sensor_defect_options(p: argparse.ArgumentParser) -> None:
 
 def _sensor_defects(args: argparse.Namespace):
     """The SensorDefects simulate's options ask for, or None; ClispError for a malformed value."""
-    from .sim.defects import SensorDefects
     values: dict = {}
 
     def number(option: str, text: str, what: str) -> float:
@@ -206,9 +207,9 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 def _add_sensor_options(p: argparse.ArgumentParser) -> None:
     """process's sensor corrections (clisp.corrections)."""
     p.add_argument("--bad-pixels", default=None, metavar="auto|off|MAP",
-                   help="defective pixels: auto (default; preset fast: off) finds them against the sensor's noise "
-                        "model and replaces them from neighbours of their channel, with the DNG's FixBadPixels "
-                        "lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
+                   help="defective pixels: auto (default; off for preset fast and --half-size) finds them "
+                        "against the sensor's noise model and replaces them from neighbours of their channel, "
+                        "with the DNG's FixBadPixels lists; MAP is a file of 'column row' lines (dcraw's format) used as given, no search; "
                         "off: none")
     p.add_argument("--dark", action="append", default=[], metavar="DARK",
                    help="a dark frame (same camera, exposure and ISO, no light; a raw file, or a folder of "
@@ -399,7 +400,6 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
     raw as a camera would (GainMap, FixBadPixelsList); the note for simulate's line."""
     if defects is None:
         return ""
-    from .sim import defects as sd
     ops = []
     if args.gainmap:
         ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)
@@ -552,6 +552,8 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
             lines.append(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
                          f"{explained['pipeline'].describe()}")
         lines.append(explain_run(explained.get("pipeline"), stats, profile))
+        if getattr(explained.get("pipeline"), "wb_explain", ""):
+            lines.append(f"explain: {explained['pipeline'].wb_explain}")
     if profile is not None and args.profile:
         wall = _process_seconds()
         lines.append(profile.report(stats.megapixels, wall))

@@ -10,10 +10,11 @@
   is a map file used as given, with those lists and without the search (dcraw's format: ``column
   row`` per line, ``#`` comments, further columns ignored; coordinates of the mosaic ``clisp info``
   describes); 'off' corrects none, not even the DNG's lists.
-* **dark frame** (``dark``: paths, one or several, averaged; each read once a process: the
-  next input of the same size, CFA and levels reuses the average while the files are unchanged): the per-pixel dark
-  level replaces the black level; scaled by the exposure times when both raws state them; refused
-  (one line naming both files) unless size, CFA, black and white levels match the raw's.
+* **dark frame** (``dark``: paths, one or several, averaged; each read once a process: the next
+  input of the same size, CFA and levels reuses the average while the files are unchanged): the
+  per-pixel dark level replaces the black level; scaled by the exposure times when both raws state
+  them; refused (one line naming both files) unless size, CFA, black and white levels match the
+  raw's.
 * **flat field** (``flat``: paths, averaged): each less its black level, normalised per channel to
   its brightest region (FLAT_BLOCK px blocks: the optical centre gets gain 1, as a GainMap's), the
   raw multiplied by its inverse, unsmoothed (so it also removes PRNU); size and CFA must match.
@@ -36,10 +37,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import ClispError, clip
-from .io.opcodes import FixVignetteRadial, GainMap, bad_pixel_mask, opcodes_of, unapplied
+from .io.opcodes import (FixVignetteRadial, GainMap, bad_pixel_mask, gain_map_at, opcodes_of, selects, unapplied,
+                         vignette_at)
 from .io.rawimage import RawImage
-from .modules.sensor.stage import (FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain)
-from .sim.noise import ChannelNoise
+from .modules.sensor.stage import (FLOOR, FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade,
+                                   SmoothGain, neighbour_tables)
+from .sim.noise import ChannelNoise, NoiseModel
+from .io.rawfile import read_raw
+from .modules.highlights.stage import clip_thresholds_dn
 
 BAD_PIXEL_MODES = ("auto", "off")
 """``--bad-pixels`` keywords; anything else is a map file."""
@@ -208,7 +213,6 @@ def dark_shot_floor(raw: RawImage) -> np.ndarray | None:
     sensor, gain = md.get("sensor"), md.get("gain")
     if not isinstance(sensor, dict) or gain is None or not sensor.get("dark_current"):
         return None
-    from .sim.noise import NoiseModel
     n_fs = NoiseModel.from_dict(md.get("noise") or {}).full_scale_electrons(float(gain))
     electrons = float(sensor["dark_current"]) * float(sensor.get("exposure_time", 0.0))
     w = raw.pass1_gains()
@@ -232,12 +236,12 @@ def defect_test(raw: RawImage, noise: Any = None) -> tuple[DefectTest, str]:
     gains = raw.pass1_gains()
     if model is not None:
         source = getattr(model, "source", "model")
-        if getattr(model, "is_zero", False):
-            return DefectTest.noiseless(raw.cfa.n_channels, gains), "noiseless"
-        return DefectTest.from_noise(model, gains), {"model": "the sensor model", "estimate": "estimated from the raw"}.get(source, source)
+        if not getattr(model, "is_zero", False):
+            return DefectTest.from_noise(model, gains), {"model": "the sensor model", "estimate": "estimated from the raw"}.get(source, source)
     n = raw.cfa.n_channels
+    what = "noiseless" if model is not None else "none in the raw"
     return (DefectTest((1.0 / FALLBACK_ELECTRONS,) * n, (FALLBACK_FLOOR,) * n, tuple(float(v) for v in gains)),
-            f"none in the raw, a {FALLBACK_ELECTRONS:g} e- sensor assumed")
+            f"{what}, a {FALLBACK_ELECTRONS:g} e- sensor assumed")
 
 
 # --------------------------------------------------------------------------------------------
@@ -278,7 +282,6 @@ def _levels(black: np.ndarray) -> str:
 def _frames(raw: RawImage, paths: list[Any], what: str, levels: bool) -> list[RawImage]:
     """The frames at ``paths`` (read lazily; RawImages as they are), each checked against the raw
     (refused in one line naming both files)."""
-    from .io.rawfile import read_raw
     frames = []
     for path in paths:
         frame = path if isinstance(path, RawImage) else read_raw(path, lazy=True)
@@ -459,7 +462,6 @@ def smooth_grid(raw: RawImage, terms: GainTerms | None, flat_smooth: np.ndarray 
 
 def _list3_grid(raw: RawImage, ops: list[Any]) -> np.ndarray:
     """OpcodeList3's gains (GainMap per plane, FixVignetteRadial) at the grid's nodes, C x GH x GW."""
-    from .io.opcodes import gain_map_at, selects, vignette_at
     ny, nx = SmoothGain.nodes(raw.shape)
     ys, xs = ny[:, None], nx[None, :]
     out = np.ones((raw.cfa.n_channels, len(ny), len(nx)))
@@ -528,8 +530,6 @@ def only_isolated_clips(raw: RawImage, pre: SensorCorrect | None) -> bool:
     clipped light, whose neighbours are bright too, nor a noise peak on a bright surface). The
     pipeline then leaves the highlight stage out: "a hot pixel is not a clipped light". False where
     nothing is clipped (the stage is left out anyway), without corrections, or for float raws."""
-    from .modules.highlights.stage import clip_thresholds_dn
-    from .modules.sensor.stage import FLOOR, neighbour_tables
     data = raw.data
     if pre is None or data.dtype != np.uint16 or (pre.test is None and pre.mask is None):
         return False

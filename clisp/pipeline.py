@@ -25,7 +25,7 @@ from .engine.stage import Stage
 from .engine.streaming import ArraySink, BandSink, progress_bar, window_source
 from .engine.tiling import MIN_TILE, TilePlan, make_plan
 from .modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
-                                           space_for)
+                                           space_for_cfa)
 from .modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from .modules.demosaic_ari.stage import DemosaicARI
 from .modules.demosaic_ri.stage import DemosaicRI
@@ -67,8 +67,8 @@ PRESETS: dict[str, dict[str, Any]] = {
              "highlights": "reconstruct"},
 }
 """Named parameter sets (``--preset``); an option is one value or a dict per CFA layout (clisp.cfa
-``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer takes the Bayer demosaics, the any-CFA bilinear
-serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
+``CFA.layout``: 'lms', 'bayer', 'other'; lms-bayer and L doubled on the Bayer layout (``ML/LS``) take
+the Bayer demosaics, the any-CFA bilinear serves the other layouts). The colour side (camera constants, chroma space) follows the CFA's
 channels, not the preset.
 ``denoise_levels``: pyramid depth of the chroma denoiser, 0 = none. ``highlights``: the highlight
 mode (clisp.modules.highlights.stage; fast: the per-pixel clamp, since reconstruct costs 1 s on a 24 MP
@@ -86,6 +86,10 @@ HALF_SIZE_HIGHLIGHTS = "clamp"
 """The highlight mode of ``--half-size`` whatever the preset (an explicit ``--highlights`` wins): the
 per-pixel clamp, as LibRaw's default, in keeping with a preview (reconstruct's radii and rim are
 tuned to a demosaic's full-resolution false colour)."""
+HALF_SIZE_BAD_PIXELS = "off"
+"""The defect search of ``--half-size`` whatever the preset (an explicit ``--bad-pixels`` wins): off, as
+the fast preset's, in keeping with a preview (the binning averages a hot pixel with three good ones);
+known bad pixels (a map, the DNG's lists, the frames') are still replaced."""
 HALF_SIZE_NO_DENOISE = ("--half-size runs no chroma denoise (the binning averages the samples): "
                         "leave out --denoise-scale and --chroma-strengths")
 """The refusal of an explicit chroma denoiser with ``--half-size`` (docs/messages.md)."""
@@ -114,7 +118,8 @@ def resolve_options(preset: str | None, demosaic: str | None, kind: str | None =
         return {}
     options = {key: value[kind] if isinstance(value, dict) else value for key, value in PRESETS[name].items()}
     if half_size:
-        return {**options, "demosaic": None, "denoise_levels": 0, "highlights": HALF_SIZE_HIGHLIGHTS}
+        return {**options, "demosaic": None, "denoise_levels": 0, "highlights": HALF_SIZE_HIGHLIGHTS,
+                "bad_pixels": HALF_SIZE_BAD_PIXELS}
     if demosaic:
         options["demosaic"] = demosaic
     kinds = DEMOSAICS[options["demosaic"]].cfa_kinds or (kind,)
@@ -177,7 +182,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     highlight reconstruction and the denoiser's noise model see the raw as it is.
     ``auto_exposure``: add LibRaw's auto-bright exposure, estimated from the raw (clisp.exposure).
     The pipeline's ``exposure_ev`` says what was applied. ``wb``: white balance pass 1, 'camera'
-    (as shot), 'auto' (grey pixels), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
+    (as shot), 'auto' (the scene's light, clisp.illuminant; ``Pipeline.wb_explain`` says what it
+    found), 'daylight' or multipliers 'a,b,c' (clisp.white_balance).
     ``half_size``: the preview path (``--half-size``): normalise, WB pass 1 and a 2 x 2 binning in
     one stage (clisp.modules.half_size), then highlights, colour, WB pass 2 and tone curve at half
     the raw's width and height; the preset's demosaic and chroma denoise are not used (an explicit
@@ -223,7 +229,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     if corrections.pre is not None:
         stages.insert(0, corrections.pre)
-    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2)
+    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2,
+                                noise=noise, scale=2 if half_size else 1)
     if highlight is not None and only_isolated_clips(raw, corrections.pre):
         highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
@@ -242,8 +249,9 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     tone = tone_curve_for(output)
     if tone is not None:
         stages.append(tone)
+    explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: read-time auto
     pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
-                        stage_choice=choice)
+                        wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
@@ -271,7 +279,7 @@ def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoisePara
     noise = raw_noise(raw) if noise is None else noise
     if is_noiseless(noise) or params.noise_scale == 0:
         return ColourMatrix(raw.colour_matrix)
-    space = space_for(raw.cfa.spectral, raw.colour_matrix, params.strengths)
+    space = space_for_cfa(raw.cfa, raw.colour_matrix, params.luma, raw.pass1_gains(), params.strengths)
     table = calibrate_noise(demosaic, raw.cfa, space, noise, params.levels, rt=rt)
     return ChromaDenoise(space, table, params)
 

@@ -356,6 +356,16 @@ class Skipper:
     def halo(self, path: str) -> int:
         return sum(stage.halo for stage in self.paths[path])
 
+    def flat_reach(self) -> int:
+        """How far (px) the flat path reads around a pixel from its demosaic on: its demosaic's halo and
+        the later stages'. The stages before the demosaic (the sensor corrections) are every path's, so
+        texture within their reach changes no path's choice; 0 without a flat path."""
+        if PATH_FLAT not in self.paths:
+            return 0
+        path = self.paths[PATH_FLAT]
+        d = next(i for i, stage in enumerate(path) if isinstance(stage, DemosaicFlat))
+        return sum(stage.halo for stage in path[d:])
+
     def flat_window_fits(self, t: Tile, tile_h: int, tile_w: int) -> bool:
         """Whether the flat path's demosaic window for tile ``t`` (computing ``tile_h x tile_w``
         outputs) holds, along each axis where it crosses the image's edge, the stretch of image its
@@ -365,7 +375,7 @@ class Skipper:
         if self.image is None or PATH_FLAT not in self.paths:
             return False
         flat = next(stage for stage in self.paths[PATH_FLAT] if isinstance(stage, DemosaicFlat))
-        margin = self.halo(PATH_FLAT)         # the demosaic reads the path's whole window
+        margin = self.flat_reach()            # the demosaic reads its window: its halo and the later stages'
         for start, size, extent in ((t.y0, tile_h, self.image[0]), (t.x0, tile_w, self.image[1])):
             lo, hi = start - margin, start + size + margin
             if (lo < 0 or hi > extent) and min(hi, extent) - max(lo, 0) < flat.min_inside_px:
@@ -395,7 +405,7 @@ class Skipper:
             return None
         a = self.analysis
         texture = (a.detail >= FLAT_DETAIL) | (a.chroma >= FLAT_CHROMA) | (a.clipped > 0)
-        return BlockBlend(texture, a.block, self.halo(PATH_FLAT), BLEND_RAMP)
+        return BlockBlend(texture, a.block, self.flat_reach(), BLEND_RAMP)
 
     def mixed_head(self, path: str, blend: BlockBlend) -> list[Any]:
         """The head of ``path`` as a ``mixed`` tile runs it: the flat path's demosaic leaves out
@@ -431,7 +441,7 @@ class Skipper:
                       "flat_detail": FLAT_DETAIL, "flat_chroma": FLAT_CHROMA}
         margin = self.denoiser.halo if self.denoiser is not None else 0
         vis = visible_chroma_noise(self.denoiser, a) if self.denoiser is not None else None
-        flat_margin = sum(st.halo for st in self.paths[PATH_FLAT]) if PATH_FLAT in self.paths else 0
+        flat_margin = self.flat_reach()
         blend = self.block_blend()
         support = blend.support() if blend is not None else None
         if blend is not None:

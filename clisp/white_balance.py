@@ -6,7 +6,11 @@
 ``camera``      as shot: the camera's multipliers where the raw has them; a raw without them (the
                 Canon D30 CRW) was given the ``auto`` estimate when read (clisp.io.camera), and
                 clisp's simulated raws carry their known illuminant (D65).
-``auto``        the scene's grey pixels (:func:`grey_pixel_gains`).
+``auto``        the scene's light among the plausible ones (:func:`auto_gains`, clisp.illuminant:
+                bright surfaces, grey edges and gray world weighed against a prior over the
+                Planckian and daylight lights in the camera's space); a raw without daylight
+                multipliers (so without a known D65 white) falls back to its grey pixels
+                (:func:`grey_pixel_gains`).
 ``daylight``    the camera's daylight multipliers (LibRaw's ``pre_mul``, what rawpy's default
                 postprocess uses); clisp's simulations are all lit by D65, so theirs is the known one.
 ``R,G,B``       multipliers in the CFA's channel order (R, G, B or L, M, S), scaled so the
@@ -172,13 +176,47 @@ def with_white_balance(raw: RawImage, choice: str = "camera") -> RawImage:
     raw for a choice it cannot serve (no daylight multipliers, unusable multipliers)."""
     if choice == "camera":
         return raw
+    extra = {}
     if choice == "auto":
-        gains, source = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level)
+        gains, source, extra = auto_gains(raw)
     elif choice == "daylight":
         gains, source = daylight_gains(raw), "daylight"
     else:
         gains, source = parse_multipliers(choice, raw.cfa, raw.source), "multipliers (--wb)"
-    return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source})
+    return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source, **extra})
+
+
+def auto_gains(raw: RawImage) -> tuple[np.ndarray, str, dict[str, str]]:
+    """``--wb auto``'s pass-1 multipliers (reference channel = 1), its short name (the output
+    file's description) and ``{'wb_explain': line}`` (what ``--explain`` prints): :func:`scene_light_gains`
+    with the raw's daylight multipliers where it has them (:func:`daylight_gains`)."""
+    try:
+        daylight = daylight_gains(raw)
+    except ClispError:
+        daylight = None
+    gains, source, explain = scene_light_gains(raw.data, raw.cfa, raw.black_level, raw.white_level,
+                                               raw.colour_matrix, daylight)
+    return gains, source, {"wb_explain": explain}
+
+
+def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
+                      matrix: np.ndarray, daylight: np.ndarray | None) -> tuple[np.ndarray, str, str]:
+    """(multipliers, short name, explanation line) of the scene's light, reference channel = 1.
+
+    With the camera's D65 white known (``daylight``: its D65 pass-1 multipliers; ``matrix``:
+    white-balanced camera -> linear sRGB) the light is estimated among the plausible ones from the
+    mosaic's block statistics (clisp.illuminant.estimate_light); without it (None), from the
+    scene's grey pixels (:func:`grey_pixel_gains`), which need no matrix."""
+    if daylight is None:
+        gains, source = grey_pixel_gains(data, cfa, black_level, white_level)
+        return gains, source, (f"white balance auto: {source} (no daylight multipliers, so no plausible "
+                               f"lights to choose among)")
+    from .illuminant import CameraLights, block_statistics, estimate_light
+    ref = reference_channel(cfa)
+    daylight = np.asarray(daylight, dtype=np.float64) / float(daylight[ref])
+    stats = block_statistics(data, cfa, black_level, white_level)
+    estimate = estimate_light(stats, CameraLights(np.asarray(matrix, dtype=np.float64), daylight), ref)
+    return estimate.gains, f"auto ({estimate.temperature:.0f} K)", estimate.describe()
 
 
 def daylight_gains(raw: RawImage) -> np.ndarray:

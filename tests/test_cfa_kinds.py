@@ -1,7 +1,8 @@
 """A CFA as data (issue 32, item 1): every CFA kind through simulate, our DNG and process.
 
-Kinds: the paper's LMS (4x4), Bayer RGB, L, M, S on the Bayer layout (lms-bayer) and a pattern that
-is neither layout ('LM/SL', served by the any-CFA bilinear demosaic). Each is simulated from a scene
+Kinds: the paper's LMS (4x4), Bayer RGB, L, M, S on the Bayer layout (lms-bayer), L doubled on the
+Bayer layout ('ML/LS', issue 45: the Bayer demosaics read it by roles) and a pattern that is neither
+layout ('LL/MS', L twice on a row: served by the any-CFA bilinear demosaic). Each is simulated from a scene
 made in code, written and read back, and processed with the fast and the default preset; the PSNR
 floors sit a few dB under what the pipeline measured when the test was written (docs/RESULTS.md has
 the measured figures), so they catch a broken stage, not a small regression.
@@ -29,7 +30,8 @@ KINDS = [
     ("lms", "lms", "lms", "lms", 27.0, 36.0),
     ("bayer", "bayer", "rgb", "bayer", 33.0, 39.0),
     ("lms-bayer", "lms-bayer", "lms", "bayer", 27.0, 35.0),
-    ("LM/SL", "lms-other", "lms", "other", 25.0, 27.0),
+    ("ML/LS", "lms-bayer-double-l", "lms", "bayer", 25.0, 36.0),
+    ("LL/MS", "lms-other", "lms", "other", 25.0, 27.0),
 ]
 
 
@@ -57,8 +59,11 @@ def test_spectral_and_layout() -> None:
     assert cfa_from_name("LMMS").name == "lms-bayer" and cfa_from_name("mlsm").name == "lms-bayer-grbg"
     assert cfa_from_name("RGGB").name == "bayer-rggb"
     assert cfa_from_name("LMLS/MLML/LSLM/MLML").name == "lms"
-    other = cfa_from_name("LM/SL")
-    assert (other.name, other.kind, other.layout) == ("LM/SL", "lms-other", "other")
+    doubled = cfa_from_name("LM/SL")                               # L doubled on the other diagonal
+    assert (doubled.name, doubled.kind, doubled.layout, doubled.bayer_phase()) == (
+        "LM/SL", "lms-bayer-double-l", "bayer", "GRBG")
+    other = cfa_from_name("LL/MS")
+    assert (other.name, other.kind, other.layout) == ("LL/MS", "lms-other", "other")
     assert layout_of(np.array([[0, 1], [1, 0]])) == "other"        # a channel missing
     with pytest.raises(ClispError, match="Bayer layout"):
         other.bayer_phase()
@@ -104,8 +109,8 @@ def test_lms_bayer_takes_the_bayer_demosaics() -> None:
     ("lms-bayer", "hybrid", r"demosaic 'hybrid' works on lms CFAs, not lms-bayer \(the bayer layout\)"),
     ("lms", "ri", r"demosaic 'ri' works on bayer CFAs, not lms$"),
     ("lms", "malvar", r"needs a Bayer CFA \(RGGB, GRBG, GBRG or BGGR\), got lms"),
-    ("LM/SL", "ri", r"demosaic 'ri' works on bayer CFAs, not lms-other \(the other layout\)"),
-    ("LM/SL", "dlmmse", r"needs a Bayer CFA \(RGGB, GRBG, GBRG or BGGR\), got LM/SL"),
+    ("LL/MS", "ri", r"demosaic 'ri' works on bayer CFAs, not lms-other \(the other layout\)"),
+    ("LL/MS", "dlmmse", r"needs a Bayer CFA \(RGGB, GRBG, GBRG or BGGR\), got LL/MS"),
 ])
 def test_demosaic_refuses_a_layout(cfa: str, demosaic: str, message: str) -> None:
     raw = simulate(scene(16, 16), cfa, gain=1, seed=1, optics="none").raw
@@ -142,3 +147,30 @@ def test_rawpy_opens_lms_bayer(tmp_path: Path) -> None:
         np.testing.assert_array_equal(colours, sim.raw.cfa.pattern)
         np.testing.assert_array_equal(r.raw_image_visible, sim.raw.data)
         assert r.postprocess(half_size=True).shape[:2] == (32, 48)
+
+
+def test_l_doubled_takes_the_bayer_demosaics(tmp_path: Path) -> None:
+    """Issue 45: L doubled on the Bayer layout gets the Bayer demosaics (RI under quality, DLMMSE under
+    balanced, ARI under best) and the LMS colour side; --half-size bins it as any 2 x 2 CFA."""
+    sim = simulate(scene(), "ML/LS", gain=4, seed=1)
+    names = {preset: [type(s).__name__ for s in build_pipeline(sim.raw, preset=preset).stages]
+             for preset in ("fast", "balanced", "quality", "best")}
+    assert "DemosaicRI" in names["quality"] and "DemosaicDLMMSE" in names["balanced"]
+    assert "DemosaicARI" in names["best"]
+    denoise = [s for s in build_pipeline(sim.raw).stages if type(s).__name__ == "ChromaDenoise"]
+    assert denoise and denoise[0].space.name == "lms"
+    for demosaic in ("malvar", "dlmmse", "ri", "bilinear"):
+        out = clisp.process(sim.raw, demosaic=demosaic)
+        assert np.all(np.isfinite(out)) and psnr(out, sim.truth, border=6) > 30.0, demosaic
+    half = clisp.process(sim.raw, half_size=True)
+    assert half.shape == (32, 48, 3) and np.all(np.isfinite(half))
+
+
+def test_l_doubled_raw_written_before_issue_45(tmp_path: Path) -> None:
+    """A raw written when L doubled on 2 x 2 was the 'other' layout stores kind 'lms-other': it still reads."""
+    from dataclasses import replace
+    sim = simulate(scene(), "ML/LS", gain=1, seed=1)
+    old = CFA(name="ML/LS", kind="lms-other", channels=("L", "M", "S"), pattern=sim.raw.cfa.pattern)
+    write_raw(tmp_path / "old.dng", replace(sim.raw, cfa=old))
+    raw = read_raw(tmp_path / "old.dng")
+    assert (raw.cfa.name, raw.cfa.kind, raw.cfa.layout) == ("ML/LS", "lms-bayer-double-l", "bayer")

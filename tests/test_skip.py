@@ -55,9 +55,10 @@ def _skipper(gain: float, cfa: str = "lms", scene: np.ndarray | None = None, dem
     return raw, pipe, pipe.skipper
 
 
-FLAT_DEMOSAIC = {"lms": None, "bayer": "dlmmse"}
+FLAT_DEMOSAIC = {"lms": None, "bayer": "dlmmse", "ML/LS": "dlmmse"}
 """The demosaic of the flat-path tests: the preset's for LMS; for Bayer the balanced preset's
-DLMMSE, since the flat path is not offered behind RI, the quality preset's (skip.FLAT_LOSES_TO)."""
+DLMMSE, since the flat path is not offered behind RI, the quality preset's (skip.FLAT_LOSES_TO);
+L doubled on the Bayer layout (issue 45) as Bayer."""
 
 
 def no_flat_path(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -85,7 +86,7 @@ def test_noisy_tiles_are_never_left_undenoised(gain: float) -> None:
             assert all(c.path in (PATH_FULL, PATH_FLAT) for c in plan.choices), plan.explain()
 
 
-@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+@pytest.mark.parametrize("cfa", ["lms", "bayer", "ML/LS"])
 @pytest.mark.parametrize("gain", [1, 64])
 def test_flat_path_only_where_nothing_but_noise(cfa: str, gain: float) -> None:
     """The smooth gradient takes ``flat`` everywhere; texture (and every tile within the flat
@@ -240,7 +241,7 @@ or colour, which a seam would show) is at most this times the full path's (measu
 Bayer 0.87 at gain 1). Single pixels of the two paths differ by their grain, different noise."""
 
 
-@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+@pytest.mark.parametrize("cfa", ["lms", "bayer", "ML/LS"])
 def test_flat_and_full_tiles_meet_without_a_seam(cfa: str) -> None:
     scene = smooth_scene(256, 256)
     scene[:, 160:] = textured_scene()[:, 160:]

@@ -81,7 +81,9 @@ def test_with_white_balance_choices() -> None:
     assert np.allclose(chosen.wb, [2.0, 1.0, 1.5]) and chosen.metadata["wb_source"] == "multipliers (--wb)"
     assert np.array_equal(chosen.data, raw.data) and raw.metadata.get("wb_source") is None   # raw untouched
     auto = with_white_balance(raw, "auto")
-    assert auto.metadata["wb_source"] == "auto (grey pixels)" and not np.allclose(auto.wb, raw.wb, rtol=1e-6)
+    assert auto.metadata["wb_source"].startswith("auto (") and not np.allclose(auto.wb, raw.wb, rtol=1e-6)
+    unknown = with_white_balance(replace(raw, metadata={}), "auto")    # no known D65 white: grey pixels
+    assert unknown.metadata["wb_source"] == "auto (grey pixels)" and "no daylight" in unknown.metadata["wb_explain"]
     camera_like = replace(raw, metadata={"daylight_multipliers": [2.2, 1.0, 1.4]})
     assert np.allclose(with_white_balance(camera_like, "daylight").wb, [2.2, 1.0, 1.4])
     with pytest.raises(ClispError, match="has no daylight white balance"):
@@ -107,3 +109,14 @@ def test_wb_reaches_the_pipeline_and_the_output(tmp_path) -> None:
         note = oiio.ImageInput.open(str(out)).spec().getattribute("ImageDescription") or ""
         assert ("white balance multipliers (--wb)" in note) == (wb != "camera")
     assert outputs["2,1,1"][0] > outputs["camera"][0] * 1.02        # R multiplier 2 against the camera's
+
+
+def test_explain_says_what_auto_found(tmp_path, capsys) -> None:
+    """``--explain`` prints auto's light, its confidence and what decided it."""
+    from clisp.cli import main
+    from clisp.io.rawfile import write_raw
+    write_raw(tmp_path / "r.dng", simulate(_wood_and_steel(64, 96), "bayer", gain=4, optics="none").raw)
+    assert main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "a.tif"), "--wb", "auto", "--explain",
+                 "--preset", "fast"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("explain: white balance auto: "))
+    assert " K, Duv " in line and "confidence" in line and "decided by" in line

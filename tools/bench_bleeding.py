@@ -1,7 +1,7 @@
 """Chroma bleeding: how far colour moves across edges that the luminance does not mark (issue 17).
 
     python tools/bench_bleeding.py [--gains 1,8,64] [--cfas lms,bayer] [--seeds 2] [--no-denoise]
-                                   [--preset quality] [--crops DIR]
+                                   [--preset quality] [--crops DIR] [--luma paper] [--noise-scale 1]
 
 Scene (made in code): the ColorChecker with 64 px patches and 48 px gaps on mid-grey (linear 0.18:
 several patches are close to it in luminance, so nothing in the luminance stops chroma at their
@@ -96,7 +96,7 @@ def ring_shifts(output: np.ndarray, truth: np.ndarray, rings: list[np.ndarray]) 
     return np.array(out)
 
 
-def measure(cfa: str, gain: float, seeds: int, preset: str | None, denoise: bool | None,
+def measure(cfa: str, gain: float, seeds: int, preset: str | None, denoise: "bool | None | ChromaDenoiseParams",
             crops: Path | None = None) -> dict[str, float]:
     image, patch_rings, disc_rings = scene()
     gray = gray_panel_rois(colorchecker(patch=PATCH, gap=GAP, border=GAP)[1])
@@ -127,8 +127,18 @@ def main() -> int:
     ap.add_argument("--preset", default=None)
     ap.add_argument("--no-denoise", action="store_true")
     ap.add_argument("--crops", type=Path, default=None, help="write the chart crops (first seed) here")
+    ap.add_argument("--luma", default=None, help="the chroma denoiser's luminance (ChromaDenoiseParams.luma; "
+                    "default: the preset's)")
+    ap.add_argument("--noise-scale", type=float, default=None, help="the chroma denoiser's noise_scale")
     args = ap.parse_args()
     denoise = False if args.no_denoise else None
+    if not args.no_denoise and (args.luma is not None or args.noise_scale is not None):
+        from dataclasses import replace
+        from clisp.pipeline import PRESETS, denoise_params
+        levels = PRESETS[args.preset or "quality"]["denoise_levels"]
+        base = denoise_params(None, levels)
+        denoise = replace(base, **{k: v for k, v in (("luma", args.luma), ("noise_scale", args.noise_scale))
+                                   if v is not None})
     print(f"{'cfa':<6}{'gain':>5}{'patch mean':>12}{'worst':>8}{'disc mean':>11}{'worst':>8}{'gray SNR':>10}{'s':>7}")
     for cfa in args.cfas.split(","):
         for gain in (float(g) for g in args.gains.split(",")):

@@ -2,6 +2,10 @@
 
     python tools/bench_cfa_kinds.py [--data DIR] [--subset N] [--gains 1,16] [--cfas lms,bayer,lms-bayer]
 
+``--gains none`` simulates without noise (``clisp simulate --noiseless``); ``--cfas`` takes any CFA
+name, e.g. ``ML/LS`` (L doubled on the Bayer layout, issue 45). Each CFA's demosaic under each preset
+is printed first (what ``clisp process`` runs for it).
+
 Each Kodak image is simulated with each CFA (``clisp.simulate``, Airy optics, seed 1) at each gain
 and processed with the fast and the default (quality) preset; printed: the mean PSNR (dB,
 sRGB-encoded, toolkit.BORDER px border) per gain, preset and CFA. The CFAs share everything but
@@ -31,10 +35,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--gains", default="1,16", help="analog gains, comma-separated (default 1,16)")
     parser.add_argument("--cfas", default="lms,bayer,lms-bayer", help="CFA names (default lms,bayer,lms-bayer)")
     args = parser.parse_args(argv)
-    gains = [float(g) for g in args.gains.split(",")]
+    gains = [None if g.strip().lower() in ("none", "noiseless") else float(g) for g in args.gains.split(",")]
     cfas = args.cfas.split(",")
     scenes = toolkit.kodak(args.data, args.subset)
-    scores: dict[tuple[float, str, str], list[float]] = {}
+    from clisp.pipeline import build_pipeline
+    for cfa in cfas:
+        raw = simulate(scenes[0].image[:64, :64], cfa, gain=4, seed=1).raw
+        names = {p: next(type(s).__name__ for s in build_pipeline(raw, preset=p).stages if s.name.startswith("demosaic"))
+                 for p in PRESETS}
+        print(f"{cfa} ({raw.cfa.kind}, layout {raw.cfa.layout}): " + ", ".join(f"{p} {n}" for p, n in names.items()))
+    scores: dict[tuple[float | None, str, str], list[float]] = {}
     start = time.perf_counter()
     for scene in scenes:
         for gain in gains:
@@ -49,7 +59,8 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|" + "---|" * len(cfas))
     for gain in gains:
         for preset in PRESETS:
-            print(f"| {gain:g} | {preset} | " + " | ".join(f"{np.mean(scores[(gain, c, preset)]):.2f}" for c in cfas) + " |")
+            level = "noiseless" if gain is None else f"{gain:g}"
+            print(f"| {level} | {preset} | " + " | ".join(f"{np.mean(scores[(gain, c, preset)]):.2f}" for c in cfas) + " |")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,16 @@
 """Device time of the highlight stage (``reconstruct``) on a 24 MP image, against another tree's.
 
     python tools/bench_highlight_stage.py [--baseline DIR] [--size 6000x4000] [--lights 60] [--repeat 3]
+    python tools/bench_highlight_stage.py --raw RAW [--baseline DIR] [--repeat 3]
+
+``--raw``: the stage's own input instead: the default (quality) pipeline of RAW, planned as
+``clisp process`` plans it, each tile's window run through the stages before the highlight stage
+on the device once; then rounds of the highlight stage over every window (this tree's, built for
+the raw by highlight_stage with the pipeline's noise, interleaved with the baseline tree's, built
+by its own highlight_stage), device seconds per kernel from OpenCL events, summed over the
+windows: the median and least over rounds of the stage's sum, and each kernel's least (a shared
+machine's load only ever adds). The whole pipeline's
+device total is what ``clisp process RAW --profile`` reports; this isolates the stage.
 
 The input: white-balanced camera values (planar float32, neutral n = (0.95, 0.96, 1), thresholds
 t = (0.9, 1.1, 2.7) in units of n) of uniform noise in 0.1..0.7 of t with ``--lights`` soft
@@ -26,7 +36,7 @@ import toolkit  # before clisp: puts this checkout on sys.path
 from toolkit import parse_size
 
 from clisp.engine import profile
-from clisp.engine.runtime import _ProfiledKernel, _define_flags, get_runtime
+from clisp.engine.runtime import WORK_GROUP, Parameter, _ProfiledKernel, _define_flags, get_runtime, launch_exact
 from clisp.modules.highlights import stage as highlights
 
 NEUTRAL = np.array([0.95, 0.96, 1.0])
@@ -36,8 +46,9 @@ DISPLAY = np.array([[4.73, -3.87, 0.14], [-0.9, 1.9, 0.0], [0.0, -0.2, 1.2]])
 
 
 class BaselineRuntime:
-    """The runtime, with ``kernel`` building the baseline tree's <name>.cl instead (kernels/ before
-    issue 26's layout, clisp/modules/<name>/ after)."""
+    """The runtime, with ``kernel`` and ``launch_named`` building the baseline tree's <name>.cl
+    instead (kernels/ before issue 26's layout, clisp/modules/<name>/ after; its headers from its
+    clisp/modules/common)."""
 
     def __init__(self, rt, root: Path) -> None:
         self._rt, self._root, self._kernels = rt, root, {}
@@ -51,9 +62,20 @@ class BaselineRuntime:
         if key not in self._kernels:
             source = "\n".join([source_file(self._root, "common.h").read_text(), generated,
                                 source_file(self._root, f"{name}.cl").read_text()])
-            prg = self._rt.cl.Program(self._rt.context, source).build(options=list(flags) + ["-cl-std=CL1.2"])
+            include = self._root / "clisp" / "modules" / "common"
+            options = list(flags) + ["-cl-std=CL1.2", "-cl-kernel-arg-info"] + (["-I", str(include)] if include.is_dir() else [])
+            prg = self._rt.cl.Program(self._rt.context, source).build(options=options)
             self._kernels[key] = _ProfiledKernel(self._rt.cl.Kernel(prg, kernel_name), kernel_name)
         return self._kernels[key]
+
+    def launch_named(self, name: str, kernel_name: str, width: int, height: int, args, defines=None,
+                     generated: str = "", group=None, x0: int = 0, exact: bool = True) -> None:
+        kernel = self.kernel(name, kernel_name, defines, generated)
+        cl, k = self._rt.cl, kernel.kernel
+        params = [Parameter(k.get_arg_info(i, cl.kernel_arg_info.NAME), k.get_arg_info(i, cl.kernel_arg_info.TYPE_NAME).strip(),
+                            "*" in k.get_arg_info(i, cl.kernel_arg_info.TYPE_NAME)) for i in range(k.num_args)]
+        values = [p.convert(args[p.name]) for p in params]
+        launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
 
 
 def source_file(root: Path, file_name: str) -> Path:
@@ -89,15 +111,80 @@ def scene(h: int, w: int, lights: int) -> np.ndarray:
     return np.ascontiguousarray((y * NEUTRAL).transpose(2, 0, 1).astype(np.float32))
 
 
+def raw_windows(rt, path: Path):
+    """(the default pipeline of the raw at ``path``, its highlight stage, [(device image, origin)]
+    of the highlight stage's input per tile)."""
+    from clisp.io.rawfile import read_raw
+    from clisp.pipeline import build_pipeline
+    from clisp.engine.executor import Pipeline
+    from clisp.engine.stage import Origin, advance
+    from clisp.engine.streaming import window_source
+    raw = read_raw(path)
+    pipe = build_pipeline(raw)
+    k = next(i for i, stage in enumerate(pipe.stages) if isinstance(stage, highlights.Highlights))
+    head = pipe.stages[:k]
+    plan = pipe.plan(raw.data.shape, raw.data.dtype)
+    source = window_source(raw.data)
+    image = tuple(raw.data.shape)
+    windows = []
+    for t in plan.tiles:
+        y0, x0 = plan.window_origin(t)
+        h, w = plan.window_shape
+        x = source.read(y0, x0, h, w, pipe.cfa.period, np.empty((h, w), raw.data.dtype))
+        src, origin = rt.upload(x), Origin(y0, x0, image)
+        for stage in head:
+            out = stage.enqueue(rt, src, origin)
+            rt.release(src)
+            src, origin = out, advance(origin, stage.halo, stage.downscale)
+        windows.append((src, origin))
+    rt.queue.finish()
+    return raw, pipe, pipe.stages[k], windows
+
+
+def raw_main(args: argparse.Namespace, rt) -> int:
+    """--raw: the stage over the raw's own windows, against the baseline tree's."""
+    raw, pipe, stage, windows = raw_windows(rt, args.raw)
+    w = sum(src.width * src.height for src, _ in windows) / 1e6
+    print(f"{args.raw.name}: {len(windows)} windows, {w:.1f} MP of stage input", flush=True)
+    stages = {"this tree": (rt, stage)}
+    if args.baseline:
+        old = baseline_module(args.baseline.resolve())
+        from clisp.pipeline import _wb2_gains
+        gains2 = _wb2_gains(raw, "metadata")
+        stages["baseline"] = (BaselineRuntime(rt, args.baseline.resolve()), old.highlight_stage(raw, "reconstruct", gains2))
+    sums: dict[str, list[float]] = {k: [] for k in stages}
+    best: dict[str, dict[str, float]] = {k: {} for k in stages}
+    for rnd in range(args.repeat + 1):
+        for name, (runtime, st) in stages.items():
+            prof = profile.start()
+            for src, origin in windows:
+                rt.release(st.enqueue(runtime, src, origin))
+            rt.queue.finish()
+            kernels = {k[1]: v[0] for k, v in prof.device_seconds().items()}
+            if rnd:
+                sums[name].append(sum(kernels.values()))
+                for k, v in kernels.items():
+                    best[name][k] = min(v, best[name].get(k, np.inf))
+    for name, ts in sums.items():
+        kernels = best[name]
+        print(f"{name:9s} device s, median {np.median(ts):.4f}, least {min(ts):.4f} over {args.repeat} rounds; "
+              f"least per kernel (sum {sum(kernels.values()):.4f}): " +
+              ", ".join(f"{k} {v:.4f}" for k, v in sorted(kernels.items(), key=lambda kv: -kv[1])), flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline", type=Path, default=None, help="another clisp source tree")
+    ap.add_argument("--raw", type=Path, default=None, help="the stage's input from this raw's pipeline instead")
     ap.add_argument("--size", type=parse_size, default=(6000, 4000), metavar="WxH")
     ap.add_argument("--lights", type=int, default=60)
     toolkit.add_repeat_option(ap, 3, "timed rounds after an untimed one, median kept")
     args = ap.parse_args(argv)
     rt = get_runtime(profiling=True)
     print(f"device: {rt.describe()}", flush=True)
+    if args.raw:
+        return raw_main(args, rt)
     w, h = args.size
     x = scene(h, w, args.lights)
     bh, bw = h // 32 * 32, w // 32 * 32

@@ -2,7 +2,8 @@
 
     python tools/highlight_crops.py [--out docs/highlights] [--baseline DIR] [--kodak [--data DIR]]
 
-Scenes: two of tools/bench_highlights.py's own photos (glossy spheres, flowers) and, with
+Scenes: two of tools/bench_highlights.py's own photos (glossy spheres, flowers), issue 43's
+specular ring (clisp.sim.highlight_scenes: a white highlight on a saturated red sphere) and, with
 ``--kodak``, Kodak 23 (the parrots, issue 25's case; from ``--data``/kodak, kept out of docs/ since
 the data set is not ours), simulated at gain 8, seed 1, LMS and Bayer. Per scene and CFA one
 PNG: a row of crops, left to right the truth, clisp ``off``, ``clip``, ``reconstruct`` (the
@@ -27,9 +28,10 @@ import toolkit  # before clisp: puts this checkout on sys.path
 import clisp
 from clisp.pipeline import build_pipeline
 from bench_highlights import libraw, own_photos
+from clisp.sim.highlight_scenes import specular_ring
 
 CROPS = {"kodim23": (slice(140, 260), slice(220, 340)), "glossy spheres": (slice(40, 160), slice(40, 160)),
-         "flowers": (slice(150, 270), slice(0, 120))}
+         "flowers": (slice(150, 270), slice(0, 120)), "specular ring": (slice(20, 80), slice(14, 74))}
 """Crop (rows, columns) per scene: where a clipped white meets saturated colour."""
 ZOOM = 3
 
@@ -90,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from PIL import Image
     scenes = {k: v for k, v in own_photos().items() if k in CROPS}
+    scenes["specular ring"] = specular_ring(192)
     kodak = toolkit.kodak_path(args.data, 23)
     if args.kodak:
         from clisp.io.imageio import read_scene

@@ -59,7 +59,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
 from clisp.engine.stage import Stage
 from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
-                                         space_for)
+                                         space_for_cfa)
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 
@@ -138,7 +138,8 @@ class Runner:
         stages = [normalize(cfa, raw.black_level, raw.white_level), white_balance1(cfa, raw.pass1_gains()),
                   demosaic]
         if denoise and not noise.is_zero:
-            space = space_for(cfa.spectral, raw.colour_matrix, self.params.strengths)
+            space = space_for_cfa(cfa, raw.colour_matrix, self.params.luma, raw.pass1_gains(),
+                                  self.params.strengths)
             key = (name, cfa.name, raw.metadata.get("gain"), noise)
             if key not in self.tables:
                 self.tables[key] = calibrate_noise(demosaic, cfa, space, noise, self.params.levels)

@@ -86,6 +86,8 @@ class Pipeline:
     """The exposure (EV) build_pipeline applied, manual and automatic together."""
     wb_source: str = "camera"
     """Where white balance pass 1's multipliers came from (``--wb``; clisp.white_balance)."""
+    wb_explain: str = ""
+    """What ``--wb auto`` found and what decided it, one line (``--explain``); empty otherwise."""
     stage_choice: Any = None
     """The noise-adaptive choice build_pipeline made (clisp.stage_choice.Choice), None without one."""
     skip_off: str = ""

@@ -433,16 +433,18 @@ class Runtime:
         return self._constants[key]
 
     def upload(self, array: np.ndarray) -> DeviceImage:
-        """Copy a planar host array (C x H x W, or H x W for one plane) to a pooled device image."""
+        """Copy a planar host array (C x H x W, or H x W for one plane) to a pooled device image
+        (while metering only its buffer is counted: a stage may upload a window's small tables)."""
         array = np.ascontiguousarray(array)
         if array.ndim not in (2, 3):
             raise ValueError(f"upload needs H x W or C x H x W, got shape {array.shape}")
         channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
         image = self.acquire(channels, height, width, array.dtype)
-        event = _record_copy("upload", array.nbytes,
-                             self.cl.enqueue_copy(self.transfer_queue, image.buffer, array, is_blocking=False))
-        self._after(event)
+        if self._meter is None:
+            event = _record_copy("upload", array.nbytes,
+                                 self.cl.enqueue_copy(self.transfer_queue, image.buffer, array, is_blocking=False))
+            self._after(event)
         return image
 
     def resident_mosaic(self, array: np.ndarray) -> DeviceImage:

@@ -19,12 +19,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tifffile
 
 from ..cfa import CFA, cfa_from_pattern
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import ISO, read_exif
 from .rawimage import RawImage
+from .opcodes import read_opcode_tags
 from ..engine.streaming import aligned_copy
 from ..white_balance import grey_pixel_gains
 
@@ -135,15 +137,12 @@ def dng_opcodes(p: Path, margins: tuple[int, int], raw_shape: tuple[int, int],
     SubIFDs), placed on the mosaic LibRaw returns (clisp.io.opcodes): OpcodeList1 acts on the
     stored raw, whose (0, 0) lies ``margins`` (LibRaw's top and left margin: the ActiveArea)
     above and left of the mosaic, lists 2 and 3 on the ActiveArea, the mosaic itself."""
-    import tifffile
-    from .opcodes import read_opcode_tags
-    from .rawfile import PHOTOMETRIC_CFA
     with library_output(), tifffile.TiffFile(p) as tif:
         pages = []
         for page in tif.pages:
             pages.append(page)
             pages.extend(getattr(page, "pages", None) or [])
-        cfa_pages = [pg for pg in pages if int(getattr(pg, "photometric", 0) or 0) == PHOTOMETRIC_CFA]
+        cfa_pages = [pg for pg in pages if int(getattr(pg, "photometric", 0) or 0) == tifffile.PHOTOMETRIC.CFA]
         if not cfa_pages:
             return []
         page = max(cfa_pages, key=lambda pg: int(pg.shape[0]) * int(pg.shape[-1]))

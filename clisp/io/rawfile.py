@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import tifffile
 
-from ..cfa import CFA, cfa_from_name
+from ..cfa import CFA, cfa_from_name, kind_before_issue45
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import camera_make_model, simulated_model_name
@@ -574,7 +574,8 @@ def _rebuild(meta: dict[str, Any], data: np.ndarray, p: Path) -> RawImage:
 
 
 def _rebuild_cfa(desc: dict[str, Any], p: Path) -> CFA:
-    """The CFA named in the metadata, checked against the stored kind, channels and pattern."""
+    """The CFA named in the metadata, checked against the stored kind (or the kind clisp gave it
+    before issue 45, cfa.kind_before_issue45), channels and pattern."""
     if not isinstance(desc, dict):
         raise ClispError(f"cannot read raw file '{p}': corrupt clisp metadata (cfa {clip(desc, 30)})")
     full = desc.get("name")
@@ -584,7 +585,7 @@ def _rebuild_cfa(desc: dict[str, Any], p: Path) -> CFA:
     except ClispError as exc:
         raise ClispError(f"cannot read raw file '{p}': unsupported CFA {name!r}") from exc
     stored = np.asarray(desc.get("pattern", cfa.pattern.tolist()))
-    if (cfa.kind != desc.get("kind", cfa.kind)
+    if (desc.get("kind", cfa.kind) not in (cfa.kind, kind_before_issue45(cfa))
             or list(cfa.channels) != list(desc.get("channels", cfa.channels))
             or stored.shape != cfa.pattern.shape or not np.array_equal(stored, cfa.pattern)):
         raise ClispError(f"cannot read raw file '{p}': unsupported CFA {name!r} "

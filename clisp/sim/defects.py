@@ -38,6 +38,8 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from .noise import NoiseModel
+from ..io.opcodes import FixBadPixelsList, GainMap
+from ..io.rawimage import RawImage
 
 COLOUR_SHADING = (0.2, 0.0, 0.12)
 """Extra corner falloff of the first and third CFA channels (R or L, B or S) per unit of luminance
@@ -296,7 +298,6 @@ def gain_map_opcodes(defects: SensorDefects, cfa: CFA, shape: tuple[int, int],
     """The lens shading as DNG GainMap opcodes (OpcodeList2), as a phone writes it: one map per CFA
     phase (area from the phase's first pixel, row and column pitch the CFA period), each the inverse
     of its channel's shading at MapPointsV x MapPointsH points spanning the image edge to edge."""
-    from ..io.opcodes import GainMap
     height, width = shape
     pv, ph = points
     v = np.linspace(0.0, 1.0, pv)
@@ -316,7 +317,6 @@ def gain_map_opcodes(defects: SensorDefects, cfa: CFA, shape: tuple[int, int],
 def bad_pixel_list_opcode(defects: SensorDefects, shape: tuple[int, int], bayer_phase: int = 0):
     """The hot, warm and dead pixels as a DNG FixBadPixelsList opcode (OpcodeList1), as a camera
     keeps its factory-mapped defects."""
-    from ..io.opcodes import FixBadPixelsList
     rows, cols = np.nonzero(bad_sites(defects, shape))
     return FixBadPixelsList([(int(r), int(c)) for r, c in zip(rows, cols)], [], bayer_phase, list_no=1,
                             origin=(0, 0), image=tuple(shape))
@@ -327,7 +327,6 @@ def frames(raw: Any, defects: SensorDefects, kind: str, count: int, gain: float 
     """``count`` dark or flat frames (``kind``) matching the simulated ``raw`` (a RawImage), as RawImages
     with the raw's levels and metadata: a dark frame the shot's gain and exposure time, a flat frame
     base gain and FLAT_TIME_SHARE of it; frame i's noise seeded by ``seed`` + i."""
-    from ..io.rawimage import RawImage
     make = dark_frame if kind == "dark" else flat_frame
     out = []
     for i in range(count):
@@ -346,7 +345,6 @@ def oracle_frame(raw: Any, defects: SensorDefects, kind: str, gain: float | None
                  noise: NoiseModel = NoiseModel()) -> Any:
     """The noiseless dark frame (its expected DN) or flat frame (FLAT_LEVEL through the true shading
     and PRNU) of ``raw``, float32: the oracle that tools/bench_sensor.py corrects with."""
-    from ..io.rawimage import RawImage
     if kind == "dark":
         data = expected_dark(defects, raw.shape, gain, noise)
     else:

@@ -404,11 +404,12 @@ def test_camera_raws(name: str, tmp_path: Path) -> None:
     assert raw.colour_matrix.shape == (3, 3)
     assert np.allclose(raw.colour_matrix.sum(axis=1), 1.0, atol=1e-3)
     assert raw.metadata["flip"] == 0
-    assert raw.metadata["wb_source"] == "camera" or "grey pixels" in raw.metadata["wb_source"]
+    assert raw.metadata["wb_source"] == "camera" or raw.metadata["wb_source"].endswith("file has no camera WB")
     with rawpy.imread(str(path)) as rp:
         assert np.array_equal(raw.data, rp.raw_image_visible)
     if name.endswith(".CRW"):
-        assert raw.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"   # camera WB has R = -1
+        assert raw.metadata["wb_source"].endswith(" K), file has no camera WB")   # camera WB has R = -1: auto's light
+        assert raw.metadata["wb_explain"].startswith("white balance auto: ")
         assert raw.metadata["colour_matrix_source"].startswith("derived")
     if name.endswith(".KDC"):
         # LibRaw keeps the DC50's matrix internally; clisp measures it (white-preserving rows).

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from clisp.cfa import bayer_cfa
+from clisp.cfa import CFA, bayer_cfa
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 from clisp.pipeline import Pipeline
-from clisp.sim.colorimetry import B_BAYER, WB_BAYER
+from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 
 
 def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
@@ -39,8 +39,10 @@ def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
     return rgb
 
 
-def mosaic(rgb: np.ndarray, phase: str, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-    ch = bayer_cfa(phase).channel_map(rgb.shape[0], rgb.shape[1], origin)
+def mosaic(rgb: np.ndarray, phase: str | CFA, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """The mosaic of ``rgb`` (channels in the CFA's order) for a Bayer phase name or a CFA."""
+    cfa = bayer_cfa(phase) if isinstance(phase, str) else phase
+    ch = cfa.channel_map(rgb.shape[0], rgb.shape[1], origin)
     return np.take_along_axis(rgb, ch[..., None].astype(np.intp), axis=-1)[..., 0].astype(np.float32)
 
 
@@ -55,12 +57,14 @@ def assert_memory_within_declared(rt, stage, shapes: tuple[tuple[int, int], ...]
         assert pool.created <= stage.bytes_per_pixel * h * w, (h, w, pool.created / (h * w))
 
 
-def assert_tiled_equals_whole(make_stage, shape: tuple[int, int]) -> None:
-    """A GBRG pipeline (normalise, WB pass 1, ``make_stage(cfa)``, colour matrix) on a smooth noisy
-    uint16 raw of ``shape``: tiles of 48 and 96 px give exactly the whole image's output."""
-    cfa = bayer_cfa("GBRG")
-    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, WB_BAYER),
-                              make_stage(cfa), ColourMatrix(B_BAYER)])
+def assert_tiled_equals_whole(make_stage, shape: tuple[int, int], cfa: CFA | None = None) -> None:
+    """A pipeline (normalise, WB pass 1, ``make_stage(cfa)``, colour matrix) on a smooth noisy uint16
+    raw of ``shape``, ``cfa`` GBRG Bayer unless given (an LMS CFA takes the LMS white balance and
+    matrix): tiles of 48 and 96 px give exactly the whole image's output."""
+    cfa = cfa or bayer_cfa("GBRG")
+    wb, matrix = (WB_LMS, P_LMS) if cfa.spectral == "lms" else (WB_BAYER, B_BAYER)
+    pipeline = Pipeline(cfa, [normalize(cfa, np.full(3, 64.0), 1023.0), white_balance1(cfa, wb),
+                              make_stage(cfa), ColourMatrix(matrix)])
     rng = np.random.default_rng(5)
     sc = ndimage.gaussian_filter(rng.random(shape), 2.0) * 600 + 100
     raw = np.clip(sc + rng.normal(0, 8, sc.shape), 0, 1023).astype(np.uint16)

@@ -24,7 +24,8 @@ from clisp.pipeline import Pipeline, chroma_denoise_for
 from clisp.sim.simulate import simulate
 from clisp.modules.chroma_denoise import stage as cd
 from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
-                                                haar_analyze, haar_synthesize, lms_space, make_plan, yuv_space)
+                                                haar_analyze, haar_synthesize, lms_space, luma_weights, make_plan,
+                                                space_for_cfa, yuv_space)
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided
@@ -34,7 +35,8 @@ from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
 
-SPACES = {"lms": lms_space(P_LMS), "yuv": yuv_space(B_BAYER)}
+SPACES = {"lms": lms_space(P_LMS), "yuv": yuv_space(B_BAYER),
+          "rgb-cfa": space_for_cfa(cfa_from_name("bayer"), B_BAYER, "cfa")}
 HALO = ChromaDenoise(SPACES["lms"]).halo            # 52 at the defaults (J = 3, r = 3)
 # (window shape, window origin): odd sizes; origins at 0, negative, aligned to 2^J = 8 or not.
 WINDOWS = [((2 * HALO + 37, 2 * HALO + 53), (0, 0)),                # window aligned
@@ -88,7 +90,7 @@ def noisy_camera(shape, seed: int) -> np.ndarray:
 # colour spaces
 # ------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name", ["lms", "yuv"])
+@pytest.mark.parametrize("name", ["lms", "yuv", "rgb-cfa"])
 def test_space_round_trip_is_the_colour_matrix(name):
     """from_luma Y + from_chroma c == to_rgb cam: with c^ = c the stage is the colour matrix."""
     sp = SPACES[name]
@@ -106,6 +108,27 @@ def test_spaces_are_the_papers():
     np.testing.assert_allclose(yuv.split_matrix @ [0.2, 0.5, 0.7], [y, 0.492 * (rgb[2] - y), 0.877 * (rgb[0] - y)])
 
 
+def test_lumas_of_the_layouts():
+    """Issue 45's luminances: the CFA's baseband (its channels' shares of the pixels) and the
+    least-noise weighting (shares over the pass-1 gains), in the LMS construction (c_k = RGB_k - Y)."""
+    cases = {"bayer": [0.25, 0.5, 0.25], "lms-bayer": [0.25, 0.5, 0.25], "ML/LS": [0.5, 0.25, 0.25],
+             "lms": [0.5, 0.375, 0.125]}
+    for name, shares in cases.items():
+        cfa = cfa_from_name(name)
+        np.testing.assert_allclose(luma_weights(cfa, "cfa"), shares)
+        gains = np.array([1.0, 1.2191, 3.1397])
+        snr = luma_weights(cfa, "snr", gains)
+        np.testing.assert_allclose(snr, np.array(shares) / gains / np.sum(np.array(shares) / gains))
+        matrix = P_LMS if cfa.spectral == "lms" else B_BAYER
+        space = space_for_cfa(cfa, matrix, "cfa")
+        assert space.name == f"{cfa.spectral}-cfa" and space.n_chroma == 3
+        np.testing.assert_allclose(space.merge_matrix @ space.split_matrix, matrix, atol=1e-12)
+    assert space_for_cfa(cfa_from_name("bayer"), B_BAYER).name == "yuv"          # 'paper' is the paper's
+    assert space_for_cfa(cfa_from_name("ML/LS"), P_LMS).name == "lms"
+    with pytest.raises(ClispError, match="luma"):
+        ChromaDenoiseParams(luma="bt709")
+
+
 def test_haar_is_inverted_exactly():
     a = np.random.default_rng(0).standard_normal((2, 16, 24))
     approx, detail = haar_analyze(a)
@@ -118,7 +141,7 @@ def test_haar_is_inverted_exactly():
 # ------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("vec", [1, 8])
-@pytest.mark.parametrize("name", ["lms", "yuv"])
+@pytest.mark.parametrize("name", ["lms", "yuv", "rgb-cfa"])
 def test_kernels_match_reference(rt, monkeypatch, name, vec):
     """Whole stage (chroma_split, haar_analyze, bayes_shrink, joint_bilateral, haar_synthesize,
     chroma_merge) on odd windows at negative, aligned and unaligned origins; both vector widths."""

@@ -105,11 +105,11 @@ def test_clipped_record_bounds_the_brightness():
     from clisp.modules.highlights.stage import reconstruct
     y = np.array([[[1.2, 1.25, 1.0]]])
     clipped = np.array([[[True, True, False]]])
-    sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
+    sums = np.array([[[100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 0.0, 0.0, 100.0, 100.0, 100.0]]])   # far, rim rho^ = (1, 1, 1)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.allclose(out[0, 0], [1.25, 1.25, 1.0])
     # a reference colour that calls the clipped channel nearly dark gives it no say (RHO_MIN)
-    sums = np.array([[[100.0, 10.0, 145.0, 100.0, 100.0, 10.0, 145.0]]])     # rho^ = (0.1, 1.45, 1.45)
+    sums = np.array([[[100.0, 10.0, 145.0, 100.0, 100.0, 10.0, 145.0, 0.0, 0.0, 100.0, 10.0, 145.0]]])     # rho^ = (0.1, 1.45, 1.45)
     out = reconstruct(y, clipped, np.array([[True]]), sums)
     assert np.all(np.isfinite(out)) and out[0, 0, 1] < 2.0
 
@@ -288,3 +288,46 @@ def test_kernel_matches_reference_beside_saturated_colour(rt, cfa):
     assert_close(out, ref, f"highlights beside saturated colour ({cfa})")
     h = stage.halo
     assert not np.allclose(ref, x[h:-h, h:-h]), "nothing was reconstructed"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_white_shirt_exposed_to_the_right_is_left_alone(cfa):
+    """Issue 43, item 1: a white shirt whose folds' crests sit exactly at full scale clips part of
+    its samples by noise alone at every gain; no highlight stage is built for it (the clipped share
+    fits the noise around full scale), so it comes out as ``--highlights off``."""
+    from clisp.sim.highlight_scenes import white_shirt
+    for gain in (1, 64):
+        sim = clisp.simulate(white_shirt(64), cfa=cfa, gain=gain, seed=1)
+        assert has_clipped(sim.raw), f"gain {gain}: no sample clipped, the test tests nothing"
+        assert highlight_stage(sim.raw, "reconstruct") is None, f"gain {gain}"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_lamp_beside_the_shirt_is_a_true_clip(cfa):
+    """Issue 43, item 1: a lamp past the clip beside the white shirt gets the stage; its clip map
+    allows clipping around the lamp and nowhere on the shirt (the left third) but within one
+    noise-test block of the lamp's (true blocks grow into clipped neighbours: a light's edge)."""
+    from clisp.modules.highlights.stage import MAP, TEST, clip_map, raw_noise_or_none
+    from clisp.sim.highlight_scenes import light_beside
+    sim = clisp.simulate(light_beside(96), cfa=cfa, gain=4, seed=1)
+    assert highlight_stage(sim.raw, "reconstruct") is not None
+    bits = clip_map(sim.raw, raw_noise_or_none(sim.raw)).bits
+    assert not bits[:, :(32 - TEST) // MAP].any(), "the shirt counts as clipped"
+    assert bits[40 // MAP:56 // MAP, 40 // MAP:56 // MAP].all(), "the lamp does not count as clipped"
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_specular_rim_on_saturated_spheres_is_bounded(cfa):
+    """Issue 43, item 2: specular highlights on saturated red, green and blue spheres, gains 1 and
+    8: no pixel of the specular rim (clisp.sim.highlight_scenes.specular_rim) more than 1.0 off the
+    truth, fewer pixels over 0.5 than ``clip``, and the rim closer to the truth than ``clip``'s
+    (the grey ring: clip paints the rim neutral)."""
+    from clisp.sim.highlight_scenes import specular_rim, specular_ring
+    scene = specular_ring(64)
+    rim = specular_rim(scene, cfa)
+    for gain in (1, 8):
+        sim = clisp.simulate(scene, cfa=cfa, gain=gain, seed=1)
+        err, clip = _errors(sim, "reconstruct"), _errors(sim, "clip")
+        assert err[rim].max() <= 1.0, f"gain {gain}: rim worst {err[rim].max():.2f}"
+        assert (err > 0.5).sum() < (clip > 0.5).sum(), f"gain {gain}"
+        assert err[rim].mean() < 0.8 * clip[rim].mean(), f"gain {gain}: {err[rim].mean():.3f} / {clip[rim].mean():.3f}"

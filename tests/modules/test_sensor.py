@@ -211,9 +211,10 @@ def test_frames_read_once_a_process(tmp_path, defective, monkeypatch):
         paths[kind] = [str(tmp_path / f"{kind}{i}.dng") for i in range(2)]
         for path, frame in zip(paths[kind], sd.frames(sim.raw, d, kind, 2, 4.0, 30)):
             rawfile.write_raw(path, frame)
+    import clisp.corrections as corrections
     reads = []
     real = rawfile.read_raw
-    monkeypatch.setattr(rawfile, "read_raw", lambda path, lazy=False: reads.append(path) or real(path, lazy))
+    monkeypatch.setattr(corrections, "read_raw", lambda path, lazy=False: reads.append(path) or real(path, lazy))
     first = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
     assert len(reads) == 4
     second = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])

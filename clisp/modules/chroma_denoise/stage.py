@@ -82,26 +82,33 @@ U_SCALE, V_SCALE = 0.492, 0.877
 """BT.601 U = 0.492 (B - Y), V = 0.877 (R - Y)."""
 ORIENTATIONS = ("dx", "dy", "dd")
 
-CHROMA_RANGE_CAP: dict[str, float | None] = {"yuv": 0.027, "lms": None}
+CHROMA_RANGE_CAP: dict[str, float | None] = {"yuv": 0.027, "lms": None, "rgb-cfa": 0.032, "rgb-snr": 0.032,
+                                              "lms-cfa": None, "lms-snr": None}
 """Default ``chroma_range_cap`` per chroma space (ChromaDenoiseParams). Bayer (YUV): 0.027 keeps
 k_chroma = 2 up to gain 16 and lowers it to 0.98 at gain 64, where it averaged across isoluminant
 colour edges (ring colour shift 1.45/5.81 -> ~1.0/2.3 at -0.05 dB PSNR; README.md). LMS: none yet
-(its shift comes from the guided demosaic)."""
+(its shift comes from the guided demosaic). The other luminances (LUMAS, issue 45) take their
+camera's: for RGB the YUV cap times 1.18, the ratio of the difference planes' mid-grey chroma noise
+to U and V's after RI (sigma_0 0.0279 against 0.0236 at gain 16, 0.0594 against 0.0502 at 64), so
+the cap bites at the same noise."""
 CORR_CUT = 1e-2
 """Eigenvalues of a noise correlation matrix below this share of the largest are left out of the
 range metric's pseudo-inverse: LMS's R-Y, G-Y, B-Y have 2 noise sources, and the third
 eigenvalue (about 1e-4, from the colour matrix not being exactly white-preserving) would
 otherwise weigh its direction 100x."""
-RANGE_JOINT_SIGMA: dict[str, tuple[float, float]] = {"yuv": (0.0, 0.0), "lms": (0.015, 0.03)}
+RANGE_JOINT_SIGMA: dict[str, tuple[float, float]] = {"yuv": (0.0, 0.0), "lms": (0.015, 0.03),
+                                                     "rgb-cfa": (0.0, 0.0), "rgb-snr": (0.0, 0.0),
+                                                     "lms-cfa": (0.015, 0.03), "lms-snr": (0.015, 0.03)}
 """Default ``range_joint_sigma`` per chroma space. LMS: off up to sigma_0 0.015 (gain ~12 on the
 simulated sensor), in full from 0.03 (gain ~45): where the noise is low the planes' own range terms
 already keep colour edges, and the joint term held back the smoothing (README.md). Bayer: in full
-at every gain."""
-RANGE_JOINT: dict[str, float] = {"yuv": 1.0, "lms": 2.0}
+at every gain. The other luminances (LUMAS) take their camera's (LMS or YUV)."""
+RANGE_JOINT: dict[str, float] = {"yuv": 1.0, "lms": 2.0, "rgb-cfa": 1.0, "rgb-snr": 1.0, "lms-cfa": 2.0,
+                                 "lms-snr": 2.0}
 """Default ``range_joint`` per chroma space (ChromaDenoiseParams): the coarse levels' joint range
 term, a Mahalanobis distance of the chroma planes in k_chroma noise sigmas (range_metric).
 Bayer 1, LMS 2 (faded in by RANGE_JOINT_SIGMA): worst ring colour shift at gain 64 2.27 -> 1.81
-and 4.46 -> 2.57 (README.md, with the values not taken)."""
+and 4.46 -> 2.57 (README.md, with the values not taken). The other luminances take their camera's."""
 SHRINK_RULES = ("soft", "wiener", "none")
 
 
@@ -143,12 +150,19 @@ class ChromaSpace:
         return np.hstack([self.from_luma[:, None], self.from_chroma])
 
 
+def difference_space(matrix: np.ndarray, luma: Sequence[float], name: str,
+                     strengths: Sequence[float] = (1.0, 1.0, 1.5)) -> ChromaSpace:
+    """The paper's LMS construction for any luminance: Y = luma . cam, c_k = (M cam)_k - Y for
+    k = R, G, B (M = ``matrix``); RGB_k = Y + c_k. Three chroma planes of rank 2."""
+    p = np.asarray(matrix, dtype=np.float64)
+    luma = np.asarray(luma, dtype=np.float64)
+    return ChromaSpace(name, p, luma, p - np.outer(np.ones(3), luma), np.ones(3), np.eye(3),
+                       tuple(float(s) for s in strengths), ("R-Y", "G-Y", "B-Y"))
+
+
 def lms_space(matrix: np.ndarray, strengths: Sequence[float] = (1.0, 1.0, 1.5)) -> ChromaSpace:
     """Paper's LMS space: Y = (L + M)/2, c_k = (P cam)_k - Y for k = R, G, B; RGB_k = Y + c_k."""
-    p = np.asarray(matrix, dtype=np.float64)
-    luma = np.array([0.5, 0.5, 0.0])
-    return ChromaSpace("lms", p, luma, p - np.outer(np.ones(3), luma), np.ones(3), np.eye(3),
-                       tuple(float(s) for s in strengths), ("R-Y", "G-Y", "B-Y"))
+    return difference_space(matrix, (0.5, 0.5, 0.0), "lms", strengths)
 
 
 def yuv_space(matrix: np.ndarray, strengths: Sequence[float] = (1.5, 1.0)) -> ChromaSpace:
@@ -172,6 +186,52 @@ def space_for(kind: str, matrix: np.ndarray, strengths: Sequence[float] | None =
     if make is None:
         raise ClispError(f"no chroma space for CFA kind {kind!r}")
     return make(matrix) if strengths is None else make(matrix, strengths)
+
+
+LUMAS = ("paper", "cfa", "snr")
+"""The chroma denoiser's luminance (ChromaDenoiseParams.luma, :func:`space_for_cfa`; issue 45):
+'paper' the paper's space of the CFA's channels (LMS Y = (L + M) / 2, Bayer BT.601 YUV); 'cfa' the
+CFA's baseband luminance, each channel weighted by its share of the pixels (the mosaic's DC
+carrier: Bayer (R + 2 G + B) / 4, the LMS CFA (4 L + 3 M + S) / 8, ``ML/LS`` (2 L + M + S) / 4):
+the luminance every sample carries; 'snr' the same shares divided by the channels' white-balance
+gains (in white-balanced units a channel's shot-noise variance is its gain times the signal, so
+these weights give the least-noise mix of the samples on grey: the luminance with the most signal
+for its noise). Both in :func:`difference_space`'s form, named '<spectral>-<luma>'."""
+
+
+def luma_weights(cfa, luma: str, gains: Sequence[float] | None = None) -> np.ndarray:
+    """(3,) weights on the white-balanced camera channels of ``cfa`` for LUMAS' 'cfa' (the channels'
+    shares of the pixels) or 'snr' (shares / pass-1 ``gains``, normalised to sum 1).
+
+    >>> from clisp.cfa import bayer_cfa
+    >>> luma_weights(bayer_cfa(), "cfa").tolist()
+    [0.25, 0.5, 0.25]
+    >>> np.round(luma_weights(bayer_cfa(), "snr", (2.0, 1.0, 2.0)), 4).tolist()
+    [0.1667, 0.6667, 0.1667]
+    """
+    w = np.asarray(cfa.densities(), dtype=np.float64)
+    if luma == "snr":
+        g = np.ones(len(w)) if gains is None else np.asarray(gains, dtype=np.float64)
+        w = w / g
+    elif luma != "cfa":
+        raise ClispError(f"no luminance weights for luma {luma!r}; expected cfa or snr")
+    return w / w.sum()
+
+
+def space_for_cfa(cfa, matrix: np.ndarray, luma: str = "paper", gains: Sequence[float] | None = None,
+                  strengths: Sequence[float] | None = None) -> ChromaSpace:
+    """The chroma denoiser's space for ``cfa`` (its channels and, for 'cfa' and 'snr', its layout) with
+    the luminance ``luma`` (LUMAS); ``gains``: the raw's white balance pass 1 (for 'snr')."""
+    if luma == "paper":
+        return space_for(cfa.spectral, matrix, strengths)
+    if luma not in LUMAS:
+        raise ClispError(f"unknown chroma denoise luma {luma!r}; expected one of {', '.join(LUMAS)}")
+    if cfa.spectral not in ("lms", "rgb"):
+        raise ClispError(f"no chroma space for CFA kind {cfa.spectral!r}")
+    name = f"{cfa.spectral}-{luma}"
+    weights = luma_weights(cfa, luma, gains)
+    return difference_space(matrix, weights, name) if strengths is None else \
+        difference_space(matrix, weights, name, strengths)
 
 
 # ---------------------------------------------------------------------------------- parameters
@@ -222,6 +282,9 @@ class ChromaDenoiseParams:
     """Keep chroma details where the luminance detail of the same subband is signal (see bayes_shrink)."""
     strengths: tuple[float, ...] | None = None
     """Per-chroma-channel strengths s_k (None: the space's default, LMS (1, 1, 1.5), YUV (1.5, 1))."""
+    luma: str = "paper"
+    """The space's luminance (LUMAS, :func:`space_for_cfa`): 'paper' (LMS (L + M) / 2, Bayer BT.601),
+    'cfa' (the CFA's baseband luminance) or 'snr' (its least-noise weighting)."""
     noise_scale: float = 1.0
     """Multiplies every noise standard deviation of the table (> 1: smoother, < 1: sharper)."""
     sigma_floor: float = 1e-6
@@ -237,6 +300,8 @@ class ChromaDenoiseParams:
         if self.sigma_d <= 0 or self.k_chroma <= 0 or self.k_luma < 0 or self.noise_scale < 0 \
                 or self.sigma_floor <= 0:
             raise ClispError("chroma denoise: sigma_d, k_chroma, sigma_floor > 0; k_luma, noise_scale >= 0")
+        if self.luma not in LUMAS:
+            raise ClispError(f"chroma denoise luma must be one of {', '.join(LUMAS)}, got {self.luma!r}")
         if self.range_joint != "space" and not (isinstance(self.range_joint, (int, float)) and self.range_joint >= 0):
             raise ClispError(f"chroma denoise range_joint must be 'space' or >= 0, got {self.range_joint!r}")
 

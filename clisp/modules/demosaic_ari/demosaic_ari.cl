@@ -687,21 +687,23 @@ __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), AR
 
 /* ari_final: the stage's output planes R, G, B (times ``scale``, back to the mosaic's units): at G
  * sites R and B are the criterion-weighted means of the four step-3 estimates (planes 0, 1 of
- * est0..est3), elsewhere the step-2 planes (the view rb); G from the view green. Halo 0. */
+ * est0..est3), elsewhere the step-2 planes (the view rb); G from the view green. Each role goes to
+ * the output plane of its CFA channel (plane_r, plane_g, plane_b: 0, 1, 2 on RGB Bayer; L doubled
+ * on the Bayer layout writes its G role to plane 0). Halo 0. */
 #ifdef ARI_WITH_ari_final
 __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
                         __global const float *restrict rb, const int rb_base, const int rb_pitch, const int rb_plane,
                         __global const float *restrict green, const int green_base, const int green_pitch,
                         __global float *restrict out, const int w, const int h, const int py, const int px,
-                        const float scale)
+                        const float scale, const int plane_r, const int plane_g, const int plane_b)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     ARI_MEAN4(r_at_g, 0)
     ARI_MEAN4(b_at_g, 1)
     const int g_site = ari_is_green(y, x, py, px);
     const int at = rb_base + y * rb_pitch + x;
-    out[y * w + x] = (g_site ? r_at_g : rb[at]) * scale;
-    out[w * h + y * w + x] = green[green_base + y * green_pitch + x] * scale;
-    out[2 * w * h + y * w + x] = (g_site ? b_at_g : rb[rb_plane + at]) * scale;
+    out[plane_r * w * h + y * w + x] = (g_site ? r_at_g : rb[at]) * scale;
+    out[plane_g * w * h + y * w + x] = green[green_base + y * green_pitch + x] * scale;
+    out[plane_b * w * h + y * w + x] = (g_site ? b_at_g : rb[rb_plane + at]) * scale;
 }
 #endif

@@ -31,7 +31,7 @@ from ...engine.runtime import DeviceImage, Runtime
 from .reference import (CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, EPS, KINDS, LAPLACIAN, PHASES, RB_KINDS,
                         RMSE_FLOOR, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
 from ...engine.stage import Stage
-from ..demosaic_malvar.stage import check_bayer
+from ..demosaic_malvar.stage import channel_order, check_bayer
 from ..common.box import enqueue_box
 
 SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
@@ -256,15 +256,16 @@ class DemosaicARI(Stage):
         return 4.0 * 96
 
     def phase(self, origin: tuple[int, int]) -> str:
-        """The Bayer phase name of a window whose pixel (0, 0) is image pixel ``origin`` (channels 0, 1, 2
-        as R, G, B: L, M, S on lms-bayer)."""
+        """The Bayer phase name of a window whose pixel (0, 0) is image pixel ``origin``, the channels
+        read by their roles (clisp.cfa CFA.bayer_roles: L, M, S as R, G, B on lms-bayer; M, L, S on
+        ``ML/LS``)."""
         return self.cfa.bayer_phase(origin)
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = demosaic_ari(np.asarray(x, dtype=np.float64), self.phase(origin), self.green_iterations,
                                     self.chroma_iterations, clip=None)
         h = self.halo
-        return out[h:out.shape[0] - h, h:out.shape[1] - h]
+        return channel_order(out[h:out.shape[0] - h, h:out.shape[1] - h], self.cfa)
 
     # -- OpenCL ------------------------------------------------------------------------------
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
@@ -513,11 +514,13 @@ class DemosaicARI(Stage):
 
     def _final(self, c: _Chain, ests: list[_View], rb: _View, green: _View) -> _View:
         """ari_final: the output planes R, G, B in the mosaic's units from step 3's estimates, step 2's
-        R and B and the G plane; releases the estimates."""
+        R and B and the G plane, each role written to its channel's plane (CFA.bayer_roles); releases
+        the estimates."""
         my, mx = _margin(ests + [rb, green], 0, 0)
         out = c.new(3, my, mx)
+        r, g, b = self.cfa.bayer_roles           # the output plane of each role: the CFA's channel order
         c.launch("ari_final", out, {**_estimates(ests, my, mx), **rb.named("rb", my, mx, planes=True),
                                     **green.named("green", my, mx), **_output(out), **c.parity(my, mx),
-                                    "scale": 1.0 / SCALE})
+                                    "scale": 1.0 / SCALE, "plane_r": r, "plane_g": g, "plane_b": b})
         c.release(*(e.image for e in ests))
         return _View(out, my, mx)

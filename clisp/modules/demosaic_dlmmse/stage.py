@@ -46,7 +46,7 @@ from ...errors import ClispError
 from ...engine.runtime import DeviceImage, Runtime, launch_exact
 from ...engine.stage import Stage, as_f32
 from ..common.fused_matrix import FusedColourMatrix
-from ..demosaic_malvar.stage import check_bayer
+from ..demosaic_malvar.stage import channel_order, check_bayer
 
 R, G, B = 0, 1, 2
 
@@ -202,14 +202,14 @@ class DemosaicDLMMSE(FusedColourMatrix, Stage):
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         h, w = x.shape
         x = x.astype(np.float64)
-        channel = self.cfa.channel_map(h, w, origin)
+        channel = self.cfa.role_cfa().channel_map(h, w, origin)          # roles: R, G, B (check_bayer)
         r1, r2, r3, _ = STEP_RADII.values()
         d_h, d_v = directional_differences(x, channel == G)
         s_h, s_v = smooth(d_h, d_v)
         core = crop(channel, r1 + r2 + r3)
         delta = lmmse_fuse(s_h, s_v, d_h, d_v, core != G, self.local_mean)
         out = complete_rgb(crop(x, r1 + r2 + r3), delta, core)
-        return self.apply_output_matrix(out)
+        return self.apply_output_matrix(channel_order(out, self.cfa))
 
     # -- OpenCL ----------------------------------------------------------------------------
     def defines(self, origin: tuple[int, int], raw_dtype: np.dtype) -> dict[str, object]:
@@ -219,10 +219,10 @@ class DemosaicDLMMSE(FusedColourMatrix, Stage):
         def floats(values: np.ndarray) -> str:
             return "{" + ",".join(f"{float(v)!r}f" for v in values) + "}"
 
-        window_pattern = np.roll(self.cfa.pattern, (-origin[0], -origin[1]), axis=(0, 1))
+        window_pattern = np.roll(self.cfa.role_cfa().pattern, (-origin[0], -origin[1]), axis=(0, 1))
         return {
-            "CFA_PERIOD": 2, "CFA_PATTERN": "{" + ",".join(str(int(v)) for v in window_pattern.ravel()) + "}",
-            "RED": R, "GREEN": G, "BLUE": B,          # channel indices by role (check_bayer): L, M, S on lms-bayer
+            "CFA_PATTERN": "{" + ",".join(str(int(v)) for v in window_pattern.ravel()) + "}",
+            "CFA_PERIOD": 2, "RED": R, "GREEN": G, "BLUE": B,   # the pattern in roles (CFA.role_cfa)
             "RAW_T": "ushort" if raw_dtype == np.uint16 else "float",
             "INTERP_RADIUS": STEP_RADII["directional_differences"], "INTERP_WEIGHTS": floats(INTERPOLATION),
             "SMOOTH_RADIUS": STEP_RADII["smooth"], "SMOOTH_WEIGHTS": floats(SMOOTHING),
@@ -233,7 +233,7 @@ class DemosaicDLMMSE(FusedColourMatrix, Stage):
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         defines = self.defines(origin, src.dtype)
-        matrix = self.output_matrix()
+        matrix = self.output_matrix() @ self.cfa.role_matrix()       # roles to channel order, then the matrix
 
         def step(name: str, prev: DeviceImage, channels: int) -> tuple[object, DeviceImage]:
             """The step's kernel and its output image: ``prev`` shrunk by the step's radius."""

@@ -1,4 +1,4 @@
-"""Malvar-He-Cutler gradient-corrected linear demosaic (Bayer only).
+"""Malvar-He-Cutler gradient-corrected linear demosaic (Bayer layout, any doubled channel).
 
 H. S. Malvar, L.-W. He and R. Cutler, "High-quality linear interpolation for demosaicing of
 Bayer-patterned color images", Proc. IEEE ICASSP 2004, vol. 3, pp. 485-488.
@@ -70,11 +70,24 @@ RADIUS = 2
 
 
 def check_bayer(cfa: CFA, what: str) -> None:
-    """Raise ClispError unless ``cfa`` has the Bayer layout (clisp.cfa.layout_of: 2 x 2, channel 1 doubled
-    on a diagonal, channels 0 and 2 once): RGB Bayer in any of its four phases, or L, M, S on it
-    (lms-bayer), whose L, M, S the Bayer demosaics interpolate as R, G, B."""
+    """Raise ClispError unless ``cfa`` has the Bayer layout (clisp.cfa.layout_of: 2 x 2, one channel
+    doubled on a diagonal, the other two once): RGB Bayer in any of its four phases, L, M, S on it
+    (lms-bayer), or another channel doubled (``ML/LS``: L doubled). The Bayer demosaics interpolate
+    the channels by their roles (clisp.cfa CFA.bayer_roles: the doubled one as G)."""
     if cfa.layout != "bayer" or cfa.n_channels != 3:
         raise ClispError(f"{what} needs a Bayer CFA (RGGB, GRBG, GBRG or BGGR), got {cfa.name}")
+
+
+def channel_order(rgb: np.ndarray, cfa: CFA) -> np.ndarray:
+    """A Bayer demosaic's H x W x 3 output in role order (R, G, B: clisp.cfa CFA.bayer_roles) in
+    ``cfa``'s channel order; ``rgb`` itself where the two agree (RGB Bayer, lms-bayer).
+
+    >>> from clisp.cfa import cfa_from_name
+    >>> channel_order(np.array([[[1.0, 2.0, 3.0]]]), cfa_from_name("ML/LS")).tolist()   # R=M, G=L, B=S
+    [[[2.0, 1.0, 3.0]]]
+    """
+    roles = cfa.bayer_roles
+    return rgb if roles == (0, 1, 2) else rgb[..., np.argsort(roles)]
 
 
 @dataclass
@@ -98,7 +111,7 @@ class DemosaicMalvar(Stage):
         h, w = x.shape
         r = RADIUS
         x = x.astype(np.float64)
-        channel = self.cfa.channel_map(h, w, origin)
+        channel = self.cfa.role_cfa().channel_map(h, w, origin)          # roles: R, G, B (check_bayer)
         row_has = [np.any(channel == c, axis=1)[:, None] for c in range(3)]   # rows holding c
         col_has = [np.any(channel == c, axis=0)[None, :] for c in range(3)]   # columns holding c
 
@@ -115,7 +128,7 @@ class DemosaicMalvar(Stage):
             plane = np.where((channel == G) & row_has[c], same_row, plane)
             plane = np.where((channel == G) & col_has[c], same_col, plane)
             out[..., c] = plane
-        return out[r:h - r, r:w - r]
+        return channel_order(out[r:h - r, r:w - r], self.cfa)
 
     def as_phase_filter(self) -> LinearPhaseFilter:
         """The same operator as per-phase weights (4 phases, 3 outputs, 25 taps), zero bias.
@@ -123,7 +136,7 @@ class DemosaicMalvar(Stage):
         Phase k's centre channel picks the kernel; for R/B at a G site the kernel is the one whose
         bilinear part reads the tap channel at (0, +-1) (same row) or at (+-1, 0) (same column).
         """
-        ch = tap_channels(self.cfa, RADIUS)                             # (4, 25)
+        ch = tap_channels(self.cfa.role_cfa(), RADIUS)                  # (4, 25) roles R, G, B
         offsets = [tuple(o) for o in tap_offsets(RADIUS)]
         centre, east, south = (offsets.index(o) for o in ((0, 0), (0, 1), (1, 0)))
         weights = np.zeros((ch.shape[0], 3, len(offsets)))
@@ -144,6 +157,7 @@ class DemosaicMalvar(Stage):
                 else:  # pragma: no cover - excluded by check_bayer
                     raise ClispError(f"{self.cfa.name}: no Malvar kernel for {self.cfa.channels[c]}")
                 weights[k, c] = kernel.ravel()
+        weights = weights[:, np.argsort(self.cfa.bayer_roles)]          # outputs in channel order
         return LinearPhaseFilter(self.cfa, RADIUS, weights, np.zeros((ch.shape[0], 3)))
 
     def fuse(self, following: Stage) -> Stage | None:

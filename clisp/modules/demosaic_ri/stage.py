@@ -42,7 +42,7 @@ from ...engine.stage import Stage, as_f32
 from ...sim.noise import ChannelNoise
 from ..common.fused_matrix import FusedColourMatrix
 from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_REG
-from ..demosaic_malvar.stage import check_bayer
+from ..demosaic_malvar.stage import channel_order, check_bayer
 from .reference import CHROMA_NOISE_K, CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
 
 def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]:
@@ -99,7 +99,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
         """(shot, floor) of the G samples' noise variance in the mosaic's units; zeros without noise."""
         if self.noise is None:
             return 0.0, 0.0
-        g = 1                           # the doubled channel of the Bayer layout (check_bayer): G, or M
+        g = self.cfa.bayer_roles[1]     # the doubled channel of the Bayer layout (check_bayer): G, M or L
         return float(self.noise.shot[g]), float(self.noise.floor[g])
 
     @property
@@ -119,18 +119,18 @@ class DemosaicRI(FusedColourMatrix, Stage):
     def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
         pixel (y, x) is an R site when y + ry and x + rx are even."""
-        ys, xs = np.nonzero(self.cfa.pattern == 0)     # channel 0 plays R (check_bayer): R, or L
+        ys, xs = np.nonzero(self.cfa.role_cfa().pattern == 0)     # the R role (CFA.bayer_roles): R, L or M
         return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-        out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.channel_map(2, 2, (0, 0)), origin,
+        out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.role_cfa().channel_map(2, 2, (0, 0)), origin,
                        self.green_noise())
-        return self.apply_output_matrix(out)
+        return self.apply_output_matrix(channel_order(out, self.cfa))
 
     # -- OpenCL ------------------------------------------------------------------------------
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         defines = program_defines(src.dtype, self.interleaved)
-        matrix = self.output_matrix()
+        matrix = self.output_matrix() @ self.cfa.role_matrix()       # roles to channel order, then the matrix
         margins = dict(zip(STEP_RADII, accumulate(STEP_RADII.values())))   # step -> its output's margin
 
         def image(step: str, prev: DeviceImage, channels: int) -> DeviceImage:

@@ -1,19 +1,30 @@
 /* Highlight handling on planar white-balanced camera channels (clisp/modules/highlights/stage.py has
  * the definitions and the NumPy reference). n: the neutral (3), t: the clip thresholds in units
- * of n (3). Launched over exactly the output (launch_exact): no bounds checks. */
+ * of n (3). */
 
 /* The reconstruct/clip kernels need the host's constants (clisp/modules/highlights/stage.py, as
- * defines): HL_RADIUS, HL_RIM, HL_BLOCK, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
- * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R and
- * the reach levels HL_D_APPLY, HL_D_CELLS, HL_D_NEAR, HL_D_NEAR_ROWS. Built without them (the clamp alone), the file holds hl_clamp only. */
+ * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
+ * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
+ * HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 
 #include "box.h"
 
-/* Windows: src (width x height) -> flags (same) -> near rows (w1 = width - 2 RIM columns) ->
- * near on the window less the rim (w1 x h1) -> reference sums per cell and over each cell's
- * neighbourhood (ncw x nch cells of the image's grid) -> output (ow x oh, w1 - 2 R x h1 - 2 R).
- * Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R). */
+/* Windows: src (width x height) -> flags (same, uchar: bit c = channel c clipped) -> near rows
+ * (w1 = width - 2 RIM columns) -> near on the window less the rim (w1 x h1, uchar) -> reference
+ * sums per cell and over each cell's neighbourhood (ncw x nch cells of the image's grid) ->
+ * output (ow x oh, w1 - 2 R x h1 - 2 R). Output pixel (y, x) is src pixel (y + RIM + R, x + RIM + R).
+ *
+ * Work in proportion to the clipped area: the host's clip map (Highlights.schedule) gives the
+ * window's map cells (HL_MC x HL_MC px on the image's grid: window pixel (y, x) lies in cell
+ * ((y + py) / HL_MC, (x + px) / HL_MC)) with the channels that may count as clipped there (bits
+ * 0-2), the lists of HL_WC x HL_WC px work cells for the list kernels and the work of the cell
+ * kernels per reference cell (HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX). hl_copy copies the whole
+ * output; the list kernels (hl_flags, hl_near_rows, hl_near, hl_apply) run one work-group of
+ * HL_WC x HL_WC per listed cell (entries gy << 16 | gx): flags only where a channel is allowed
+ * (0 elsewhere, hl_clear), near within a map cell of those (every pixel within RIM <= HL_MC of a
+ * flag; 0 elsewhere), the near rows a map cell above and below that, apply where near; the cell
+ * kernels run over the grid of reference cells and leave at once outside their work. */
 
 /* max without fmax: PoCL 3 does not vectorise fmax/fmin (3x slower kernels); inputs are finite. */
 inline float hl_max(const float a, const float b)
@@ -21,207 +32,168 @@ inline float hl_max(const float a, const float b)
     return a > b ? a : b;
 }
 
-inline int any_clipped(const float y0, const float y1, const float y2, __constant const float *t)
+/* list_pixel: this work-item's window pixel (x, y): work cell get_global_id(1) / HL_WC of the
+ * list (HL_WC px on the image's grid, the window's first pixel at (wy, wx) of its cell), its pixel
+ * (get_global_id(0), get_global_id(1) % HL_WC). */
+inline int2 list_pixel(__global const int *list, const int wy, const int wx)
 {
-    return y0 >= t[0] || y1 >= t[1] || y2 >= t[2];
+    const int c = list[get_global_id(1) / HL_WC];
+    return (int2)((c & 0xffff) * HL_WC + (int)get_global_id(0) - wx,
+                  (c >> 16) * HL_WC + (int)(get_global_id(1) % HL_WC) - wy);
 }
 
-/* soft_clipped: channel c (plane at src + offset) at src index i, not clipped itself, counts as
- * clipped when y_c >= HL_DIP t_c and y_c >= t_c at one of the 8 neighbours (the caller has
- * another channel clipped at i: highlights.clipped_channels, and keeps i one pixel inside the
- * window). */
-inline int soft_clipped(__global const float *src, const int i, const int width, const float inv_n,
-                        const float t)
-{
-    if (src[i] * inv_n < HL_DIP * t)
-        return 0;
-    float m = 0.0f;
-    for (int dy = -1; dy <= 1; dy++)
-        for (int dx = -1; dx <= 1; dx++)
-            m = hl_max(m, src[i + dy * width + dx]);
-    return m * inv_n >= t;
-}
-
-/* hl_flags: 1 where a channel of the pixel reached its threshold, else 0. */
-__kernel void hl_flags(__global const float *restrict src, __global float *restrict dst,
-                       const int width, const int height, __constant const float *restrict n,
-                       __constant const float *restrict t)
+/* hl_copy: the output, the window less RIM + R on every side (hl_apply overwrites where it works). */
+__kernel void hl_copy(__global const float *restrict src, __global float *restrict dst, const int width,
+                      const int height, const int out_w, const int out_h)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
-    const int plane = width * height;
-    const int i = y * width + x;
-    dst[i] = any_clipped(src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2], t) ? 1.0f : 0.0f;
+    const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS, plane = width * height;
+    const int o = y * out_w + x, oplane = out_w * out_h;
+    dst[o] = src[i];
+    dst[oplane + o] = src[plane + i];
+    dst[2 * oplane + o] = src[2 * plane + i];
 }
 
-/* Sparsity: the stage changes only pixels within RIM of a clipped one, so every kernel after
- * hl_flags works only where a clipped pixel lies near enough for its result to be read.
- * hl_blocks: blocks (nby x nbx, HL_BLOCK px of the src window each) = 1 where the block holds a
- * clipped pixel. hl_reach: plane d - 1 (d = 1..4) = 1 where a block within d blocks does. A
- * kernel whose output pixel lies in src block (by, bx) works when reach[d][by][bx] is set, d the
- * host's level for that kernel (highlights.reach_levels): apply works within HL_D_APPLY blocks
- * (every pixel it changes lies within RIM of a clipped one) and reads the cell box sums of its
- * cell and near there; the cell box sums read cells up to (HL_CELL_R + 1) HL_CELL - 1 px away
- * (HL_D_CELLS), the cells read near at their pixels (HL_D_NEAR, a block more: a cell may straddle
- * a block edge), near reads the near rows RIM rows away (HL_D_NEAR_ROWS); nothing a working pixel
- * reads was skipped, whatever the pool's buffers held before. Skipped apply pixels are copied
- * unchanged. */
-__kernel void hl_blocks(__global const float *restrict flags, __global float *restrict blocks,
-                        const int width, const int height, const int nbx)
+/* hl_clear: 0 in every byte of a width-wide plane. */
+__kernel void hl_clear(__global uchar *restrict dst, const int width)
 {
-    const int bx = get_global_id(0);
-    const int by = get_global_id(1);
-    const int x0 = bx * HL_BLOCK, y0 = by * HL_BLOCK;
-    const int x1 = min(x0 + HL_BLOCK, width), y1 = min(y0 + HL_BLOCK, height);
-    float m = 0.0f;
-    for (int y = y0; y < y1; y++)
-        for (int x = x0; x < x1; x++)
-            m = hl_max(m, flags[y * width + x]);
-    blocks[by * nbx + bx] = m;
+    dst[get_global_id(1) * width + get_global_id(0)] = 0;
 }
 
-__kernel void hl_reach(__global const float *restrict blocks, __global float *restrict reach,
-                       const int nbx, const int nby)
+/* hl_flags (list: the cells where a channel is allowed): bit c where y_c >= t_c and the cell allows c. */
+__kernel void hl_flags(__global const int *restrict list, __global const float *restrict src,
+                       __global const uchar *restrict cells, __global uchar *restrict dst, const int width,
+                       const int height, const int ngx, const int py, const int px,
+                       __constant const float *restrict n, __constant const float *restrict t, const int wy,
+                       const int wx)
 {
-    const int bx = get_global_id(0);
-    const int by = get_global_id(1);
-    for (int d = 1; d <= 4; d++) {
-        float m = 0.0f;
-        for (int j = max(by - d, 0); j <= min(by + d, nby - 1); j++)
-            for (int i = max(bx - d, 0); i <= min(bx + d, nbx - 1); i++)
-                m = hl_max(m, blocks[j * nbx + i]);
-        reach[((d - 1) * nby + by) * nbx + bx] = m;
-    }
-}
-
-/* active: whether src pixel (sx, sy) lies in a block with reach[d] set. */
-inline int active(__global const float *reach, const int d, const int sx, const int sy, const int nbx,
-                  const int nby)
-{
-    return reach[((d - 1) * nby + sy / HL_BLOCK) * nbx + sx / HL_BLOCK] > 0.0f;
-}
-
-/* hl_near_rows: max of the flags over 2 RIM + 1 consecutive columns. */
-__kernel void hl_near_rows(__global const float *restrict src, __global float *restrict dst,
-                           const int width, const int out_w, __global const float *restrict reach,
-                           const int nbx, const int nby)
-{
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    if (!active(reach, HL_D_NEAR_ROWS, x + HL_RIM, y, nbx, nby))
+    const int2 p = list_pixel(list, wy, wx);
+    if (p.x < 0 || p.y < 0 || p.x >= width || p.y >= height)
         return;
-    float m = 0.0f;
-    for (int k = 0; k <= 2 * HL_RIM; k++)
-        m = hl_max(m, src[y * width + x + k]);
-    dst[y * out_w + x] = m;
+    const int bits = cells[((p.y + py) / HL_MC) * ngx + (p.x + px) / HL_MC];
+    const int plane = width * height, i = p.y * width + p.x;
+    uchar f = 0;
+    if ((bits & 1) && src[i] / n[0] >= t[0])
+        f |= 1;
+    if ((bits & 2) && src[plane + i] / n[1] >= t[1])
+        f |= 2;
+    if ((bits & 4) && src[2 * plane + i] / n[2] >= t[2])
+        f |= 4;
+    dst[i] = f;
 }
 
-/* hl_near: on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
- * channel (max of the near rows over 2 RIM + 1 rows), else 0. */
-__kernel void hl_near(__global const float *restrict rows, __global float *restrict dst, const int w1,
-                      const int h1, __global const float *restrict reach, const int nbx, const int nby)
+/* hl_near_rows (list): 1 where a flag lies within RIM columns (the window less RIM columns, w1 wide). */
+__kernel void hl_near_rows(__global const int *restrict list, __global const uchar *restrict flags,
+                           __global uchar *restrict dst, const int width, const int height, const int w1,
+                           const int wy, const int wx)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    if (!active(reach, HL_D_NEAR, x + HL_RIM, y + HL_RIM, nbx, nby))
+    const int2 p = list_pixel(list, wy, wx);
+    const int x = p.x - HL_RIM;
+    if (x < 0 || x >= w1 || p.y < 0 || p.y >= height)
         return;
-    float near = 0.0f;
+    uchar m = 0;
     for (int k = 0; k <= 2 * HL_RIM; k++)
-        near = hl_max(near, rows[(y + k) * w1 + x]);
-    dst[y * w1 + x] = near;
+        m |= flags[p.y * width + x + k];
+    dst[p.y * w1 + x] = m != 0;
+}
+
+/* hl_near (list): on the window less the rim (w1 x h1): 1 where a pixel within RIM has a clipped
+ * channel (max of the near rows over 2 RIM + 1 rows). */
+__kernel void hl_near(__global const int *restrict list, __global const uchar *restrict rows,
+                      __global uchar *restrict dst, const int w1, const int h1, const int wy, const int wx)
+{
+    const int2 p = list_pixel(list, wy, wx);
+    const int x = p.x - HL_RIM, y = p.y - HL_RIM;
+    if (x < 0 || y < 0 || x >= w1 || y >= h1)
+        return;
+    uchar m = 0;
+    for (int k = 0; k <= 2 * HL_RIM; k++)
+        m |= rows[(y + k) * w1 + x];
+    dst[y * w1 + x] = m;
 }
 
 #if HL_RADIUS > 0
 /* reference_weights: the HL_SUMS reference planes of highlights.reference_weights at src index i
  * (near: the pixel's near flag): (w, w rho0, w rho1, w mean(y)) of a far reference (bright,
- * clearly unclipped, not near), then (w, w rho0, w rho1) of a rim reference (near, no channel
- * clipped, bright); rho_c = y_c / mean(y). */
-inline void reference_weights(__global const float *src, const int i, const int plane, const float near,
+ * clearly unclipped, not near), (w, w rho0, w rho1, w (y0 - mean), w (y1 - mean)) of a rim
+ * reference (near, no channel clipped, bright), (w, w rho0, w rho1) of a surface reference (not
+ * near, clearly unclipped, not among the darkest); rho_c = y_c / mean(y). */
+inline void reference_weights(__global const float *src, const int i, const int plane, const uchar near,
                               const float *inv_n, const float *inv_nt, float *w)
 {
     const float x0 = src[i], x1 = src[plane + i], x2 = src[2 * plane + i];
     const float y0 = x0 * inv_n[0], y1 = x1 * inv_n[1], y2 = x2 * inv_n[2];
     const float m = hl_max(hl_max(x0 * inv_nt[0], x1 * inv_nt[1]), x2 * inv_nt[2]);
     const float ramp = clamp((m - HL_LOW) * (1.0f / (HL_REF - HL_LOW)), 0.0f, 1.0f);
-    const float far = (m < HL_REF && near == 0.0f) ? ramp : 0.0f;
-    const float rim = (near > 0.0f && m < 1.0f) ? ramp : 0.0f;
-    const float total = y0 + y1 + y2;
+    const float far = (m < HL_REF && near == 0) ? ramp : 0.0f;
+    const float rim = (near != 0 && m < 1.0f) ? ramp : 0.0f;
+    const float surface = (m < HL_REF && near == 0) ?
+        clamp((m - HL_SURFACE_LOW) * (1.0f / (HL_SURFACE_FULL - HL_SURFACE_LOW)), 0.0f, 1.0f) : 0.0f;
+    const float total = y0 + y1 + y2, mean = total * (1.0f / 3.0f);
     const float inv = total > 0.0f ? 3.0f / total : 0.0f;
     w[0] = far;
     w[1] = far * y0 * inv;
     w[2] = far * y1 * inv;
-    w[3] = far * total * (1.0f / 3.0f);
+    w[3] = far * mean;
     w[4] = rim;
     w[5] = rim * y0 * inv;
     w[6] = rim * y1 * inv;
+    w[7] = rim * (y0 - mean);
+    w[8] = rim * (y1 - mean);
+    w[9] = surface;
+    w[10] = surface * y0 * inv;
+    w[11] = surface * y1 * inv;
 }
 
-/* cell_active: whether this work-item's cell (i, j) = (global id 0, 1), rows j HL_CELL - oy ..
- * + HL_CELL - 1 of the window less the rim (w1 x h1, cut at its edges), columns likewise, touches a
- * block with reach[d] set: its corners lie in every block it touches. span: the cell's first and
- * last column and row. */
-inline int cell_active(__global const float *reach, const int d, const int ox, const int oy, const int w1,
-                       const int h1, const int nbx, const int nby, int *span)
-{
-    const int i = get_global_id(0), j = get_global_id(1);
-    const int x0 = max(i * HL_CELL - ox, 0), x1 = min(i * HL_CELL - ox + HL_CELL, w1) - 1;
-    const int y0 = max(j * HL_CELL - oy, 0), y1 = min(j * HL_CELL - oy + HL_CELL, h1) - 1;
-    span[0] = x0;
-    span[1] = x1;
-    span[2] = y0;
-    span[3] = y1;
-    return active(reach, d, x0 + HL_RIM, y0 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y0 + HL_RIM, nbx, nby) ||
-           active(reach, d, x0 + HL_RIM, y1 + HL_RIM, nbx, nby) || active(reach, d, x1 + HL_RIM, y1 + HL_RIM, nbx, nby);
-}
-
-/* hl_cells: the reference weights (reference_weights of src and near) summed over each cell of
- * HL_CELL x HL_CELL px of the window less the rim (w1 x h1); cells lie on the image's grid, the
- * window's first pixel at (oy, ox) of its cell, so cell (j, i) covers rows j HL_CELL - oy ..
- * + HL_CELL - 1 (cut at the window's edges). dst: HL_SUMS planes of nch x ncw cells. */
-__kernel void hl_cells(__global const float *restrict src, __global const float *restrict near,
+/* hl_cells: the reference weights (reference_weights of src and near) of HL_SAMPLES pixels of
+ * each cell of HL_CELL x HL_CELL px of the window less the rim (w1 x h1), summed: the pixels
+ * (HL_SAMPLE_Y, HL_SAMPLE_X) of the cell (highlights.SAMPLES), those inside the window less the rim.
+ * Cells lie on the image's grid, the window's first pixel at (oy, ox) of its cell, so cell (j, i)
+ * starts at row j HL_CELL - oy, column i HL_CELL - ox. dst: HL_SUMS planes of nch x ncw cells, at
+ * the cells with HL_WORK_CELLS (those hl_box_rows reads). */
+__kernel void hl_cells(__global const float *restrict src, __global const uchar *restrict near,
                        __global float *restrict dst, const int width, const int height, const int w1,
                        const int h1, const int ncw, const int nch, const int oy, const int ox,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __global const float *restrict reach, const int nbx, const int nby)
+                       __global const uchar *restrict cells)
 {
+    const int sample_y[HL_SAMPLES] = HL_SAMPLE_Y, sample_x[HL_SAMPLES] = HL_SAMPLE_X;
     const int i = get_global_id(0);
     const int j = get_global_id(1);
-    int span[4];
-    if (!cell_active(reach, HL_D_CELLS, ox, oy, w1, h1, nbx, nby, span))
+    if (!(cells[j * ncw + i] & HL_WORK_CELLS))
         return;
     const int plane = width * height, cplane = ncw * nch;
     const float inv_n[3] = {1.0f / n[0], 1.0f / n[1], 1.0f / n[2]};
     const float inv_nt[3] = {inv_n[0] / t[0], inv_n[1] / t[1], inv_n[2] / t[2]};
     float s[HL_SUMS], w[HL_SUMS];
-    for (int p = 0; p < HL_SUMS; p++)
-        s[p] = 0.0f;
-    for (int y = span[2]; y <= span[3]; y++)
-        for (int x = span[0]; x <= span[1]; x++) {
-            reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
-            for (int p = 0; p < HL_SUMS; p++)
-                s[p] += w[p];
-        }
-    for (int p = 0; p < HL_SUMS; p++)
-        dst[p * cplane + j * ncw + i] = s[p];
+    for (int q = 0; q < HL_SUMS; q++)
+        s[q] = 0.0f;
+    for (int k = 0; k < HL_SAMPLES; k++) {
+        const int y = j * HL_CELL - oy + sample_y[k], x = i * HL_CELL - ox + sample_x[k];
+        if (x < 0 || y < 0 || x >= w1 || y >= h1)
+            continue;
+        reference_weights(src, (y + HL_RIM) * width + x + HL_RIM, plane, near[y * w1 + x], inv_n, inv_nt, w);
+        for (int q = 0; q < HL_SUMS; q++)
+            s[q] += w[q];
+    }
+    for (int q = 0; q < HL_SUMS; q++)
+        dst[q * cplane + j * ncw + i] = s[q];
 }
 
-/* hl_cell_box: the sums of each cell's (2 HL_CELL_R + 1)^2 neighbourhood of cells (cells outside
- * the window count 0), HL_SUMS planes of nch x ncw, by the shared box sums (box.h); only cells
- * holding a pixel where hl_apply works. */
-__kernel void hl_cell_box(__global const float *restrict cells, __global float *restrict dst, const int ncw,
-                          const int nch, const int w1, const int h1, const int oy, const int ox,
-                          __global const float *restrict reach, const int nbx, const int nby)
+/* hl_box_rows: the sums of each cell's 2 HL_CELL_R + 1 cells along its row of cells (cells outside
+ * the window count 0), HL_SUMS planes of nch x ncw, at the cells with HL_WORK_ROWS (those
+ * hl_box_cols reads). */
+__kernel void hl_box_rows(__global const float *restrict sums, __global float *restrict dst, const int ncw,
+                          const int nch, const int oy, const int ox, __global const uchar *restrict cells)
 {
-    int span[4];
-    if (!cell_active(reach, HL_D_APPLY, ox, oy, w1, h1, nbx, nby, span))
-        return;
     const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
+    if (!(cells[j * ncw + i] & HL_WORK_ROWS))
+        return;
     const int i0 = max(i - HL_CELL_R, 0), i1 = min(i + HL_CELL_R, ncw - 1);
-    const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
-    for (int p = 0; p < HL_SUMS; p++)
-        dst[p * cplane + j * ncw + i] = box_sum_rect(cells + p * cplane, ncw, i0, i1, j0, j1);
+    for (int q = 0; q < HL_SUMS; q++)
+        dst[q * cplane + j * ncw + i] = box_sum_rect(sums + q * cplane, ncw, i0, i1, j, j);
 }
-#endif /* HL_RADIUS > 0 */
 
 /* chroma_of: rho^ (mean 1) from box sums (w, w rho0, w rho1) and the neutral prior. */
 inline void chroma_of(const float s0, const float s1, const float s2, float *rho)
@@ -243,42 +215,113 @@ inline float agreement(const float *a, const float *b, __constant const float *d
     return clamp((HL_AGREE_HI - dist) / (HL_AGREE_HI - HL_AGREE_LO), 0.0f, 1.0f);
 }
 
-/* hl_apply: the rule of highlights.py at output pixel (y, x). HL_CLIP: clipped -> white n,
- * near -> neutral at the mean. Else the reconstruction: box: hl_cell_box's sums (ncw x nch cells,
- * far then rim, HL_SUMS planes) at the pixel's cell, read where the pixel is clipped or near; d
- * the display matrix of agreement(). */
-__kernel void hl_apply(__global const float *restrict src, __global const float *restrict nearby,
+/* hl_box_cols: the box of (2 HL_CELL_R + 1)^2 cells around each cell (hl_box_rows' sums over
+ * 2 HL_CELL_R + 1 rows), and from it what hl_apply needs per cell, HL_REFS planes of nch x ncw:
+ * 0-2 the far references' chroma rho^ (chroma_of), 3 their agreement with the rim's (d the display
+ * matrix), 4-5 their weight and weighted brightness (the box's sums 0 and 3), 6-8 the rim's
+ * difference chroma along the surface's, Delta (highlights.rim_difference), 9-11 the surface's
+ * chroma less 1, c, 12-14 g = d^T e / |e|^2 with e the part of d c across d (1, 1, 1) (0 where the
+ * surface has no chroma: highlights.surface_projection's s is g . y), 15 (d c . d 1) / |d 1|^2,
+ * 16 the largest output channel of d Delta, 17 |Delta|^2; at the cells with HL_WORK_BOX (where
+ * hl_apply reads them). */
+__kernel void hl_box_cols(__global const float *restrict rows, __global float *restrict dst, const int ncw,
+                          const int nch, const int oy, const int ox, __global const uchar *restrict cells,
+                          __constant const float *restrict d)
+{
+    const int i = get_global_id(0), j = get_global_id(1), cplane = ncw * nch;
+    if (!(cells[j * ncw + i] & HL_WORK_BOX))
+        return;
+    const int j0 = max(j - HL_CELL_R, 0), j1 = min(j + HL_CELL_R, nch - 1);
+    float s[HL_SUMS];
+    for (int q = 0; q < HL_SUMS; q++)
+        s[q] = box_sum_rect(rows + q * cplane, ncw, i, i, j0, j1);
+    float far[3], rim[3], surface[3], c[3];
+    chroma_of(s[0], s[1], s[2], far);
+    chroma_of(s[4], s[5], s[6], rim);
+    chroma_of(s[9], s[10], s[11], surface);
+    for (int k = 0; k < 3; k++)
+        c[k] = surface[k] - 1.0f;
+    /* the rim's difference chroma along the surface's (highlights.rim_difference) */
+    const float sw = s[4] + HL_PRIOR, delta[3] = {s[7] / sw, s[8] / sw, -(s[7] + s[8]) / sw};
+    float dd = 0.0f, dc[3], d1[3], dl[3], a11 = 0.0f, a12 = 0.0f, a22 = 0.0f;
+    for (int r = 0; r < 3; r++) {
+        dl[r] = d[3 * r] * delta[0] + d[3 * r + 1] * delta[1] + d[3 * r + 2] * delta[2];
+        dc[r] = d[3 * r] * c[0] + d[3 * r + 1] * c[1] + d[3 * r + 2] * c[2];
+        d1[r] = d[3 * r] + d[3 * r + 1] + d[3 * r + 2];
+        dd += dl[r] * dc[r];
+        a11 += d1[r] * d1[r];
+        a12 += dc[r] * d1[r];
+        a22 += dc[r] * dc[r];
+    }
+    const float amount = a22 > 1e-12f ? hl_max(dd, 0.0f) / a22 : 0.0f;
+    float e[3], ee = 0.0f, size = 0.0f, norm = 0.0f;       /* d c's part across d 1 */
+    for (int r = 0; r < 3; r++) {
+        e[r] = dc[r] - a12 / a11 * d1[r];
+        ee += e[r] * e[r];
+        size = hl_max(size, fabs(amount * dc[r]));
+        norm += amount * c[r] * amount * c[r];
+    }
+    const int ok = a22 > 1e-12f && ee > 1e-6f * a22;
+    const int at = j * ncw + i;
+    dst[at] = far[0];
+    dst[cplane + at] = far[1];
+    dst[2 * cplane + at] = far[2];
+    dst[3 * cplane + at] = agreement(far, rim, d);
+    dst[4 * cplane + at] = s[0];
+    dst[5 * cplane + at] = s[3];
+    for (int k = 0; k < 3; k++) {
+        dst[(6 + k) * cplane + at] = amount * c[k];
+        dst[(9 + k) * cplane + at] = c[k];
+        dst[(12 + k) * cplane + at] = ok ? (d[k] * e[0] + d[3 + k] * e[1] + d[6 + k] * e[2]) / ee : 0.0f;
+    }
+    dst[15 * cplane + at] = a12 / a11;
+    dst[16 * cplane + at] = size;
+    dst[17 * cplane + at] = norm;
+}
+#endif /* HL_RADIUS > 0 */
+
+/* hl_apply (list: the cells within a cell of a flag): the rule of stage.py at output pixel (y, x)
+ * = window pixel (y + RIM + R, x + RIM + R); the clipped channels from the flags (bit c) and the
+ * soft test (a channel within HL_DIP of its threshold, clipped at one of the 8 neighbours, at a
+ * pixel with another clipped channel: highlights.clipped_channels); wt: the free channels' weights;
+ * h = d^T d (1, 1, 1) / |d (1, 1, 1)|^2 (surface_projection's white). HL_CLIP: clipped -> white n,
+ * near -> neutral at the mean. Else the reconstruction: box: hl_box_cols' planes (ncw x nch
+ * cells) at the pixel's cell; d the display matrix of agreement(). */
+__kernel void hl_apply(__global const int *restrict list, __global const float *restrict src,
+                       __global const uchar *restrict flags, __global const uchar *restrict nearby,
                        __global const float *restrict box, __global float *restrict dst,
                        const int width, const int height, const int w1, const int ncw, const int nch,
                        const int oy, const int ox, const int out_w, const int out_h,
                        __constant const float *restrict n, __constant const float *restrict t,
-                       __constant const float *restrict d, const float white,
-                       __global const float *restrict reach, const int nbx, const int nby)
+                       __constant const float *restrict d, __constant const float *restrict wt,
+                       __constant const float *restrict h, const float white, const int wy, const int wx)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
-    const int plane = width * height, oplane = out_w * out_h;
-    const int i = (y + HL_RIM + HL_RADIUS) * width + x + HL_RIM + HL_RADIUS;
-    if (!active(reach, 1, x + HL_RIM + HL_RADIUS, y + HL_RIM + HL_RADIUS, nbx, nby)) {
-        const int o = y * out_w + x;                  /* nothing clipped within RIM: unchanged */
-        dst[o] = src[i];
-        dst[oplane + o] = src[plane + i];
-        dst[2 * oplane + o] = src[2 * plane + i];
+    const int2 q = list_pixel(list, wy, wx);
+    const int x = q.x - HL_RIM - HL_RADIUS, y = q.y - HL_RIM - HL_RADIUS;
+    if (x < 0 || y < 0 || x >= out_w || y >= out_h)
         return;
-    }
+    const int plane = width * height, oplane = out_w * out_h;
+    const int i = q.y * width + q.x;
     float v[3] = {src[i] / n[0], src[plane + i] / n[1], src[2 * plane + i] / n[2]};
-    int c0 = v[0] >= t[0], c1 = v[1] >= t[1], c2 = v[2] >= t[2];
-    if (c0 + c1 + c2 > 0) {
-        c0 = c0 || soft_clipped(src, i, width, 1.0f / n[0], t[0]);
-        c1 = c1 || soft_clipped(src + plane, i, width, 1.0f / n[1], t[1]);
-        c2 = c2 || soft_clipped(src + 2 * plane, i, width, 1.0f / n[2], t[2]);
+    const int f = flags[i];
+    int c0 = f & 1, c1 = (f >> 1) & 1, c2 = (f >> 2) & 1;
+    if (f) {                                 /* soft: the channel clipped at a neighbour */
+        int beside = 0;
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++)
+                beside |= flags[i + dy * width + dx];
+        c0 = c0 || ((beside & 1) && v[0] >= HL_DIP * t[0]);
+        c1 = c1 || ((beside & 2) && v[1] >= HL_DIP * t[1]);
+        c2 = c2 || ((beside & 4) && v[2] >= HL_DIP * t[2]);
     }
     const int count = c0 + c1 + c2;
-    const float near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+    const uchar near = nearby[(y + HL_RADIUS) * w1 + x + HL_RADIUS];
+    if (count == 0 && near == 0)
+        return;                              /* unchanged: hl_copy has it */
 #if HL_CLIP
     if (count > 0) {
         v[0] = v[1] = v[2] = white;
-    } else if (near > 0.0f) {
+    } else if (near) {
         const float mean = (v[0] + v[1] + v[2]) / 3.0f;
         v[0] = v[1] = v[2] = mean;
     }
@@ -286,17 +329,14 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
     if (count == 3) {
         const float top = hl_max(hl_max(v[0], v[1]), v[2]);
         v[0] = v[1] = v[2] = top;
-    } else if (count > 0 || near > 0.0f) {
-        const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL;
-        float s[HL_SUMS];
-        for (int p = 0; p < HL_SUMS; p++)
-            s[p] = box[p * ncw * nch + cell];
-        float far[3], rim[3];
-        chroma_of(s[0], s[1], s[2], far);
-        chroma_of(s[4], s[5], s[6], rim);
+    } else {
+        const int cell = ((y + HL_RADIUS + oy) / HL_CELL) * ncw + (x + HL_RADIUS + ox) / HL_CELL, cplane = ncw * nch;
+        const float far[3] = {box[cell], box[cplane + cell], box[2 * cplane + cell]};
+        const float s0 = box[4 * cplane + cell], s3 = box[5 * cplane + cell];
+        const float delta[3] = {box[6 * cplane + cell], box[7 * cplane + cell], box[8 * cplane + cell]};
         const int clipped[3] = {c0, c1, c2};
-        /* trust in the far chroma (highlights.trust_in_far) */
-        float trust = agreement(far, rim, d);
+        /* trust in the far chroma (highlights.trust_in_far): agreement with the rim's (per cell) */
+        float trust = box[3 * cplane + cell];
         float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
         for (int c = 0; c < 3; c++) {
             fy[c] = clipped[c] ? 0.0f : v[c];
@@ -313,32 +353,65 @@ __kernel void hl_apply(__global const float *restrict src, __global const float 
         }
         if (count > 0) {                     /* the brightness far implies, against its references' */
             const float implied = sy / hl_max(sr, 1e-6f);
-            const float rise = s[0] > 0.0f ? implied * s[0] / hl_max(s[3], 1e-9f) : 0.0f;
+            const float rise = s0 > 0.0f ? implied * s0 / hl_max(s3, 1e-9f) : 0.0f;
             trust *= clamp((HL_RISE_HI - rise) / (HL_RISE_HI - HL_RISE_LO), 0.0f, 1.0f);
         }
         float rho[3];
         for (int c = 0; c < 3; c++)
             rho[c] = 1.0f + trust * (far[c] - 1.0f);
-        if (count == 0) {                    /* rim: reference colour, unless a surface of its own */
+        if (count == 0) {                    /* rim: white plus the surface's colour (surface_projection) */
             const float mean = (v[0] + v[1] + v[2]) / 3.0f;
             float own[3];
             for (int c = 0; c < 3; c++)
                 own[c] = mean > 0.0f ? v[c] / mean : 1.0f;
-            const float keep = s[0] / (s[0] + HL_EVIDENCE) * (1.0f - agreement(own, far, d));
-            for (int c = 0; c < 3; c++)
-                v[c] += (1.0f - keep) * (mean * rho[c] - v[c]);
+            const float keep = s0 / (s0 + HL_EVIDENCE) * (1.0f - agreement(own, far, d));
+            /* white plus the surface's chroma c: s = g . v in [0, mean], b = h . v - (a12 / a11) s */
+            const float c[3] = {box[9 * cplane + cell], box[10 * cplane + cell], box[11 * cplane + cell]};
+            const float sp = clamp(box[12 * cplane + cell] * v[0] + box[13 * cplane + cell] * v[1] +
+                                   box[14 * cplane + cell] * v[2], 0.0f, mean);
+            const float b = h[0] * v[0] + h[1] * v[1] + h[2] * v[2] - box[15 * cplane + cell] * sp;
+            for (int c2 = 0; c2 < 3; c2++)
+                v[c2] += (1.0f - keep) * (b + sp * c[c2] - v[c2]);
         } else {
-            float den = 0.0f;
+            float num = 0.0f, den = 0.0f, wsum = 0.0f;
             for (int c = 0; c < 3; c++)
-                if (!clipped[c])
-                    den += rho[c];
-            float k = sy / hl_max(den, 1e-6f);
+                if (!clipped[c]) {
+                    num += wt[c] * v[c];
+                    den += wt[c] * rho[c];
+                    wsum += wt[c];
+                }
+            float k = num / hl_max(den, 1e-6f);
             for (int c = 0; c < 3; c++)          /* a clipped record bounds the brightness below */
                 if (clipped[c] && rho[c] >= HL_RHO_MIN)
                     k = hl_max(k, v[c] / rho[c]);
+            /* the additive estimate (highlights.additive_estimate): white b plus s of the rim's Delta */
+            float pair = 0.0f, sfd = 0.0f, sfd2 = 0.0f, sfy = 0.0f, wy = 0.0f, wd = 0.0f;
+            const float dd = box[17 * cplane + cell];
+            for (int c = 0; c < 3; c++) {
+                if (!clipped[c]) {
+                    pair += v[c] * delta[c];
+                    sfd += delta[c];
+                    sfd2 += delta[c] * delta[c];
+                    sfy += v[c];
+                    wy += wt[c] * v[c];
+                    wd += wt[c] * delta[c];
+                }
+            }
+            const float prior = HL_ADD_PRIOR * dd;
+            float sa = count == 1 ? clamp((2.0f * pair - sfy * sfd + prior) / hl_max(2.0f * sfd2 - sfd * sfd + prior, 1e-12f),
+                                          0.0f, 1.0f) : 0.0f;
+            const float wfree = hl_max(wsum, 1e-12f);
+            const float b0 = hl_max((wy - sa * wd) / wfree, 0.0f);
+            const float size = sa * box[16 * cplane + cell];
+            if (size > HL_ADD_LIMIT * b0)
+                sa *= HL_ADD_LIMIT * b0 / hl_max(size, 1e-12f);
+            float b = (wy - sa * wd) / wfree;
             for (int c = 0; c < 3; c++)
                 if (clipped[c])
-                    v[c] = hl_max(v[c], k * rho[c]);
+                    b = hl_max(b, v[c] - sa * delta[c]);
+            for (int c = 0; c < 3; c++)
+                if (clipped[c])
+                    v[c] = hl_max(v[c], trust * k * rho[c] + (1.0f - trust) * (b + sa * delta[c]));
         }
     }
 #endif

@@ -70,12 +70,14 @@ Measured figures: docs/RESULTS.md, "Highlights".
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from ...errors import ClispError
-from ...noise_estimate import CLIP_FRACTION
+from ...noise_estimate import CLIP_FRACTION, NoiseEstimateError, raw_noise
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, camera_neutral
@@ -88,19 +90,18 @@ RADIUS = 16
 """How far (px) the bright unclipped pixels that give a clipped pixel its colour may lie: the
 stage's halo beyond RIM; the cells it reads lie within it (:func:`cell_radius`)."""
 
-SUMS = 7
-"""Reference planes that ``reconstruct`` box-sums (:func:`reference_weights`): far (4), rim (3)."""
+SUMS = 12
+"""Reference planes that ``reconstruct`` box-sums (:func:`reference_weights`): far (4), rim (5),
+surface (3)."""
+
+REFS = 18
+"""Planes per cell that hl_box_cols makes from the box sums for hl_apply (highlights.cl)."""
 
 CELL = 4
 """The references are summed over cells of CELL x CELL px on the image's grid, and a pixel's
 reference colour over the (2 k + 1)^2 cells around its cell, k = :func:`cell_radius` (RADIUS 16:
-7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of seven planes cost
+7 x 7 cells, 28 px, reaching 12 to 15 px from the pixel): per-pixel box sums of the reference planes cost
 more than the rest of the stage."""
-
-BLOCK = 16
-"""Side of the blocks the OpenCL path tests for clipped pixels (clisp/modules/highlights/highlights.cl): every
-kernel after the flags works only within the few blocks of one whose results can be read
-(:func:`reach_levels`), so raws with few clipped pixels pay little more than the flags pass."""
 
 REF = 0.9
 """A pixel is a colour reference only while every channel is below this share of its threshold
@@ -108,6 +109,13 @@ REF = 0.9
 
 LOW = 0.5
 """Reference weight ramps from 0 at this share of the threshold to 1 at REF."""
+
+SURFACE_LOW = 0.05
+SURFACE_FULL = 0.3
+"""The surface references' weight ramps from 0 at SURFACE_LOW of the threshold to 1 at SURFACE_FULL:
+the colour of the surface a specular highlight sits on, which is rarely bright enough to be a far
+reference (a red sphere's diffuse L at 0.4 of its threshold), without the darkest pixels' noisy
+chroma."""
 
 MARGIN = 0.9
 """The demosaiced test's threshold, as a share of the mosaic's: a demosaic that interpolates a
@@ -142,6 +150,14 @@ EVIDENCE = 8.0
 """Far-reference weight (in pixels of full weight) at which a rim pixel whose colour differs from
 theirs keeps half of its own colour."""
 
+ADD_PRIOR = 0.25
+"""Weight of the prior toward the rim's whole difference chroma (s = 1) against the evidence of a
+pixel's two free channels in :func:`additive_estimate` (relative to |Delta|^2)."""
+
+ADD_LIMIT = 0.5
+"""The additive chroma s Delta of :func:`additive_estimate` at most this share of the white b in
+every output channel: the LMS matrix turns a small L - M difference into a large red one."""
+
 RHO_MIN = 0.2
 """A clipped channel bounds the brightness K from below only where its reference chroma rho^_c is
 at least this (mean 1 over the channels): a clipped channel the references call nearly dark
@@ -155,18 +171,63 @@ channel well below its clip level at the sites of the other channels (guided LMS
 clipped: raising a channel on an unclipped light's edge coloured it (README.md)."""
 
 
+MAP = 4
+"""Side (mosaic px) of the cells of the clip map (:func:`clip_map`): a pixel's channel may count as
+clipped only in a cell the map allows for it, one that holds a clipped sample the noise test calls
+a true clip. The stage's kernels work only where such a cell lies near enough (Highlights.schedule),
+so the stage works in proportion to the clipped area. On the stage's grid the cells are MAP_CELL
+px (after the half-size binning, two by two of these)."""
+
+MAP_CELL = 4
+"""The map's cell side on the stage's grid (px): a multiple of CELL and at least RIM, so a
+reference cell lies in one map cell and every pixel within RIM of a flag lies within a cell of it."""
+
+WORK = 8
+"""Side (px) of the work-groups of the list kernels (Highlights.schedule): WORK x WORK pixels each,
+2 x 2 map cells (measured, PoCL, 2 cores: lists of 8 x 8 px run a copy at 1.4x the cost of a
+whole-window launch per pixel; 4 x 4 would pay four times the groups)."""
+
+TEST = 16
+"""Side (mosaic px) of the blocks of the noise test (:func:`clip_map`): 4 x 4 map cells; 128
+samples of a channel that holds half the sites (LMS L, Bayer G), 64 of a quarter, 32 of an eighth."""
+
+NOISE_WINDOW = 3.0
+"""The noise test counts a block's samples of a channel from NOISE_WINDOW sigma (the noise at the
+clip threshold) under the threshold up: the samples a level near full scale puts there, few of
+a darker surface beside it."""
+
+MAP_GROW = 0
+"""Cells around a cell of a truly clipped sample where its channel may count as clipped too."""
+
+PILE_SHARE = 0.25
+PILE_MIN = 20
+"""saturation_dn: the pile of saturated samples reaches down while each DN value holds PILE_SHARE of
+its largest count; under PILE_MIN clipped samples, the largest sample stands for it."""
+
+NOISE_Z = 3.0
+"""Sigmas (of the binomial count) by which a block's clipped samples may exceed what the noise
+around a level at full scale gives, before the block counts as truly clipped."""
+
+
 @dataclass
 class Highlights(Stage):
     """Clipped-highlight handling on white-balanced camera channels (see the module docstring).
 
     neutral    (3,) n: the camera values that come out grey.
-    threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped).
+    threshold  (3,) MARGIN t_c in units of n (y_c >= it: channel c clipped, where the clip map
+               allows it).
     white      s = min_c t_c, the neutral level of ``clip`` (units of n).
     mode       'clip' or 'reconstruct'.
     radius     R of 'reconstruct' (its halo beyond the rim).
     rim        RIM: the false-colour rim around clipped pixels (px).
     display    (3, 3) camera values in units of n to output RGB (:func:`display_matrix`), where
                'reconstruct' compares chromas; None: the identity.
+    clip_map   (ny, nx) uint8 per cell of MAP_CELL px on the stage's grid, on the image's grid
+               (:func:`clip_map`): bit c set where channel c may count as clipped; None:
+               everywhere (a stage built by hand). Cells past the image's edge take the edge's
+               (clamped lookups).
+    weights    (3,) how much each channel's record counts where the free channels give a
+               brightness (:func:`channel_weights`); None: equal.
     """
 
     neutral: np.ndarray
@@ -176,17 +237,22 @@ class Highlights(Stage):
     radius: int = RADIUS
     rim: int = RIM
     display: np.ndarray | None = None
+    clip_map: np.ndarray | None = field(default=None, repr=False)
+    weights: np.ndarray | None = None
     name = "highlights"
 
     def __post_init__(self) -> None:
-        if max(reach_levels(self.rim, self.radius).values()) > 4:
-            raise ClispError(f"highlights: rim {self.rim} + radius {self.radius} reach past 4 blocks of {BLOCK} px")
         if self.mode not in ("clip", "reconstruct"):
             raise ClispError(f"unknown highlight mode {self.mode!r}; expected clip or reconstruct")
+        if not 1 <= self.rim <= MAP_CELL:
+            raise ClispError(f"highlights: rim {self.rim} must be 1 to the map's cell of {MAP_CELL} px")
         self.neutral = np.asarray(self.neutral, dtype=np.float64).reshape(3)
         self.threshold = np.asarray(self.threshold, dtype=np.float64).reshape(3)
         self.white = float(self.white)
         self.display = np.eye(3) if self.display is None else np.asarray(self.display, dtype=np.float64).reshape(3, 3)
+        if self.clip_map is not None:
+            self.clip_map = np.ascontiguousarray(self.clip_map, dtype=np.uint8)
+        self.weights = np.ones(3) if self.weights is None else np.asarray(self.weights, dtype=np.float64).reshape(3)
 
     @property
     def halo(self) -> int:
@@ -194,104 +260,218 @@ class Highlights(Stage):
 
     @property
     def bytes_per_pixel(self) -> float:
-        """float32 planes per input pixel: flags, near rows, near, output (3); reconstruct: the
-        cell and cell-box sums (SUMS planes each at 1 / CELL^2 of the pixels)."""
-        return 4.0 * (6 + (2 * SUMS / CELL ** 2 if self.mode == "reconstruct" else 0))
+        """Device bytes per input pixel: the output (3 float32 planes), flags, near rows and near
+        (one byte each); reconstruct: the cell sums, their rows and what apply reads (2 SUMS + REFS
+        float32 planes at 1 / CELL^2 of the pixels)."""
+        return 12.0 + 3.0 + (4.0 * (2 * SUMS + REFS) / CELL ** 2 if self.mode == "reconstruct" else 0.0)
+
+    def allowed(self, origin: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+        """H x W x 3 bool for a window of ``shape`` at ``origin``: where each channel may count as
+        clipped (the clip map's cell of each pixel, clamped to the map's edge)."""
+        h, w = shape
+        if self.clip_map is None:
+            return np.ones((h, w, 3), dtype=bool)
+        ny, nx = self.clip_map.shape
+        rows = np.clip((origin[0] + np.arange(h)) // MAP_CELL, 0, ny - 1)
+        cols = np.clip((origin[1] + np.arange(w)) // MAP_CELL, 0, nx - 1)
+        bits = self.clip_map[rows[:, None], cols[None, :]]
+        return ((bits[..., None] >> np.arange(3, dtype=np.uint8)) & 1).astype(bool)
 
     # ------------------------------------------------------------------------------- reference
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         n, t, d, r = self.neutral, self.threshold, self.rim, self.radius
         y = np.asarray(x, dtype=np.float64) / n
-        near = box_max(box_max((y >= t).any(axis=-1).astype(np.float64), d, 1), d, 0) > 0   # window - 2d
-        clipped = clipped_channels(y, t)
+        hard = (y >= t) & self.allowed(origin, y.shape[:2])
+        near = box_max(box_max(hard.any(axis=-1).astype(np.float64), d, 1), d, 0) > 0   # window - 2d
+        clipped = clipped_channels(y, t, hard)
         y = y[d:y.shape[0] - d, d:y.shape[1] - d]
         clipped = clipped[d:clipped.shape[0] - d, d:clipped.shape[1] - d]
         if self.mode == "clip":
             mean = y.mean(axis=-1, keepdims=True)
             out = np.where(near[..., None], mean, y)
             return np.where(clipped.any(axis=-1, keepdims=True), self.white, out) * n
-        weights = reference_weights(y, t, near)                             # H x W x 7: far, rim
         offset = tuple((o + d) % CELL for o in origin)     # the cell grid in image coordinates
+        weights = reference_weights(y, t, near) * sampled(offset, y.shape[:2])[..., None]   # H x W x 7
         sums = cell_box_sums(weights, offset, r)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
-        return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display) * n
+        return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display, self.weights) * n
 
     # ------------------------------------------------------------------------------- OpenCL
 
+    def window_map(self, origin: tuple[int, int], height: int, width: int) -> tuple[np.ndarray, int, int]:
+        """(the clip map's cells over a window of height x width at ``origin``, (ngy, ngx) uint8;
+        py, px): window pixel (y, x) lies in cell ((y + py) // MAP_CELL, (x + px) // MAP_CELL)."""
+        mc = MAP_CELL
+        gy0, gx0 = origin[0] // mc, origin[1] // mc
+        py, px = origin[0] - gy0 * mc, origin[1] - gx0 * mc
+        ngy, ngx = (py + height - 1) // mc + 1, (px + width - 1) // mc + 1
+        if self.clip_map is None:
+            return np.full((ngy, ngx), 7, dtype=np.uint8), py, px
+        ny, nx = self.clip_map.shape
+        rows = np.clip(gy0 + np.arange(ngy), 0, ny - 1)
+        cols = np.clip(gx0 + np.arange(ngx), 0, nx - 1)
+        return np.ascontiguousarray(self.clip_map[rows[:, None], cols[None, :]]), py, px
+
+    def schedule(self, origin: tuple[int, int], height: int, width: int) -> dict[str, object]:
+        """The kernels' work over a window (host side, from the clip map).
+
+        ``map``: the window's map cells with the channels they allow (bits 0-2), ``py``, ``px``
+        (:meth:`window_map`). The lists of WORK px cells (gy << 16 | gx, window pixel (y, x) in
+        cell ((y + wy) // WORK, (x + wx) // WORK)) each list kernel runs over: ``flags`` the
+        cells holding a map cell that allows a channel (a seed; flags are 0 elsewhere), ``near``
+        those holding a seed or a map cell beside one (every pixel within RIM <= MAP_CELL of a flag:
+        hl_near, hl_apply), ``rows`` those and the cells above and below (the near rows hl_near
+        reads, RIM <= WORK rows away). Reconstruct: the grid of reference cells (CELL px on the image's grid: ``ncw`` x
+        ``nch``, the window less the rim's first pixel at (``oy``, ``ox``) of its cell) with
+        ``cells``, bits WORK_BOX where hl_box_cols works (the cells within a map cell of a seed:
+        every pixel apply reads the box at), WORK_ROWS those and k cells above and below
+        (hl_box_rows, k = cell_radius(radius)), WORK_CELLS those and k cells to each side
+        (hl_cells)."""
+        cells, py, px = self.window_map(origin, height, width)
+        seeds = cells != 0
+        near = grow(seeds, 1)
+        wy, wx = origin[0] % WORK, origin[1] % WORK
+        pool = partial(work_cells, origin=origin, shape=(height, width))
+        work = pool(near)
+        plan = {"map": cells, "py": py, "px": px, "wy": wy, "wx": wx, "flags": cell_list(pool(seeds)),
+                "near": cell_list(work), "rows": cell_list(grow(work, 1, axes=(0,)))}
+        if self.mode == "reconstruct":
+            d, k, mc = self.rim, cell_radius(self.radius), MAP_CELL
+            w1, h1 = width - 2 * d, height - 2 * d
+            oy, ox = ((o + d) % CELL for o in origin)      # the window less the rim's first pixel in its cell
+            ncw, nch = -(-(w1 + ox) // CELL), -(-(h1 + oy) // CELL)
+            # the map cell of each reference cell's first pixel (cells lie inside map cells)
+            rows = np.clip((np.arange(nch) * CELL - oy + d + py) // mc, 0, cells.shape[0] - 1)
+            cols = np.clip((np.arange(ncw) * CELL - ox + d + px) // mc, 0, cells.shape[1] - 1)
+            box = near[rows[:, None], cols[None, :]]
+            box_rows = grow(box, k, axes=(0,))
+            plan.update(oy=oy, ox=ox, ncw=ncw, nch=nch, cells=(np.where(box, WORK_BOX, 0)
+                        | np.where(box_rows, WORK_ROWS, 0)
+                        | np.where(grow(box_rows, k, axes=(1,)), WORK_CELLS, 0)).astype(np.uint8))
+        return plan
+
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
-        n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
         w, h, d = src.width, src.height, self.rim
         r = self.radius if self.mode == "reconstruct" else 0
-        defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_REF": repr(REF) + "f", "HL_LOW": repr(LOW) + "f",
-                   "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f",
-                   "HL_CLIP": int(self.mode == "clip"), "HL_AGREE_LO": repr(AGREE_LO) + "f",
-                   "HL_AGREE_HI": repr(AGREE_HI) + "f", "HL_RISE_LO": repr(RISE_LO) + "f",
-                   "HL_RISE_HI": repr(RISE_HI) + "f", "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS,
-                   "HL_CELL": CELL, "HL_CELL_R": cell_radius(self.radius)}
-        defines["HL_BLOCK"] = BLOCK
-        defines.update({f"HL_D_{k.upper()}": v for k, v in reach_levels(d, r).items()})
+        ow, oh = w - 2 * (d + r), h - 2 * (d + r)
+        defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_MC": MAP_CELL, "HL_WC": WORK, "HL_REF": repr(REF) + "f",
+                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f",
+                   "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip"),
+                   "HL_AGREE_LO": repr(AGREE_LO) + "f", "HL_AGREE_HI": repr(AGREE_HI) + "f",
+                   "HL_RISE_LO": repr(RISE_LO) + "f", "HL_RISE_HI": repr(RISE_HI) + "f",
+                   "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS, "HL_REFS": REFS, "HL_ADD_PRIOR": repr(ADD_PRIOR) + "f",
+                   "HL_ADD_LIMIT": repr(ADD_LIMIT) + "f", "HL_SURFACE_LOW": repr(SURFACE_LOW) + "f",
+                   "HL_SURFACE_FULL": repr(SURFACE_FULL) + "f", "HL_CELL": CELL,
+                   "HL_CELL_R": cell_radius(self.radius), "HL_SAMPLES": len(SAMPLES),
+                   "HL_SAMPLE_Y": "{" + ",".join(str(dy) for dy, _ in SAMPLES) + "}",
+                   "HL_SAMPLE_X": "{" + ",".join(str(dx) for _, dx in SAMPLES) + "}", "HL_WORK_CELLS": WORK_CELLS,
+                   "HL_WORK_ROWS": WORK_ROWS, "HL_WORK_BOX": WORK_BOX}
+        uploads: list[DeviceImage] = []
+
+        def upload(array: np.ndarray) -> DeviceImage:                # the window's tables, pooled
+            uploads.append(rt.upload(array.reshape(1, -1) if array.ndim == 1 else array))
+            return uploads[-1]
+
         def launch(kernel: str, gx: int, gy: int, /, **args: object) -> None:
             rt.launch_named("highlights", kernel, gx, gy, args, defines)
 
-        flags = rt.acquire(1, h, w)
-        launch("hl_flags", w, h, src=src, dst=flags, width=w, height=h, n=n, t=t)
-        nbx, nby = -(-w // BLOCK), -(-h // BLOCK)
-        blocks = rt.acquire(1, nby, nbx)
-        launch("hl_blocks", nbx, nby, flags=flags, blocks=blocks, width=w, height=h, nbx=nbx)
-        reach = rt.acquire(4, nby, nbx)
-        launch("hl_reach", nbx, nby, blocks=blocks, reach=reach, nbx=nbx, nby=nby)
-        rt.release(blocks)
-        sparse = dict(reach=reach, nbx=nbx, nby=nby)
-        w1, h1 = w - 2 * d, h - 2 * d
-        rows = rt.acquire(1, h, w1)
-        launch("hl_near_rows", w1, h, src=flags, dst=rows, width=w, out_w=w1, **sparse)
-        rt.release(flags)
-        near = rt.acquire(1, h1, w1)                    # on the window less the rim
-        launch("hl_near", w1, h1, rows=rows, dst=near, w1=w1, h1=h1, **sparse)
-        rt.release(rows)
-        ow, oh = w1 - 2 * r, h1 - 2 * r
-        oy, ox = ((o + d) % CELL for o in origin)       # the window's first pixel in its cell
-        ncw, nch = -(-(w1 + ox) // CELL), -(-(h1 + oy) // CELL)
-        cell_grid = dict(w1=w1, h1=h1, ncw=ncw, nch=nch, oy=oy, ox=ox)
-        box = near
-        if r:
-            cells = rt.acquire(SUMS, nch, ncw)
-            launch("hl_cells", ncw, nch, src=src, near=near, dst=cells, width=w, height=h, n=n, t=t, **cell_grid,
-                   **sparse)
-            box = rt.acquire(SUMS, nch, ncw)
-            launch("hl_cell_box", ncw, nch, cells=cells, dst=box, **cell_grid, **sparse)
-            rt.release(cells)
+        def over(kernel: str, cells: np.ndarray, /, **args: object) -> None:      # one work-group per cell
+            rt.launch_named("highlights", kernel, WORK, WORK * len(cells), dict(args, list=upload(cells), wy=plan["wy"],
+                            wx=plan["wx"]), defines, group=(WORK, WORK))
+
         dst = rt.acquire(3, oh, ow)
-        launch("hl_apply", ow, oh, src=src, nearby=near, box=box, dst=dst, width=w, height=h, w1=w1, ncw=ncw,
-               nch=nch, oy=oy, ox=ox, out_w=ow, out_h=oh, n=n, t=t, d=rt.constant(as_f32(self.display)),
-               white=self.white, **sparse)
-        rt.release(reach)
+        launch("hl_copy", ow, oh, src=src, dst=dst, width=w, height=h, out_w=ow, out_h=oh)
+        plan = self.schedule(origin, h, w)
+        if not len(plan["flags"]):
+            return dst                                 # nothing may clip within the window: a copy
+        n, t = rt.constant(as_f32(self.neutral)), rt.constant(as_f32(self.threshold))
+        py, px = plan["py"], plan["px"]
+        flags = rt.acquire(1, h, w, np.uint8)
+        launch("hl_clear", w, h, dst=flags, width=w)
+        over("hl_flags", plan["flags"], src=src, cells=upload(plan["map"]), dst=flags, width=w, height=h,
+             ngx=plan["map"].shape[1], py=py, px=px, n=n, t=t)
+        w1, h1 = w - 2 * d, h - 2 * d
+        rows = rt.acquire(1, h, w1, np.uint8)
+        over("hl_near_rows", plan["rows"], flags=flags, dst=rows, width=w, height=h, w1=w1)
+        near = rt.acquire(1, h1, w1, np.uint8)                   # on the window less the rim
+        launch("hl_clear", w1, h1, dst=near, width=w1)
+        over("hl_near", plan["near"], rows=rows, dst=near, w1=w1, h1=h1)
+        rt.release(rows)
+        box, grid = near, {"ncw": 1, "nch": 1, "oy": 0, "ox": 0}
+        if r:
+            grid = {k: plan[k] for k in ("ncw", "nch", "oy", "ox")}
+            ncw, nch = grid["ncw"], grid["nch"]
+            work = dict(grid, cells=upload(plan["cells"]))
+            sums = rt.acquire(SUMS, nch, ncw)
+            launch("hl_cells", ncw, nch, src=src, near=near, dst=sums, width=w, height=h, w1=w1, h1=h1, n=n, t=t,
+                   **work)
+            rows = rt.acquire(SUMS, nch, ncw)
+            launch("hl_box_rows", ncw, nch, sums=sums, dst=rows, **work)
+            rt.release(sums)
+            box = rt.acquire(REFS, nch, ncw)
+            launch("hl_box_cols", ncw, nch, rows=rows, dst=box, d=rt.constant(as_f32(self.display)), **work)
+            rt.release(rows)
+        over("hl_apply", plan["near"], src=src, flags=flags, nearby=near, box=box, dst=dst, width=w, height=h,
+             w1=w1, out_w=ow, out_h=oh, n=n, t=t, d=rt.constant(as_f32(self.display)),
+             wt=rt.constant(as_f32(self.weights)), h=rt.constant(as_f32(white_of(self.display))), white=self.white,
+             **grid)
+        rt.release(flags)
         rt.release(near)
         if r:
             rt.release(box)
+        for image in uploads:
+            rt.release(image)
         return dst
 
 
-def reach_levels(rim: int, radius: int) -> dict[str, int]:
-    """Blocks (of BLOCK px) around a clipped pixel's block within which each kernel works. Apply
-    changes pixels within ``rim`` of a clipped one, so it works within ceil(rim / BLOCK) blocks and
-    copies the rest; each kernel that feeds another works wherever that one works, widened by the
-    reach of its reads there: the cells (:func:`cell_box_sums`) up to (k + 1) CELL - 1 px beyond
-    the cells apply reads, near a block more (a cell may straddle a block edge), the near rows
-    ``rim`` rows more. So no working pixel reads a value that was skipped.
+SAMPLES = ((0, 0), (1, 2), (2, 1), (3, 3))
+"""The pixels of each CELL x CELL cell (dy, dx, on the image's grid) whose reference weights the
+cell sums: one in four, on every CFA phase of the Bayer and LMS patterns (R, G, G, B; L, M, S, L),
+so a demosaic's error at one phase does not colour the references; the SUMS planes of weights
+cost a quarter (the cells were the stage's largest kernel on the D30 DNG). The box over 7 x 7
+cells still sums 196 pixels."""
 
-    >>> reach_levels(4, 16)
-    {'apply': 1, 'cells': 2, 'near': 3, 'near_rows': 4}
-    >>> reach_levels(4, 0)
-    {'apply': 1, 'cells': 1, 'near': 1, 'near_rows': 2}
+WORK_CELLS = 32
+"""Bit of a reference cell (Highlights.schedule) where hl_cells sums the reference weights."""
+WORK_ROWS = 8
+"""Bit of a reference cell where hl_box_rows sums the reference sums along its row of cells."""
+WORK_BOX = 16
+"""Bit of a reference cell where hl_box_cols completes the box of cells (hl_apply reads it)."""
+
+
+def grow(mask: np.ndarray, k: int, axes: tuple[int, ...] = (0, 1)) -> np.ndarray:
+    """``mask`` (2-D bool) grown by k entries along ``axes`` (a (2 k + 1)-wide maximum, zeros past
+    the edges)."""
+    out = mask
+    for axis in axes:
+        pad = [(0, 0)] * mask.ndim
+        pad[axis] = (k, k)
+        out = box_max(np.pad(out, pad), k, axis)
+    return out
+
+
+def work_cells(mask: np.ndarray, origin: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+    """A window's map cells (MAP_CELL px, :meth:`Highlights.window_map`) to its WORK px cells: a
+    work cell is set where a map cell it holds is (both grids on the image's)."""
+    out = mask.astype(np.uint8)
+    for axis, (o, n) in enumerate(zip(origin, shape)):
+        first, groups = o // MAP_CELL, o // WORK
+        index = (first + np.arange(out.shape[axis])) * MAP_CELL // WORK - groups   # the work cell of each map cell
+        count = (o % WORK + n - 1) // WORK + 1
+        starts = np.searchsorted(index, np.arange(count))
+        out = np.maximum.reduceat(out, starts, axis=axis)
+    return out.astype(bool)
+
+
+def cell_list(mask: np.ndarray) -> np.ndarray:
+    """The cells of a 2-D bool mask as int32 gy << 16 | gx, row by row.
+
+    >>> cell_list(np.array([[0, 1], [1, 0]], bool)).tolist()
+    [1, 65536]
     """
-    def blocks(distance: int) -> int:
-        return -(-distance // BLOCK)
-    apply = max(1, blocks(rim))
-    cells = apply + blocks((cell_radius(radius) + 1) * CELL - 1) if radius else apply
-    near = cells + 1 if radius else apply
-    return {"apply": apply, "cells": cells, "near": near, "near_rows": near + blocks(rim)}
+    gy, gx = np.nonzero(mask)
+    return ((gy.astype(np.int64) << 16) | gx).astype(np.int32)
 
 
 def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
@@ -303,11 +483,11 @@ def box_max(a: np.ndarray, r: int, axis: int) -> np.ndarray:
     return out
 
 
-def clipped_channels(y: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """H x W x 3 bool: channel c of y (H x W x 3, units of n) is clipped where y_c >= t_c, or,
-    at pixels where another channel is, where y_c >= DIP t_c and y_c >= t_c at one of the 8
-    neighbours (inside the array)."""
-    hard = y >= t
+def clipped_channels(y: np.ndarray, t: np.ndarray, hard: np.ndarray | None = None) -> np.ndarray:
+    """H x W x 3 bool: channel c of y (H x W x 3, units of n) is clipped where it is ``hard``
+    (default y_c >= t_c; the stage: that, where the clip map allows c), or, at pixels where another
+    channel is, where y_c >= DIP t_c and c is hard at one of the 8 neighbours (inside the array)."""
+    hard = y >= t if hard is None else hard
     padded = np.pad(hard, ((1, 1), (1, 1), (0, 0)))
     h, w = hard.shape[:2]
     beside = np.zeros_like(hard)
@@ -318,19 +498,39 @@ def clipped_channels(y: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def reference_weights(y: np.ndarray, t: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """H x W x 7 per pixel of y (H x W x 3, units of n) for thresholds t and the near mask:
+    """H x W x SUMS per pixel of y (H x W x 3, units of n) for thresholds t and the near mask:
     (w, w rho_0, w rho_1, w mean(y)) of the far references (bright, clearly unclipped, not near a
-    clipped pixel), then (w, w rho_0, w rho_1) of the rim references (near, no channel clipped,
-    bright); w ramps from 0 at LOW to 1 at REF of the threshold, rho_c = y_c / mean(y)."""
+    clipped pixel), (w, w rho_0, w rho_1, w (y_0 - mean(y)), w (y_1 - mean(y))) of the rim
+    references (near, no channel clipped, bright), (w, w rho_0, w rho_1) of the surface
+    references (not near, clearly unclipped, of any brightness but the darkest). w ramps from 0 at
+    LOW to 1 at REF of the threshold (surface: from SURFACE_LOW to SURFACE_FULL), rho_c = y_c / mean(y)."""
     m = np.max(y / t, axis=-1)
     ramp = np.clip((m - LOW) / (REF - LOW), 0.0, 1.0)
     far = np.where((m < REF) & ~near, ramp, 0.0)
     rim = np.where(near & (m < 1.0), ramp, 0.0)
+    surface = np.where((m < REF) & ~near, np.clip((m - SURFACE_LOW) / (SURFACE_FULL - SURFACE_LOW), 0.0, 1.0), 0.0)
     mean = y.mean(axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = np.where(mean > 0, 1.0 / mean, 0.0)
     return np.stack([far, far * y[..., 0] * inv, far * y[..., 1] * inv, far * mean,
-                     rim, rim * y[..., 0] * inv, rim * y[..., 1] * inv], axis=-1)
+                     rim, rim * y[..., 0] * inv, rim * y[..., 1] * inv,
+                     rim * (y[..., 0] - mean), rim * (y[..., 1] - mean),
+                     surface, surface * y[..., 0] * inv, surface * y[..., 1] * inv], axis=-1)
+
+
+def sampled(offset: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+    """H x W, 1.0 at the pixels whose reference weights the cells sum (SAMPLES, on the grid of
+    cells that starts ``offset`` (dy, dx) px before the array's first pixel), else 0.0.
+
+    >>> sampled((0, 0), (4, 4)).astype(int).tolist()
+    [[1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]]
+    """
+    mask = np.zeros((CELL, CELL))
+    for dy, dx in SAMPLES:
+        mask[dy, dx] = 1.0
+    rows = (np.arange(shape[0]) + offset[0]) % CELL
+    cols = (np.arange(shape[1]) + offset[1]) % CELL
+    return mask[rows[:, None], cols[None, :]]
 
 
 def cell_radius(radius: int) -> int:
@@ -409,27 +609,293 @@ def trust_in_far(y: np.ndarray, clipped: np.ndarray, sums: np.ndarray, display: 
     return np.where(count > 0, trust * rise_ok, trust)
 
 
+def rim_difference(sums: np.ndarray, display: np.ndarray) -> np.ndarray:
+    """Delta (H x W x 3, summing to 0, units of n): the part of the rim references' mean difference
+    chroma (y_c - mean(y), pulled toward 0 by the prior of PRIOR pixels of none) that lies along the
+    surface references' chroma surface - 1, a >= 0 times it (least squares after the display
+    matrix). What a specular highlight adds to the surface is white, so its rim is white plus the
+    surface's colour; what a light's rim has besides (the demosaic's false colour) is left out."""
+    sw = sums[..., 4] + PRIOR
+    d0, d1 = sums[..., 7] / sw, sums[..., 8] / sw
+    delta = np.stack([d0, d1, -d0 - d1], axis=-1)
+    c = chroma_of(sums[..., 9:12]) - 1.0
+    dd, dc = delta @ display.T, c @ display.T
+    cc = (dc * dc).sum(axis=-1)
+    a = np.where(cc > 1e-12, np.maximum((dd * dc).sum(axis=-1), 0.0) / np.maximum(cc, 1e-12), 0.0)
+    return a[..., None] * c
+
+
+def additive_estimate(y: np.ndarray, clipped: np.ndarray, delta: np.ndarray, display: np.ndarray,
+                      weights: np.ndarray = np.ones(3)) -> np.ndarray:
+    """The additive (difference) chroma estimate of every channel, b + s Delta (H x W x 3), at
+    pixels with one or two clipped channels: a specular highlight is white (b) added to the surface
+    colour, whose difference chroma the unclipped rim around it shows (Delta, :func:`rim_difference`).
+
+    s, how much of the rim's chroma the pixel holds: with one clipped channel, from its two free
+    channels u, v, (y_u - y_v) against (Delta_u - Delta_v), least squares with a prior ADD_PRIOR
+    toward 1 (the free channels of a red surface's highlight, G and B, cannot tell; those of a
+    white beside teal say 0), kept in [0, 1]; with two, 0 (one free channel cannot tell a white
+    beside a coloured surface from a highlight on it: the least bright neutral the records allow,
+    as before issue 43). Bounded so the colour matrix cannot blow
+    it up: s Delta at most ADD_LIMIT times b in every output channel (display @ s Delta). b: the
+    free channels' mean less s Delta, at least every clipped channel's record less s Delta_c (a
+    clipped record bounds the truth from below)."""
+    free = ~clipped
+    count = clipped.sum(axis=-1)
+    fy, fd = np.where(free, y, 0.0), np.where(free, delta, 0.0)
+    pair = 2.0 * (fy * fd).sum(axis=-1) - fy.sum(axis=-1) * fd.sum(axis=-1)        # (y_u - y_v)(D_u - D_v)
+    spread = 2.0 * (fd * fd).sum(axis=-1) - fd.sum(axis=-1) ** 2                  # (D_u - D_v)^2
+    prior = ADD_PRIOR * (delta * delta).sum(axis=-1)
+    one = np.clip((pair + prior) / np.maximum(spread + prior, 1e-12), 0.0, 1.0)
+    s = np.where(count == 1, one, 0.0)
+    wfree = np.maximum(np.where(free, weights, 0.0).sum(axis=-1), 1e-12)
+    b0 = np.maximum(np.where(free, weights * (y - s[..., None] * delta), 0.0).sum(axis=-1) / wfree, 0.0)
+    size = np.abs((s[..., None] * delta) @ display.T).max(axis=-1)
+    s = np.where(size > ADD_LIMIT * b0, s * ADD_LIMIT * b0 / np.maximum(size, 1e-12), s)
+    sd = s[..., None] * delta
+    b = np.maximum(np.where(free, weights * (y - sd), 0.0).sum(axis=-1) / wfree,
+                   np.where(clipped, y - sd, -np.inf).max(axis=-1))
+    return b[..., None] + sd
+
+
+def white_of(display: np.ndarray) -> np.ndarray:
+    """(3,) h = D^T D 1 / |D 1|^2 (D the display matrix): h . y is the neutral b that
+    :func:`surface_projection` fits to y where the surface has no chroma."""
+    d1 = np.asarray(display, dtype=np.float64).sum(axis=1)
+    return display.T @ d1 / float(d1 @ d1)
+
+
+def surface_projection(y: np.ndarray, far: np.ndarray, display: np.ndarray) -> np.ndarray:
+    """y (H x W x 3, units of n) as white plus a surface's colour ``far`` (chroma, mean 1, the
+    surface references'): b + s (far - 1) with
+    0 <= s <= mean(y) (the surface's part is at most the pixel's brightness, so a surface whose
+    chroma is a little noise keeps no false colour along it), the least-squares fit after the
+    display matrix (where differences are seen): what of a rim pixel a specular highlight on that
+    surface explains; the rest (the demosaic's false colour beside a clipped light) is left out."""
+    c = far - 1.0
+    dy, dc = y @ display.T, c @ display.T
+    d1 = display.sum(axis=1)                                     # display @ (1, 1, 1)
+    a11 = float(d1 @ d1)
+    a12 = dc @ d1
+    e = dc - (a12 / a11)[..., None] * d1                         # dc's part across d1
+    ee, a22 = (e * e).sum(axis=-1), (dc * dc).sum(axis=-1)
+    ok = (a22 > 1e-12) & (ee > 1e-6 * a22)
+    s = np.where(ok, np.clip((dy * e).sum(axis=-1) / np.where(ok, ee, 1.0), 0.0, y.mean(axis=-1)), 0.0)
+    b = (dy @ d1 - a12 * s) / a11
+    return b[..., None] + s[..., None] * c
+
+
 def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray,
-                display: np.ndarray = np.eye(3)) -> np.ndarray:
+                display: np.ndarray = np.eye(3), weights: np.ndarray = np.ones(3)) -> np.ndarray:
     """The reconstruction rule on y (H x W x 3, units of n), given the clipped channels, the near
-    mask, the box sums of :func:`reference_weights` (H x W x 7) and the display matrix."""
+    mask, the box sums of :func:`reference_weights` (H x W x SUMS), the display matrix and the
+    free channels' weights (:func:`channel_weights`)."""
     far = chroma_of(sums[..., :3])
     trust = trust_in_far(y, clipped, sums, display)
     rho = 1.0 + trust[..., None] * (far - 1.0)
     free = ~clipped
     count = clipped.sum(axis=-1)
-    num = np.sum(np.where(free, y, 0.0), axis=-1)
-    den = np.maximum(np.sum(np.where(free, rho, 0.0), axis=-1), 1e-6)
+    num = np.sum(np.where(free, weights * y, 0.0), axis=-1)
+    den = np.maximum(np.sum(np.where(free, weights * rho, 0.0), axis=-1), 1e-6)
     bound = np.where(clipped & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
-    estimate = np.maximum(num / den, bound)[..., None] * rho
+    ratio = np.maximum(num / den, bound)[..., None] * rho
+    additive = additive_estimate(y, clipped, rim_difference(sums, display), display, weights)
+    estimate = trust[..., None] * ratio + (1.0 - trust[..., None]) * additive
     out = np.where(clipped, np.maximum(y, estimate), y)
     mean = y.mean(axis=-1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         own = np.where(mean > 0, y / mean, 1.0)
     keep = sums[..., 0] / (sums[..., 0] + EVIDENCE) * (1.0 - agreement(own, far, display))
-    rim = y + (1.0 - keep)[..., None] * (mean * rho - y)
+    rim = y + (1.0 - keep)[..., None] * (surface_projection(y, chroma_of(sums[..., 9:12]), display) - y)
     out = np.where((near & (count == 0))[..., None], rim, out)
     return np.where((count == 3)[..., None], y.max(axis=-1, keepdims=True), out)
+
+
+# ----------------------------------------------------------------------------------- the clip map
+
+@dataclass
+class ClipMap:
+    """Where a raw's samples clip, and where that is a true clip (:func:`clip_map`).
+
+    bits     (ny, nx) uint8 per MAP px cell of the mosaic: bit c set where channel c may count as
+             clipped (the stage's ``clip_map``).
+    clipped  (by, bx, 3) bool per TEST px block: a sample of channel c at or over its threshold.
+    true     (by, bx, 3) bool: those the noise test calls a true clip (grown into clipped
+             neighbours), all of ``clipped`` without a noise model.
+    """
+
+    bits: np.ndarray
+    clipped: np.ndarray
+    true: np.ndarray
+
+
+def clip_map(raw, noise=None) -> ClipMap | None:
+    """The clip map of ``raw`` (3-channel CFA, integer samples), or None where no sample reached
+    its channel's threshold (:func:`clip_thresholds_dn`). ``noise``: the white-balanced channels'
+    noise (clisp.sim.noise.ChannelNoise: var_c(s) = shot_c s + floor_c), None: every clipped block
+    is a true clip.
+
+    The noise test, per TEST px block and channel: a white surface at or just under full scale
+    clips part of its samples by noise alone, and is left as it is. With sigma the noise at the
+    threshold T (in DN) and the samples from T - NOISE_WINDOW sigma up (the ``bright`` ones, k of
+    them at or over T, u under it), a level mu at most the clip level C clips at most a share
+    q_C = Q((T - C) / sigma) / Q((T - C) / sigma - NOISE_WINDOW) of them (Q the Gaussian tail;
+    the share grows with mu, so C bounds it for any mix of levels up to C). The block is a true
+    clip of channel c where it holds a clipped sample and
+        u = 0                                  (nothing but clipped samples near the clip), or
+        k > n q_C + NOISE_Z sqrt(n q_C (1 - q_C)) + 0.5   (more clipped than noise allows),
+    n = k + u; a light past the clip clips every sample of its inside. True blocks grow into the 8
+    neighbouring blocks that hold a clipped sample of the channel (a light's edge, whose samples
+    through the clip a block of its own would count as a brighter surface's noise).
+
+    The map: a MAP px cell allows channel c where it holds a clipped sample of c in a true block,
+    and in the 8 cells around such a cell (the demosaic carries a clipped channel a few pixels
+    past its samples). Cost: one maximum per TEST block over the mosaic; the counts only in the
+    blocks that reach the lowest threshold."""
+    data = raw.data
+    if data.dtype != np.uint16 or raw.cfa.n_channels != 3:
+        return None
+    thr = clip_thresholds_dn(raw)
+    peaks = block_peaks(data, TEST)
+    found = np.argwhere(peaks >= thr.min())
+    if not len(found):
+        return None
+    by, bx = found[:, 0], found[:, 1]
+    blocks = gather_blocks(data, by, bx, TEST)                     # n x TEST x TEST samples
+    channel = block_channels(raw.cfa, by, bx, TEST)               # n x TEST x TEST channel indices
+    clip_dn = np.array([saturation_dn(blocks[(channel == c) & (blocks >= thr[c])], thr[c])
+                        for c in range(3)])             # where each channel's samples pile up
+    sigma = threshold_sigma(raw, noise, clip_dn)
+    nby, nbx = peaks.shape
+    half = TEST // MAP
+    clipped = np.zeros((nby, nbx, 3), dtype=bool)
+    true = np.zeros((nby, nbx, 3), dtype=bool)
+    cells = np.zeros((nby * half, nbx * half, 3), dtype=bool)
+    for c in range(3):
+        own = channel == c
+        hit = own & (blocks >= thr[c])
+        k = np.count_nonzero(hit.reshape(len(hit), -1), axis=1)
+        clipped[by, bx, c] = k > 0
+        if sigma is None or sigma[c] <= 0:
+            true[by, bx, c] = k > 0
+        else:
+            at = own & (blocks >= clip_dn[c])                          # at the saturation: censored
+            kc = np.count_nonzero(at.reshape(len(hit), -1), axis=1)
+            n = np.count_nonzero((own & (blocks >= clip_dn[c] - NOISE_WINDOW * sigma[c])).reshape(len(hit), -1), axis=1)
+            q = noise_clip_share(0.0)
+            excess = kc > n * q + NOISE_Z * np.sqrt(n * q * (1.0 - q)) + 0.5
+            true[by, bx, c] = (k > 0) & (((n == kc) & (kc > 0)) | excess)
+        cells[by[:, None, None] * half + np.arange(half)[None, :, None],
+              bx[:, None, None] * half + np.arange(half)[None, None, :], c] = \
+            hit.reshape(-1, half, MAP, half, MAP).any(axis=(2, 4))
+    for c in range(3):
+        true[..., c] |= grow(true[..., c], 1) & clipped[..., c]
+    h, w = data.shape
+    ny, nx = -(-h // MAP), -(-w // MAP)
+    up = np.repeat(np.repeat(true, half, axis=0), half, axis=1)
+    bits = np.zeros((nby * half, nbx * half), dtype=np.uint8)
+    for c in range(3):
+        bits |= grow(cells[..., c] & up[..., c], MAP_GROW).astype(np.uint8) << c
+    return ClipMap(np.ascontiguousarray(bits[:ny, :nx]), clipped, true)
+
+
+def saturation_dn(samples: np.ndarray, threshold: float) -> float:
+    """Where a channel's samples at or over its clip ``threshold`` (DN) pile up: the lowest value
+    of the pile's top, walking down from its most frequent value while each value holds at least
+    PILE_SHARE of that count (a sensor whose saturation varies from pixel to pixel piles a few DN
+    wide: the Canon D30 about 4053-4070 for R; the simulator and most cameras at one value, the
+    white level). With fewer than PILE_MIN samples, the largest.
+
+    >>> saturation_dn(np.array([1010, 1015] + [1022] * 3 + [1023] * 40), 1003)         # the simulator
+    1023.0
+    >>> counts = [1, 2, 5, 20, 40, 60, 80, 90, 80, 60, 40, 20, 10, 5, 2, 1]
+    >>> saturation_dn(np.repeat(np.arange(4050, 4066), counts), 4015)                  # a ragged pile
+    4054.0
+    """
+    samples = np.asarray(samples).ravel()
+    samples = samples[samples >= threshold]
+    if samples.size == 0:
+        return float(threshold)
+    if samples.size < PILE_MIN:
+        return float(samples.max())
+    base = int(math.floor(threshold))
+    counts = np.bincount(samples.astype(np.int64) - base)
+    v = int(np.argmax(counts))
+    floor = PILE_SHARE * counts[v]
+    while v > 0 and counts[v - 1] >= floor:
+        v -= 1
+    return float(base + v)
+
+
+def noise_clip_share(t: float) -> float:
+    """q_C of :func:`clip_map`: the share of the samples from NOISE_WINDOW sigma under the
+    threshold up that reach it, for a level ``-t`` sigma over the threshold (t = (T - C) / sigma).
+
+    >>> round(noise_clip_share(-0.02 / 0.012), 3)        # gain 1 of the simulator: sigma 1.2 %
+    0.952
+    """
+    def tail(z: float) -> float:
+        return 0.5 * math.erfc(z / math.sqrt(2.0))
+    return tail(t) / max(tail(t - NOISE_WINDOW), 1e-300)
+
+
+def threshold_sigma(raw, noise, thr: np.ndarray) -> np.ndarray | None:
+    """(3,) the noise std (DN) of each channel at its clip threshold, from ``noise`` (white-balanced
+    units), or None without one."""
+    if noise is None:
+        return None
+    black = np.asarray(raw.black_level, dtype=np.float64)
+    span = float(raw.white_level) - black
+    gains = raw.pass1_gains()
+    level = (thr - black) / span * gains
+    return np.array([math.sqrt(max(float(noise.variance(c, level[c])), 0.0)) / gains[c] * span[c] for c in range(3)])
+
+
+def block_peaks(data: np.ndarray, b: int) -> np.ndarray:
+    """The largest sample of each b x b block of a mosaic (blocks on its grid from (0, 0); the
+    last row and column of blocks may be cut by its edge): ceil(H / b) x ceil(W / b). By b strided
+    maxima along the rows, then b along the columns (NumPy's reductions over short axes are
+    several times slower: 24 MP, 16 px blocks, 2 Xeon cores: 35 against 72-95 ms)."""
+    h, w = data.shape
+    wf = w // b * b
+    cols = np.zeros((h, -(-w // b)), dtype=data.dtype)
+    if wf:
+        cols[:, :w // b] = data[:, 0:wf:b]
+        for k in range(1, b):
+            np.maximum(cols[:, :w // b], data[:, k:wf:b], out=cols[:, :w // b])
+    if wf < w:
+        cols[:, -1] = data[:, wf:].max(axis=1)
+    rows = np.zeros((-(-h // b) * b, cols.shape[1]), dtype=data.dtype)
+    rows[:h] = cols
+    rows = rows.reshape(-1, b, cols.shape[1])
+    out = rows[:, 0].copy()
+    for k in range(1, b):
+        np.maximum(out, rows[:, k], out=out)
+    return out
+
+
+def gather_blocks(data: np.ndarray, by: np.ndarray, bx: np.ndarray, b: int) -> np.ndarray:
+    """The b x b blocks (by, bx) of a mosaic, n x b x b, zeros past its edge."""
+    h, w = data.shape
+    if h % b == 0 and w % b == 0:
+        return data.reshape(h // b, b, w // b, b)[by, :, bx, :]
+    rows = by[:, None] * b + np.arange(b)[None, :]                # n x b
+    cols = bx[:, None] * b + np.arange(b)[None, :]
+    inside = (rows[:, :, None] < h) & (cols[:, None, :] < w)
+    out = data[np.minimum(rows, h - 1)[:, :, None], np.minimum(cols, w - 1)[:, None, :]]
+    return np.where(inside, out, 0).astype(data.dtype)
+
+
+def block_channels(cfa, by: np.ndarray, bx: np.ndarray, b: int) -> np.ndarray:
+    """The CFA channel of every sample of the b x b blocks (by, bx): n x b x b (or 1 x b x b where b
+    is a multiple of the CFA's period, as every block then has the same)."""
+    p = cfa.period
+    pattern = np.asarray(cfa.pattern)
+    if b % p == 0:
+        return cfa.channel_map(b, b)[None]
+    rows = (by[:, None] * b + np.arange(b)[None, :]) % p
+    cols = (bx[:, None] * b + np.arange(b)[None, :]) % p
+    return pattern[rows[:, :, None], cols[:, None, :]]
 
 
 # ----------------------------------------------------------------------------------- from a raw
@@ -489,13 +955,29 @@ def display_matrix(colour_matrix: np.ndarray, neutral: np.ndarray) -> np.ndarray
     return a / float(a.sum(axis=1).mean())
 
 
-def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False) -> Highlights | None:
-    """The Highlights stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
-    clipped samples (unless ``force``), or a colour matrix without a positive neutral."""
+def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False, noise=None,
+                    scale: int = 1) -> Stage | None:
+    """The highlight stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
+    clipped samples, one whose clipped samples are all the noise of whites at full scale
+    (:func:`clip_map`; ``clip`` and ``reconstruct``), unless ``force``, or a colour matrix without
+    a positive neutral. ``noise``: the raw's channel noise for the noise test (ChannelNoise); None:
+    the raw's own (clisp.noise_estimate.raw_noise: its sensor model, else estimated; a raw too
+    small to estimate it gets no test). ``scale``: mosaic px per pixel of the stage's grid (2 after
+    the half-size binning)."""
     if mode not in MODES:
         raise ClispError(f"unknown highlight mode {mode!r}; expected one of {', '.join(MODES)}")
-    if mode == "off" or raw.cfa.n_channels != 3 or not (force or has_clipped(raw)):
+    if mode == "off" or raw.cfa.n_channels != 3:
         return None
+    bits = None
+    if mode == "clamp":
+        if not (force or has_clipped(raw)):
+            return None
+    else:
+        found = clip_map(raw, raw_noise_or_none(raw) if noise is None else noise)
+        if found is not None and found.bits.any():
+            bits = found.bits
+        elif not force:
+            return None
     try:
         n = neutral_of(raw.colour_matrix, wb2)
     except ClispError:
@@ -505,7 +987,40 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
     t = clip * raw.pass1_gains() / n                         # after WB pass 1, in units of n
     if mode == "clamp":
         return HighlightClamp(n, float(t.min()))
-    return Highlights(n, MARGIN * t, float(t.min()), mode, display=display_matrix(raw.colour_matrix, n))
+    if bits is not None and scale * MAP_CELL != MAP:             # the map's cells on the stage's grid
+        f = scale * MAP_CELL // MAP
+        ny, nx = -(-bits.shape[0] // f), -(-bits.shape[1] // f)
+        pooled = np.zeros((ny * f, nx * f), dtype=np.uint8)
+        pooled[:bits.shape[0], :bits.shape[1]] = bits
+        bits = np.bitwise_or.reduce(np.bitwise_or.reduce(pooled.reshape(ny, f, nx, f), axis=3), axis=1)
+    return Highlights(n, MARGIN * t, float(t.min()), mode, display=display_matrix(raw.colour_matrix, n),
+                      clip_map=bits, weights=channel_weights(raw, n))
+
+
+def channel_weights(raw, neutral: np.ndarray) -> np.ndarray:
+    """(3,) the weight of each channel's record where the free channels give a clipped pixel's
+    brightness: its share of the CFA's sites over its noise variance in units of the neutral
+    (WB pass-1 gain over n, squared), largest 1. The LMS camera's S, on an eighth of the sites with
+    3.1 times L's gain, counts 1/40 of L: the demosaic puts it well off at a light's edge (a white
+    disc beside teal lost 0.6 of red where S pulled the brightness down); Bayer's R and B count
+    about 1/7 of G.
+
+    >>> import clisp
+    >>> raw = clisp.simulate(np.full((8, 8, 3), 0.5), cfa="lms", gain=1, seed=0).raw
+    >>> np.round(channel_weights(raw, np.ones(3)), 3).tolist()
+    [1.0, 0.505, 0.025]
+    """
+    gain = raw.pass1_gains() / np.asarray(neutral, dtype=np.float64)
+    w = raw.cfa.densities() / gain ** 2
+    return w / w.max()
+
+
+def raw_noise_or_none(raw):
+    """The raw's channel noise (clisp.noise_estimate.raw_noise), None where it cannot be estimated."""
+    try:
+        return raw_noise(raw)
+    except NoiseEstimateError:
+        return None
 
 
 @dataclass
