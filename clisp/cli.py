@@ -547,7 +547,7 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
     if args.explain:
         from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         if corrections is not None:
-            lines.append(corrections.explain(get_runtime() if args.backend == "opencl" else None))
+            lines.append(corrections.explain(stats))
         if args.half_size:
             lines.append(f"explain: half-size path (one pixel per 2x2 block, no demosaic): "
                          f"{explained['pipeline'].describe()}")

@@ -10,9 +10,11 @@
   is a map file used as given, with those lists and without the search (dcraw's format: ``column
   row`` per line, ``#`` comments, further columns ignored; coordinates of the mosaic ``clisp info``
   describes); 'off' corrects none, not even the DNG's lists.
-* **dark frame** (``dark``: paths, one or several, averaged; each read once): the per-pixel dark
-  level replaces the black level; scaled by the exposure times when both raws state them; refused
-  (one line naming both files) unless size, CFA, black and white levels match the raw's.
+* **dark frame** (``dark``: paths, one or several, averaged; each read once a process: the next
+  input of the same size, CFA and levels reuses the average while the files are unchanged): the
+  per-pixel dark level replaces the black level; scaled by the exposure times when both raws state
+  them; refused (one line naming both files) unless size, CFA, black and white levels match the
+  raw's.
 * **flat field** (``flat``: paths, averaged): each less its black level, normalised per channel to
   its brightest region (FLAT_BLOCK px blocks: the optical centre gets gain 1, as a GainMap's), the
   raw multiplied by its inverse, unsmoothed (so it also removes PRNU); size and CFA must match.
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -37,8 +40,8 @@ from .errors import ClispError, clip
 from .io.opcodes import (FixVignetteRadial, GainMap, bad_pixel_mask, gain_map_at, opcodes_of, selects, unapplied,
                          vignette_at)
 from .io.rawimage import RawImage
-from .modules.sensor.stage import (FLOOR, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
-                                   neighbour_tables)
+from .modules.sensor.stage import (FLOOR, FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade,
+                                   SmoothGain, neighbour_tables)
 from .sim.noise import ChannelNoise, NoiseModel
 from .io.rawfile import read_raw
 from .modules.highlights.stage import clip_thresholds_dn
@@ -95,12 +98,12 @@ class Corrections:
         floor = tuple(float(f + a) for f, a in zip(noise.floor, self.added_floor))
         return ChannelNoise(tuple(noise.shot), floor, noise.source)
 
-    def explain(self, rt: Any = None) -> str:
-        """``--explain``'s lines: what each correction did (after the run: how many pixels the auto
-        test found on ``rt``)."""
+    def explain(self, stats: Any = None) -> str:
+        """``--explain``'s lines: what each correction did (after the run, ``stats`` its RunStats:
+        how many pixels the auto test found in it; none on the reference backend)."""
         lines = [f"sensor: {note}" for note in self.notes] or ["sensor: no corrections (--bad-pixels off, no frames)"]
-        if self.pre is not None and self.pre.test is not None and rt is not None:
-            found = self.pre.found(rt)
+        if self.pre is not None and self.pre.test is not None and stats is not None:
+            found = getattr(stats, "counts", {}).get(FOUND)
             if found is not None:
                 lines.append(f"sensor: the auto test found and replaced {found} pixels")
         if self.unapplied:
@@ -139,7 +142,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
             known.append(f"{int(dng.sum())} from the DNG's FixBadPixels opcodes")
     dark_level = None
     if dark:
-        dark_level, frames_note, dark_n = dark_master(raw, list(dark))
+        dark_level, frames_note, dark_n = _once(dark_master, raw, list(dark), "dark")
         out.notes.append(frames_note)
         if bad_pixels != "off":
             hot = dark_level - raw.black_level[cfa.channel_map(*shape)] > DARK_BAD * (raw.white_level - raw.black_level.max())
@@ -152,7 +155,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
             out.added_floor = added if out.added_floor is None else out.added_floor + added
     flat_gain, flat_smooth = None, None
     if flat:
-        flat_gain, wild, flat_smooth, note = flat_master(raw, list(flat))
+        flat_gain, wild, flat_smooth, note = _once(flat_master, raw, list(flat), "flat")
         out.notes.append(note)
         if bad_pixels != "off" and wild.any():
             mask |= wild
@@ -287,6 +290,47 @@ def _frames(raw: RawImage, paths: list[Any], what: str, levels: bool) -> list[Ra
             raise ClispError(f"{path}: {what} frame does not match {raw.source}: {problem}")
         frames.append(frame)
     return frames
+
+
+_MASTERS: dict[str, tuple[Any, Any]] = {}
+"""The last dark and flat master made in this process ('dark', 'flat': (key, master)): the inputs of
+one ``clisp process`` share their frames, which are read and averaged once (24 MP: about 1 s and
+200 MB a kind, so one of each is kept)."""
+
+_MASTERS_LOCK = threading.Lock()
+
+
+def _frames_key(raw: RawImage, paths: list[Any], what: str) -> tuple[Any, ...] | None:
+    """What a master of the frame files ``paths`` for ``raw`` depends on: each file (its resolved
+    path, modification time and size) and what of the raw enters (size, CFA, levels and, for a
+    dark frame, its exposure time); None for frames given as RawImages (not cached)."""
+    try:
+        files = tuple((str(Path(p).resolve()), st.st_mtime_ns, st.st_size)
+                      for p in paths for st in (os.stat(p),))
+    except (TypeError, OSError):
+        return None
+    return (what, files, raw.shape, raw.cfa.name, raw.cfa.pattern.tobytes(),
+            np.asarray(raw.black_level, dtype=np.float64).tobytes(), float(raw.white_level),
+            exposure_time(raw) if what == "dark" else None)
+
+
+def _once(make: Any, raw: RawImage, paths: list[Any], what: str) -> Any:
+    """``make(raw, paths)`` (dark_master, flat_master), or the master it made before in this process
+    for the same files, unchanged on disk, and a raw of the same size, CFA, levels (and exposure
+    time). The master's arrays are shared: not to be written."""
+    key = _frames_key(raw, paths, what)
+    with _MASTERS_LOCK:
+        kept = _MASTERS.get(what)
+    if key is not None and kept is not None and kept[0] == key:
+        return kept[1]
+    master = make(raw, paths)
+    if key is not None:
+        for value in master:
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+        with _MASTERS_LOCK:
+            _MASTERS[what] = (key, master)
+    return master
 
 
 def dark_master(raw: RawImage, paths: list[str]) -> tuple[np.ndarray, str, int]:

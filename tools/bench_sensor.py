@@ -190,7 +190,7 @@ def false_positives(args: argparse.Namespace) -> None:
     import clisp
     import clisp.corrections as corr
     from clisp.pipeline import build_pipeline
-    from clisp.engine.runtime import get_runtime
+    from clisp.modules.sensor.stage import FOUND
     from clisp.sim.simulate import simulate
     original = corr.defect_test
     if args.z is not None:                 # another z than the stage's (--z: the first value)
@@ -202,7 +202,7 @@ def false_positives(args: argparse.Namespace) -> None:
                 clean = simulate(scene.image, cfa=cfa, gain=gain, seed=SEED)
                 pipe = build_pipeline(clean.raw)
                 on = pipe.run(clean.raw.data)
-                found = pipe.corrections.pre.found(get_runtime())
+                found = pipe.stats.counts.get(FOUND)
                 off = clisp.process(clean.raw, bad_pixels="off")
                 err = float(np.max(np.abs(on - off) / np.maximum(1.0, np.abs(off))))
                 total += 1

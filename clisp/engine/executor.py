@@ -56,12 +56,15 @@ library's own copy."""
 
 @dataclass
 class RunStats:
-    """Wall time of the last run, its throughput in megapixels per second and its tiling."""
+    """Wall time of the last run, its throughput in megapixels per second, its tiling and what its
+    kernels counted (Runtime.counter: e.g. 'sensor_found', the pixels the auto search replaced; empty
+    on the reference backend)."""
 
     seconds: float = 0.0
     megapixels: float = 0.0
     tiles: int = 0
     tile_shape: tuple[int, int] = (0, 0)
+    counts: dict[str, int] = field(default_factory=dict)
 
     @property
     def mp_per_s(self) -> float:
@@ -275,6 +278,9 @@ class Pipeline:
 
         recording = profile.active()
         loop = recording.begin_loop() if recording is not None else None
+        if rt is not None:
+            rt.reset_counters()                      # this run's counts only (Runtime.counter)
+        counts: dict[str, int] = {}
         start = time.perf_counter()
         try:                                         # where the device gathers each window: no reads
             run_tiles(plan, None if whole is not None else read, compute, sink, progress,
@@ -286,10 +292,12 @@ class Pipeline:
                     get_runtime().release(whole)      # a staged mosaic's buffers back to their pools
             windows.close()
         seconds = time.perf_counter() - start
+        if rt is not None:
+            counts = rt.read_counters()
         if loop is not None:
             recording.end_loop(loop, seconds, len(plan.tiles))
         height, width = source.shape
-        self.stats = RunStats(seconds, height * width / 1e6, len(plan.tiles), (plan.tile_h, plan.tile_w))
+        self.stats = RunStats(seconds, height * width / 1e6, len(plan.tiles), (plan.tile_h, plan.tile_w), counts)
         return self.stats
 
     def _path_compute(self, plan: TilePlan, backend: str, fuse: bool, whole: Any,

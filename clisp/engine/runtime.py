@@ -175,6 +175,7 @@ class Runtime:
         self.host_unified = bool(self.device.host_unified_memory)
         self._transfer_queue: Any = None
         self.staging = HostStaging(self)
+        self._counters: dict[str, Any] = {}
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -394,6 +395,32 @@ class Runtime:
         finally:
             self._meter = None
             self._kernels = saved
+
+    def counter(self, name: str) -> Any:
+        """The device uint32 named ``name`` that kernels count into (atomic_add), one per runtime,
+        created zeroed on first use. The count belongs to the run, not to a stage object (the stages
+        of a schedule are shared by every run of one camera and settings: executor.SCHEDULES):
+        Pipeline.stream zeroes the counters before a run and reads them into RunStats.counts after
+        it; runs on one runtime do not overlap (pipeline.DEVICE_LOCK)."""
+        buf = self._counters.get(name)
+        if buf is None:
+            flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.COPY_HOST_PTR
+            buf = self._counters[name] = self.cl.Buffer(self.context, flags, hostbuf=np.zeros(1, np.uint32))
+        return buf
+
+    def reset_counters(self) -> None:
+        """Zero every counter (enqueued: the next run's kernels count from 0)."""
+        for buf in self._counters.values():
+            self.cl.enqueue_fill_buffer(self.queue, buf, np.uint32(0), 0, 4)
+
+    def read_counters(self) -> dict[str, int]:
+        """Every counter's value (waits for the queue's commands before it)."""
+        out = {}
+        for name, buf in self._counters.items():
+            count = np.zeros(1, np.uint32)
+            self.cl.enqueue_copy(self.queue, count, buf, is_blocking=True)
+            out[name] = int(count[0])
+        return out
 
     def constant(self, values: np.ndarray) -> Any:
         """A small read-only device buffer holding ``values`` (CFA patterns, per-channel constants),

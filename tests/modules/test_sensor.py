@@ -4,6 +4,7 @@ what they do to raws with and without defects (clisp.corrections, the pipeline).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.engine.stage import Origin
 from clisp.engine.tiling import gather_window
 from clisp.io.opcodes import FixVignetteRadial, GainMap
-from clisp.modules.sensor.stage import (HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
+from clisp.modules.sensor.stage import (FOUND, HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
                                         neighbour_tables)
 from clisp.pipeline import build_pipeline
 from clisp.sim import defects as sd
@@ -55,20 +56,34 @@ def stage_with_everything(cfa, raw_dtype=np.uint16, rng=np.random.default_rng(1)
 @pytest.mark.parametrize("cfa", [bayer_cfa(), bayer_cfa("GBRG"), lms_cfa()], ids=lambda c: c.name)
 @pytest.mark.parametrize("dtype", [np.uint16, np.float32], ids=["uint16", "float32"])
 def test_sensor_correct_kernel_equals_reference(cfa, dtype):
-    """sensor.cl (screen, edges, fix) against the reference: every step on, whole image and a window."""
+    """sensor.cl (screen, compact, edges, fix) against the reference: every step on (the screen's
+    scalar path), then without the gain terms (its vector path, with the dark frame, flat and mask);
+    whole image and a window."""
     rt = get_runtime()
-    stage, x = stage_with_everything(cfa, dtype)
+    everything, x = stage_with_everything(cfa, dtype)
     total = 0
-    for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
-                          (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36))):
+    for stage, origin, shape in ((stage, origin, shape)
+                                 for stage in (everything, dataclasses.replace(everything, terms=None, smooth=None))
+                                 for origin, shape in ((Origin(-HALO, -HALO, (H, W)), (H + 2 * HALO, W + 2 * HALO)),
+                                                       (Origin(8 - HALO, 12 - HALO, (H, W)), (30, 36)))):
         window = gather_window(x, origin[0], origin[1], shape[0], shape[1], cfa.period)
-        before = stage.found(rt) or 0
+        before = rt.read_counters().get(FOUND, 0)
         expected, found = stage.correct(window, origin)
         got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
         assert_close(got, expected, f"sensor_correct {cfa.name} at {tuple(origin)}")
-        assert stage.found(rt) - before == int(found.sum())
+        assert rt.read_counters()[FOUND] - before == int(found.sum())
         total += int(found.sum())
     assert total >= 1
+
+
+def test_reference_quiet_outside_the_image():
+    """A window wholly outside the image (a tile's margin past the edge): no neighbour is inside, so
+    nothing is tested, and NumPy warns of nothing (an All-NaN slice before)."""
+    stage, _ = stage_with_everything(bayer_cfa())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = stage.reference(np.full((12, 14), 300.0), Origin(H + 4, W + 4, (H, W)))
+    assert out.shape == (6, 8) and np.isfinite(out).all()
 
 
 def test_screen_misses_nothing_the_test_finds():
@@ -145,10 +160,29 @@ def test_corrections_bring_the_raw_back(defective):
                           flat=sd.frames(sim.raw, d, "flat", 4, 4.0, 20))
     fixed = pipe.run(sim.raw.data)
     assert psnr(fixed, clean.truth) > psnr(off, clean.truth) + 3
-    text = pipe.corrections.explain(get_runtime())
+    text = pipe.corrections.explain(pipe.stats)
     assert "dark: 4 frames averaged, scaled by the exposure times" in text
     assert "the flat replaces the DNG's 4 gain opcodes" in text
     assert "the auto test found and replaced" in text
+
+
+def test_explain_counts_each_run_its_own_pixels():
+    """Two raws of one camera and settings in one process share the memoised schedule (and its
+    sensor stage object): each run's --explain count is its own, the count a fresh process gives."""
+    from clisp.engine.executor import SCHEDULES
+
+    def found_in(raw) -> str:
+        pipe = build_pipeline(raw, preset="balanced")
+        pipe.run(raw.data)
+        return [line for line in pipe.corrections.explain(pipe.stats).splitlines() if "found" in line][0]
+
+    raws = [simulate(scene(48, 64), cfa="bayer", gain=2, seed=5, defects=sd.SensorDefects(hot=hot, seed=s)).raw
+            for hot, s in ((0.004, 1), (0.01, 2))]
+    SCHEDULES.clear()
+    alone = found_in(raws[1])
+    SCHEDULES.clear()
+    first, second = found_in(raws[0]), found_in(raws[1])
+    assert second == alone and first != second, (first, second, alone)
 
 
 def test_no_false_corrections_on_a_smooth_raw_at_gain_64():
@@ -164,6 +198,31 @@ def test_fast_preset_searches_only_when_asked(defective):
     assert build_pipeline(sim.raw, preset="fast", opcodes=False).corrections.pre is None
     assert build_pipeline(sim.raw, preset="fast", bad_pixels="auto", opcodes=False).corrections.pre.test is not None
     assert build_pipeline(sim.raw, preset="balanced", opcodes=False).corrections.pre.test is not None
+
+
+def test_frames_read_once_a_process(tmp_path, defective, monkeypatch):
+    """Two raws of one process with the same dark and flat files: the frames are read for the first
+    only (the second's masters are the first's); a frame file written again is read again."""
+    import os
+    import clisp.io.rawfile as rawfile
+    d, sim, _ = defective
+    paths = {}
+    for kind in ("dark", "flat"):
+        paths[kind] = [str(tmp_path / f"{kind}{i}.dng") for i in range(2)]
+        for path, frame in zip(paths[kind], sd.frames(sim.raw, d, kind, 2, 4.0, 30)):
+            rawfile.write_raw(path, frame)
+    import clisp.corrections as corrections
+    reads = []
+    real = rawfile.read_raw
+    monkeypatch.setattr(corrections, "read_raw", lambda path, lazy=False: reads.append(path) or real(path, lazy))
+    first = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert len(reads) == 4
+    second = sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert len(reads) == 4 and second.notes == first.notes
+    assert np.array_equal(second.pre.dark, first.pre.dark) and np.array_equal(second.pre.flat, first.pre.flat)
+    os.utime(paths["dark"][1], ns=(1, 1))                    # "written again": another modification time
+    sensor_corrections(sim.raw, dark=paths["dark"], flat=paths["flat"])
+    assert reads[4:] == paths["dark"]
 
 
 def test_map_file_used_as_given(tmp_path, defective):

@@ -16,6 +16,7 @@
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
  *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
+ *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
  */
 
 #include "sensor.h"
@@ -61,8 +62,9 @@ inline float gain_after(__global const float *flat, __constant const float *term
 
 /* sensor_screen: 8 pixels of a row per work-item, over the window less the halo (2): the steps
  * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
- * frame or the black level; r: gain_after), and the candidates for sensor_fix appended to ``list``
- * (``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
+ * frame or the black level; r: gain_after), and the candidates for sensor_fix flagged in ``flags``
+ * (a byte per 8 pixels, listed by sensor_compact; the scalar path appends them to ``list`` itself,
+ * ``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
  * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
  * (at their level; at 0 for a dark one) plus SC_FLOOR plus SC_ALPHA times their range: sensor_fix's
@@ -72,6 +74,13 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
  * than 8 pixels takes the scalar path. */
 #define LANES 8
+#define SC_CAT(a, b) a##b
+#define SC_VEC(t, n) SC_CAT(t, n)
+#if SC_DARK
+#define SC_ROW_T float
+#else
+#define SC_ROW_T RAW_T
+#endif
 inline int screen_one(__global const RAW_T *src, __constant const char *pattern, __constant const float *black,
                       __constant const float *inv_range, __constant const float *noise_a,
                       __constant const float *noise_b, __global const ushort *mask, __global const float *dark,
@@ -103,7 +112,7 @@ inline void append(__global uint *list, __global uint *count, const uint cap, co
 }
 
 __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint *restrict count, const uint cap,
-                            __constant const float *restrict lanes8)
+                            __constant const float *restrict lanes8, __global uchar *restrict flags)
 {
     const int xg = get_global_id(0);
     const int y = get_global_id(1);
@@ -115,6 +124,9 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     const int i0 = (y + SC_HALO) * sw + x0 + SC_HALO;
     const int edge_row = gy < 2 || gy >= img_h - 2;
     if (x0 + LANES > width || SC_TERMS || SC_GRID) {          /* the scalar path */
+#if SC_DETECT || SC_MASK
+        flags[y * ((width + LANES - 1) / LANES) + xg] = 0;        /* its candidates appended below */
+#endif
         for (int k = 0; k < LANES && x0 + k < width; k++) {
             const int i = i0 + k, gx = gx0 + k;
             const int c = cfa_channel(pattern, gy, gx);
@@ -146,19 +158,39 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
 #define OFF8(q) blk
 #endif
 #define W8(q) (convert_float8(vload8(0, src + (q))) - OFF8(q))
+#if SC_DETECT
+    /* each of the rows -2, 0, +2 read once, 16 samples from 2 left of the group (12 used; the
+     * window's halo of 3 and the row after keep the reads inside it): its columns -2, 0, +2 are the
+     * lanes .s0-7, .s2-9, .s4-b. The neighbours (the pixel's own channel) compared as read (DN:
+     * ushort vectors where the raw is, cheaper than float) and their highest and lowest made w
+     * once; with a dark frame the offset differs per pixel, so in float. Ternaries, which PoCL
+     * vectorises (select(), max() and fmax() it does not). */
+#if SC_DARK
+#define ROW16(q) (convert_float16(vload16(0, src + (q) - 2)) - vload16(0, dark + (q) - 2))
+    typedef float8 nb_t;
+#define TO_W(v) (v)
+#else
+#define ROW16(q) vload16(0, src + (q) - 2)
+    typedef SC_VEC(RAW_T, 8) nb_t;
+#define TO_W(v) (convert_float8(v) - blk)
+#endif
+    const SC_VEC(SC_ROW_T, 16) top = ROW16(i0 - 2 * sw), mid = ROW16(i0), bot = ROW16(i0 + 2 * sw);
+    const float8 w = TO_W(mid.s23456789);
+#else
     const float8 w = W8(i0);
+#endif
 #if SC_DETECT || SC_MASK
     int8 cand = (int8)(0);
 #if SC_DETECT
-    /* the highest and lowest of the same-channel neighbours at (+-2, +-2) (the same channel in the
-     * Bayer and LMS CFAs) and, SC_EVEN (a 2 x 2 CFA: every even offset has the pixel's channel), at
-     * (0, +-2), (+-2, 0): ternaries, which PoCL vectorises (select() and fmax() it does not) */
-    float8 hi = W8(i0 - 2 * sw - 2), lo = hi;
-#define NB(dy, dx) { const float8 v = W8(i0 + (dy) * sw + (dx)); hi = v > hi ? v : hi; lo = v < lo ? v : lo; }
-    NB(-2, 2) NB(2, -2) NB(2, 2)
+    /* the same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs) and,
+     * SC_EVEN (a 2 x 2 CFA: every even offset has the pixel's channel), at (0, +-2), (+-2, 0) */
+    nb_t hi_n = top.s01234567, lo_n = hi_n;
+#define NB8(e) { const nb_t v = (e); hi_n = v > hi_n ? v : hi_n; lo_n = v < lo_n ? v : lo_n; }
+    NB8(top.s456789ab) NB8(bot.s01234567) NB8(bot.s456789ab)
 #if SC_EVEN
-    NB(0, -2) NB(0, 2) NB(-2, 0) NB(2, 0)
+    NB8(mid.s01234567) NB8(mid.s456789ab) NB8(top.s23456789) NB8(bot.s23456789)
 #endif
+    const float8 hi = TO_W(hi_n), lo = TO_W(lo_n);
     const float8 up = w * inv, uhi = hi * inv, ulo = lo * inv;
     const float8 spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
     const float8 eh = up - uhi - spread, el = ulo - up - spread;
@@ -169,13 +201,10 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
 #if SC_MASK
     cand |= convert_int8(vload8(0, mask + i0)) != 0;
 #endif
-    if (any(cand)) {
-        for (int k = 0; k < LANES; k++) {
-            const int gx = gx0 + k;
-            if (((int *)&cand)[k] && !edge_row && gx >= 2 && gx < img_w - 2)
-                append(list, count, cap, (uint)(y * width + x0 + k));
-        }
-    }
+    /* the lanes' candidates as the bits of one byte, listed by sensor_compact: an append here (an
+     * atomic in a branch) would cost the kernel a third of its time */
+    const int8 bits = cand & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    flags[y * ((width + LANES - 1) / LANES) + xg] = (uchar)(bits.s0 | bits.s1 | bits.s2 | bits.s3 | bits.s4 | bits.s5 | bits.s6 | bits.s7);
 #endif
     float8 r = (float8)(1.0f);
 #if SC_FLAT
@@ -184,18 +213,49 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     vstore8(w * r * osc + oof, 0, dst + y * width + x0);
 }
 
+/* sensor_compact: appends the candidates sensor_screen flagged (bit k of flags[y groups + g]: output
+ * pixel (y, 8 g + k)) to ``list``, but those within 2 of the image's edge (sensor_edges lists them).
+ * Halo 0; one work-item per 64 groups of a row (``groups`` of them), bounds checked. */
+__kernel void sensor_compact(__global const uchar *restrict flags, __global uint *restrict list,
+                             __global uint *restrict count, const uint cap, const int width, const int height,
+                             const int groups, const int oy, const int ox, const int img_h, const int img_w)
+{
+    const int g0 = get_global_id(0) * 64, y = get_global_id(1);
+    if (g0 >= groups || y >= height)
+        return;
+    const int gy = y + SC_HALO + oy;
+    if (gy < 2 || gy >= img_h - 2)
+        return;
+    __global const uchar *f = flags + y * groups;
+    for (int g = g0; g < min(g0 + 64, groups); g++) {
+        uint m = f[g];
+        while (m) {
+            const int k = 31 - clz(m & -m);              /* the lowest bit set */
+            m &= m - 1;
+            const int x = g * LANES + k, gx = x + SC_HALO + ox;
+            if (gx >= 2 && gx < img_w - 2)
+                append(list, count, cap, (uint)(y * width + x));
+        }
+    }
+}
+
 /* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
- * window's pixels within 2 of the image's edge: sensor_fix tests them with the neighbours inside the
- * image only). Halo 0; one work-item per pixel, bounds checked. */
+ * window's pixels within 2 of the image's edge and beyond it: sensor_fix tests them with the
+ * neighbours inside the image only). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
+ * atomic for them (an atomic per pixel made the strips beyond the image cost as much as the
+ * screen), bounds checked. */
 __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
                            const int width, const int y0, const int x0, const int rows, const int cols)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= cols || y >= rows)
+    const int xs = get_global_id(0) * SC_EDGE_RUN, y = get_global_id(1);
+    if (xs >= cols || y >= rows)
         return;
-    const uint k = atomic_inc(count);
-    if (k < cap)
-        list[k] = (uint)((y0 + y) * width + x0 + x);
+    const int m = min(SC_EDGE_RUN, cols - xs);
+    const uint k = atomic_add(count, (uint)m);
+    const uint p = (uint)((y0 + y) * width + x0 + xs);
+    for (int j = 0; j < m; j++)
+        if (k + j < cap)
+            list[k + j] = p + j;
 }
 
 /* y_near: Y at window index q (image pixel (gy, gx)): the mean of its 4 nearest pixels, each

@@ -6,7 +6,8 @@ Two stages, one at each end of the colour pipeline::
     sensor_screen             3         1  first stage, on the raw mosaic (DN in): OpcodeList1's gains,
                                            the dark frame (or the black level), the flat field and
                                            OpcodeList2's gains less their smooth part G; candidates
-                                           for the defect test listed
+                                           for the defect test flagged (a bit per pixel)
+    sensor_compact            0         1  the flagged pixels listed
     sensor_edges              0       0-4  the window's pixels near the image's edge, listed
     sensor_fix                3         1  each candidate: the defect test against the noise model
                                            (or the known bad pixels), and its replacement
@@ -98,6 +99,12 @@ LANES = 8
 
 FIX_ROW = 256
 """sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
+
+EDGE_RUN = 64
+"""Pixels of a row each work-item of sensor_edges appends, with one atomic (sensor.cl's SC_EDGE_RUN)."""
+
+FOUND = "sensor_found"
+"""The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
 
 CANDIDATES = 8
 """sensor_fix runs one work-item per CANDIDATES pixels of a window, each taking every so-many-th
@@ -319,7 +326,7 @@ class SensorCorrect(Stage):
         if isinstance(following, CfaAffine):
             o, s = np.asarray(following.offset, dtype=np.float64), np.asarray(following.scale, dtype=np.float64)
             fused = replace(self, out_scale=self.out_scale * s, out_offset=(self.out_offset - o) * s)
-            fused._devices = self._devices        # one device state (and count of pixels found) for both
+            fused._devices = self._devices        # one device state for both
             return fused
         return None
 
@@ -382,9 +389,10 @@ class SensorCorrect(Stage):
             est, y_bar, w_bar = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
             if self.test is not None and offs:
                 vals = np.stack([np.where(masked(*o), np.nan, w_at(*o)) for o in offs])
-                used = np.any(~np.isnan(vals), axis=0)
-                with np.errstate(all="ignore"):
-                    hi, lo = np.nanmax(vals, axis=0), np.nanmin(vals, axis=0)
+                missing = np.isnan(vals)                 # masked, or outside the image
+                used = np.any(~missing, axis=0)          # without any (a window outside the image): 0, not tested
+                hi = np.where(used, np.max(np.where(missing, -np.inf, vals), axis=0), 0.0)
+                lo = np.where(used, np.min(np.where(missing, np.inf, vals), axis=0), 0.0)
                 up, uhi, ulo = w * inv_range[c], hi * inv_range[c], lo * inv_range[c]
                 spread = t.alpha * (uhi - ulo) + FLOOR
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
@@ -455,7 +463,7 @@ class SensorCorrect(Stage):
                 "SC_MASK": int(self.mask is not None),
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
-                "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE,
+                "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE, "SC_EDGE_RUN": EDGE_RUN,
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
                 "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
@@ -474,7 +482,8 @@ class SensorCorrect(Stage):
 
     def _device(self, rt: Runtime) -> dict[str, Any]:
         """What the kernels read besides the window, once per runtime: the tables, the whole planes
-        the device gathers windows from, the packed terms, the counter of pixels found."""
+        the device gathers windows from, the packed terms (the count of pixels found is the run's:
+        Runtime.counter FOUND)."""
         state = self._devices.get(id(rt))
         if state is not None:
             return state
@@ -493,22 +502,8 @@ class SensorCorrect(Stage):
         for key, plane in (("mask", self.mask), ("dark", self.dark), ("flat", self.flat)):
             state[key] = rt.host_source(plane) if plane is not None else None
         if not _metering(rt):
-            flags = rt.cl.mem_flags.READ_WRITE | rt.cl.mem_flags.COPY_HOST_PTR
-            state["found"] = rt.cl.Buffer(rt.context, flags, hostbuf=np.zeros(1, np.uint32))
             self._devices[id(rt)] = state
-        else:
-            state["found"] = rt.constant(np.zeros(1, np.uint32))
         return state
-
-    def found(self, rt: Runtime) -> int | None:
-        """Pixels the auto test found in the runs on ``rt`` so far (None: no run, or no test). A pixel
-        that two skip paths of one tile computed counts once per path."""
-        state = self._devices.get(id(rt))
-        if state is None or self.test is None:
-            return None
-        count = np.zeros(1, np.uint32)
-        rt.cl.enqueue_copy(rt.queue, count, state["found"], is_blocking=True)
-        return int(count[0])
 
     def _window(self, rt: Runtime, state: dict[str, Any], key: str, origin: tuple[int, int], src: DeviceImage,
                 dtype: Any) -> tuple[Any, list[DeviceImage]]:
@@ -557,16 +552,26 @@ class SensorCorrect(Stage):
         else:
             candidates = rt.constant(np.zeros(1, np.uint32))
             args.update(count=rt.constant(np.zeros(1, np.uint32)), cap=0)
-        rt.launch_named("sensor", "sensor_screen", -(-width // LANES), height,
-                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants())), defines, exact=False)
+        groups = -(-width // LANES)
+        flags = rt.acquire(1, height, groups, np.uint8) if screening else None
+        rt.launch_named("sensor", "sensor_screen", groups, height,
+                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants()),
+                             flags=flags if flags is not None else rt.constant(np.zeros(1, np.uint8))),
+                        defines, exact=False)
+        if flags is not None:
+            rt.launch_named("sensor", "sensor_compact", -(-groups // 64), height, dict(
+                flags=flags, list=candidates, count=count, cap=cap, width=width, height=height, groups=groups,
+                oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
+            held.append(flags)
         if self.test is not None:
             for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
-                rt.launch_named("sensor", "sensor_edges", cols, rows, dict(list=candidates, count=count, cap=cap,
+                rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(list=candidates, count=count, cap=cap,
                                 width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
-                pairs_n=state["pairs_n"], wb=state["wb"], found=state["found"]), defines, exact=False)
+                pairs_n=state["pairs_n"], wb=state["wb"],
+                found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
