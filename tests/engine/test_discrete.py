@@ -27,6 +27,7 @@ def discrete(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setattr(rt, "host_unified", False)
     monkeypatch.setattr(rt, "_transfer_queue", None)
     rt.trim_pool()
+    rt.staging.trim()                 # staging left by earlier runs would make the counts depend on them
     yield rt
     rt.finish()
     rt.trim_pool()
