@@ -16,7 +16,7 @@ import pytest
 
 import clisp
 from clisp.cfa import CFA, bayer_cfa, cfa_from_name, layout_of, lms_bayer_cfa, lms_cfa
-from clisp.cli import main
+from clisp.app.cli import main
 from clisp.errors import ClispError
 from clisp.io.imageio import read_image, write_image
 from clisp.io.rawfile import read_raw, write_raw

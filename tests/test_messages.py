@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from paths import CAMERA_RAWS, DOCS
-from clisp.cli import main
+from clisp.app.cli import main
 from clisp.errors import MAX_MESSAGE, ClispError
 from clisp.io.imageio import write_image
 from clisp.io.rawfile import write_raw

@@ -1,16 +1,16 @@
-"""Throughput of ``clisp batch`` (clisp.batch on a local Dask cluster) against a plain loop.
+"""Throughput of ``clisp batch`` (clisp.app.batch on a local Dask cluster) against a plain loop.
 
 Simulates COUNT raws of WxH (alternately Bayer and LMS, gain 4, no optics) into WORK, then, in one
 run on the same files and settings:
 
-* loop     clisp.batch.process_one called file after file (what the batch does per file,
+* loop     clisp.app.batch.process_one called file after file (what the batch does per file,
            without Dask) in a fresh process, cold like a Dask worker: the baseline; and again in
            this process once every program is built (kernels are generated per raw, so a
            fresh process loads one set of programs per raw from PoCL's cache);
-* dask N   clisp.batch.run_batch on a fresh local cluster of N worker processes, for each N in
+* dask N   clisp.app.batch.run_batch on a fresh local cluster of N worker processes, for each N in
            --workers; "batch s" is from submitting to the last result, "wall s" adds the cluster's
            start-up (processes, imports, each worker's OpenCL context);
-  (clisp.batch gives each of N local workers CPUs / N PoCL threads, POCL_CPU_MAX_CU_NUM);
+  (clisp.app.batch gives each of N local workers CPUs / N PoCL threads, POCL_CPU_MAX_CU_NUM);
 * with --pocl-all, also each N > 1 with POCL_CPU_MAX_CU_NUM = CPUs: every worker a PoCL thread
   per CPU, PoCL's own default.
 
@@ -37,9 +37,9 @@ import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
 
-from clisp.batch import (BatchSettings, host_cpus, local_worker_env, plan_jobs, process_one, read_manifest,
-                         run_batch)
-from clisp.cli import image_size
+from clisp.app.batch import (BatchSettings, host_cpus, local_worker_env, plan_jobs, process_one, read_manifest,
+                             run_batch)
+from clisp.app.cli import image_size
 from clisp.io.rawfile import write_raw
 from clisp.sim.simulate import simulate
 

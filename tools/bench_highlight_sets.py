@@ -32,7 +32,7 @@ from clisp.metrics import psnr
 from clisp.pipeline import build_pipeline
 from clisp.engine.executor import Pipeline
 from clisp.modules.highlights.stage import Highlights, clip_map
-from clisp.noise_estimate import raw_noise
+from clisp.scene.noise import raw_noise
 
 MEAN_LIMIT = -0.05
 """Issue 43: a set's mean PSNR with the stage at least off's minus this much (dB)."""

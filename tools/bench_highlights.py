@@ -52,7 +52,7 @@ import clisp
 from clisp.metrics import ciede2000, psnr
 from clisp.pipeline import build_pipeline
 from clisp.sim.simulate import inverse_isp_matrix
-from clisp.noise_estimate import CLIP_FRACTION
+from clisp.scene.noise import CLIP_FRACTION
 from clisp.modules.highlights.stage import Highlights, box_max
 from clisp.sim.highlight_scenes import highlight_scenes, specular_rim
 

@@ -150,7 +150,7 @@ def tune(args: argparse.Namespace) -> None:
     """PSNR of the pixels case (corrected, and the defect-free raw with the search on and off) for
     a grid of the auto test's constants."""
     import clisp
-    import clisp.corrections as corr
+    import clisp.pipeline.corrections as corr
     from clisp.metrics import psnr
     from clisp.sim.simulate import simulate
     original = corr.defect_test
@@ -188,7 +188,7 @@ def false_positives(args: argparse.Namespace) -> None:
     """Defect-free raws: the search on against off, per image (pixels the test replaced, the largest
     output difference; the tolerance rule is 1e-5)."""
     import clisp
-    import clisp.corrections as corr
+    import clisp.pipeline.corrections as corr
     from clisp.pipeline import build_pipeline
     from clisp.modules.sensor.stage import FOUND
     from clisp.sim.simulate import simulate

@@ -4,18 +4,18 @@
     python tools/bench_wb_auto.py --scenes [--seeds 12]     # the tuning set (tools/wb_scenes.py)
 
 Each image (linear sRGB, white 1) is lit by D65, a warm light (3200 K, Planck's locus) and a cool one
-(8000 K, CIE daylight): the scene times the light's linear sRGB colour (clisp.illuminant.light_srgb,
+(8000 K, CIE daylight): the scene times the light's linear sRGB colour (clisp.scene.illuminant.light_srgb,
 scaled so its largest channel is 1: no channel brighter than under D65), simulated (clisp.simulate,
 Airy optics, seed 1) as a Bayer and an LMS raw at gains 1 and 16, and processed in this process
 (clisp.process, default preset, linear sRGB output; the same stages as ``clisp process``) with
 each white balance:
 
-``auto``       ``--wb auto`` as this tree has it (clisp.white_balance.with_white_balance);
+``auto``       ``--wb auto`` as this tree has it (clisp.scene.white_balance.with_white_balance);
 ``grey px``    with ``--before``: the grey-pixel estimate that was ``--wb auto`` before issue 42
-               (clisp.white_balance.grey_pixel_gains), given as multipliers;
-``gray world`` clisp.white_balance.gray_world_gains, given as multipliers;
+               (clisp.scene.white_balance.grey_pixel_gains), given as multipliers;
+``gray world`` clisp.scene.white_balance.gray_world_gains, given as multipliers;
 ``daylight``   ``--wb daylight``: the camera's D65 multipliers (right under D65 by construction);
-``true``       the light's own multipliers (clisp.illuminant.CameraLights.gains): the floor the
+``true``       the light's own multipliers (clisp.scene.illuminant.CameraLights.gains): the floor the
                metric leaves to any global white balance (clipping, noise, the tone of the light).
 
 The error of an image: the angle (degrees) in linear sRGB between the mean colour of the mid-tones
@@ -36,7 +36,7 @@ import numpy as np
 import toolkit  # before clisp: puts this checkout on sys.path
 
 LIGHTS = {"D65": None, "3200 K": (3200.0, 0.0), "8000 K": (8000.0, 0.0)}
-"""The lights: None is D65 itself (the scene as it is); else (T, Duv) of clisp.illuminant."""
+"""The lights: None is D65 itself (the scene as it is); else (T, Duv) of clisp.scene.illuminant."""
 CAMERAS = (("bayer", 1), ("bayer", 16), ("lms", 1), ("lms", 16))
 METHODS = ("auto", "gray world", "daylight", "true")
 BEFORE = "grey px"
@@ -48,7 +48,7 @@ SECTION = "bench_wb_auto"
 
 def light_colour(light: tuple[float, float] | None) -> np.ndarray:
     """Linear sRGB colour of a light, largest channel 1; D65 (None) is (1, 1, 1)."""
-    from clisp.illuminant import light_srgb
+    from clisp.scene.illuminant import light_srgb
     if light is None:
         return np.ones(3)
     w = light_srgb(np.array(light[0]), light[1])
@@ -70,8 +70,8 @@ def angle(a: np.ndarray, b: np.ndarray) -> float:
 
 def method_gains(raw, method: str, light: np.ndarray) -> str:
     """The ``wb`` option (clisp.process) of ``method`` for ``raw`` lit by ``light``."""
-    from clisp.illuminant import CameraLights
-    from clisp.white_balance import daylight_gains, gray_world_gains, grey_pixel_gains, reference_channel
+    from clisp.scene.illuminant import CameraLights
+    from clisp.scene.white_balance import daylight_gains, gray_world_gains, grey_pixel_gains, reference_channel
     if method == "auto":
         return "auto"
     if method == "daylight":

@@ -1,10 +1,10 @@
-"""Measure what the per-tile skips (clisp.skip) save and cost: time and PSNR, default vs --no-skip.
+"""Measure what the per-tile skips (clisp.pipeline.skip) save and cost: time and PSNR, default vs --no-skip.
 
     python tools/calibrate_skip.py [--gains 1,64] [--cfas lms,bayer] [--kodak 5,23] [--mcmaster 5,9]
                                    [--sky 2048x1536] [--tile N] [--repeat 2] [--data DIR]
     python tools/calibrate_skip.py --levels      # predicted visible chroma noise on grey fields
     python tools/calibrate_skip.py --cost        # analysis cost, ms per MP
-    python tools/calibrate_skip.py --choice      # the noise-adaptive choice's calibration (clisp.stage_choice)
+    python tools/calibrate_skip.py --choice      # the noise-adaptive choice's calibration (clisp.pipeline.demosaic_choice)
     python tools/calibrate_skip.py --cli [--work DIR] [--scenes sky,kodak,mcm] [--repeat 3]
         # issue 13's acceptance: whole process (`clisp process X.dng -o Y.exr` against
         # `--no-skip`), 12 MP scenes: the sky, a 5 x 6 collage of Kodak and a 8 x 6 collage of
@@ -17,7 +17,7 @@ both run on OpenCL (best of --repeat, analysis time added to the default's), and
 --data (never copied). Prints one row per case and the means.
 
 First measurement (2 shared CPU cores, PoCL, OpenCL backend, automatic tiles, best of 2;
-``--sky 2048x1536 --kodak 5,23 --mcmaster 5,9 --gains 1,64``). Thresholds: clisp.skip's initial
+``--sky 2048x1536 --kodak 5,23 --mcmaster 5,9 --gains 1,64``). Thresholds: clisp.pipeline.skip's initial
 ones (VISIBLE_LIGHT 8e-3). Time ratio = default (analysis included) / --no-skip:
 
     scene          cfa   gain  ratio  PSNR loss  paths
@@ -182,7 +182,7 @@ def main() -> int:
     ap.add_argument("--tile", type=int, default=None)
     toolkit.add_repeat_option(ap, 2, "timed runs, best kept (--cli: the median)")
     ap.add_argument("--choice", action="store_true",
-                    help="the noise-adaptive choice's calibration (clisp.stage_choice), on scenes made in code")
+                    help="the noise-adaptive choice's calibration (clisp.pipeline.demosaic_choice), on scenes made in code")
     ap.add_argument("--levels", action="store_true")
     ap.add_argument("--cost", action="store_true")
     args = ap.parse_args()
@@ -240,10 +240,10 @@ def choice_scenes() -> list[tuple[str, np.ndarray]]:
 
 
 def choice_candidates(raw: object) -> dict[str, object]:
-    """The preset's demosaic and each alternative considered for ``raw`` (clisp.stage_choice; the
+    """The preset's demosaic and each alternative considered for ``raw`` (clisp.pipeline.demosaic_choice; the
     Bayer one, bilinear in place of RI, is measured but not in ALTERNATIVES)."""
     from clisp.pipeline import make_demosaic
-    from clisp.stage_choice import ALTERNATIVES
+    from clisp.pipeline.demosaic_choice import ALTERNATIVES
     if raw.cfa.kind == "lms":
         full = make_demosaic("guided", raw)
         return {"full": full, **{a.name: a.make(full) for a in ALTERNATIVES if a.stage == type(full).__name__}}
@@ -252,11 +252,11 @@ def choice_candidates(raw: object) -> dict[str, object]:
 
 def choice_calibration(gains: list[float]) -> int:
     """Rows (kind, alternative, gain, sigma, mean dB, worst dB) of PSNR(alternative) - PSNR(full),
-    the quality preset otherwise, on :func:`choice_scenes`; the sigma (clisp.stage_choice.noise_sigma)
-    is what clisp.stage_choice.ALTERNATIVES' calibration rows hold."""
-    from clisp.noise_estimate import raw_noise
-    from clisp.stage_choice import noise_sigma
-    from clisp.white_balance import reference_channel
+    the quality preset otherwise, on :func:`choice_scenes`; the sigma (clisp.pipeline.demosaic_choice.noise_sigma)
+    is what clisp.pipeline.demosaic_choice.ALTERNATIVES' calibration rows hold."""
+    from clisp.scene.noise import raw_noise
+    from clisp.pipeline.demosaic_choice import noise_sigma
+    from clisp.scene.white_balance import reference_channel
     scenes = choice_scenes()
     print("| CFA | alternative | gain | sigma at 18 % | mean dB | worst dB | worst scene |")
     print("|---|---|---:|---:|---:|---:|---|")
@@ -280,7 +280,7 @@ def choice_calibration(gains: list[float]) -> int:
 
 
 def levels() -> int:
-    from clisp.skip import Skipper, visible_chroma_noise
+    from clisp.pipeline.skip import Skipper, visible_chroma_noise
     print("predicted visible chroma noise (median over blocks) on flat grey fields")
     for grey in (0.01, 0.05, 0.18, 0.5, 0.9):
         for cfa in ("lms", "bayer"):
@@ -296,7 +296,7 @@ def levels() -> int:
 def cost(data: Path) -> int:
     """The analysis's cost on a 12 MP raw (kodim05 simulated and repeated), ms per MP."""
     import dataclasses
-    from clisp.analysis import analyse
+    from clisp.scene.block_analysis import analyse
     scene = read_scene(kodak_path(data, 5))
     for cfa in ("lms", "bayer"):
         raw = simulate(scene, cfa=cfa, gain=1, seed=1).raw

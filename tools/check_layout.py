@@ -1,7 +1,7 @@
 """The layout's checks (issue 26), each a subcommand that prints its figure:
 
     python tools/check_layout.py wheel                    # what `pip install .` ships: no study module
-    python tools/check_layout.py startup --baseline DIR   # `import clisp.cli`: time and heavy modules, vs DIR
+    python tools/check_layout.py startup --baseline DIR   # `import clisp.app.cli`: time and heavy modules, vs DIR
     python tools/check_layout.py launches                 # the most positional arguments of any kernel launch
     python tools/check_layout.py sources                  # #ifndef host-constant defaults; uncommented function-level imports
     python tools/check_layout.py hashes --baseline DIR    # outputs' pixel hashes, every preset, vs DIR's
@@ -31,7 +31,7 @@ import toolkit
 from toolkit import REPO
 
 HEAVY = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy", "pyopencl", "dask", "exiv2", "PIL", "tifffile")
-"""Modules that cost start-up; `import clisp.cli` should load none of the first five."""
+"""Modules that cost start-up; `import clisp.app.cli` should load none of the first five."""
 STUDY_NAMES = ("research/", "bayer_rcd", "bayer_gbtf", "bayer_numpy", "lms_ri")
 MAX_POSITIONAL = 12
 
@@ -51,24 +51,30 @@ def check_wheel() -> int:
     return 1 if studies else 0
 
 
+def cli_module(tree: Path) -> str:
+    """The CLI's module in ``tree``: clisp.app.cli since issue 42, clisp.cli before."""
+    return "clisp.app.cli" if (tree / "clisp" / "app" / "cli.py").exists() else "clisp.cli"
+
+
 def check_startup(baseline: Path | None, repeat: int) -> int:
-    """Wall time of `python -c "import clisp.cli"` (interleaved with the baseline) and heavy modules loaded."""
+    """Wall time of `python -c "import clisp.app.cli"` (interleaved with the baseline, whose CLI may
+    be clisp.cli) and heavy modules loaded."""
     trees = [REPO] + ([baseline.resolve()] if baseline else [])
     times: dict[Path, list[float]] = {t: [] for t in trees}
     for _ in range(repeat):
         for tree in trees:
             start = time.perf_counter()
-            subprocess.run([sys.executable, "-c", "import clisp.cli"], env=toolkit.repo_env(tree), check=True,
-                           cwd=toolkit.NEUTRAL_CWD)
+            subprocess.run([sys.executable, "-c", f"import {cli_module(tree)}"], env=toolkit.repo_env(tree),
+                           check=True, cwd=toolkit.NEUTRAL_CWD)
             times[tree].append(time.perf_counter() - start)
-    probe = f"import sys, clisp.cli; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
     bad = 0
     for tree in trees:
+        probe = f"import sys, {cli_module(tree)}; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
         loaded = subprocess.run([sys.executable, "-c", probe], env=toolkit.repo_env(tree), check=True,
                                 capture_output=True, text=True, cwd=toolkit.NEUTRAL_CWD).stdout.split()
         bad += tree == REPO and any(m in loaded for m in HEAVY[:5])
         t = sorted(times[tree])
-        print(f"{toolkit.git_rev(tree)}: import clisp.cli best {t[0] * 1e3:.0f} ms, median "
+        print(f"{toolkit.git_rev(tree)}: import {cli_module(tree)} best {t[0] * 1e3:.0f} ms, median "
               f"{statistics.median(t) * 1e3:.0f} ms ({repeat} runs); heavy modules loaded: {loaded}")
     return 1 if bad else 0
 
@@ -124,8 +130,14 @@ def check_launches() -> int:
     return 1 if worst[1] > MAX_POSITIONAL else 0
 
 
+LOOSE_MODULES = 6
+"""Most modules loose in clisp/ beside its packages (issue 42): the public API, __main__, cfa, errors,
+metrics, version."""
+
+
 def check_sources() -> int:
-    """#ifndef defaults in the OpenCL sources, and function-level imports in clisp/ without a comment."""
+    """#ifndef defaults in the OpenCL sources, function-level imports in clisp/ without a comment, and
+    more than LOOSE_MODULES modules loose in clisp/."""
     sources = sorted((REPO / "clisp").rglob("*.cl")) + sorted((REPO / "clisp").rglob("*.h"))
     fallbacks = [f"{p.relative_to(REPO)}:{i}" for p in sources
                  for i, line in enumerate(p.read_text().splitlines(), 1) if line.strip().startswith("#ifndef")]
@@ -144,7 +156,9 @@ def check_sources() -> int:
         total += len(found)
     print(f"OpenCL sources: {len(sources)}, #ifndef defaults: {len(fallbacks)} {fallbacks}")
     print(f"function-level imports in clisp/: {total}, without a comment saying why: {len(bare)} {bare}")
-    return 1 if fallbacks or bare else 0
+    loose = sorted(p.name for p in (REPO / "clisp").glob("*.py"))
+    print(f"modules loose in clisp/: {len(loose)} (at most {LOOSE_MODULES}) {loose}")
+    return 1 if fallbacks or bare or len(loose) > LOOSE_MODULES else 0
 
 
 def hash_runs(data: Path, work: Path) -> list[tuple[str, list[str]]]:
@@ -194,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="check", required=True)
     sub.add_parser("wheel", help="what `pip install .` ships")
-    startup = sub.add_parser("startup", help="`import clisp.cli`: time and heavy modules")
+    startup = sub.add_parser("startup", help="`import clisp.app.cli`: time and heavy modules")
     startup.add_argument("--baseline", type=Path, default=None, metavar="DIR", help="another clisp source tree to time too")
     toolkit.add_repeat_option(startup, 15, "interleaved runs per tree")
     sub.add_parser("launches", help="the most positional arguments of a kernel launch")

@@ -71,7 +71,7 @@ from clisp.modules.chroma_denoise.stage import (LUMAS, ChromaDenoise, ChromaDeno
                                                 is_noiseless, space_for_cfa)
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.raw_scale.stage import normalize, white_balance1
-from clisp.noise_estimate import raw_noise
+from clisp.scene.noise import raw_noise
 from clisp.pipeline import Pipeline, make_demosaic
 from clisp.sim.charts import dead_leaves, demo_chart
 from clisp.sim.simulate import simulate

@@ -13,7 +13,7 @@ Table 1  PSNR (dB), tone-mapped (clip, sRGB encode), 10 px border, mean over the
          Kodak (24 PNG) and McMaster (18 TIFF, the paper's "IMAX"), cropped to multiples of 4;
          noiseless and gains 4..64; with and without the denoiser; linear-domain PSNR as well.
          "noiseless, estimated": the denoiser driven by the blind noise estimate of the raw
-         (clisp.noise_estimate), as for camera raws without metadata: what it costs at no noise.
+         (clisp.scene.noise), as for camera raws without metadata: what it costs at no noise.
 Speed    the chroma-denoise stage alone (kernels on a device-resident 24 MP image, best of
          --repeat) and the whole pipeline with and without it on a 24 MP simulated raw.
 Crops    dead-leaves crops at gain 64 (Bayer / LMS, without / with denoise, and the truth),
@@ -45,13 +45,13 @@ import numpy as np
 import toolkit  # before clisp: puts this checkout on sys.path
 from toolkit import BORDER, KODAK, MCMASTER, load_scene
 
-from clisp.batch import map_ordered, worker_cache
+from clisp.app.batch import map_ordered, worker_cache
 from clisp.cfa import CFA
 from clisp.sim.charts import demo_chart
 from clisp.io.imageio import write_image
 from clisp.metrics import gray_panel_snr, psnr
 from clisp.sim.noise import ChannelNoise
-from clisp.noise_estimate import raw_noise
+from clisp.scene.noise import raw_noise
 import clisp.pipeline as pipeline_module
 from clisp.pipeline import DEMOSAICS, Pipeline
 from clisp.io.rawimage import RawImage
@@ -59,7 +59,7 @@ from clisp.engine.runtime import get_runtime
 from clisp.sim.simulate import simulate
 from clisp.engine.stage import Stage
 from clisp.modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, NoiseTable, calibrate_noise,
-                                         space_for_cfa)
+                                                space_for_cfa)
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 
@@ -158,7 +158,7 @@ class Runner:
 
 
 def shared_runner(params: ChromaDenoiseParams, tile: int | None) -> Runner:
-    """This process's Runner for (params, tile) (clisp.batch.worker_cache)."""
+    """This process's Runner for (params, tile) (clisp.app.batch.worker_cache)."""
     return worker_cache(("paper_tables.Runner", params, tile), lambda: Runner(params, tile))
 
 
@@ -170,7 +170,7 @@ def bayer_list(bayer_names: str | Sequence[str]) -> list[str]:
 
 Mapper = Callable[..., list]
 """``mapper(fn, items, *args, progress=label, timeout=s) -> [fn(item, *args) for item in items]``, in order:
-clisp.batch.map_ordered bound to a Dask client (a sweep on a cluster) or to None (this process)."""
+clisp.app.batch.map_ordered bound to a Dask client (a sweep on a cluster) or to None (this process)."""
 
 
 def serial(fn: Callable, items: list, *args, progress: str | None = None, timeout: float | None = None) -> list:

@@ -39,7 +39,7 @@ table) and writes nothing.
 
 ``--scheduler ADDRESS`` runs the sweeps (Table 2 per gain, CFA and seed; Table 1 per image and
 noise level; the chart and spectral rows per noise level) as a batch on that Dask cluster through
-clisp.batch, with the same numbers as the default in-process run.
+clisp.app.batch, with the same numbers as the default in-process run.
 """
 from __future__ import annotations
 
@@ -256,13 +256,13 @@ def parse_levels(text: str) -> list:
 @contextmanager
 def sweep_mapper(scheduler: str | None) -> Iterator[pt.Mapper]:
     """The Mapper of the per-image/per-gain sweeps: this process, or with ``scheduler`` the Dask
-    cluster there through clisp.batch (each worker: one OpenCL context, one Runner). The tools'
+    cluster there through clisp.app.batch (each worker: one OpenCL context, one Runner). The tools'
     functions (toolkit's included) travel by value, so the workers need clisp, not this checkout's tools/."""
     if not scheduler:
         yield pt.serial
         return
     import cloudpickle
-    from clisp.batch import dask_client, map_ordered
+    from clisp.app.batch import dask_client, map_ordered
     for module in (toolkit, pt, sys.modules[__name__]):
         if module.__name__ != "__main__":              # __main__ travels by value anyway
             cloudpickle.register_pickle_by_value(module)
@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
     toolkit.add_out_option(ap, "docs", "RESULTS.md, bench.csv and bench.png")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="run the Table 1/2, chart and spectral sweeps (per image and gain) on the Dask "
-                         "cluster at ADDRESS (clisp.batch); the speed benchmark stays in this process")
+                         "cluster at ADDRESS (clisp.app.batch); the speed benchmark stays in this process")
     ap.add_argument("--protocol", choices=PROTOCOLS + ("both",), default="linear",
                     help="how Table 1's Kodak and McMaster rows read the files: linear (default), "
                          "srgb-as-linear (SPEC section 9: encoded values taken as linear), or both side by side")

@@ -1,11 +1,11 @@
-"""Tune white balance ``auto``'s constants (clisp.illuminant.Evidence) on scenes made in code (issue 42).
+"""Tune white balance ``auto``'s constants (clisp.scene.illuminant.Evidence) on scenes made in code (issue 42).
 
     python tools/tune_wb_auto.py [--work DIR] [--seeds 12] [--subset 3] [--tune]
 
 The cases: tools/wb_scenes.py's kinds, seeds 0..SEEDS-1, each lit by a third of LIGHTS (2500 to
 11000 K, on and off the locus; which third turns with the seed, the camera and the gain), simulated
 (Airy optics) as Bayer and LMS raws at gains 1 and 16. Each case keeps what the estimate reads (the
-raw's clisp.illuminant.BlockStats) and what the metric needs: the mean camera triplet of the cells
+raw's clisp.scene.illuminant.BlockStats) and what the metric needs: the mean camera triplet of the cells
 whose true colour (the scene under D65, the cell's mean) is a mid-tone (channels 0.03..0.85), and
 that true mean. The metric of a case: the angle (degrees) between that camera mean times the
 estimate's multipliers through the colour matrix, and the true mean (a cell-level stand-in for
@@ -13,7 +13,7 @@ tools/bench_wb_auto.py's whole-process metric, 1000 times cheaper); ``true``: th
 light's own multipliers (its floor). The cases are cached in WORK/cases.pkl (delete it after
 changing the statistics or the scenes).
 
-Prints mean / worst per kind, light and camera for clisp.illuminant.EVIDENCE; with ``--tune``, a
+Prints mean / worst per kind, light and camera for clisp.scene.illuminant.EVIDENCE; with ``--tune``, a
 coordinate descent (each constant times 0.7 and 1.4 in turn, two rounds, kept when mean + 0.3 x
 90th percentile drops) over every ``--subset``-th case, and the Evidence it ends with. Kodak and
 McMaster are never read here: they judge (tools/bench_wb_auto.py).
@@ -41,7 +41,7 @@ MID = (0.03, 0.85)
 def build_cases(seeds: int) -> list[dict]:
     """The cases (module docstring), about 60 per seed."""
     import wb_scenes
-    from clisp import illuminant as il
+    from clisp.scene import illuminant as il
     from clisp.sim.simulate import simulate
     cases = []
     for kind in wb_scenes.KINDS:
@@ -83,7 +83,7 @@ def case_error(case: dict, gains: np.ndarray) -> float:
 
 def errors(cases: list[dict], evidence) -> tuple[np.ndarray, np.ndarray]:
     """(estimate's errors, the true light's errors) per case."""
-    from clisp import illuminant as il
+    from clisp.scene import illuminant as il
     est, true = [], []
     for c in cases:
         lights = il.CameraLights(c["matrix"], c["daylight"])
@@ -133,9 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     toolkit.add_work_option(parser, "the cached cases (cases.pkl)", Path("/tmp/clisp-tune-wb-auto"))
     parser.add_argument("--seeds", type=int, default=12, help="scenes per kind (default 12)")
     parser.add_argument("--subset", type=int, default=3, help="--tune uses every N-th case (default 3)")
-    parser.add_argument("--tune", action="store_true", help="coordinate descent from clisp.illuminant.EVIDENCE")
+    parser.add_argument("--tune", action="store_true", help="coordinate descent from clisp.scene.illuminant.EVIDENCE")
     args = parser.parse_args(argv)
-    from clisp import illuminant as il
+    from clisp.scene import illuminant as il
     with toolkit.work_folder(args.work, "tune-wb-auto-") as work:
         cache = work / f"cases-{args.seeds}.pkl"
         if cache.is_file():

@@ -34,7 +34,7 @@ from clisp.io.imageio import read_image
 from clisp.io.rawfile import read_raw
 from clisp.metrics import linear_srgb_to_lab
 from clisp.sim.colorimetry import srgb_decode
-from clisp.white_balance import gray_world_gains
+from clisp.scene.white_balance import gray_world_gains
 
 CHART = "raw/Canon_EOS550D_MagicLantern_colorchart.dng"
 D30 = "raw/RAW_CANON_D30_SRGB.CRW"
@@ -119,7 +119,7 @@ def chart_table(data: Path, preset: str | None, tmp: Path) -> None:
 
 
 def _gains(path: Path, wb: str) -> str:
-    from clisp.white_balance import with_white_balance
+    from clisp.scene.white_balance import with_white_balance
     raw = with_white_balance(read_raw(path), wb)
     return ", ".join(f"{g:.3f}" for g in raw.wb)
 
@@ -160,7 +160,7 @@ SIM_IMAGES = (1, 3, 5, 8, 13, 19, 20, 23)
 
 def sims_table(data: Path) -> None:
     from clisp.sim.simulate import simulate
-    from clisp.white_balance import grey_pixel_gains
+    from clisp.scene.white_balance import grey_pixel_gains
 
     def angle(gains: np.ndarray, truth: np.ndarray) -> float:
         a, b = 1.0 / gains, 1.0 / truth

@@ -79,19 +79,19 @@ class Pipeline:
     stages: list[Stage]
     stats: RunStats = field(default_factory=RunStats)
     skipper: Any = None
-    """A clisp.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
+    """A clisp.pipeline.skip.Skipper (build_pipeline ``skip``): per-tile paths from the scene analysis."""
     skip_plan: Any = None
-    """The clisp.skip.SkipPlan of the last run (None without a skipper)."""
+    """The clisp.pipeline.skip.SkipPlan of the last run (None without a skipper)."""
     exposure_ev: float = 0.0
     """The exposure (EV) build_pipeline applied, manual and automatic together."""
     wb_source: str = "camera"
-    """Where white balance pass 1's multipliers came from (``--wb``; clisp.white_balance)."""
+    """Where white balance pass 1's multipliers came from (``--wb``; clisp.scene.white_balance)."""
     wb_explain: str = ""
     """What ``--wb auto`` found and what decided it, one line (``--explain``); empty otherwise."""
     stage_choice: Any = None
-    """The noise-adaptive choice build_pipeline made (clisp.stage_choice.Choice), None without one."""
+    """The noise-adaptive choice build_pipeline made (clisp.pipeline.demosaic_choice.Choice), None without one."""
     skip_off: str = ""
-    """Why build_pipeline made no skipper although skipping was asked for (clisp.skip.why_not_skip)."""
+    """Why build_pipeline made no skipper although skipping was asked for (clisp.pipeline.skip.why_not_skip)."""
 
     @property
     def halo(self) -> int:
@@ -265,7 +265,7 @@ class Pipeline:
         else:
             compute = partial(self._compute_reference, plan, image=image)
 
-        if self.skipper is not None:                 # per-tile paths (clisp.skip), on the raw's grid
+        if self.skipper is not None:                 # per-tile paths (clisp.pipeline.skip), on the raw's grid
             compute = self._path_compute(plan, backend, fuse, whole, compute, image)
 
         rt = get_runtime() if backend == "opencl" else None
@@ -340,7 +340,7 @@ class Pipeline:
 
     def _mixed_compute(self, mixed: "MixedRun", plan: TilePlan, backend: str, whole: Any, image: tuple[int, int],
                        t: Tile, window: np.ndarray | None, target: tuple[np.ndarray, int, int]) -> Any:
-        """One ``mixed`` tile of the skip plan (clisp.skip): the flat path's head over the whole
+        """One ``mixed`` tile of the skip plan (clisp.pipeline.skip): the flat path's head over the whole
         tile, the tile's detail path's head on each of its rectangles, joined into the flat output
         by the block blend (clisp.modules.block_blend: per pixel, by the distance to texture), then
         the stages every path shares, once. Each head runs on its own window of the image (cut from
@@ -564,7 +564,7 @@ def _kept_metering_name(rt: Any, schedule: list[Stage], raw_dtype: Any) -> str |
 
 @dataclass
 class MixedRun:
-    """What every ``mixed`` tile of one run shares (clisp.skip): the join, each path's head (the
+    """What every ``mixed`` tile of one run shares (clisp.pipeline.skip): the join, each path's head (the
     flat one with its texture blocks unread), their halos and OpenCL schedules, and the stages
     after the join with theirs. Made once per run by :meth:`of`."""
 

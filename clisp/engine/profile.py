@@ -46,7 +46,7 @@ class Profile:
 
     stage: str = "-"
     path: str = "-"
-    """The skip path (clisp.skip) of the tile part being enqueued, for :meth:`path_seconds`."""
+    """The skip path (clisp.pipeline.skip) of the tile part being enqueued, for :meth:`path_seconds`."""
     events: list[tuple[str, str, Any]] = field(default_factory=list)
     paths: list[str] = field(default_factory=list)
     host: dict[str, float] = field(default_factory=lambda: defaultdict(float))

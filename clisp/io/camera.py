@@ -28,7 +28,7 @@ from .exif import ISO, read_exif
 from .rawimage import RawImage
 from .opcodes import read_opcode_tags
 from ..engine.streaming import aligned_copy
-from ..white_balance import grey_pixel_gains
+from ..scene.white_balance import grey_pixel_gains
 
 CFA_LETTERS = "RGB"
 """Our CFA channel order for Bayer raws."""
@@ -213,7 +213,7 @@ def pick_wb(camera: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> tuple[n
 
     A candidate is rejected when any value for a colour index used by the pattern is <= 0 or not
     finite (the Canon D30 CRW reports R = -1); the caller then estimates the white balance from
-    the scene's grey pixels (clisp.white_balance.grey_pixel_gains, ``--wb auto``), as LibRaw
+    the scene's grey pixels (clisp.scene.white_balance.grey_pixel_gains, ``--wb auto``), as LibRaw
     falls back to its auto WB, rather than guess daylight for an unknown scene.
     LibRaw stores 0 for the second green when it equals the first, so index 3 falls back to index 1.
     """

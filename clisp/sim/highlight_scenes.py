@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..noise_estimate import CLIP_FRACTION
+from ..scene.noise import CLIP_FRACTION
 from .simulate import inverse_isp_matrix
 
 SPHERES = ((0.78, 0.05, 0.04), (0.05, 0.52, 0.07), (0.04, 0.07, 0.72))

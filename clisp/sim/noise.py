@@ -184,7 +184,7 @@ class ChannelNoise:
 
     From docs/model.md section 3: shot = w / N_fs, floor = w^2 (read^2 + step^2 / 12) / N_fs^2, w the pass-1
     multiplier of the channel (white balance times exposure). ``source``: 'model' (from the sensor
-    model), 'estimate' (measured on the raw, clisp.noise_estimate) or 'none' (noiseless).
+    model), 'estimate' (measured on the raw, clisp.scene.noise) or 'none' (noiseless).
     """
 
     shot: tuple[float, ...]

@@ -244,7 +244,7 @@ def test_warm_builds_what_a_run_needs(tmp_path):
     from clisp.pipeline import process_file
     from clisp.sim.charts import dead_leaves
     from clisp.sim.simulate import simulate
-    from clisp.warm import aligned, warm_kernels
+    from clisp.app.warm import aligned, warm_kernels
 
     rt = get_runtime()
     warm_kernels(("quality",), ("bayer",), report=None)

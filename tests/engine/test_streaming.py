@@ -17,7 +17,7 @@ import tifffile
 
 import clisp
 from clisp.cfa import cfa_from_name
-from clisp.cli import image_size, main, memory_size
+from clisp.app.cli import image_size, main, memory_size
 from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.errors import ClispError
 from clisp.io.imageio import ImageWriter, read_image

@@ -19,7 +19,7 @@ from clisp.io import rawfile
 from clisp.io.camera import visible_crop
 from clisp.cfa import bayer_cfa
 from clisp.sim.charts import demo_chart
-from clisp.cli import main
+from clisp.app.cli import main
 from clisp.sim.colorimetry import B_BAYER, WB_BAYER
 from clisp.io.exif import read_exif
 from clisp.io.imageio import SRGB_CHROMATICITIES, read_image, write_image

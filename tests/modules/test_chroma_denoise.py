@@ -18,7 +18,7 @@ from clisp.sim.colorimetry import B_BAYER, P_LMS
 from clisp.errors import ClispError
 from clisp.sim.noise import NoiseModel
 from clisp.sim.noise import ChannelNoise
-from clisp.noise_estimate import estimate_raw_noise, raw_noise
+from clisp.scene.noise import estimate_raw_noise, raw_noise
 from clisp.engine.runtime import get_runtime
 from clisp.pipeline import Pipeline, chroma_denoise_for
 from clisp.sim.simulate import simulate
@@ -30,7 +30,7 @@ from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.demosaic_bilinear.stage import DemosaicBilinear
 from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided
 from clisp.modules.raw_scale.stage import normalize, white_balance1
-from clisp.white_balance2 import estimate_wb2, gray_pixel_gains, illuminant_gains
+from clisp.scene.white_balance_pass2 import estimate_wb2, gray_pixel_gains, illuminant_gains
 from tolerance import TOL, assert_close
 
 """|opencl - reference| <= TOL * max(1, |reference|), everywhere in this file."""
@@ -408,8 +408,8 @@ def test_gray_pixels_ignore_saturated_colours():
 def test_large_raws_are_sampled(monkeypatch):
     """Big (memory-mapped) raws: the WB thumbnail takes every k-th CFA tile, the noise estimate a
     grid of crops; both give the same answers as the full read on a uniform capture."""
-    import clisp.noise_estimate as ne
-    from clisp.white_balance2 import raw_thumbnail
+    import clisp.scene.noise as ne
+    from clisp.scene.white_balance_pass2 import raw_thumbnail
     y, x = np.mgrid[0:512, 0:768] / 768.0
     scene = np.stack([0.1 + 0.5 * x, 0.1 + 0.4 * x, 0.1 + 0.3 * x + 0.1 * y], axis=-1)
     raw = simulate(scene, "lms", gain=16, optics="none", seed=4).raw

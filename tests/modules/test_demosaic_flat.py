@@ -113,7 +113,7 @@ def test_narrow_edge_window_reads_only_its_cells(rt) -> None:
     and the reference (no index past the grid), and the skip planner sends no such tile to the
     flat path."""
     from clisp.engine.tiling import Tile
-    from clisp.skip import PATH_FLAT, Skipper
+    from clisp.pipeline.skip import PATH_FLAT, Skipper
     cfa = cfa_from_name("lms")
     stage = DemosaicFlat(cfa)
     x = mosaic((2 * stage.halo + 48, 2 * stage.halo + 48), seed=7)

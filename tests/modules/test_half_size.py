@@ -284,7 +284,7 @@ def test_refuses_a_demosaic_and_a_denoiser_and_ignores_the_presets() -> None:
 # ------------------------------------------------------------------------------------------
 
 def test_cli_process_half_size_explains_its_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.rawfile import write_raw
     raw = make_raw("bayer-rggb", shape=(64, 96))
     write_raw(tmp_path / "r.dng", raw)
@@ -299,8 +299,8 @@ def test_cli_process_half_size_explains_its_path(tmp_path: Path, capsys: pytest.
 def test_batch_accepts_half_size(tmp_path: Path) -> None:
     """``clisp batch --half-size`` parses into BatchSettings (hashed: a half-size batch is not the
     full-size one's), and a worker's job writes the half-size image (run here, without Dask)."""
-    from clisp.batch import BatchSettings, Job, process_one
-    from clisp.cli import build_parser
+    from clisp.app.batch import BatchSettings, Job, process_one
+    from clisp.app.cli import build_parser
     from clisp.io.rawfile import write_raw
     args = build_parser().parse_args(["batch", "in", "-o", str(tmp_path / "out"), "--half-size"])
     assert args.half_size

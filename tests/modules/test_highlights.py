@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import clisp
-from clisp.cli import main
+from clisp.app.cli import main
 from clisp.pipeline import build_pipeline
 from clisp.modules.highlights.stage import Highlights, has_clipped, highlight_stage
 from tolerance import assert_close

@@ -29,12 +29,12 @@ from clisp.pipeline import Pipeline
 from clisp.modules.colour.stage import ColourMatrix
 from clisp.modules.common.lms import valid
 from clisp.modules.demosaic_lms_guided.stage import (COMBINE_RADIUS, D_RADIUS, D9, LUM_NOISE_GAIN, PRE_RADIUS,
-                                              RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
-                                              chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
-                                              neutral_of, s_alias, s_output, tonal_energy,
-                                              S_ALIAS_RADIUS, axial_tonal_energy)
+                                                     RI_RADIUS, DemosaicLMSGuided, LMSGuidedParams, alias_gain,
+                                                     chroma_input, l_guide, lm_output, lum_lowpass, m_at_s_combine,
+                                                     neutral_of, s_alias, s_output, tonal_energy,
+                                                     S_ALIAS_RADIUS, axial_tonal_energy)
 from clisp.modules.common.guided_filter import (MASK_ALL, MASK_M, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
-                                       guided_filter)
+                                                guided_filter)
 from clisp.modules.raw_scale.stage import normalize, white_balance1
 from tolerance import TOL, assert_close
 
@@ -108,7 +108,7 @@ def test_colour_aware_chroma_guide_matches_reference(rt, noisy):
 
 @pytest.mark.parametrize("noisy", [False, True])
 def test_one_pass_matches_reference(rt, noisy):
-    """passes=1 (the high-noise choice, clisp.stage_choice): kernel against reference, a halo 16 px
+    """passes=1 (the high-noise choice, clisp.pipeline.demosaic_choice): kernel against reference, a halo 16 px
     smaller, and an output that differs from the two-pass one (pass 2 is really left out)."""
     cfa = lms_cfa()
     noise, neutral = (NOISE, NEUTRAL) if noisy else (None, (1.0, 1.0, 1.0))

@@ -18,7 +18,7 @@ import pytest
 from paths import TOOLS
 from tolerance import assert_close
 import clisp
-from clisp.cli import build_parser, main
+from clisp.app.cli import build_parser, main
 from clisp.errors import ClispError
 from clisp.io.imageio import read_image
 from clisp.io.rawfile import write_raw
@@ -176,7 +176,7 @@ def test_reference_backend_resizes_too(raw_path: Path, tmp_path: Path) -> None:
 
 def test_batch_takes_resize(raw_path: Path, tmp_path: Path, capsys) -> None:
     """clisp batch --resize: parsed, checked before any cluster starts, hashed when set, applied."""
-    from clisp.batch import BatchSettings, Job, process_one
+    from clisp.app.batch import BatchSettings, Job, process_one
     assert build_parser().parse_args(["batch", "in", "-o", "out", "--resize", "64"]).resize == "64"
     code, _, err = run(["batch", raw_path, "-o", tmp_path / "out", "--resize", "8"], capsys)
     assert code == 2 and "--resize 8: the long edge must be" in err and not (tmp_path / "out").exists()

@@ -1,6 +1,6 @@
 """The sensor corrections stage (clisp/modules/sensor: sensor.cl's sensor_screen, sensor_edges and
 sensor_fix, sensor_shade.cl's sensor_shade) against their NumPy reference, tiled against whole, and
-what they do to raws with and without defects (clisp.corrections, the pipeline)."""
+what they do to raws with and without defects (clisp.pipeline.corrections, the pipeline)."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clisp.cfa import bayer_cfa, lms_cfa
-from clisp.corrections import only_isolated_clips, sensor_corrections
+from clisp.pipeline.corrections import only_isolated_clips, sensor_corrections
 from clisp.engine.runtime import get_runtime
 from clisp.engine.stage import Origin
 from clisp.engine.tiling import gather_window
@@ -211,7 +211,7 @@ def test_frames_read_once_a_process(tmp_path, defective, monkeypatch):
         paths[kind] = [str(tmp_path / f"{kind}{i}.dng") for i in range(2)]
         for path, frame in zip(paths[kind], sd.frames(sim.raw, d, kind, 2, 4.0, 30)):
             rawfile.write_raw(path, frame)
-    import clisp.corrections as corrections
+    import clisp.pipeline.corrections as corrections
     reads = []
     real = rawfile.read_raw
     monkeypatch.setattr(corrections, "read_raw", lambda path, lazy=False: reads.append(path) or real(path, lazy))
@@ -226,7 +226,7 @@ def test_frames_read_once_a_process(tmp_path, defective, monkeypatch):
 
 
 def test_map_file_used_as_given(tmp_path, defective):
-    from clisp.corrections import read_bad_pixel_map, write_bad_pixel_map
+    from clisp.pipeline.corrections import read_bad_pixel_map, write_bad_pixel_map
     d, sim, _ = defective
     truth = sd.bad_sites(d, sim.raw.shape)
     write_bad_pixel_map(tmp_path / "map.txt", truth)
@@ -258,7 +258,7 @@ def test_hot_pixels_are_not_clipped_light():
 
 
 def test_cli_names_unapplied_opcodes(tmp_path, capfd):
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.opcodes import OtherOpcode
     from clisp.io.rawfile import write_raw
     sim = simulate(scene(), cfa="bayer", gain=2, seed=1)

@@ -69,7 +69,7 @@ def test_defects_are_checked():
 
 
 def test_simulate_cli_writes_frames_and_opcodes(tmp_path, capsys):
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.imageio import write_image
     from clisp.io.rawfile import read_raw
     write_image(tmp_path / "s.png", np.full((32, 48, 3), 0.4), encoded=False)

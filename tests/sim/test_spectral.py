@@ -9,8 +9,8 @@ import clisp
 from clisp.sim.colorimetry import P_LMS
 from clisp.errors import ClispError
 from clisp.sim.spectral import (WAVELENGTHS, camera_responses, fit_colour_matrix, patch_delta_e, reflectances,
-                            sensitivities, sensitivity_kind, simulate_spectral, spectral_colorchecker, true_srgb,
-                            white_balance)
+                                sensitivities, sensitivity_kind, simulate_spectral, spectral_colorchecker, true_srgb,
+                                white_balance)
 
 
 def test_shapes_and_white() -> None:
@@ -83,7 +83,7 @@ def test_bad_kind_and_source() -> None:
 
 
 def test_cli_spectral(tmp_path) -> None:
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.imageio import read_image
     raw_path, truth_path = tmp_path / "s.dng", tmp_path / "t.exr"
     assert main(["simulate", "--spectral", "colorchecker", "--cfa", "lms", "--noiseless",

@@ -1,6 +1,6 @@
 """Block blend: the detail path's output joined to the flat path's inside one tile (issue 30).
 
-clisp.skip lets a tile take two paths at the granularity of the scene analysis's blocks: the flat
+clisp.pipeline.skip lets a tile take two paths at the granularity of the scene analysis's blocks: the flat
 path (DemosaicFlat and the plain colour matrix) over the whole tile, the detail path (the preset's
 demosaic and chroma denoiser) only on rectangles around the blocks with texture. This module
 decides, per pixel, how much of each the output is, and joins them.
@@ -13,7 +13,7 @@ Chebyshev distance in px from pixel p to the nearest texture block (0 inside one
 
 ``reach`` is the flat path's halo: the flat path's output at p reads the raw within ``reach`` of p,
 so it is used (w < 1) only where no texture lies within its reach, and there it is as good as the
-detail path (clisp.skip.FLAT_LOSES_TO). ``ramp``: the width of the cross-fade, so the two paths'
+detail path (clisp.pipeline.skip.FLAT_LOSES_TO). ``ramp``: the width of the cross-fade, so the two paths'
 different grain meets without a step. Exact where the weight is 0 or 1 (the kernel selects, it does
 not mix). The detail path must run wherever w > 0: on the texture blocks dilated by
 :attr:`BlockBlend.reach_blocks` blocks (:meth:`BlockBlend.support`).

@@ -46,7 +46,7 @@ Haar, normalised so approximations are block means (orthogonal up to a factor 2 
 Noise levels sigma_{.,j}(s) are not estimated per image from the subbands (a global median would
 break tiling): they come from a :class:`NoiseTable`, the variance of Y and of each chroma
 approximation and detail subband at every level as an affine function of the local luminance s, measured once per pipeline by :func:`calibrate_noise` on flat fields pushed through
-the actual demosaic with the raw's noise (:mod:`clisp.noise_estimate`). No noise -> every sigma is
+the actual demosaic with the raw's noise (:mod:`clisp.scene.noise`). No noise -> every sigma is
 0 -> the stage is the colour matrix (to rounding).
 
 Tiling. The decimation grid is anchored to image coordinates: blocks of level j start at multiples

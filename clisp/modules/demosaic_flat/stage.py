@@ -1,10 +1,10 @@
 """Flat-tile demosaic: wide per-channel means plus the local luminance residual (issue 13).
 
-On a tile whose luminance and chroma show no detail above the noise (clisp.analysis: a sky, a
+On a tile whose luminance and chroma show no detail above the noise (clisp.scene.block_analysis: a sky, a
 wall), the guided demosaic and the 3-level chroma denoiser end up doing the same thing: the
 luminance keeps its fine, noise-level texture (the guided demosaic's flat-field target) and the
 chroma becomes a wide local mean. This stage computes that directly, in four short kernels, and
-replaces demosaic + chroma denoiser on such tiles (clisp.skip's ``flat`` path)::
+replaces demosaic + chroma denoiser on such tiles (clisp.pipeline.skip's ``flat`` path)::
 
     cell_c(i, j)  = mean of channel c's samples in cell (i, j)          S x S cells on image multiples of S
     box_c(i, j)   = mean of cell_c over the (2 Rc + 1)^2 cells around (i, j)
@@ -117,7 +117,7 @@ class DemosaicFlat(Stage):
     unread: np.ndarray | None = field(default=None, compare=False)
     """Optional (rows, cols) bool per ``block`` x ``block`` px block of the image (multiples of
     ``block``): blocks whose output nobody reads (a mixed tile's texture blocks, where the detail
-    path's output replaces this one: clisp.skip). Their pixels are written 0, not computed."""
+    path's output replaces this one: clisp.pipeline.skip). Their pixels are written 0, not computed."""
     block: int = 64
     name = "demosaic_flat"
     in_channels = 1

@@ -96,9 +96,9 @@ from ...engine.stage import Stage, as_f32
 from ..common.box import enqueue_box
 from ..colour.stage import camera_neutral
 from ..common.guided_filter import (MASK_ALL, MASK_S, enqueue_guided_filter, enqueue_guided_pair,
-                            guided_filter)
+                                    guided_filter)
 from ..common.lms import (LATTICE, NoiseFromRaw, binomial, check_lms_structure, correlate_valid,
-                         diamond_halfband, lattice_shift, valid)
+                          diamond_halfband, lattice_shift, valid)
 
 D_RADIUS = 4
 """Radius of the 9 x 9 diamond half-band filter D (l_guide and lum_lowpass)."""
@@ -218,7 +218,7 @@ class LMSGuidedParams:
     passes: int = 2
     """2: both passes (M at S and chroma refined against the pass-1 luminance); 1: the luminance
     blend, S and the alias suppression straight from pass 1 (halo 16 px less, a quarter less device
-    time). Where noise hides what pass 2 refines, 1 costs nothing (clisp.stage_choice)."""
+    time). Where noise hides what pass 2 refines, 1 costs nothing (clisp.pipeline.demosaic_choice)."""
 
     def __post_init__(self) -> None:
         if self.passes not in (1, 2):

@@ -9,7 +9,7 @@ Notation: ``n`` is the neutral of the camera space, the white-balanced camera va
 colour matrix and white balance pass 2 take to a grey (n = M^-1 W2^-1 (1, 1, 1)); every channel is
 measured in units of it, ``y_c = x_c / n_c`` (a neutral pixel has equal y). A channel is clipped
 where ``y_c >= t_c``, ``t_c = CLIP_FRACTION L_c / n_c`` (the scene analysis' threshold,
-clisp.analysis, so a raw the analysis finds unclipped is left alone exactly).
+clisp.scene.block_analysis, so a raw the analysis finds unclipped is left alone exactly).
 
 ``clamp`` (halo 0, :class:`HighlightClamp`, preset fast): every channel capped at ``s n_c``, per
 pixel (LibRaw's default): a blown white is neutral, a partly clipped pixel keeps some colour.
@@ -77,7 +77,7 @@ from functools import partial
 import numpy as np
 
 from ...errors import ClispError
-from ...noise_estimate import CLIP_FRACTION, NoiseEstimateError, raw_noise
+from ...scene.noise import CLIP_FRACTION, NoiseEstimateError, raw_noise
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, camera_neutral
@@ -961,7 +961,7 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
     clipped samples, one whose clipped samples are all the noise of whites at full scale
     (:func:`clip_map`; ``clip`` and ``reconstruct``), unless ``force``, or a colour matrix without
     a positive neutral. ``noise``: the raw's channel noise for the noise test (ChannelNoise); None:
-    the raw's own (clisp.noise_estimate.raw_noise: its sensor model, else estimated; a raw too
+    the raw's own (clisp.scene.noise.raw_noise: its sensor model, else estimated; a raw too
     small to estimate it gets no test). ``scale``: mosaic px per pixel of the stage's grid (2 after
     the half-size binning)."""
     if mode not in MODES:
@@ -1016,7 +1016,7 @@ def channel_weights(raw, neutral: np.ndarray) -> np.ndarray:
 
 
 def raw_noise_or_none(raw):
-    """The raw's channel noise (clisp.noise_estimate.raw_noise), None where it cannot be estimated."""
+    """The raw's channel noise (clisp.scene.noise.raw_noise), None where it cannot be estimated."""
     try:
         return raw_noise(raw)
     except NoiseEstimateError:

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .engine.runtime import get_runtime
-from .io.rawfile import read_raw, write_raw
-from .pipeline import DEFAULT_PRESET, process_file
-from .sim.simulate import simulate
+from ..engine.runtime import get_runtime
+from ..io.rawfile import read_raw, write_raw
+from ..pipeline import DEFAULT_PRESET, process_file
+from ..sim.simulate import simulate
 
 WARM_SIDE = 96
 """Side (px) of the small raws warming runs through each path."""
@@ -74,10 +74,10 @@ def aligned(array: np.ndarray, align: int = 4096) -> np.ndarray:
 
 @contextmanager
 def mixing_forced() -> Iterator[None]:
-    """Tiles mix their paths whenever they hold texture and flat blocks (clisp.skip.MIX_GAIN lifted):
+    """Tiles mix their paths whenever they hold texture and flat blocks (clisp.pipeline.skip.MIX_GAIN lifted):
     on the small raws the detail path's halo would make mixing cost more than it saves, and the
     join's kernel would not be built."""
-    from . import skip                 # deferred: skip and analysis cost 7 ms of start-up
+    from ..pipeline import skip                 # deferred: skip and analysis cost 7 ms of start-up
     saved = skip.MIX_GAIN
     skip.MIX_GAIN = float("inf")
     try:

@@ -1,4 +1,4 @@
-"""clisp.analysis.analyse against a plain per-block reference written from the definitions.
+"""clisp.scene.block_analysis.analyse against a plain per-block reference written from the definitions.
 
 The analysis is vectorised (bands of block rows, Laplacians of integer cell sums, the noise strips'
 kernels as scaled products); the reference here loops over blocks, cells and CFA phases in float64,
@@ -14,11 +14,11 @@ import sys
 import numpy as np
 import pytest
 
-from clisp import noise_estimate
-from clisp.analysis import BLOCK, CELL, FLAT_FRACTION, LAPLACIAN_NOISE_GAIN, NOISE_STRIPS, analyse
+from clisp.scene import noise as noise_estimate
+from clisp.scene.block_analysis import BLOCK, CELL, FLAT_FRACTION, LAPLACIAN_NOISE_GAIN, NOISE_STRIPS, analyse
 from clisp.io.rawimage import RawImage
 from clisp.modules.chroma_denoise.stage import space_for
-from clisp.noise_estimate import CLIP_FRACTION, IMMERKAER, MAD_TO_STD, SOBEL, fit_affine_variance
+from clisp.scene.noise import CLIP_FRACTION, IMMERKAER, MAD_TO_STD, SOBEL, fit_affine_variance
 from clisp.sim.simulate import simulate
 
 
@@ -161,7 +161,7 @@ def test_median_is_numpys_without_numpy_ma() -> None:
     for n in (1, 2, 3, 10, 11, 1000, 1001):
         for values in (rng.normal(size=n), np.round(rng.normal(size=n) * 3) / 7):   # ties in the second
             assert noise_estimate.median(values) == float(np.median(values))
-    code = ("import sys, numpy as np; from clisp.noise_estimate import median; median(np.arange(5.0)); "
+    code = ("import sys, numpy as np; from clisp.scene.noise import median; median(np.arange(5.0)); "
             "print('numpy.ma' in sys.modules)")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert loaded.strip() == "False"

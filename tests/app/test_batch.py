@@ -1,4 +1,4 @@
-"""clisp batch (clisp.batch): Dask clusters on loopback, failure isolation, the manifest, resume.
+"""clisp batch (clisp.app.batch): Dask clusters on loopback, failure isolation, the manifest, resume.
 
 Raws are simulated in code (64 x 96, some larger for the kill test); corrupt ones are a truncated
 raw and a garbage file. Every wait has a limit: cluster start-up (START), results (RESULTS) and
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from paths import REPO
-from clisp.batch import BatchSettings, read_manifest, run_batch
+from clisp.app.batch import BatchSettings, read_manifest, run_batch
 from clisp.io.imageio import read_image
 from clisp.io.rawfile import write_raw
 from clisp.sim.simulate import simulate
@@ -178,7 +178,7 @@ def test_one_worker_per_gpu(monkeypatch) -> None:
     its own GPU; a CPU device (CLISP_DEVICE=cpu, or no GPU) one per CPU (issue 41, item 6)."""
     from types import SimpleNamespace
     import pyopencl as cl
-    import clisp.batch as batch
+    import clisp.app.batch as batch
     import clisp.engine.runtime as runtime
     gpu = SimpleNamespace(type=cl.device_type.GPU, name="GPU")
     gpu2 = SimpleNamespace(type=cl.device_type.GPU, name="GPU 2")

@@ -1,4 +1,4 @@
-"""The noise-adaptive stage choice (clisp.stage_choice, issue 30): the rule on its calibration table
+"""The noise-adaptive stage choice (clisp.pipeline.demosaic_choice, issue 30): the rule on its calibration table
 and what build_pipeline picks at low and high noise."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from clisp.modules.demosaic_lms_guided.stage import DemosaicLMSGuided
 from clisp.pipeline import build_pipeline
 from clisp.sim.simulate import simulate
-from clisp.stage_choice import ALTERNATIVES, ERROR_BUDGET_DB, WORST_BUDGET_DB, Alternative, noise_sigma
+from clisp.pipeline.demosaic_choice import ALTERNATIVES, ERROR_BUDGET_DB, WORST_BUDGET_DB, Alternative, noise_sigma
 
 
 def _alternative(rows) -> Alternative:
@@ -51,7 +51,7 @@ def test_build_pipeline_picks_by_noise(gain, passes) -> None:
 
 
 def test_noise_sigma_of_the_simulated_sensor_grows_with_gain() -> None:
-    from clisp.noise_estimate import raw_noise
+    from clisp.scene.noise import raw_noise
     sigmas = [noise_sigma(raw_noise(_raw(g)), 0) for g in (1.0, 16.0, 64.0)]
     assert sigmas[0] < sigmas[1] < sigmas[2]
     assert sigmas[2] == pytest.approx(sorted(ALTERNATIVES[0].calibration)[-1][0], rel=0.01)

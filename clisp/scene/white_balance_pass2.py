@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from .cfa import CFA
-from .engine.streaming import window_source
-from .errors import ClispError
-from .io.rawimage import RawImage
+from ..cfa import CFA
+from ..engine.streaming import window_source
+from ..errors import ClispError
+from ..io.rawimage import RawImage
 
 BT601 = np.array([0.299, 0.587, 0.114])
 METHODS = ("metadata", "gray_world", "gray_pixels")

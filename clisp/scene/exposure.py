@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .io.rawimage import RawImage
+from ..io.rawimage import RawImage
 
 AUTO_SHARE = 0.01
 """The share of the pixels that reach white (LibRaw's auto_bright_thr)."""

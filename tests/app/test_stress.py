@@ -1,5 +1,5 @@
 """Numerical stress suite (issue 15): every stage and the whole pipeline on hostile and extreme raws
-(clisp.stress.CASES), with each case's stated outcome asserted, and determinism.
+(clisp.app.stress.CASES), with each case's stated outcome asserted, and determinism.
 
 The default run takes the cases marked ``fast`` with each CFA kind's default (quality) demosaic
 and bilinear; ``pytest -m stress`` runs every case with every demosaic (docs/stress.md holds the
@@ -12,7 +12,7 @@ import pytest
 
 import clisp
 from clisp.errors import MAX_MESSAGE, ClispError
-from clisp.stress import CASES, DEMOSAICS_BY_KIND, expected, outcome, pipeline_error, pipeline_for, \
+from clisp.app.stress import CASES, DEMOSAICS_BY_KIND, expected, outcome, pipeline_error, pipeline_for, \
     pipeline_tol, stage_errors, stage_tol
 
 DEFAULT_DEMOSAIC = {"lms": "guided", "bayer": "dlmmse"}

@@ -7,7 +7,7 @@ kernel equals its reference within :data:`STAGE_TOL`), or ``"error"`` (a ClispEr
 raw, raised before anything is computed). :func:`stage_errors` measures the per-stage error the
 way the stage contract defines it (clisp/engine/stage.py): both faces get the *same* input, the
 reference's float64 output of the stage before, cast to float32 for the kernel, so an error is
-the stage's own and not carried in from upstream. The tests (tests/test_stress.py) assert the
+the stage's own and not carried in from upstream. The tests (tests/app/test_stress.py) assert the
 bounds; ``tools/stress_table.py`` prints the worst error per stage and case (docs/stress.md).
 """
 from __future__ import annotations
@@ -17,14 +17,14 @@ from typing import Callable
 
 import numpy as np
 
-from .cfa import cfa_from_name
-from .errors import ClispError
-from .engine.runtime import get_runtime
-from .engine.streaming import window_source
-from .io.rawimage import FLOAT_RANGE, RawImage
-from .pipeline import build_pipeline, process
-from .sim.charts import demo_chart
-from .sim.simulate import simulate
+from ..cfa import cfa_from_name
+from ..errors import ClispError
+from ..engine.runtime import get_runtime
+from ..engine.streaming import window_source
+from ..io.rawimage import FLOAT_RANGE, RawImage
+from ..pipeline import build_pipeline, process
+from ..sim.charts import demo_chart
+from ..sim.simulate import simulate
 
 STAGE_TOL: dict[str, float] = {
     "normalize": 1e-5,

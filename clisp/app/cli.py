@@ -21,25 +21,25 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .version import __version__
-from .errors import ClispError, clip, error_line
-from .engine import profile as engine_profile
-from .engine.profile import host_timer
-from .engine.runtime import get_runtime, list_devices, save_built_programs
-from .engine.streaming import progress_bar
-from .engine.tiling import Tile
-from .io.rawfile import RAW_SUFFIXES, is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
-from .modules.resize.stage import check_long_edge, resize_note
-from .pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, FILES_IN_FLIGHT,
-                       GPU_FILES_IN_FLIGHT, HALF_SIZE_NO_DENOISE, PRESETS, SKIP_WHERE_IT_PAYS, denoise_params,
-                       output_size, process_file, resolve_options)
-from .sim.colorimetry import srgb_decode
-from .sim.noise import GAIN_MAX, GAIN_MIN
-from .sim.simulate import simulate, simulate_large
-from .sim import defects as sd
-from .sim.defects import SensorDefects
+from ..version import __version__
+from ..errors import ClispError, clip, error_line
+from ..engine import profile as engine_profile
+from ..engine.profile import host_timer
+from ..engine.runtime import get_runtime, list_devices, save_built_programs
+from ..engine.streaming import progress_bar
+from ..engine.tiling import Tile
+from ..io.rawfile import RAW_SUFFIXES, is_raw_file, raw_band_writer, raw_info, read_raw, write_raw
+from ..modules.resize.stage import check_long_edge, resize_note
+from ..pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMOSAICS, FILES_IN_FLIGHT,
+                        GPU_FILES_IN_FLIGHT, HALF_SIZE_NO_DENOISE, PRESETS, SKIP_WHERE_IT_PAYS, denoise_params,
+                        output_size, process_file, resolve_options)
+from ..sim.colorimetry import srgb_decode
+from ..sim.noise import GAIN_MAX, GAIN_MIN
+from ..sim.simulate import simulate, simulate_large
+from ..sim import defects as sd
+from ..sim.defects import SensorDefects
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
-# they use them, to keep `import clisp.cli` light (issue 11).
+# they use them, to keep `import clisp.app.cli` light (issue 11).
 
 _LOADED = time.perf_counter()
 
@@ -205,7 +205,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_sensor_options(p: argparse.ArgumentParser) -> None:
-    """process's sensor corrections (clisp.corrections)."""
+    """process's sensor corrections (clisp.pipeline.corrections)."""
     p.add_argument("--bad-pixels", default=None, metavar="auto|off|MAP",
                    help="defective pixels: auto (default; off for preset fast and --half-size) finds them "
                         "against the sensor's noise model and replaces them from neighbours of their channel, "
@@ -272,7 +272,7 @@ def _add_half_size_option(p: argparse.ArgumentParser) -> None:
 
 
 def _add_batch(sub: argparse._SubParsersAction) -> None:
-    from .batch import FORMATS                  # deferred: clisp.batch (hashlib, uuid) costs 9 ms of start-up
+    from .batch import FORMATS                  # deferred: clisp.app.batch (hashlib, uuid) costs 9 ms of start-up
     p = sub.add_parser("batch", help="process many raws (files or folders) in parallel on Dask, resumably",
                        description="Writes OUTDIR/<input stem>.<format> and OUTDIR/manifest.jsonl (one record per "
                                    "file and attempt). A re-run skips outputs finished with the same settings. "
@@ -322,8 +322,8 @@ def _add_thumb(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_thumb(args: argparse.Namespace) -> int:
-    from .io.imageio import JPEG_EXTENSIONS, atomic_path, output_kind, write_image   # deferred: 2 ms of start-up
-    from .io.preview import read_preview               # deferred: rawpy only for camera raws
+    from ..io.imageio import JPEG_EXTENSIONS, atomic_path, output_kind, write_image   # deferred: 2 ms of start-up
+    from ..io.preview import read_preview               # deferred: rawpy only for camera raws
     kind = output_kind(args.output)
     preview = read_preview(args.raw)
     if preview.jpeg is not None and Path(args.output).suffix.lower() in JPEG_EXTENSIONS:
@@ -360,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .io.imageio import read_scene, write_image     # deferred: clisp.io.imageio costs 2 ms of start-up
+    from ..io.imageio import read_scene, write_image     # deferred: clisp.io.imageio costs 2 ms of start-up
     _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
@@ -423,8 +423,8 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
 
 def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
     """``simulate --spectral colorchecker``: the spectral path (clisp.sim.spectral)."""
-    from .io.imageio import write_image                 # deferred: 2 ms of start-up
-    from .sim.spectral import simulate_spectral         # deferred: with sim.charts 4 ms of start-up
+    from ..io.imageio import write_image                 # deferred: 2 ms of start-up
+    from ..sim.spectral import simulate_spectral         # deferred: with sim.charts 4 ms of start-up
     if args.size:
         raise ClispError("--size repeats a scene file; it does not apply to --spectral")
     source = "isetcam" if args.reflectances else "colour"
@@ -443,7 +443,7 @@ def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
 def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | None) -> int:
     """``simulate --size``: bands computed one after another, each written (raw and truth) on a
     writer thread while the next is computed; two bands in memory at most."""
-    from .io.imageio import ImageWriter                 # deferred: 2 ms of start-up
+    from ..io.imageio import ImageWriter                 # deferred: 2 ms of start-up
     width, height = args.size
     sim = simulate_large(scene, (height, width), cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed)
     sim.header.metadata["scene"] = Path(args.scene).name
@@ -470,7 +470,7 @@ def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | N
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from .io.imageio import check_compression, output_kind      # deferred: 2 ms of start-up
+    from ..io.imageio import check_compression, output_kind      # deferred: 2 ms of start-up
     many = is_many(args.raw, args.output, args.format)
     if not many:
         output_kind(args.output)
@@ -545,7 +545,7 @@ def _run_one(args: argparse.Namespace, path: str, output: str, progress: bool = 
     for name in corrections.unapplied if corrections is not None else ():
         print(f"clisp: note: {path}: DNG opcode {name} not applied", file=sys.stderr, flush=True)
     if args.explain:
-        from .skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
+        from ..pipeline.skip import explain_run                   # deferred: skip and analysis cost 7 ms of start-up
         if corrections is not None:
             lines.append(corrections.explain(stats))
         if args.half_size:

@@ -36,15 +36,15 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import ClispError, clip
-from .io.opcodes import (FixVignetteRadial, GainMap, bad_pixel_mask, gain_map_at, opcodes_of, selects, unapplied,
-                         vignette_at)
-from .io.rawimage import RawImage
-from .modules.sensor.stage import (FLOOR, FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade,
-                                   SmoothGain, neighbour_tables)
-from .sim.noise import ChannelNoise, NoiseModel
-from .io.rawfile import read_raw
-from .modules.highlights.stage import clip_thresholds_dn
+from ..errors import ClispError, clip
+from ..io.opcodes import (FixVignetteRadial, GainMap, bad_pixel_mask, gain_map_at, opcodes_of, selects, unapplied,
+                          vignette_at)
+from ..io.rawimage import RawImage
+from ..modules.sensor.stage import (FLOOR, FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade,
+                                    SmoothGain, neighbour_tables)
+from ..sim.noise import ChannelNoise, NoiseModel
+from ..io.rawfile import read_raw
+from ..modules.highlights.stage import clip_thresholds_dn
 
 BAD_PIXEL_MODES = ("auto", "off")
 """``--bad-pixels`` keywords; anything else is a map file."""
@@ -225,7 +225,7 @@ def _noise_of(raw: RawImage, noise: Any) -> Any:
         return noise
     md = raw.metadata or {}
     if "noise" in md and "gain" in md:
-        from .noise_estimate import raw_noise          # deferred: only for raws that carry a model
+        from ..scene.noise import raw_noise          # deferred: only for raws that carry a model
         return raw_noise(raw, estimate=False)
     return None
 

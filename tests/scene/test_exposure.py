@@ -1,11 +1,11 @@
-"""--auto-exposure (clisp.exposure): LibRaw's auto-bright rule, estimated from the raw, holds on the
+"""--auto-exposure (clisp.scene.exposure): LibRaw's auto-bright rule, estimated from the raw, holds on the
 output it is applied to."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from clisp.exposure import auto_exposure_ev
+from clisp.scene.exposure import auto_exposure_ev
 from clisp.pipeline import EXPOSURE_LIMIT, build_pipeline
 from clisp.sim.charts import dead_leaves
 from clisp.sim.simulate import simulate

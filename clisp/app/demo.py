@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .sim.charts import demo_chart
-from .io.imageio import write_image
-from .metrics import gray_panel_snr, psnr
-from .pipeline import DEFAULT_PRESET, process_with_stats, resolve_options
-from .io.rawfile import read_raw, write_raw
-from .io.rawimage import RawImage
-from .engine.runtime import get_runtime
-from .sim.simulate import simulate
+from ..sim.charts import demo_chart
+from ..io.imageio import write_image
+from ..metrics import gray_panel_snr, psnr
+from ..pipeline import DEFAULT_PRESET, process_with_stats, resolve_options
+from ..io.rawfile import read_raw, write_raw
+from ..io.rawimage import RawImage
+from ..engine.runtime import get_runtime
+from ..sim.simulate import simulate
 
 CFAS = ("lms", "bayer")
 GAINS = (1, 8, 64)

@@ -15,7 +15,7 @@ import pytest
 from paths import CAMERA_RAWS
 import clisp
 from clisp.sim.charts import demo_chart
-from clisp.cli import main
+from clisp.app.cli import main
 from clisp.io.imageio import read_image, write_image
 from clisp.metrics import psnr
 from clisp.pipeline import crop_of
@@ -237,7 +237,7 @@ def test_exposure_scales_linear_output_and_is_recorded(tmp_path: Path, scene_png
     """--exposure EV multiplies the linear output by 2^EV (after the colour conversion: the same
     pixels otherwise), says so in the output's description; the batch hashes it only when set."""
     import OpenImageIO as oiio
-    from clisp.batch import BatchSettings
+    from clisp.app.batch import BatchSettings
     raw_path = tmp_path / "r.dng"
     assert run(["simulate", scene_png, "-o", raw_path, "--gain", "4"], capsys)[0] == 0
     images = {}
@@ -307,8 +307,8 @@ def test_process_profile_reports_stages_and_host_time(tmp_path: Path, scene_png:
 def test_process_explain_and_no_skip(tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
     """``--explain`` prints the analysis, the plan and the time per stage; a flat scene's tiles take
     the flat path, and ``--no-skip`` runs every stage everywhere (issue 13). On the host's CPU, where
-    the default skips (clisp.skip.why_not_skip), whatever this machine's device."""
-    import clisp.skip as skip
+    the default skips (clisp.pipeline.skip.why_not_skip), whatever this machine's device."""
+    import clisp.pipeline.skip as skip
     monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)
     from clisp.io.rawfile import write_raw
     from clisp.sim.simulate import simulate
@@ -335,9 +335,9 @@ def test_cli_import_leaves_heavy_libraries_out() -> None:
     import subprocess
     import sys
     heavy = ("scipy", "colour", "OpenImageIO", "matplotlib", "rawpy", "exiv2", "PIL")
-    code = f"import sys, clisp.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
+    code = f"import sys, clisp.app.cli; print(','.join(m for m in {heavy!r} if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
-    assert loaded == "", f"importing clisp.cli loads {loaded}"
+    assert loaded == "", f"importing clisp.app.cli loads {loaded}"
 
 
 def test_process_many_inputs_into_a_folder(tmp_path: Path, scene_png: Path, capsys) -> None:
@@ -391,7 +391,7 @@ def test_info_device_warm(capsys) -> None:
 
 
 def test_console_script_leaves_fast_with_its_status_and_output(tmp_path: Path, scene_png: Path) -> None:
-    """``python -m clisp`` (the console entry, clisp.cli.console) ends the process without the
+    """``python -m clisp`` (the console entry, clisp.app.cli.console) ends the process without the
     interpreter's teardown: the exit status, the printed line (to a pipe) and the output file are
     all there; a failure still exits 2 with its one line and no file."""
     import subprocess

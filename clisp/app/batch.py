@@ -33,13 +33,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-from .version import __version__
-from .errors import ClispError
-from .engine.runtime import DEVICE_LOCK, get_runtime, save_built_programs
-from .io.rawfile import RAW_SUFFIXES, read_raw
-from .pipeline import (DEFAULT_BUDGET, DEFAULT_PRESET, GPU_FILES_IN_FLIGHT, SKIP_WHERE_IT_PAYS, process_file,
-                       resolve_options)
-# clisp.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
+from ..version import __version__
+from ..errors import ClispError
+from ..engine.runtime import DEVICE_LOCK, get_runtime, save_built_programs
+from ..io.rawfile import RAW_SUFFIXES, read_raw
+from ..pipeline import (DEFAULT_BUDGET, DEFAULT_PRESET, GPU_FILES_IN_FLIGHT, SKIP_WHERE_IT_PAYS, process_file,
+                        resolve_options)
+# clisp.app.batch is imported by every CLI command (cli._add_batch): Dask, distributed, cloudpickle,
 # tqdm and clisp.io.imageio are imported where they are used.
 
 MANIFEST = "manifest.jsonl"
@@ -269,7 +269,7 @@ def local_gpus() -> list[str]:
     """The GPUs a local cluster's workers run on, as CLISP_DEVICE specs ('P:D'): every GPU OpenCL
     lists when CLISP_DEVICE is unset or 'gpu' (the default device is then a GPU), the one it names
     when that is a GPU; none where the workers' device is a CPU or OpenCL cannot be asked."""
-    from .engine.runtime import choose_device, list_devices    # deferred: pyopencl, 0.1 s
+    from ..engine.runtime import choose_device, list_devices    # deferred: pyopencl, 0.1 s
     spec = os.environ.get("CLISP_DEVICE", "").strip()
     try:
         cl = __import__("pyopencl")
@@ -512,7 +512,7 @@ def run_batch(inputs: Sequence[str | Path], outdir: str | Path, settings: BatchS
     ``timeout``: seconds to wait for all results (None = no limit); past it the files still
     running are recorded as errors. ``on_record``: called with each manifest record as written.
     """
-    from .io.imageio import check_compression    # deferred: 2 ms of every CLI command's start-up
+    from ..io.imageio import check_compression    # deferred: 2 ms of every CLI command's start-up
     resolve_options(settings.preset, settings.demosaic, half_size=settings.half_size)   # bad names fail before anything runs
     outdir = Path(outdir)
     if settings.compression:

@@ -1,7 +1,7 @@
 """Per-tile skip plans: which path each tile of a run takes, and why (issue 13).
 
 A :class:`Skipper` is attached to a Pipeline by ``build_pipeline(..., skip=True)``. It holds the
-scene analysis (clisp.analysis) and the alternative stage lists ("paths"); when the pipeline runs
+scene analysis (clisp.scene.block_analysis) and the alternative stage lists ("paths"); when the pipeline runs
 a TilePlan, :meth:`Skipper.plan` turns the analysis into a :class:`SkipPlan`, plain data: one
 :class:`TileChoice` per tile (path, reason, the figures behind it), printable for
 ``clisp process --explain`` and testable.
@@ -46,7 +46,7 @@ Seams: each tile's output equals the whole image processed on that tile's path (
 stage list obeying the tiling contract), so tiles on different paths meet where the two paths'
 outputs differ; both differ from ``full`` by at most the skip's effect, which the rule bounds by
 the thresholds on both sides of the seam (the margin makes a tile's decision include its
-neighbours' blocks within the halo). tests/test_skip.py measures it.
+neighbours' blocks within the halo). tests/pipeline/test_skip.py measures it.
 
 Highlights: the plan flags every tile with clipped samples (``highlight``), which never takes
 the flat path. The highlight stage (clisp.modules.highlights.stage, right after the demosaic, only in
@@ -61,14 +61,14 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import SceneAnalysis, analyse
-from .engine.tiling import Tile, TilePlan
-from .errors import ClispError
-from .modules.block_blend.blend import BlockBlend, rectangles
-from .modules.chroma_denoise.stage import ChromaDenoise
-from .modules.colour.stage import ColourMatrix
-from .modules.demosaic_flat.stage import DemosaicFlat
-from .modules.highlights.stage import HighlightClamp, Highlights
+from ..scene.block_analysis import SceneAnalysis, analyse
+from ..engine.tiling import Tile, TilePlan
+from ..errors import ClispError
+from ..modules.block_blend.blend import BlockBlend, rectangles
+from ..modules.chroma_denoise.stage import ChromaDenoise
+from ..modules.colour.stage import ColourMatrix
+from ..modules.demosaic_flat.stage import DemosaicFlat
+from ..modules.highlights.stage import HighlightClamp, Highlights
 
 PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT, PATH_MIXED = "full", "light", "none", "flat", "mixed"
 PATHS = (PATH_FULL, PATH_LIGHT, PATH_NONE, PATH_FLAT, PATH_MIXED)

@@ -5,7 +5,7 @@ of BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be 
 
 * per CFA channel, the noise of the white-balanced, normalised samples (ChannelNoise units,
   var = shot * s + floor): Immerkaer's 3 x 3 residual on each phase's lattice (the operator of
-  clisp.noise_estimate), taken on a strip of 3 lattice rows at the top of every n-th block row
+  clisp.scene.noise), taken on a strip of 3 lattice rows at the top of every n-th block row
   (NOISE_STRIPS strips or a few more; 3 p rows each), fitted by noise_estimate's robust
   binned line (flattest 30 % per level bin, MAD). When the raw carries a sensor model, the
   measured sigma at each channel's median level is compared with the model's (``noise_ratio``);
@@ -37,12 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from .cfa import CFA
-from .errors import ClispError
-from .sim.noise import ChannelNoise
-from .noise_estimate import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD, median
-from .io.rawimage import RawImage
-from .modules.chroma_denoise.stage import space_for
+from ..cfa import CFA
+from ..errors import ClispError
+from ..sim.noise import ChannelNoise
+from .noise import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD, median
+from ..io.rawimage import RawImage
+from ..modules.chroma_denoise.stage import space_for
 
 BLOCK = 64
 """Side of the analysis blocks (px): a multiple of every CFA period and of the denoiser's 2^J

@@ -1,13 +1,13 @@
-"""White balance ``auto``'s light (clisp.illuminant): the lights, the block statistics, the estimate."""
+"""White balance ``auto``'s light (clisp.scene.illuminant): the lights, the block statistics, the estimate."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from clisp.cfa import bayer_cfa
-from clisp.illuminant import CameraLights, block_statistics, estimate_light, light_srgb
+from clisp.scene.illuminant import CameraLights, block_statistics, estimate_light, light_srgb
 from clisp.sim.simulate import simulate
-from clisp.white_balance import gray_world_gains, reference_channel, with_white_balance
+from clisp.scene.white_balance import gray_world_gains, reference_channel, with_white_balance
 
 
 def _lit(scene: np.ndarray, kelvin: float) -> tuple[np.ndarray, np.ndarray]:

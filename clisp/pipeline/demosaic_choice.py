@@ -3,7 +3,7 @@ noise is within the budget of the preset's.
 
 Noise hides detail: where it is high, the steps a demosaic spends on fine detail buy nothing, and
 a cheaper configuration scores the same. The noise is known before processing (the sensor model
-of clisp's simulations, else the raw's own estimate, clisp.noise_estimate), so the choice is made
+of clisp's simulations, else the raw's own estimate, clisp.scene.noise), so the choice is made
 once per image when the pipeline is built, and every tile runs the chosen stages (tiled still
 equals whole).
 
@@ -27,9 +27,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .engine.stage import Stage
-from .io.rawimage import RawImage
-from .white_balance import reference_channel
+from ..engine.stage import Stage
+from ..io.rawimage import RawImage
+from ..scene.white_balance import reference_channel
 
 ERROR_BUDGET_DB = 0.02
 """Largest mean PSNR loss against the preset's stage the choice accepts (dB)."""

@@ -9,7 +9,7 @@ import pytest
 from clisp.cfa import bayer_cfa, lms_cfa
 from clisp.errors import ClispError
 from clisp.sim.simulate import simulate
-from clisp.white_balance import gray_world_gains, grey_pixel_gains, reference_channel, with_white_balance
+from clisp.scene.white_balance import gray_world_gains, grey_pixel_gains, reference_channel, with_white_balance
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa("GRBG"), lms_cfa()], ids=lambda c: c.name)
@@ -95,7 +95,7 @@ def test_with_white_balance_choices() -> None:
 
 def test_wb_reaches_the_pipeline_and_the_output(tmp_path) -> None:
     """--wb changes pass 1's gains (the output's colour) and the output's description says so."""
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.imageio import read_image
     from clisp.io.rawfile import write_raw
     import OpenImageIO as oiio
@@ -113,7 +113,7 @@ def test_wb_reaches_the_pipeline_and_the_output(tmp_path) -> None:
 
 def test_explain_says_what_auto_found(tmp_path, capsys) -> None:
     """``--explain`` prints auto's light, its confidence and what decided it."""
-    from clisp.cli import main
+    from clisp.app.cli import main
     from clisp.io.rawfile import write_raw
     write_raw(tmp_path / "r.dng", simulate(_wood_and_steel(64, 96), "bayer", gain=4, optics="none").raw)
     assert main(["process", str(tmp_path / "r.dng"), "-o", str(tmp_path / "a.tif"), "--wb", "auto", "--explain",

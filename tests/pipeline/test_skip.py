@@ -1,13 +1,13 @@
-"""Scene analysis and per-tile skip plans (clisp.analysis, clisp.skip; issue 13)."""
+"""Scene analysis and per-tile skip plans (clisp.scene.block_analysis, clisp.pipeline.skip; issue 13)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from clisp.analysis import analyse
+from clisp.scene.block_analysis import analyse
 from clisp.pipeline import build_pipeline
 from clisp.sim.simulate import simulate
-from clisp.skip import PATH_FLAT, PATH_FULL, PATH_LIGHT, PATH_NONE, SkipPlan
+from clisp.pipeline.skip import PATH_FLAT, PATH_FULL, PATH_LIGHT, PATH_NONE, SkipPlan
 from clisp.engine.tiling import Tile, grid
 
 
@@ -63,7 +63,7 @@ L doubled on the Bayer layout (issue 45) as Bayer."""
 
 def no_flat_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """Tests of the denoiser rules on the smooth scene, which otherwise takes the flat path."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     monkeypatch.setattr(skip, "FLAT_DETAIL", 0.0)
 
 
@@ -139,7 +139,7 @@ def test_noise_threshold_decides_and_none_needs_every_block_quiet(monkeypatch: p
 def test_a_noisy_neighbour_within_the_halo_keeps_the_full_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """A tile is judged on every block its output depends on (the tile grown by the denoiser's
     halo, 52 px at J = 3), so one noisy block keeps its neighbours within the halo on ``full``."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     no_flat_path(monkeypatch)
     _, _, sk = _skipper(1)
     real = skip.visible_chroma_noise(sk.denoiser, sk.analysis)
@@ -167,7 +167,7 @@ def test_clipped_pixels_flag_highlight_handling() -> None:
 
 def test_plan_is_data() -> None:
     t = Tile(0, 0, 8, 8)
-    from clisp.skip import TileChoice
+    from clisp.pipeline.skip import TileChoice
     plan = SkipPlan([TileChoice(t, PATH_LIGHT, "because", 1e-3)])
     assert plan.path_of(t) == PATH_LIGHT and plan.counts == {PATH_LIGHT: 1} and plan.pixels(PATH_LIGHT) == 64
     assert "light" in str(plan)
@@ -194,7 +194,7 @@ SEAM_TOLERANCE = 0.02
 
 @pytest.mark.parametrize("cfa", ["lms", "bayer"])
 def test_tiles_on_different_paths_meet_without_a_seam(cfa: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     no_flat_path(monkeypatch)
     scene = smooth_scene(256, 256)
     scene[:, 128:] *= 0.3

@@ -1,4 +1,4 @@
-"""Flat paths at block granularity inside a tile (issue 30, item 2): clisp.skip's ``mixed`` tiles
+"""Flat paths at block granularity inside a tile (issue 30, item 2): clisp.pipeline.skip's ``mixed`` tiles
 and their join (clisp.modules.block_blend)."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from clisp.engine.executor import Pipeline
 from clisp.engine.tiling import grid
 from clisp.pipeline import build_pipeline
 from clisp.sim.simulate import simulate
-from clisp.skip import PATH_FLAT, PATH_FULL, PATH_MIXED
+from clisp.pipeline.skip import PATH_FLAT, PATH_FULL, PATH_MIXED
 
 from test_skip import smooth_scene, textured_scene
 
@@ -24,7 +24,7 @@ def strip_scene(h: int = 512, w: int = 512) -> np.ndarray:
 def mixed_pipeline(monkeypatch: pytest.MonkeyPatch, cfa: str = "lms", gain: float = 1, scene=None):
     """A skip pipeline on the strip scene that mixes wherever a tile holds texture: on images this
     small the detail path's halo makes mixing cost more than it saves, so MIX_GAIN is lifted."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
     sim = simulate(strip_scene() if scene is None else scene, cfa=cfa, gain=gain, seed=4)
     pipe = build_pipeline(sim.raw, skip=True, demosaic=None if cfa == "lms" else "dlmmse")
@@ -101,7 +101,7 @@ def test_no_seam_where_the_paths_join(gain: float, monkeypatch: pytest.MonkeyPat
 
 
 def test_plan_mixes_only_where_texture_is_and_it_pays(monkeypatch: pytest.MonkeyPatch) -> None:
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     sim, pipe = mixed_pipeline(monkeypatch)
     sk = pipe.skipper
     plan = sk.plan(grid(512, 512, 512, 512))
@@ -123,7 +123,7 @@ def test_plan_mixes_only_where_texture_is_and_it_pays(monkeypatch: pytest.Monkey
 def test_skipping_is_off_where_the_device_is_not_the_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
     """On a GPU the full path's device time is less than the analysis: the CLI's default ('auto')
     analyses nothing there and says why; skip=True still forces the plan (tests, warm-up)."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     from types import SimpleNamespace
     from clisp.engine.runtime import get_runtime
     from clisp.pipeline import SKIP_WHERE_IT_PAYS
@@ -145,7 +145,7 @@ def test_skipping_is_off_where_the_device_is_not_the_cpu(monkeypatch: pytest.Mon
 def test_skipping_is_off_where_there_is_no_flat_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """Behind residual interpolation (the Bayer quality preset) there is no flat path, and the
     denoiser's lighter paths alone never paid for the analysis: the default analyses nothing."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     from clisp.pipeline import SKIP_WHERE_IT_PAYS
     monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)       # the rule on a CPU, whatever this machine's device
     raw = simulate(strip_scene(256, 256), cfa="bayer", gain=1, seed=0).raw
@@ -160,7 +160,7 @@ def test_mixed_tiles_with_clipping_odd_sizes_and_presets(cfa: str, preset: str, 
     """A clipped highlight inside the textured strip (the highlight stage on both paths), an image
     whose sides are no multiple of the blocks or the CFA's period, the balanced preset's demosaics:
     each mixed tile still equals the whole image's two paths joined, at two tilings."""
-    import clisp.skip as skip
+    import clisp.pipeline.skip as skip
     monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
     scene = strip_scene(456, 390)
     scene[220:232, 100:130] = 4.0                                  # clipped, inside the strip
@@ -185,8 +185,8 @@ def test_mixed_tiles_with_clipping_odd_sizes_and_presets(cfa: str, preset: str, 
 def test_explain_reports_mixed_tiles_and_device_time_per_path(tmp_path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
     """``clisp process --explain`` on a sky with a textured strip: the mixed tile, its rectangles,
     and the device time each path took, measured in the run (issue 30, item 3)."""
-    import clisp.skip as skip
-    from clisp.cli import main
+    import clisp.pipeline.skip as skip
+    from clisp.app.cli import main
     from clisp.io.rawfile import write_raw
     monkeypatch.setattr(skip, "MIX_GAIN", 100.0)
     monkeypatch.setattr(skip, "on_host_cpu", lambda rt: True)     # the CLI's default skips only there
@@ -202,11 +202,11 @@ def test_explain_reports_mixed_tiles_and_device_time_per_path(tmp_path, capsys, 
 def test_warm_builds_the_join(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``clisp info --warm`` also runs a mixed tile, so a first real run that mixes builds no
     program the warm-up did not (the join's kernel, the planar denoiser of the detail path) at
-    the warm-up's noise (a denoiser program also depends on the noise: clisp.warm's docstring)."""
-    import clisp.skip as skip
+    the warm-up's noise (a denoiser program also depends on the noise: clisp.app.warm's docstring)."""
+    import clisp.pipeline.skip as skip
     from clisp.engine.runtime import get_runtime
     from clisp.pipeline import process_file
-    from clisp.warm import WARM_GAIN, warm_kernels
+    from clisp.app.warm import WARM_GAIN, warm_kernels
     rt = get_runtime()
     warm_kernels(("quality",), ("lms",), report=None)
     built = set(rt.programs.built)

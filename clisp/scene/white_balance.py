@@ -6,7 +6,7 @@
 ``camera``      as shot: the camera's multipliers where the raw has them; a raw without them (the
                 Canon D30 CRW) was given the ``auto`` estimate when read (clisp.io.camera), and
                 clisp's simulated raws carry their known illuminant (D65).
-``auto``        the scene's light among the plausible ones (:func:`auto_gains`, clisp.illuminant:
+``auto``        the scene's light among the plausible ones (:func:`auto_gains`, clisp.scene.illuminant:
                 bright surfaces, grey edges and gray world weighed against a prior over the
                 Planckian and daylight lights in the camera's space); a raw without daylight
                 multipliers (so without a known D65 white) falls back to its grey pixels
@@ -27,9 +27,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .cfa import CFA
-from .errors import ClispError
-from .io.rawimage import MAX_GAIN, RawImage
+from ..cfa import CFA
+from ..errors import ClispError
+from ..io.rawimage import MAX_GAIN, RawImage
 
 WB_CHOICES = ("camera", "auto", "daylight")
 """The named ``--wb`` choices; anything else is read as multipliers."""
@@ -93,7 +93,7 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
 
     1. Grey pixels, after K.-F. Yang, S.-B. Gao, Y.-J. Li, "Efficient illuminant estimation for
        color constancy using grey pixels", CVPR 2015. On a raw thumbnail (one camera triplet per
-       CFA tile, clisp.white_balance2.raw_thumbnail) the illuminant-invariant measure of each
+       CFA tile, clisp.scene.white_balance_pass2.raw_thumbnail) the illuminant-invariant measure of each
        channel is the local contrast of its logarithm, |grad log I_c| (Gaussian derivative,
        GREY_SIGMA): the edge between two grey surfaces changes every channel in the same
        proportion under any illuminant, an edge involving a coloured surface changes them
@@ -115,7 +115,7 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     field) falls back to gray world (:func:`gray_world_gains`), and says so in the name.
     """
     from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
-    from .white_balance2 import raw_thumbnail
+    from .white_balance_pass2 import raw_thumbnail
     thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
     candidates = _grey_candidates(thumb, ok, share, ndimage)
     if candidates is None:
@@ -205,7 +205,7 @@ def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white
 
     With the camera's D65 white known (``daylight``: its D65 pass-1 multipliers; ``matrix``:
     white-balanced camera -> linear sRGB) the light is estimated among the plausible ones from the
-    mosaic's block statistics (clisp.illuminant.estimate_light); without it (None), from the
+    mosaic's block statistics (clisp.scene.illuminant.estimate_light); without it (None), from the
     scene's grey pixels (:func:`grey_pixel_gains`), which need no matrix."""
     if daylight is None:
         gains, source = grey_pixel_gains(data, cfa, black_level, white_level)

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .cfa import CFA
-from .sim.colorimetry import XYZ_TO_SRGB
+from ..cfa import CFA
+from ..sim.colorimetry import XYZ_TO_SRGB
 
 # --------------------------------------------------------------------------------------------
 # 1. The lights
@@ -210,7 +210,7 @@ def cell_means(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level:
     sample at or above CLIP_FRACTION; every ``step``-th cell row and column when the raw has more
     than ``max_cells`` cells. Rows are read through clisp.engine.streaming.window_source (pread
     for a raw file mapped in memory)."""
-    from .engine.streaming import window_source     # deferred: the engine is not needed to import this module
+    from ..engine.streaming import window_source     # deferred: the engine is not needed to import this module
     p = cfa.period
     h, w = data.shape[0] // p * p, data.shape[1] // p * p
     step = max(1, int(np.ceil(np.sqrt((h // p) * (w // p) / max_cells))))

@@ -29,11 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from .cfa import CFA
-from .errors import ClispError
-from .sim.noise import ChannelNoise, NoiseModel
-from .io.rawimage import RawImage
-from .engine.streaming import window_source
+from ..cfa import CFA
+from ..errors import ClispError
+from ..sim.noise import ChannelNoise, NoiseModel
+from ..io.rawimage import RawImage
+from ..engine.streaming import window_source
 
 
 class NoiseEstimateError(ClispError):
