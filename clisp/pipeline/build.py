@@ -10,8 +10,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .corrections import only_isolated_clips, sensor_corrections
-from ..errors import ClispError, clip
-from ..io.rawimage import MAX_GAIN, RawImage, check_levels, check_samples
+from ..errors import ClispError
+from ..io.rawimage import RawImage, check_levels, check_samples
 from ..engine.executor import Pipeline
 from ..engine.runtime import get_runtime
 from ..engine.stage import Stage
@@ -28,10 +28,9 @@ from ..modules.demosaic_malvar.stage import DemosaicMalvar
 from ..modules.half_size.stage import HalfSize
 from ..modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from ..modules.raw_scale.stage import normalize, white_balance1
-from ..scene.noise import NoiseEstimateError, raw_noise
+from ..scene.noise import raw_noise
 from .demosaic_choice import alternative_for, choose_demosaic
-from ..scene.white_balance import with_white_balance
-from ..scene.white_balance_pass2 import estimate_wb2
+from ..scene.measure import measure_scene
 
 
 DEMOSAICS: dict[str, type[Stage]] = {
@@ -173,65 +172,61 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     (apply the DNG's opcodes): the sensor corrections (clisp.pipeline.corrections), a first stage on the
     mosaic and, for gains, one after the chroma stage; the pipeline's ``corrections`` says what they did.
     """
+    # 1. the choices given, checked, with the preset's filled in
     if output not in OUTPUTS:
         raise ClispError(f"unknown output {output!r}; expected one of {', '.join(OUTPUTS)}")
     if not -EXPOSURE_LIMIT <= exposure <= EXPOSURE_LIMIT:          # also NaN
         raise ClispError(f"--exposure {exposure:g}: EV must be within -{EXPOSURE_LIMIT:g}..+{EXPOSURE_LIMIT:g}")
     check_raw(raw)
-    raw = with_white_balance(raw, wb)
-    cfa = raw.cfa
     given = demosaic if isinstance(demosaic, Stage) else None
-    options = resolve_options(preset, None if given else demosaic, cfa.layout, half_size, cfa.kind)
+    options = resolve_options(preset, None if given else demosaic, raw.cfa.layout, half_size, raw.cfa.kind)
     params = denoise_params(denoise, options["denoise_levels"])
     if half_size and params is not None:
         raise ClispError(HALF_SIZE_NO_DENOISE)
-    demosaic_stage = HalfSize.for_raw(raw) if half_size else (given or make_demosaic(options["demosaic"], raw))
-    colour: Stage = ColourMatrix(raw.colour_matrix)
-    adapt = bool(skip) and given is None and alternative_for(demosaic_stage) is not None
-    noise = None
-    if params is not None or adapt:
-        try:
-            noise = raw_noise(raw)
-        except NoiseEstimateError:
-            noise = None        # a raw too small to estimate its noise is processed without chroma denoise
+    kind = HalfSize if half_size else (type(given) if given else DEMOSAICS[options["demosaic"]])
+    adapt = bool(skip) and given is None and alternative_for(kind) is not None
+    # 2. the scene, measured once: pass 1's white balance, the noise, pass 2's gains, the exposure
+    scene = measure_scene(raw, wb, wb2, noise=params is not None or adapt, exposure=exposure,
+                          auto_exposure=auto_exposure, limit=EXPOSURE_LIMIT)
+    raw, cfa = scene.raw, scene.raw.cfa
+    # 3. the decisions: the corrections, the demosaic the noise allows, the denoiser's table, highlights
     if bad_pixels is None:                                  # the preset's (fast: off), else auto
         bad_pixels = options.get("bad_pixels", "auto")
-    corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, noise)
-    noise = corrections.noise(noise)                        # the dark frame's own noise added
+    corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, scene.noise)
+    noise = corrections.noise(scene.noise)                  # the dark frame's own noise added
+    demosaic_stage = HalfSize.for_raw(raw) if half_size else (given or make_demosaic(options["demosaic"], raw))
     choice = None
     if adapt and noise is not None:                         # the cheapest demosaic its noise allows
         demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
+    colour: Stage = ColourMatrix(raw.colour_matrix)
     if params is not None and noise is not None:
         colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
-    gains2 = _wb2_gains(raw, wb2)
+    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), scene.gains2,
+                                noise=noise, scale=2 if half_size else 1)
+    if highlight is not None and only_isolated_clips(raw, corrections.pre):
+        highlight = None                                    # a hot pixel is not a clipped light
+    # 4. the stages, in the order they run
     stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
                                                               white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     if corrections.pre is not None:
         stages.insert(0, corrections.pre)
-    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), gains2,
-                                noise=noise, scale=2 if half_size else 1)
-    if highlight is not None and only_isolated_clips(raw, corrections.pre):
-        highlight = None                                    # a hot pixel is not a clipped light
     if highlight is not None:
         stages.append(highlight)
     stages.append(colour)
     shade = corrections.shade(raw.colour_matrix, HALF_SIZE_DOWNSCALE if half_size else 1)
     if shade is not None:                                   # the smooth gain, after highlights and denoiser
         stages.append(shade)
-    if auto_exposure:
-        from ..scene.exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
-        exposure = float(np.clip(exposure + auto_exposure_ev(raw, gains2, EXPOSURE_LIMIT),
-                                 -EXPOSURE_LIMIT, EXPOSURE_LIMIT))
-    output_gains = gains2 * 2.0 ** exposure
+    output_gains = scene.gains2 * 2.0 ** scene.exposure
     if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
         stages.append(WhiteBalance2(output_gains))
     tone = tone_curve_for(output)
     if tone is not None:
         stages.append(tone)
     explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: read-time auto
-    pipeline = Pipeline(cfa, stages, exposure_ev=exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
+    pipeline = Pipeline(cfa, stages, exposure_ev=scene.exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections
+    # 5. the skip plan, from the scene's block analysis
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
@@ -285,21 +280,6 @@ def check_raw(raw: RawImage) -> None:
         raise ClispError(f"{raw.source}: raw of {raw.shape[1]}x{raw.shape[0]} is smaller than one "
                          f"{raw.cfa.period}x{raw.cfa.period} CFA tile")
     check_samples(raw)
-
-
-def _wb2_gains(raw: RawImage, method: str) -> np.ndarray:
-    """estimate_wb2's gains, refused (ClispError naming the raw) when not finite and positive:
-    a gray-world estimate of a black frame, or a corrupt illuminant in the metadata."""
-    try:
-        gains = np.asarray(estimate_wb2(raw, method), dtype=np.float64).reshape(3)
-    except ClispError as exc:
-        raise ClispError(f"{raw.source}: {clip(exc, 120)}") from exc
-    except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
-        raise ClispError(f"{raw.source}: white balance pass 2 from the metadata failed ({clip(exc)})") from exc
-    if not np.all(np.isfinite(gains)) or np.any(gains < 1.0 / MAX_GAIN) or np.any(gains > MAX_GAIN):
-        raise ClispError(f"{raw.source}: white balance pass 2 ({method}) gives unusable gains "
-                         f"{', '.join(f'{g:.3g}' for g in gains)}")
-    return gains
 
 
 def denoise_params(denoise: ChromaDenoiseParams | bool | None, levels: int) -> ChromaDenoiseParams | None:

@@ -111,9 +111,10 @@ class Choice:
         return f"noise-adaptive choice: {self.stage} -> {taken}"
 
 
-def alternative_for(stage: Stage) -> Alternative | None:
-    """The alternative of ``stage``'s kind, if any."""
-    return next((a for a in ALTERNATIVES if a.stage == type(stage).__name__), None)
+def alternative_for(stage: Stage | type[Stage]) -> Alternative | None:
+    """The alternative of ``stage``'s kind (a stage or its class), if any."""
+    name = stage.__name__ if isinstance(stage, type) else type(stage).__name__
+    return next((a for a in ALTERNATIVES if a.stage == name), None)
 
 
 def choose_demosaic(stage: Stage, raw: RawImage, noise: Any) -> tuple[Stage, Choice | None]:
