@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clisp.modules.chroma_denoise.stage import (ChromaSpace, NoiseTable, _affine_var, bayes_shrink, chroma_merge,
-                                                chroma_split, haar_analyze, haar_synthesize)
+                                                chroma_split, haar_pyramid, haar_synthesize)
 
 
 @dataclass(frozen=True)
@@ -122,15 +122,9 @@ def chroma_nlm(cam: np.ndarray, space: ChromaSpace, table: NoiseTable, prm: NLMP
     align = 2 ** prm.levels
     ph, pw = -h0 % align, -w0 % align
     x = np.pad(np.moveaxis(np.asarray(cam, dtype=np.float64), -1, 0), ((0, 0), (0, ph), (0, pw)), mode="reflect")
-    a = chroma_split(x, space.split_matrix)
     strengths = np.asarray(space.strengths if prm.strengths is None else prm.strengths, dtype=np.float64)
-    n = space.n_chroma
     rank = int(np.linalg.matrix_rank(space.chroma, tol=1e-9))
-    ys, details = [a[0]], [None]
-    for _ in range(prm.levels):
-        a, d = haar_analyze(a)
-        ys.append(a[0])
-        details.append(d)
+    a, ys, details = haar_pyramid(chroma_split(x, space.split_matrix), prm.levels)
     c = a[1:]
     rw = prm.shrink_radius
     for j in range(prm.levels, -1, -1):

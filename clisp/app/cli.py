@@ -360,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from ..io.imageio import read_scene, write_image     # deferred: clisp.io.imageio costs 2 ms of start-up
+    from ..io.imageio import read_scene                  # deferred: clisp.io.imageio costs 2 ms of start-up
     _check_output_ext(args.output, (".dng", ".tif", ".tiff"))
     if args.truth:
         _check_output_ext(args.truth, (".exr",))
@@ -385,13 +385,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate(scene, cfa=args.cfa, gain=gain, optics=args.optics, seed=args.seed, defects=defects)
     result.raw.metadata["scene"] = Path(args.scene).name
     extra = _record_defects(args, result.raw, defects, gain)
-    write_raw(args.output, result.raw)
-    if args.truth:
-        write_image(args.truth, result.truth)
-    h, w = result.raw.shape
-    noise = "noiseless" if gain is None else f"gain {gain:g}"
-    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw, {noise}, optics {args.optics}, seed {args.seed}"
-          + extra)
+    head, noise = _write_simulation(args, result, gain)
+    print(f"{head}, {noise}, optics {args.optics}, seed {args.seed}" + extra)
     return 0
 
 
@@ -423,21 +418,27 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
 
 def _simulate_spectral(args: argparse.Namespace, gain: float | None) -> int:
     """``simulate --spectral colorchecker``: the spectral path (clisp.sim.spectral)."""
-    from ..io.imageio import write_image                 # deferred: 2 ms of start-up
     from ..sim.spectral import simulate_spectral         # deferred: with sim.charts 4 ms of start-up
     if args.size:
         raise ClispError("--size repeats a scene file; it does not apply to --spectral")
     source = "isetcam" if args.reflectances else "colour"
     result = simulate_spectral(args.cfa, gain=gain, optics=args.optics, seed=args.seed, source=source,
                                data=args.reflectances)
+    head, noise = _write_simulation(args, result, gain)
+    print(f"{head} of the spectral ColorChecker ({source} reflectances, D65), {noise}, optics {args.optics}, "
+          f"seed {args.seed}")
+    return 0
+
+
+def _write_simulation(args: argparse.Namespace, result: Any, gain: float | None) -> tuple[str, str]:
+    """Write a simulation's raw (and ``--truth``'s image); the report line's head ('OUT: WxH CFA raw')
+    and its noise ('noiseless' or 'gain G')."""
+    from ..io.imageio import write_image                 # deferred: 2 ms of start-up
     write_raw(args.output, result.raw)
     if args.truth:
         write_image(args.truth, result.truth)
     h, w = result.raw.shape
-    noise = "noiseless" if gain is None else f"gain {gain:g}"
-    print(f"{args.output}: {w}x{h} {result.raw.cfa.name} raw of the spectral ColorChecker ({source} "
-          f"reflectances, D65), {noise}, optics {args.optics}, seed {args.seed}")
-    return 0
+    return f"{args.output}: {w}x{h} {result.raw.cfa.name} raw", "noiseless" if gain is None else f"gain {gain:g}"
 
 
 def _simulate_large(args: argparse.Namespace, scene: np.ndarray, gain: float | None) -> int:

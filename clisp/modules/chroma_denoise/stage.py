@@ -422,6 +422,17 @@ def haar_analyze(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return approx, np.stack([dx, dy, dd])
 
 
+def haar_pyramid(a: np.ndarray, levels: int) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray | None]]:
+    """``levels`` steps of :func:`haar_analyze` on (1 + n, h, w) planes (plane 0 = Y): (the coarsest
+    planes, Y at every level from the finest, the details of every level with None at level 0)."""
+    ys, details = [a[0]], [None]
+    for _ in range(levels):
+        a, d = haar_analyze(a)
+        ys.append(a[0])
+        details.append(d)
+    return a, ys, details
+
+
 def haar_synthesize(approx: np.ndarray, detail: np.ndarray) -> np.ndarray:
     """approx (n, h, w) and details (3, n, h, w) -> (n, 2h, 2w); exact inverse of haar_analyze."""
     dx, dy, dd = detail
@@ -610,12 +621,7 @@ class ChromaDenoise(Stage):
         approx_var, detail_var = self._scaled_noise()
         (sy, sx), (ny, nx) = plan.skip, plan.size
         cam = np.moveaxis(x.astype(np.float64), -1, 0)[:, sy:sy + ny, sx:sx + nx]
-        a = chroma_split(cam, sp.split_matrix)                      # (1 + n, ny, nx)
-        ys, details = [a[0]], [None]
-        for _ in range(prm.levels):
-            a, d = haar_analyze(a)
-            ys.append(a[0])
-            details.append(d)
+        a, ys, details = haar_pyramid(chroma_split(cam, sp.split_matrix), prm.levels)   # (1 + n, ny, nx) split
         c = a[1:]
         m, r = plan.margins, prm.radius
         start = 0                                                    # level-j start of c
