@@ -36,8 +36,6 @@ from ..pipeline import (DEFAULT_BUDGET, DEFAULT_HIGHLIGHTS, DEFAULT_PRESET, DEMO
 from ..sim.colorimetry import srgb_decode
 from ..sim.noise import GAIN_MAX, GAIN_MIN
 from ..sim.simulate import simulate, simulate_large
-from ..sim import defects as sd
-from ..sim.defects import SensorDefects
 # The modules above are loaded by `import clisp` anyway; the commands import the others where
 # they use them, to keep `import clisp.app.cli` light (issue 11).
 
@@ -137,6 +135,7 @@ def _sensor_defects(args: argparse.Namespace):
     if not values and not (args.dark_frames or args.flat_frames or args.gainmap or args.bad_pixel_list):
         return None
     seed = args.sensor_seed if args.sensor_seed is not None else args.seed
+    from ..sim.defects import SensorDefects           # deferred: only simulate's defect options use it
     return SensorDefects(**values, seed=int(seed))
 
 
@@ -395,6 +394,7 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
     raw as a camera would (GainMap, FixBadPixelsList); the note for simulate's line."""
     if defects is None:
         return ""
+    from ..sim import defects as sd
     ops = []
     if args.gainmap:
         ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)

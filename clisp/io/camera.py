@@ -26,7 +26,7 @@ from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import ISO, read_exif
 from .rawimage import RawImage
-from .opcodes import read_opcode_tags
+from .rawfile import page_opcodes
 from ..engine.streaming import aligned_copy
 from ..scene.white_balance import grey_pixel_gains
 
@@ -146,7 +146,7 @@ def dng_opcodes(p: Path, margins: tuple[int, int], raw_shape: tuple[int, int],
         if not cfa_pages:
             return []
         page = max(cfa_pages, key=lambda pg: int(pg.shape[0]) * int(pg.shape[-1]))
-        return read_opcode_tags(page, str(p), (-margins[0], -margins[1]), raw_shape, tuple(shape))
+        return page_opcodes(page, str(p), (-margins[0], -margins[1]), raw_shape, tuple(shape))
 
 
 def _linear_max(raw: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> list[float] | None:

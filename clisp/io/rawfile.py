@@ -27,7 +27,6 @@ from ..cfa import CFA, cfa_from_name, kind_before_issue45
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import camera_make_model, simulated_model_name
-from .opcodes import opcode_tags, opcodes_of, read_opcode_tags
 from .rawimage import RawImage, check_levels
 
 ROWS_PER_STRIP = 16
@@ -58,6 +57,9 @@ TAG_CFA_LAYOUT = 50711
 TAG_BLACK_LEVEL_REPEAT_DIM = 50713
 TAG_BLACK_LEVEL = 50714
 TAG_WHITE_LEVEL = 50717
+TAG_OPCODE_LISTS = (51008, 51009, 51022)
+"""OpcodeList1, 2 and 3 (clisp.io.opcodes.TAG_OPCODE_LIST): a raw without them does not import that
+module (start-up)."""
 TAG_DEFAULT_CROP_ORIGIN = 50719
 TAG_DEFAULT_CROP_SIZE = 50720
 TAG_COLOR_MATRIX1 = 50721
@@ -189,7 +191,9 @@ def dng_tags(raw: RawImage) -> list[tuple[int, int, int, Any, bool]]:
     if isinstance(crop, (list, tuple)) and len(crop) == 4:     # (x, y) and (width, height)
         tags += [(TAG_DEFAULT_CROP_ORIGIN, T_LONG, 2, (int(crop[1]), int(crop[0])), True),
                  (TAG_DEFAULT_CROP_SIZE, T_LONG, 2, (int(crop[3]), int(crop[2])), True)]
-    tags += opcode_tags(opcodes_of(raw.metadata))          # OpcodeList1-3 (GainMap, bad pixels): tags, not JSON
+    if raw.metadata.get("opcodes"):                      # OpcodeList1-3 (GainMap, bad pixels): tags, not JSON
+        from .opcodes import opcode_tags, opcodes_of
+        tags += opcode_tags(opcodes_of(raw.metadata))
     private = PRIVATE_PREFIX + json.dumps(_metadata_json(raw), default=_json_default).encode("utf-8")
     tags.append((TAG_DNG_PRIVATE_DATA, T_BYTE, len(private), private, True))
     return tags
@@ -391,8 +395,9 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     for key in ("wb_source", "colour_matrix_source", "flip", "crop", "sensor"):
         if key in md:
             info[key] = md[key]
-    ops = opcodes_of(md)
-    if ops:
+    if md.get("opcodes"):
+        from .opcodes import opcodes_of
+        ops = opcodes_of(md)
         counts: dict[str, int] = {}
         for op in ops:
             key = f"{op.name} (OpcodeList{op.list_no})"
@@ -454,7 +459,7 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
                 return None, None
             data = _read_pixels(page, p, meta, lazy)
             shape = tuple(int(v) for v in page.shape)
-            ops = read_opcode_tags(page, str(p), (0, 0), shape, shape)
+            ops = page_opcodes(page, str(p), (0, 0), shape, shape)
     except ClispError:
         raise
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types on non-TIFF input
@@ -463,6 +468,16 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
     if ops:
         raw.metadata["opcodes"] = ops
     return raw, None
+
+
+def page_opcodes(page: Any, where: str, origin1: tuple[int, int] = (0, 0), image1: tuple[int, int] | None = None,
+                 image23: tuple[int, int] | None = None) -> list[Any]:
+    """clisp.io.opcodes.read_opcode_tags of a tifffile page, [] without an OpcodeList tag (that module
+    imported only for a page that has one)."""
+    if not any(code in page.tags for code in TAG_OPCODE_LISTS):
+        return []
+    from .opcodes import read_opcode_tags
+    return read_opcode_tags(page, where, origin1, image1, image23)
 
 
 def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:

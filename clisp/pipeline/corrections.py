@@ -32,17 +32,17 @@ import os
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from ..errors import ClispError, clip
-from ..io.opcodes import (FixVignetteRadial, GainMap, bad_pixel_mask, gain_map_at, opcodes_of, selects, unapplied,
-                          vignette_at)
 from ..io.rawimage import RawImage
-from ..modules.sensor.stage import (FLOOR, FOUND, GRID_CELL, DefectTest, GainTerms, SensorCorrect, SensorShade,
-                                    SmoothGain, neighbour_tables)
 from ..sim.noise import ChannelNoise, NoiseModel
+# clisp.io.opcodes and clisp.modules.sensor.stage are imported where they are used: a raw that needs
+# no correction (the fast preset's, --bad-pixels off, no opcode, no frame) loads neither (start-up)
+if TYPE_CHECKING:
+    from ..modules.sensor.stage import DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain
 from ..io.rawfile import read_raw
 from ..modules.highlights.stage import clip_thresholds_dn
 
@@ -89,7 +89,10 @@ class Corrections:
 
     def shade(self, colour_matrix: np.ndarray, scale: int = 1) -> SensorShade | None:
         """The stage after the chroma stage that applies the smooth gain (None: there is none)."""
-        return None if self.smooth is None else SensorShade(self.smooth, colour_matrix, scale)
+        if self.smooth is None:
+            return None
+        from ..modules.sensor.stage import SensorShade
+        return SensorShade(self.smooth, colour_matrix, scale)
 
     def noise(self, noise: Any) -> Any:
         """``noise`` (ChannelNoise) as the corrected raw has it: the dark frame's noise added."""
@@ -103,6 +106,7 @@ class Corrections:
         how many pixels the auto test found in it; none on the reference backend)."""
         lines = [f"sensor: {note}" for note in self.notes] or ["sensor: no corrections (--bad-pixels off, no frames)"]
         if self.pre is not None and self.pre.test is not None and stats is not None:
+            from ..modules.sensor.stage import FOUND
             found = getattr(stats, "counts", {}).get(FOUND)
             if found is not None:
                 lines.append(f"sensor: the auto test found and replaced {found} pixels")
@@ -120,9 +124,16 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
     or frames without light."""
     out = Corrections()
     out.added_floor = dark_shot_floor(raw)
+    has_ops = opcodes and bool(raw.metadata.get("opcodes") or raw.metadata.get("opcodes_unreadable"))
+    if isinstance(bad_pixels, str) and bad_pixels == "off" and not dark and not flat and not has_ops:
+        return out                                          # nothing to build
+    from ..modules.sensor.stage import GainTerms, SensorCorrect, SmoothGain
     shape, cfa = raw.shape, raw.cfa
-    ops = opcodes_of(raw.metadata) if opcodes else []
-    out.unapplied = unapplied(ops)
+    ops: list[Any] = []
+    if has_ops:                                             # clisp.io.opcodes only for a raw that has some
+        from ..io.opcodes import opcodes_of, unapplied
+        ops = opcodes_of(raw.metadata)
+        out.unapplied = unapplied(ops)
     if raw.metadata.get("opcodes_unreadable") and opcodes:
         out.unapplied.append(f"all ({raw.metadata['opcodes_unreadable']})")
     mask = np.zeros(shape, dtype=bool)
@@ -135,7 +146,8 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         listed = read_bad_pixel_map(bad_pixels, shape)
         mask |= listed
         known.append(f"{int(listed.sum())} from {Path(bad_pixels).name}")
-    if bad_pixels != "off":
+    if bad_pixels != "off" and ops:
+        from ..io.opcodes import bad_pixel_mask
         dng = bad_pixel_mask(ops, raw.data, shape)
         if dng is not None:
             mask |= dng
@@ -160,7 +172,10 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         if bad_pixels != "off" and wild.any():
             mask |= wild
             known.append(f"{int(wild.sum())} dead or wild in the flat")
-    gains = [op for op in ops if isinstance(op, (GainMap, FixVignetteRadial))]
+    gains: list[Any] = []
+    if ops:
+        from ..io.opcodes import FixVignetteRadial, GainMap
+        gains = [op for op in ops if isinstance(op, (GainMap, FixVignetteRadial))]
     if flat and gains:                       # the flat measured the same lens: it replaces them
         out.notes.append(f"the flat replaces the DNG's {len(gains)} gain opcodes (the same lens shading)")
         gains = []
@@ -202,6 +217,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
 
 def _applies_to_mosaic(op: Any) -> bool:
     """A gain opcode of OpcodeList1 or 2 acts on the CFA mosaic's one plane."""
+    from ..io.opcodes import GainMap
     return not isinstance(op, GainMap) or op.plane == 0
 
 
@@ -232,6 +248,7 @@ def _noise_of(raw: RawImage, noise: Any) -> Any:
 
 def defect_test(raw: RawImage, noise: Any = None) -> tuple[DefectTest, str]:
     """The auto search's model for ``raw`` and where it came from."""
+    from ..modules.sensor.stage import DefectTest
     model = _noise_of(raw, noise)
     gains = raw.pass1_gains()
     if model is not None:
@@ -358,6 +375,7 @@ def dark_master(raw: RawImage, paths: list[str]) -> tuple[np.ndarray, str, int]:
 def flat_master(raw: RawImage, paths: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(H x W flat-field gain, H x W bool of wild pixels, the gain's per-channel smooth part at the
     grid's nodes (C x GH x GW), a note) from the flat frames at ``paths``."""
+    from ..modules.sensor.stage import GRID_CELL, SmoothGain
     frames = _frames(raw, paths, "flat", levels=False)
     shape, cfa = raw.shape, raw.cfa
     ch = cfa.channel_map(*shape)
@@ -439,6 +457,7 @@ def smooth_grid(raw: RawImage, terms: GainTerms | None, flat_smooth: np.ndarray 
     channel of the OpcodeList1 / 2 gains at the node's nearest site of the phase, times the flat's
     smooth part. SensorCorrect divides it out of the mosaic; SensorShade applies it after the chroma
     stage."""
+    from ..modules.sensor.stage import SmoothGain
     shape, cfa = raw.shape, raw.cfa
     ny, nx = SmoothGain.nodes(shape)
     p = cfa.period
@@ -462,6 +481,8 @@ def smooth_grid(raw: RawImage, terms: GainTerms | None, flat_smooth: np.ndarray 
 
 def _list3_grid(raw: RawImage, ops: list[Any]) -> np.ndarray:
     """OpcodeList3's gains (GainMap per plane, FixVignetteRadial) at the grid's nodes, C x GH x GW."""
+    from ..io.opcodes import FixVignetteRadial, gain_map_at, selects, vignette_at
+    from ..modules.sensor.stage import SmoothGain
     ny, nx = SmoothGain.nodes(raw.shape)
     ys, xs = ny[:, None], nx[None, :]
     out = np.ones((raw.cfa.n_channels, len(ny), len(nx)))
@@ -573,6 +594,7 @@ def _all_hot(raw: RawImage, pre: SensorCorrect, k: int, ys: np.ndarray, xs: np.n
     every same-channel neighbour inside the image by K noise sigmas at its level plus FLOOR."""
     if pre.test is None:
         return False
+    from ..modules.sensor.stage import FLOOR, neighbour_tables
     data, p, (height, width) = raw.data, raw.cfa.period, raw.shape
     nb, nb_n, _, _ = neighbour_tables(raw.cfa)
     t = pre.test

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,10 +25,12 @@ from ..cfa import CFA, cfa_from_name
 from .colorimetry import camera_constants
 from ..errors import ClispError
 from .noise import NoiseModel, check_gain
-from .defects import SensorDefects, capture
 from .optics import airy_kernel, blur_channel
 from ..io.rawimage import RawImage
 from ..engine.tiling import Tile, cfa_mirror_index, grid
+
+if TYPE_CHECKING:
+    from .defects import SensorDefects      # imported where a capture has defects (start-up)
 
 OPTICS_KINDS = ("airy", "none")
 
@@ -161,6 +163,7 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     a, k_exp = inverse_isp_matrix(cfa.spectral)
     truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
     if defects is not None and defects.any:
+        from .defects import capture
         data = capture(raw, defects, cfa, gain_value, noise, np.random.default_rng(seed))
     else:
         data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))

@@ -269,3 +269,25 @@ def test_cli_names_unapplied_opcodes(tmp_path, capfd):
     out, err = capfd.readouterr()
     assert err.count("DNG opcode WarpRectilinear (OpcodeList3) not applied") == 1
     assert "sensor: bad pixels auto" in out
+
+
+def test_sensor_modules_load_only_for_raws_that_need_them(tmp_path):
+    """Start-up is part of every command's time: a raw without opcodes, read and given no correction
+    (the fast preset's --bad-pixels off), loads neither the sensor stage, the opcodes nor the defect
+    simulator; the auto search loads the stage, not the opcodes."""
+    import subprocess
+    import sys
+    code = f"""import sys, numpy as np, clisp.app.cli
+from clisp.io.rawfile import read_raw, write_raw
+from clisp.pipeline.corrections import sensor_corrections
+from clisp.sim.simulate import simulate
+write_raw({str(tmp_path / 'a.dng')!r}, simulate(np.full((16, 16, 3), 0.3), cfa='bayer', gain=1).raw)
+raw = read_raw({str(tmp_path / 'a.dng')!r})
+mods = ('clisp.modules.sensor.stage', 'clisp.io.opcodes', 'clisp.sim.defects')
+print(','.join(m for m in mods if m in sys.modules), end=';')
+assert sensor_corrections(raw, bad_pixels='off').pre is None
+print(','.join(m for m in mods if m in sys.modules), end=';')
+assert sensor_corrections(raw).pre is not None
+print(','.join(m for m in mods if m in sys.modules))"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ";;clisp.modules.sensor.stage", out

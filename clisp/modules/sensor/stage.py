@@ -53,7 +53,6 @@ from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32, image_extent
 from ...engine.tiling import gather_window
-from ...io.opcodes import FixVignetteRadial, GainMap, gain_map_at, selects, vignette_at
 from ..raw_scale.stage import CfaAffine
 
 HALO = 3
@@ -186,6 +185,7 @@ class GainTerms:
 
     def gain(self, list_no: int, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
         """Product of list ``list_no``'s gains at mosaic pixels (ys, xs broadcast), float64."""
+        from ...io.opcodes import FixVignetteRadial, GainMap, gain_map_at, selects, vignette_at   # a raw with terms
         ys, xs = np.broadcast_arrays(np.asarray(ys), np.asarray(xs))
         out = np.ones(ys.shape)
         for op in self.ops:
@@ -199,6 +199,7 @@ class GainTerms:
 
     def pack(self) -> tuple[np.ndarray, np.ndarray]:
         """(terms: n x TERM_SIZE float32, maps: the GainMaps' planes, float32) for sensor.cl."""
+        from ...io.opcodes import GainMap
         terms, maps = [], []
         offset = 0
         for op in self.ops:
