@@ -581,32 +581,40 @@ class SensorCorrect(Stage):
 def edge_strips(origin: tuple[int, int], width: int, height: int,
                 extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
     """(y0, x0, rows, cols) in output coordinates of the output window's pixels within RADIUS of the
-    image's edge or beyond it (the mirrored pixels a later stage's halo reads; an output window of
-    ``width`` x ``height`` whose pixel (0, 0) is image pixel origin + HALO): the rows along the top
-    and bottom, then the columns between them, each pixel once. The screen leaves these pixels out;
-    sensor_fix tests them with the neighbours inside the image only, as the reference does.
+    image's edge, inside it or beyond it (an output window of ``width`` x ``height`` whose pixel (0, 0)
+    is image pixel origin + HALO): the rows along the top and bottom, then the columns between them,
+    each pixel once. The screen leaves these pixels out; sensor_fix tests them with the neighbours
+    inside the image only, as the reference does. A pixel more than RADIUS beyond the image (the
+    mirrored margin a later stage's halo reads, 90 px on every side of a default tile) has no
+    neighbour inside: the reference leaves it as it is (known bad or not: the replacement of a pixel
+    without good neighbours is itself), so it is not listed.
 
     >>> edge_strips((-4, -3), 10, 8, (8, 10))       # one row above the image
     [(0, 0, 3, 10), (7, 0, 1, 10), (3, 0, 4, 2), (3, 8, 4, 2)]
     >>> edge_strips((-3, -3), 10, 8, (8, 10))
     [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
+    >>> edge_strips((-13, -13), 30, 28, (8, 10))     # 10 px of margin: the 2 px next to the image only
+    [(8, 8, 4, 14), (16, 8, 4, 14), (12, 8, 4, 4), (12, 18, 4, 4)]
     """
     ty, tx = origin[0] + HALO, origin[1] + HALO
+
+    def span(lo: int, hi: int, base: int, size: int) -> tuple[int, int]:
+        """Image coordinates [lo, hi) as output ones, clipped to the window (empty: b <= a)."""
+        return max(lo - base, 0), min(hi - base, size)
+
     out = []
-    top, bottom = 0, height                   # the rows the row strips leave to the column strips
-    far = 1 << 30                              # pixels beyond the image (a later stage's halo) count too
-    for lo, hi, is_top in ((-far, RADIUS, True), (extent[0] - RADIUS, far, False)):
-        a, b = max(lo - ty, 0), min(hi - ty, height)
-        if b > a:
-            out.append((a, 0, b - a, width))
-            if is_top:
-                top = max(top, b)
-            else:
-                bottom = min(bottom, a)
-    for lo, hi in ((-far, RADIUS), (extent[1] - RADIUS, far)):
-        a, b = max(lo - tx, 0), min(hi - tx, width)
-        if b > a and bottom > top:
-            out.append((top, a, bottom - top, b - a))
+    h, w = extent
+    cols = span(-RADIUS, w + RADIUS, tx, width)                 # the columns with a neighbour inside
+    mid = (RADIUS, max(RADIUS, h - RADIUS))                     # the rows the row strips leave
+    for lo, hi in ((-RADIUS, RADIUS), (mid[1], h + RADIUS)):
+        a, b = span(lo, hi, ty, height)
+        if b > a and cols[1] > cols[0]:
+            out.append((a, cols[0], b - a, cols[1] - cols[0]))
+    a, b = span(mid[0], mid[1], ty, height)
+    for lo, hi in ((-RADIUS, RADIUS), (max(RADIUS, w - RADIUS), w + RADIUS)):
+        c0, c1 = span(lo, hi, tx, width)
+        if b > a and c1 > c0:
+            out.append((a, c0, b - a, c1 - c0))
     return out
 
 
