@@ -291,3 +291,25 @@ assert sensor_corrections(raw).pre is not None
 print(','.join(m for m in mods if m in sys.modules))"""
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ";;clisp.modules.sensor.stage", out
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
+    """A hot and a dead pixel 2 px from a brighter / darker known bad one (sensor_fix leaves that
+    neighbour out, so the screen must pass them on), and a window 10-12 px past the image (its
+    mirrored margin, which the edges' list leaves out beyond RADIUS): kernel equals reference."""
+    rt = get_runtime()
+    h, w = 40, 48
+    x = np.full((h, w), 300, np.uint16)
+    x[20, 20], x[20, 22], x[10, 10], x[10, 12] = 800, 1000, 200, 70
+    x[1, 30] = 900                                     # hot, within RADIUS of the top edge
+    mask = np.zeros((h, w), np.uint16)
+    mask[20, 22] = mask[10, 12] = mask[0, 5] = 1
+    stage = SensorCorrect(cfa, np.full(3, 64.0), 1023.0, DefectTest((1e-4,) * 3, (1e-6,) * 3, (1.0, 1.0, 1.0)), mask)
+    for origin, shape in ((Origin(-HALO, -HALO, (h, w)), (h + 2 * HALO, w + 2 * HALO)),
+                          (Origin(-HALO - 12, -HALO - 10, (h, w)), (h + 2 * HALO + 24, w + 2 * HALO + 21))):
+        window = gather_window(x, origin[0], origin[1], shape[0], shape[1], cfa.period)
+        expected, found = stage.correct(window, origin)
+        got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+        assert found[20 - origin[0] - HALO, 20 - origin[1] - HALO] and found[10 - origin[0] - HALO, 10 - origin[1] - HALO]
+        assert_close(got, expected, f"sensor_correct {cfa.name} at {tuple(origin)}")

@@ -100,6 +100,10 @@ inline int screen_one(__global const RAW_T *src, __constant const char *pattern,
 #endif
 #if SC_MASK
     cand |= mask[i] != 0;
+#if SC_DETECT
+    /* sensor_fix leaves known bad neighbours out of its test: a pixel with one among those above */
+    cand |= (mask[i - 2 * sw - 2] | mask[i - 2 * sw + 2] | mask[i + 2 * sw - 2] | mask[i + 2 * sw + 2]) != 0;
+#endif
 #endif
     return cand;
 }
@@ -200,6 +204,18 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
 #endif
 #if SC_MASK
     cand |= convert_int8(vload8(0, mask + i0)) != 0;
+#if SC_DETECT
+    {   /* sensor_fix leaves known bad neighbours out of its test (a brighter one would have hidden a hot
+         * pixel here): a pixel with one among those above is a candidate */
+        const ushort16 mt = vload16(0, mask + i0 - 2 * sw - 2), mb = vload16(0, mask + i0 + 2 * sw - 2);
+        ushort8 near = mt.s01234567 | mt.s456789ab | mb.s01234567 | mb.s456789ab;
+#if SC_EVEN
+        const ushort16 mm = vload16(0, mask + i0 - 2);
+        near |= mm.s01234567 | mm.s456789ab | mt.s23456789 | mb.s23456789;
+#endif
+        cand |= convert_int8(near) != 0;
+    }
+#endif
 #endif
     /* the lanes' candidates as the bits of one byte, listed by sensor_compact: an append here (an
      * atomic in a branch) would cost the kernel a third of its time */
