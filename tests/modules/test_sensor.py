@@ -16,7 +16,7 @@ from clisp.engine.stage import Origin
 from clisp.engine.tiling import gather_window
 from clisp.io.opcodes import FixVignetteRadial, GainMap
 from clisp.modules.sensor.stage import (FOUND, HALO, DefectTest, GainTerms, SensorCorrect, SensorShade, SmoothGain,
-                                        neighbour_tables)
+                                        cold_at_level, neighbour_tables)
 from clisp.pipeline import build_pipeline
 from clisp.sim import defects as sd
 from clisp.sim.simulate import simulate
@@ -87,18 +87,24 @@ def test_reference_quiet_outside_the_image():
 
 
 def test_screen_misses_nothing_the_test_finds():
-    """A noisy textured raw at gain 1 (many candidates): the screened kernel equals the full test."""
+    """A noisy textured raw at gain 1 (many candidates): the screened kernel equals the full test, with
+    the raw's noise model and with one whose floor dominates (the screen's cold test then takes the
+    noise at its lowest neighbour's level: cold_at_level)."""
     rt = get_runtime()
     for cfa in ("bayer", "lms"):
         sim = simulate(scene(96, 128), cfa=cfa, gain=1, seed=4, defects=sd.SensorDefects(hot=0.003, dead=0.003, seed=2))
-        corr = sensor_corrections(sim.raw)
+        pre = sensor_corrections(sim.raw).pre
+        a = np.asarray(pre.test.noise_a)
+        floor = dataclasses.replace(pre.test, noise_b=tuple(np.maximum(pre.test.noise_b, (3.5 * a) ** 2)))
+        assert not cold_at_level(a[0], pre.test.noise_b[0]) and cold_at_level(a[0], floor.noise_b[0])
         h, w = sim.raw.shape
         origin = Origin(-HALO, -HALO, (h, w))
         window = gather_window(sim.raw.data, -HALO, -HALO, h + 2 * HALO, w + 2 * HALO, sim.raw.cfa.period)
-        expected, found = corr.pre.correct(window, origin)
-        got = rt.download(corr.pre.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
-        assert_close(got, expected, f"screened sensor_correct, {cfa}")
-        assert found.sum() > 0.5 * sd.bad_sites(sd.SensorDefects(hot=0.003, dead=0.003, seed=2), (h, w)).sum()
+        for stage in (pre, dataclasses.replace(pre, test=floor)):
+            expected, found = stage.correct(window, origin)
+            got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+            assert_close(got, expected, f"screened sensor_correct, {cfa}")
+            assert found.sum() > 0.5 * sd.bad_sites(sd.SensorDefects(hot=0.003, dead=0.003, seed=2), (h, w)).sum()
 
 
 def test_sensor_shade_kernel_equals_reference():

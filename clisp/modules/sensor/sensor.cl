@@ -150,10 +150,11 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
         }
         return;
     }
-    /* the 8 lanes' channel constants: lanes8[((py P + px) 6 + j) 8 + k], j = black, 1 / range,
-     * noise a, noise b, out scale, out offset, for lane k of a group starting at phase (py, px) */
+    /* the 8 lanes' channel constants: lanes8[((py P + px) 7 + j) 8 + k], j = black, 1 / range,
+     * noise a, noise b, out scale, out offset, cold level (stage.lane_constants), for lane k of a group
+     * starting at phase (py, px) */
     const int py = ((gy % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD, px = ((gx0 % CFA_PERIOD) + CFA_PERIOD) % CFA_PERIOD;
-    __constant const float *lc = lanes8 + (py * CFA_PERIOD + px) * 6 * LANES;
+    __constant const float *lc = lanes8 + (py * CFA_PERIOD + px) * SC_LANE_ROWS * LANES;
     const float8 blk = vload8(0, lc), inv = vload8(1, lc), na = vload8(2, lc), nb8 = vload8(3, lc);
     const float8 osc = vload8(4, lc), oof = vload8(5, lc);
 #if SC_DARK
@@ -197,10 +198,17 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     const float8 hi = TO_W(hi_n), lo = TO_W(lo_n);
     const float8 up = w * inv, uhi = hi * inv, ulo = lo * inv;
     const float8 spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
-    const float8 eh = up - uhi - spread, el = ulo - up - spread;
+    /* sensor_fix's test over fewer neighbours, in squares (no sqrt), SC_SLACK looser so that its
+     * rounding never leaves out a pixel sensor_fix would take. Hot: the noise at the highest
+     * neighbour's level (a higher one among the rest only makes a pixel less hot). Cold: at the lowest
+     * one's level where lane_constants' row 6 is 1 (the channel's noise grows slowly enough with the
+     * level that a lower neighbour among the rest only makes the pixel less cold), else at 0 */
+    const float8 eh = up - uhi - spread + SC_SLACK, el = ulo - up - spread + SC_SLACK;
     const float8 level = uhi > 0.0f ? uhi : (float8)(0.0f);
-    cand = ((eh > 0.0f) & (eh * eh > SC_K * SC_K * (na * level + nb8)))
-         | ((el > 0.0f) & (el * el > SC_K * SC_K * nb8));
+    const float8 cold_level = vload8(6, lc) * (ulo > 0.0f ? ulo : (float8)(0.0f));
+    const float k2 = (1.0f - SC_SLACK) * SC_K * SC_K;
+    cand = ((eh > 0.0f) & (eh * eh > k2 * (na * level + nb8)))
+         | ((el > 0.0f) & (el * el > k2 * (na * cold_level + nb8)));
 #endif
 #if SC_MASK
     cand |= convert_int8(vload8(0, mask + i0)) != 0;

@@ -44,6 +44,7 @@ Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -101,6 +102,14 @@ FIX_ROW = 256
 
 EDGE_RUN = 64
 """Pixels of a row each work-item of sensor_edges appends, with one atomic (sensor.cl's SC_EDGE_RUN)."""
+
+SLACK = 1e-6
+"""How much looser sensor_screen's form of the test is than sensor_fix's (added to the excess,
+normalised units, and taken off the squared threshold as a share): its squares round differently
+from sensor_fix's square root, and a pixel the screen left out would never be replaced."""
+
+LANE_ROWS = 7
+"""Rows per CFA phase of sensor_screen's lane table (lane_constants)."""
 
 FOUND = "sensor_found"
 """The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
@@ -465,16 +474,20 @@ class SensorCorrect(Stage):
                 "SC_DARK": int(self.dark is not None), "SC_FLAT": int(self.flat is not None),
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
                 "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE, "SC_EDGE_RUN": EDGE_RUN,
+                "SC_LANE_ROWS": LANE_ROWS, "SC_SLACK": repr(SLACK) + "f",
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
                 "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
     def lane_constants(self) -> np.ndarray:
         """sensor_screen's per-lane channel constants: for each phase (py, px) of a group's first pixel
-        and lane k, the channel's black, 1 / range, noise a, noise b, out scale, out offset (float32)."""
+        and lane k, the channel's black, 1 / range, noise a, noise b, out scale, out offset, and 1 where
+        the screen's cold test may take the noise at its lowest neighbour's level (:func:`cold_at_level`),
+        else 0 (float32, P x P x LANE_ROWS x LANES)."""
         p, t = self.cfa.period, self.test or DefectTest.noiseless(self.cfa.n_channels)
+        cold = [float(cold_at_level(a, b, t.k)) for a, b in zip(t.noise_a, t.noise_b)]
         per = np.stack([self.black, 1.0 / (self.white - self.black), np.asarray(t.noise_a), np.asarray(t.noise_b),
-                        self.out_scale, self.out_offset])                      # 6 x C
-        out = np.zeros((p, p, 6, LANES), np.float32)
+                        self.out_scale, self.out_offset, cold])                # LANE_ROWS x C
+        out = np.zeros((p, p, LANE_ROWS, LANES), np.float32)
         for py in range(p):
             for px in range(p):
                 channels = self.cfa.pattern[py, (px + np.arange(LANES)) % p]
@@ -621,6 +634,20 @@ def edge_strips(origin: tuple[int, int], width: int, height: int,
 def _metering(rt: Runtime) -> bool:
     """Whether ``rt`` is in a metering run (Runtime.metering: nothing is allocated or launched)."""
     return getattr(rt, "_meter", None) is not None
+
+
+def cold_at_level(a: float, b: float, k: float = K) -> bool:
+    """Whether the screen's cold test may take the noise at the level of the lowest of the neighbours it
+    reads rather than at 0: a dead pixel is cold where lo - u - spread > k sigma(lo), sigma(l) =
+    sqrt(a max(l, 0) + b); the left side less the right grows with lo wherever k a / (2 sigma) < 1,
+    i.e. sqrt(b) > k a / 2 (with 1 % to spare), so a lower neighbour among those sensor_fix adds (its
+    lo is at most the screen's) makes the pixel only less cold. False at high gain, where the shot
+    noise dominates the floor.
+
+    >>> cold_at_level(3e-5, 5e-7), cold_at_level(2e-3, 1e-5)
+    (True, False)
+    """
+    return math.sqrt(max(b, 0.0)) > 1.01 * k * max(a, 0.0) / 2
 
 
 def diagonals_same_channel(cfa: CFA) -> bool:
