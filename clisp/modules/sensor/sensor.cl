@@ -67,9 +67,12 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * ``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
  * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
- * (at their level; at 0 for a dark one) plus SC_FLOOR plus SC_ALPHA times their range: sensor_fix's
- * test restricted to a subset of its neighbours, so a pixel it would replace is never left out (the pixels within 2 of the image's edge, whose neighbours the padding
- * mirrors, are appended by sensor_edges instead). The 8 lanes are explicit float8 (PoCL's implicit
+ * (a hot one: at their highest level; a dead one: at their lowest where the lane table allows it,
+ * stage.cold_at_level, else at 0) plus SC_FLOOR plus SC_ALPHA times their range, SC_SLACK looser:
+ * sensor_fix's test restricted to a subset of its neighbours, so a pixel it would replace is never
+ * left out; and (SC_MASK and SC_DETECT) pixels with a known bad neighbour among those, which
+ * sensor_fix leaves out of its test. The pixels within 2 of the image's edge, whose neighbours the
+ * padding mirrors, are appended by sensor_edges instead. The 8 lanes are explicit float8 (PoCL's implicit
  * vectoriser gives up on the atomic append: 8 against 50 ms for 6 MP); the test is branch-free
  * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
  * than 8 pixels takes the scalar path. */
@@ -264,8 +267,9 @@ __kernel void sensor_compact(__global const uchar *restrict flags, __global uint
 }
 
 /* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
- * window's pixels within 2 of the image's edge and beyond it: sensor_fix tests them with the
- * neighbours inside the image only). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
+ * window's pixels within 2 of the image's edge, inside or beyond it (stage.edge_strips: one further
+ * out has no neighbour inside and stays as it is): sensor_fix tests them with the neighbours inside
+ * the image only). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
  * atomic for them (an atomic per pixel made the strips beyond the image cost as much as the
  * screen), bounds checked. */
 __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
