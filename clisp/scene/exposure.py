@@ -52,7 +52,7 @@ def thumbnail_colours(raw: RawImage, statistics: Any) -> np.ndarray:
     clipped to [0, 1] (the samples' mean, clipped, where tile_colours clips each sample first: the
     two differ only in cells that straddle black or white, and the estimate reads the top 1 %),
     times the pass-1 gains, on every step-th cell (at most MAX_CELLS, 2^19)."""
-    return np.clip(statistics.cells.astype(np.float64), 0.0, 1.0) * raw.pass1_gains()
+    return np.clip(statistics.thumbnail()[0].astype(np.float64), 0.0, 1.0) * raw.pass1_gains()
 
 
 def tile_colours(raw: RawImage, max_tiles: int = MAX_TILES) -> np.ndarray:

@@ -18,7 +18,8 @@ import numpy as np
 from ..errors import ClispError, clip
 from ..io.rawimage import MAX_GAIN, RawImage
 from .noise import NoiseEstimateError, has_noise_model, raw_noise
-from .statistics import SceneStatistics, scene_statistics
+from .statistics import SceneStatistics
+from .statistics_device import scene_statistics
 from .white_balance import with_white_balance
 from .white_balance_pass2 import estimate_wb2
 
@@ -42,22 +43,26 @@ class Scene:
     gains2: np.ndarray
     exposure: float
     statistics: SceneStatistics | None = None
+    runtime: Any = None
+    """The runtime whose device measures the statistics (None: the NumPy reference)."""
 
     def measured(self) -> SceneStatistics:
         """The raw's statistics, measured now if no estimate needed them yet (then kept)."""
         if self.statistics is None:
-            self.statistics = scene_statistics(self.raw)
+            self.statistics = scene_statistics(self.raw, self.runtime)
         return self.statistics
 
 
 def measure_scene(raw: RawImage, wb: str = "camera", wb2: str = "metadata", noise: bool = False,
-                  exposure: float = 0.0, auto_exposure: bool = False, limit: float = 10.0) -> Scene:
+                  exposure: float = 0.0, auto_exposure: bool = False, limit: float = 10.0,
+                  runtime: Any = None) -> Scene:
     """The :class:`Scene` of ``raw``: pass 1's multipliers by ``wb`` (clisp.scene.white_balance),
     the noise when ``noise`` (its model, else estimated), pass 2's gains by ``wb2``, and the
     exposure (``exposure`` EV plus LibRaw's auto-bright estimate when ``auto_exposure``: clisp.scene.
     exposure). Every estimate reads the raw's statistics (clisp.scene.statistics), measured once, on
-    first need. ClispError naming the raw for estimates it cannot serve."""
-    scene = Scene(raw, None, np.ones(3), exposure)
+    first need, on ``runtime``'s device when given (clisp.scene.statistics.statistics_runtime), else
+    by the NumPy reference. ClispError naming the raw for estimates it cannot serve."""
+    scene = Scene(raw, None, np.ones(3), exposure, runtime=runtime)
     if wb == "auto":
         scene.raw = with_white_balance(raw, wb, scene.measured())
     else:

@@ -20,8 +20,8 @@ white balance ``auto`` itself can read it):
   Immerkaer's residuals on their CFA phases.
 
 Two faces, as a stage has: :func:`reference_statistics` is the NumPy definition, and the kernels of
-``statistics.cl`` (:func:`device_statistics`, one work-item per block or per thumbnail cell) fill
-the same tables on an OpenCL device from the raw's one upload; tests/scene/test_statistics.py
+``statistics.cl`` (clisp.scene.statistics_device, one work-item per block or per thumbnail cell)
+fill the same tables on an OpenCL device from the raw's one upload; tests/scene/test_statistics.py
 compares them. Values in the tables are exact sums (integer raws: integer sums of DN) where the
 estimates square or difference them, so the two faces agree to the last bit on integer raws.
 """
@@ -126,14 +126,27 @@ class SceneStatistics:
     period: int
     block: int
     table: BlockTable | None
-    cells: np.ndarray
-    cells_clipped: np.ndarray
+    cells: np.ndarray | None
+    cells_clipped: np.ndarray | None
     step: int
     strips: dict[int, np.ndarray]
     seconds: float = 0.0
     device: str = ""
-    black: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    white: float = 0.0
+    raw: Any = field(default=None, repr=False)
+    """The raw whose thumbnail the reference reads on first need (None once it is read)."""
+
+    def thumbnail(self) -> tuple[np.ndarray, np.ndarray]:
+        """(cells, cells_clipped). The device path fills them in its pass; the reference reads
+        them when an estimate first asks (a run with the camera's white balance and its noise
+        model, whose only reader is the skip analysis, then never reads them: 20 ms of a 24 MP raw)."""
+        if self.cells is None:
+            start = time.perf_counter()
+            raw = self.raw
+            self.cells, self.cells_clipped = cell_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level,
+                                                            self.step)
+            self.seconds += time.perf_counter() - start
+            self.raw = None
+        return self.cells, self.cells_clipped
 
     def summary(self) -> str:
         """One line for ``clisp process --explain``."""
@@ -141,8 +154,10 @@ class SceneStatistics:
         where = f"on {self.device}" if self.device else "NumPy"
         rows = f"{self.table.uniform.shape[0]}x{self.table.uniform.shape[1]} blocks of {self.block} px, " \
             if self.table is not None else ""
-        return (f"scene statistics: {w}x{h}, {rows}{self.cells.shape[0]}x{self.cells.shape[1]} cells "
-                f"(every {self.step}), {len(self.strips)} noise strips, {self.seconds * 1e3:.0f} ms {where}")
+        thumb = f"{self.cells.shape[0]}x{self.cells.shape[1]} cells (every {self.step}), " if self.cells is not None \
+            else "no thumbnail read, "
+        return (f"scene statistics: {w}x{h}, {rows}{thumb}{len(self.strips)} noise strips, "
+                f"{self.seconds * 1e3:.0f} ms {where}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -204,14 +219,6 @@ def strip_rows(shape: tuple[int, int], period: int, block: int = BLOCK) -> list[
 # the reference
 # --------------------------------------------------------------------------------------------
 
-def scene_statistics(raw: Any, rt: Any = None) -> SceneStatistics:
-    """The statistics of ``raw`` (a RawImage): on ``rt``'s device when given and the device path
-    serves the raw (:func:`device_statistics`), else the NumPy reference."""
-    if rt is not None:
-        return device_statistics(raw, rt)
-    return reference_statistics(raw)
-
-
 def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistics:
     """The NumPy definition of :class:`SceneStatistics` for ``raw`` (RawImage: data H x W DN, cfa,
     black_level, white_level): the mosaic read once, in bands of BAND_BLOCKS block rows."""
@@ -222,22 +229,34 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistic
     p, nch = cfa.period, cfa.n_channels
     if h < p or w < p:
         raise ClispError(f"raw of {w}x{h} is smaller than one {p}x{p} CFA cell")
+    from ..engine.streaming import FileWindows, window_source     # deferred: the engine is not needed to import this
     clip = clip_levels(raw.black_level, raw.white_level, nch, data.dtype)
     step = thumbnail_step((h, w), p, max_cells)
     rows, tall = strip_rows((h, w), p), strip_height((h, w), p)
-    strips = {r: np.array(data[r * BLOCK:r * BLOCK + (min(h - r * BLOCK, tall) // p) * p]) for r in rows}
-    table = None
-    if table_fits(cfa, (h, w)):
-        table = _empty_table(h, w, nch)
-        bands = _bands(h)
-        with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-statistics") as pool:
-            for done in [pool.submit(_scan_band, data, r0, r1, cfa, clip, table) for r0, r1 in bands]:
-                done.result()
-    cells, clipped = cell_thumbnail(data, cfa, raw.black_level, raw.white_level, step)
-    return SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table, cells=cells, cells_clipped=clipped,
-                           step=step, strips=strips, seconds=time.perf_counter() - start,
-                           black=np.broadcast_to(np.asarray(raw.black_level, dtype=np.float64), (nch,)).copy(),
-                           white=float(raw.white_level))
+    source = window_source(data)       # a raw file mapped in memory is read with pread: a file truncated
+    try:                               # meanwhile raises ClispError instead of a bus error
+        def read(y0: int, y1: int) -> np.ndarray:
+            """Rows y0 .. y1 - 1: pread from a mapped file, a view of an array in memory."""
+            return source.read(y0, 0, y1 - y0, w, p) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
+
+        strips = {r: np.array(read(r * BLOCK, r * BLOCK + (min(h - r * BLOCK, tall) // p) * p)) for r in rows}
+        table = None
+        if table_fits(cfa, (h, w)):
+            table = _empty_table(h, w, nch)
+            tile = clip_tile(clip, cfa, w, data.dtype)
+            with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-statistics") as pool:
+                pending: list[Any] = []
+                for r0, r1 in _bands(h):               # at most 2 THREADS bands read ahead (flat memory)
+                    if len(pending) >= 2 * THREADS:
+                        pending.pop(0).result()
+                    pending.append(pool.submit(_scan_band, read(r0 * BLOCK, min(h, r1 * BLOCK)), r0, r1, cfa, tile,
+                                               table))
+                for done in pending:
+                    done.result()
+    finally:
+        source.close()
+    return SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table, cells=None, cells_clipped=None,
+                           step=step, strips=strips, seconds=time.perf_counter() - start, raw=raw)
 
 
 def _empty_table(h: int, w: int, nch: int) -> BlockTable:
@@ -267,15 +286,14 @@ def _bands(h: int) -> list[tuple[int, int]]:
     return bands
 
 
-def _scan_band(data: np.ndarray, r0: int, r1: int, cfa: CFA, clip: np.ndarray, table: BlockTable) -> None:
-    """Read block rows r0 .. r1 - 1 of ``data`` and write their sums into ``table`` (only those
-    rows: bands may run in parallel)."""
-    h, w = data.shape
-    band = np.asarray(data[r0 * BLOCK:min(h, r1 * BLOCK)])
-    band = band.reshape(r1 - r0, -1, w)          # (kb, bh, W): bh = BLOCK, but in a last partial block row
+def _scan_band(rows: np.ndarray, r0: int, r1: int, cfa: CFA, tile: np.ndarray, table: BlockTable) -> None:
+    """Write the sums of block rows r0 .. r1 - 1 (``rows``: their samples, DN) into ``table`` (only
+    those rows: bands may run in parallel)."""
+    w = rows.shape[1]
+    band = rows.reshape(r1 - r0, -1, w)          # (kb, bh, W): bh = BLOCK, but in a last partial block row
     rs = slice(r0, r1)
     edges = np.arange(0, w, BLOCK)
-    table.clipped[:, rs] = _clipped_counts(band, cfa, clip, edges)
+    table.clipped[:, rs] = _clipped_counts(band, cfa, tile, edges)
     table.uniform[rs] = _uniform(band, cfa.period, edges, w)
     hc, wc = band.shape[1] // CELL, w // CELL
     if hc > 0 and wc > 0:
@@ -287,22 +305,32 @@ def _scan_band(data: np.ndarray, r0: int, r1: int, cfa: CFA, clip: np.ndarray, t
             _laplacian_products(sums, rs, table)
 
 
-def _clipped_counts(band: np.ndarray, cfa: CFA, clip: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """(nch, kb, cols) each channel's samples at or above its clip level per block of ``band``; a
-    band whose largest sample is below every level (most of a photo) is not compared."""
+def clip_tile(clip: np.ndarray, cfa: CFA, w: int, dtype: np.dtype) -> np.ndarray:
+    """(BLOCK, w) clip level of every sample of a block row (its rows start on CFA phase 0), in
+    the raw's dtype where :func:`clip_levels` made the comparison exact in it."""
+    dtype = np.dtype(dtype)
+    levels = clip.astype(dtype) if dtype.kind in "ui" or dtype == np.float32 else clip
+    p = cfa.period
+    return np.tile(levels[cfa.pattern], (BLOCK // p, -(-w // p)))[:, :w].copy()
+
+
+def _clipped_counts(band: np.ndarray, cfa: CFA, tile: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(nch, kb, cols) each channel's samples at or above its clip level per block of ``band``
+    (``tile``: :func:`clip_tile`); a band whose largest sample is below every level (most of a
+    photo) is not compared. The hits are counted per CFA phase row and column in one reduction."""
     nch, p = cfa.n_channels, cfa.period
-    out = np.zeros((nch, band.shape[0], len(edges)), dtype=np.int64)
-    if band.max() < clip.min():
+    kb, bh, w = band.shape
+    out = np.zeros((nch, kb, len(edges)), dtype=np.int64)
+    if band.max() < tile.min():
         return out
-    w = band.shape[2]
-    levels = clip.astype(band.dtype) if band.dtype.kind in "ui" or band.dtype == np.float32 else clip
-    for py in range(p):
-        for px in range(p):
-            c = int(cfa.pattern[py, px])
-            hit = band[:, py::p, px::p] >= levels[c]                     # (kb, rows, W / p)
-            per_column = np.zeros((band.shape[0], w), dtype=np.int64)
-            per_column[:, px::p] = hit.sum(axis=1)
-            out[c] += np.add.reduceat(per_column, edges, axis=-1)
+    hit = band >= tile[:bh]
+    if not hit.any():
+        return out
+    for py in range(min(p, bh)):
+        per_column = hit[:, py::p].sum(axis=1, dtype=np.uint16 if bh <= 0xFFFF else np.int64)   # (kb, W)
+        for px in range(min(p, w)):
+            out[int(cfa.pattern[py, px])] += np.add.reduceat(per_column[:, px::p].astype(np.int64),
+                                                             -(-(edges - px) // p), axis=-1)
     return out
 
 
@@ -330,11 +358,11 @@ def _differs(band: np.ndarray, p: int, edges: np.ndarray, cross: np.ndarray) -> 
 
 
 def _cell_sums(band: np.ndarray, cfa: CFA, hc: int, wc: int) -> np.ndarray:
-    """(nch, kb, hc, wc) sum of each channel's samples in every CELL x CELL cell, DN: int64 for
-    integer raws (exact), float32 for others (as the analysis always summed them)."""
+    """(nch, kb, hc, wc) sum of each channel's samples in every CELL x CELL cell, DN: int32 for
+    integer raws of at most 16 bits (exact), float32 for others (as the analysis always summed them)."""
     kb = band.shape[0]
     v = band[:, :hc * CELL, :wc * CELL].reshape(kb, hc, CELL, wc, CELL)
-    dtype = np.int64 if band.dtype.kind in "ui" else np.float32
+    dtype = np.int32 if band.dtype.kind in "ui" and band.dtype.itemsize <= 2 else np.float32
     sums = np.zeros((cfa.n_channels, kb, hc, wc), dtype=dtype)
     for py in range(CELL):
         for px in range(CELL):
@@ -344,13 +372,15 @@ def _cell_sums(band: np.ndarray, cfa: CFA, hc: int, wc: int) -> np.ndarray:
 
 def _laplacian_products(sums: np.ndarray, rs: slice, table: BlockTable) -> None:
     """Sum per block of L_i L_j over the band's Laplacian positions (BlockTable.lap), from the cell
-    sums (nch, kb, hc, wc): exact integers for integer raws."""
+    sums (nch, kb, hc, wc). Exact for integer raws of at most 16 bits: the Laplacians are int32 (at
+    most 8 x 16 x 65535 < 2^23), their products and the products' sums over a block's positions (at
+    most 224) integers below 2^53, which float64 holds exactly in any order."""
     nch, _, _, wc = sums.shape
-    lap = _laplacian(sums if sums.dtype.kind == "i" else sums.astype(np.float64))                                          # (nch, kb, hc - 2, wc - 2)
+    lap = _laplacian(sums).astype(np.float64) if sums.dtype.kind == "i" else _laplacian(sums.astype(np.float64))                                          # (nch, kb, hc - 2, wc - 2)
     edges = np.arange(0, wc - 2, BLOCK // CELL)
     k = min(len(edges), table.lap.shape[-1])
     for i, (a, b) in enumerate(zip(*np.triu_indices(nch))):
-        product = (lap[a] * lap[b]).sum(axis=1)                      # (kb, wc - 2)
+        product = np.einsum("kij,kij->kj", lap[a], lap[b])          # (kb, wc - 2), summed over the rows
         table.lap[i, rs, :k] = np.add.reduceat(product, edges, axis=-1)[..., :k]
 
 
@@ -369,7 +399,7 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
     channel's mean normalised sample (float32 arithmetic) and whether a sample is at or above
     CLIP_FRACTION. Rows are read through clisp.engine.streaming.window_source (pread for a raw file
     mapped in memory)."""
-    from ..engine.streaming import window_source     # deferred: the engine is not needed to import this module
+    from ..engine.streaming import FileWindows, window_source     # deferred: the engine is not needed to import this
     p = cfa.period
     h, w = data.shape[0] // p * p, data.shape[1] // p * p
     black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
@@ -377,8 +407,12 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
     channel = cfa.channel_map(p, p)
     source = window_source(data)
     try:
-        rows = np.concatenate([source.read(y, 0, p, w, p) for y in range(0, h, step * p)]) if step > 1 \
-            else source.read(0, 0, h, w, p)
+        if not isinstance(source, FileWindows):       # in memory: the rows as one strided view
+            rows = np.asarray(data[:h, :w]).reshape(h // p, p, w)[::step].reshape(-1, w)
+        elif step > 1:
+            rows = np.concatenate([source.read(y, 0, p, w, p) for y in range(0, h, step * p)])
+        else:
+            rows = source.read(0, 0, h, w, p)
     finally:
         source.close()
     ny, nx = rows.shape[0] // p, (w // p + step - 1) // step
@@ -394,9 +428,3 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
             cells[..., c] += plane
     cells /= counts.astype(np.float32)
     return cells, clipped
-
-
-def device_statistics(raw: Any, rt: Any) -> SceneStatistics:
-    """The statistics on ``rt``'s device (``statistics.cl``); see :mod:`clisp.scene.statistics_device`."""
-    from .statistics_device import device_statistics as run   # deferred: the device path imports the engine
-    return run(raw, rt)

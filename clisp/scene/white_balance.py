@@ -121,9 +121,10 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     """
     from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
     if statistics is not None:
-        thumb, ok = statistics.cells.astype(np.float64), ~statistics.cells_clipped
+        cells, clipped = statistics.thumbnail()
+        thumb, ok = cells.astype(np.float64), ~clipped
     else:
-        from .white_balance_pass2 import raw_thumbnail
+        from .white_balance_pass2 import raw_thumbnail   # deferred: only a raw read without its statistics
         thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
     candidates = _grey_candidates(thumb, ok, share, ndimage)
     if candidates is None:
@@ -239,7 +240,7 @@ def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white
     ref = reference_channel(cfa)
     daylight = np.asarray(daylight, dtype=np.float64) / float(daylight[ref])
     if statistics is not None:
-        stats = block_statistics_of(statistics.cells, statistics.cells_clipped, statistics.step, tuple(cfa.channels))
+        stats = block_statistics_of(*statistics.thumbnail(), statistics.step, tuple(cfa.channels))
     else:
         stats = block_statistics(data, cfa, black_level, white_level)
     estimate = estimate_light(stats, CameraLights(np.asarray(matrix, dtype=np.float64), daylight), ref)

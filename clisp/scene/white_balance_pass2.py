@@ -146,7 +146,8 @@ def estimate_wb2(raw: RawImage, method: str = "metadata", statistics: Any = None
         white = (raw.metadata or {}).get("illuminant_white")
         return illuminant_gains(matrix, white) if white is not None else np.array(raw.wb2, dtype=np.float64)
     if statistics is not None:
-        thumb, ok = statistics.cells.astype(np.float64) * raw.pass1_gains(), ~statistics.cells_clipped
+        cells, clipped = statistics.thumbnail()
+        thumb, ok = cells.astype(np.float64) * raw.pass1_gains(), ~clipped
     else:
         thumb, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
     rgb = thumb @ matrix.T
