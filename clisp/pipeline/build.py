@@ -226,12 +226,16 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     pipeline = Pipeline(cfa, stages, exposure_ev=scene.exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections
+    pipeline.scene_statistics = scene.statistics            # None when no estimate read the mosaic
     # 5. the skip plan, from the scene's block analysis
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
         if not pipeline.skip_off:
-            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
+            from ..scene.block_analysis import analyse
+            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip),
+                                                    analysis=analyse(raw, statistics=scene.measured()))
+            pipeline.scene_statistics = scene.statistics
     return pipeline
 
 

@@ -498,11 +498,13 @@ def explain_run(pipeline: Any, stats: Any, profile: Any = None) -> str:
     skipper = getattr(pipeline, "skipper", None)
     plan = getattr(pipeline, "skip_plan", None)
     choice = getattr(pipeline, "stage_choice", None)
+    statistics = getattr(pipeline, "scene_statistics", None)
+    lines = [statistics.summary()] if statistics is not None else []
     if skipper is None:
         off = getattr(pipeline, "skip_off", "")
-        lines = [f"explain: no scene analysis ({off or 'nothing to skip: this pipeline has no chroma denoiser'})"]
+        lines.append(f"explain: no scene analysis ({off or 'nothing to skip: this pipeline has no chroma denoiser'})")
     else:
-        lines = [skipper.analysis.summary()]
+        lines.append(skipper.analysis.summary())
     if choice is not None:
         lines.append(choice.explain())
     if skipper is not None:
