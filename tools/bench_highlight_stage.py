@@ -149,7 +149,7 @@ def raw_main(args: argparse.Namespace, rt) -> int:
     stages = {"this tree": (rt, stage)}
     if args.baseline:
         old = baseline_module(args.baseline.resolve())
-        from clisp.pipeline import _wb2_gains
+        from clisp.scene.measure import wb2_gains as _wb2_gains
         gains2 = _wb2_gains(raw, "metadata")
         stages["baseline"] = (BaselineRuntime(rt, args.baseline.resolve()), old.highlight_stage(raw, "reconstruct", gains2))
     sums: dict[str, list[float]] = {k: [] for k in stages}

@@ -92,6 +92,8 @@ class Pipeline:
     """The noise-adaptive choice build_pipeline made (clisp.pipeline.demosaic_choice.Choice), None without one."""
     skip_off: str = ""
     """Why build_pipeline made no skipper although skipping was asked for (clisp.pipeline.skip.why_not_skip)."""
+    scene_statistics: Any = None
+    """The raw's clisp.scene.statistics.SceneStatistics when build_pipeline's estimates read them (``--explain``)."""
 
     @property
     def halo(self) -> int:

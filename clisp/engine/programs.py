@@ -61,13 +61,15 @@ Key = tuple[str, tuple[str, ...]]
 # -- sources ------------------------------------------------------------------------------
 def kernel_sources() -> dict[str, Path]:
     """Every OpenCL source file of the package by file name: the programs ``<name>.cl`` and the
-    headers ``*.h`` of the stage folders ``clisp/modules/<module>/`` and of ``clisp/engine/``
-    (``common.h`` is in ``clisp/modules/common/``). A program is named by its file's stem, which is
-    its module's name, e.g. ``highlights`` -> ``clisp/modules/highlights/highlights.cl``."""
+    headers ``*.h`` of the stage folders ``clisp/modules/<module>/``, of ``clisp/engine/`` and of
+    ``clisp/scene/`` (the statistics pass; ``common.h`` is in ``clisp/modules/common/``). A program
+    is named by its file's stem, which is its module's name, e.g. ``highlights`` ->
+    ``clisp/modules/highlights/highlights.cl``."""
     global _SOURCES
     if _SOURCES is None:
         package = Path(__file__).resolve().parents[1]             # clisp/ (this file is clisp/engine/)
-        found = [*package.glob("modules/*/*.cl"), *package.glob("modules/*/*.h"), *package.glob("engine/*.cl")]
+        found = [*package.glob("modules/*/*.cl"), *package.glob("modules/*/*.h"), *package.glob("engine/*.cl"),
+                 *package.glob("scene/*.cl")]
         _SOURCES = {path.name: path for path in sorted(found)}
         if "common.h" not in _SOURCES:
             raise ClispError(f"OpenCL kernel sources not found in {package}; reinstall clisp")
@@ -90,7 +92,7 @@ def kernel_path(file_name: str) -> Path:
     """Path of the OpenCL source ``file_name`` (``highlights.cl``, ``srgb.h``); ClispError if none."""
     sources = kernel_sources()
     if file_name not in sources:
-        raise ClispError(f"kernel source {file_name} not found in clisp/modules/*/ or clisp/engine/")
+        raise ClispError(f"kernel source {file_name} not found in clisp/modules/*/, clisp/engine/ or clisp/scene/")
     return sources[file_name]
 
 

@@ -31,6 +31,7 @@ from ..modules.raw_scale.stage import normalize, white_balance1
 from ..scene.noise import raw_noise
 from .demosaic_choice import alternative_for, choose_demosaic
 from ..scene.measure import measure_scene
+from ..scene.statistics_device import statistics_runtime
 
 
 DEMOSAICS: dict[str, type[Stage]] = {
@@ -187,7 +188,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     adapt = bool(skip) and given is None and alternative_for(kind) is not None
     # 2. the scene, measured once: pass 1's white balance, the noise, pass 2's gains, the exposure
     scene = measure_scene(raw, wb, wb2, noise=params is not None or adapt, exposure=exposure,
-                          auto_exposure=auto_exposure, limit=EXPOSURE_LIMIT)
+                          auto_exposure=auto_exposure, limit=EXPOSURE_LIMIT,
+                          runtime=statistics_runtime(calibration_runtime()))
     raw, cfa = scene.raw, scene.raw.cfa
     # 3. the decisions: the corrections, the demosaic the noise allows, the denoiser's table, highlights
     if bad_pixels is None:                                  # the preset's (fast: off), else auto
@@ -226,12 +228,16 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     pipeline = Pipeline(cfa, stages, exposure_ev=scene.exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections
+    pipeline.scene_statistics = scene.statistics            # None when no estimate read the mosaic
     # 5. the skip plan, from the scene's block analysis
     if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
         from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
         pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
         if not pipeline.skip_off:
-            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip))
+            from ..scene.block_analysis import analyse   # deferred with the skip planner: only skipping runs one
+            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip),
+                                                    analysis=analyse(raw, statistics=scene.measured()))
+            pipeline.scene_statistics = scene.statistics
     return pipeline
 
 

@@ -1,31 +1,26 @@
-"""Scene analysis: a cheap pass over the mosaic that tells the skip planner what a scene needs.
+"""Scene analysis: what the skip planner needs to know of a scene, from its statistics.
 
-:func:`analyse` reads the raw once, in bands of BAND_BLOCKS block rows, and summarises it on a grid
-of BLOCK x BLOCK pixel blocks (fixed image coordinates, so any tile plan can be mapped onto them):
+:func:`analyse` reads the statistics pass's tables (clisp.scene.statistics: the block table and the
+noise strips, measured once per raw) and summarises the scene on their grid of BLOCK x BLOCK pixel
+blocks (fixed image coordinates, so any tile plan can be mapped onto them):
 
 * per CFA channel, the noise of the white-balanced, normalised samples (ChannelNoise units,
   var = shot * s + floor): Immerkaer's 3 x 3 residual on each phase's lattice (the operator of
-  clisp.scene.noise), taken on a strip of 3 lattice rows at the top of every n-th block row
-  (NOISE_STRIPS strips or a few more; 3 p rows each), fitted by noise_estimate's robust
-  binned line (flattest 30 % per level bin, MAD). When the raw carries a sensor model, the
-  measured sigma at each channel's median level is compared with the model's (``noise_ratio``);
+  clisp.scene.noise), taken on the noise strips (3 lattice rows at the top of a block row) of every
+  n-th block row (NOISE_STRIPS strips or a few more), fitted by noise_estimate's robust binned line
+  (flattest 30 % per level bin, MAD). When the raw carries a sensor model, the measured sigma at
+  each channel's median level is compared with the model's (``noise_ratio``);
 * the clipped fraction (samples at or above CLIP_FRACTION of the white level);
 * per block: mean luminance Y (the denoiser's Y, from per-channel block means), luminance detail
   and chroma activity (energy of a 4-neighbour Laplacian of the per-cell (CELL x CELL) means, divided
   by what the noise alone would give there: ~1 flat, >> 1 textured), colour saturation (chroma
   magnitude / Y), clipped fraction, and uniform (every phase exactly constant in the block).
 
-Everything is NumPy: the mosaic is read once in bands (a memory-mapped raw stays mapped; the noise
-strips are copied out first), the noise and the bands are tasks shared by THREADS threads, and the
-cost is printed by ``clisp process --explain``. Clipped and uniform are exact sample tests; the
-detail and chroma Laplacians are taken on integer cell sums (exact), so only their weighting and
-squaring round (float64). Measured with ``python tools/calibrate_skip.py --cost`` (kodim05 simulated
-and tiled to 12 MP, in memory, best of 3) on 2 shared Xeon cores: LMS 41-46 ms = 3.5-3.8 ms/MP
-(under 1 % of the quality LMS pipeline, ~750 ms/MP), Bayer 32-34 ms = 2.7-2.8 ms/MP (about 2 % of
-the quality Bayer pipeline, ~160 ms/MP); the per-block-row loop this replaced took 102-108 and
-68-73 ms in the same runs (197 and 133 ms when first measured). ``clisp process`` analyses once,
-in a fresh process, and pays first-touch page faults on top: 12 MP DNG, 9 fresh processes, LMS
-64-68 ms (the old loop 119-133), Bayer 50-55 ms (84-88).
+The table is white-balance free (DN sums, and the products of the channels' Laplacians), so the
+white balance and the denoiser's colour space are applied here: the luma and chroma Laplacians'
+energies are quadratic forms of the table's products (BlockTable.energy). Clipped and uniform are
+exact sample tests; the products are exact integers for integer raws, so only the weighting rounds
+(float64). Cost history: clisp/scene/README.md.
 """
 from __future__ import annotations
 
@@ -40,25 +35,16 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError
 from ..sim.noise import ChannelNoise
-from .noise import CLIP_FRACTION, IMMERKAER, SOBEL, fit_affine_variance, MAD_TO_STD, median
+from .noise import fit_affine_variance, MAD_TO_STD, median, strip_samples
+from .statistics import BLOCK, CELL, STRIP_PERIODS, SceneStatistics, reference_statistics
 from ..io.rawimage import RawImage
 from ..modules.chroma_denoise.stage import space_for
-
-BLOCK = 64
-"""Side of the analysis blocks (px): a multiple of every CFA period and of the denoiser's 2^J
-alignment, so blocks start on CFA phase (0, 0) and never straddle a pyramid cell."""
 
 FLAT_FRACTION = 0.3
 """Share of each level bin (flattest by Sobel gradient) whose residuals give the noise."""
 
 NOISE_MODEL_TOLERANCE = 4.0
 """Measured / model noise std above which the model is distrusted (see SceneAnalysis.noise_excess)."""
-
-CELL = 4
-"""Side of the cells whose means the detail and chroma measures use, px (a multiple of every CFA
-period): the same pixel scale for every CFA. On Bayer's own 2 px cells the Laplacian sees only
-the highest frequencies, and smooth texture read as flat (measured: a sigma-4 px random texture
-at gain 1 gave detail 1.4 on 2 px cells, against 28 for LMS's 4 px cells)."""
 
 LAPLACIAN_NOISE_GAIN = 20.0
 """Sum of squared taps of the 4-neighbour Laplacian [[0,1,0],[1,-4,1],[0,1,0]]: its output
@@ -182,20 +168,13 @@ robust fit, at a quarter of the cost of every block row (12 MP LMS: 313 -> ~100 
 
 
 THREADS = min(4, os.cpu_count() or 1)
-"""Threads of the analysis: the noise samples, each channel's noise fit and the bands are tasks
-shared among them (NumPy releases the GIL in its loops). On 2 shared Xeon cores, 12 MP, best of
-7 in one process: LMS 56 -> 46 ms, Bayer 35 -> 30 ms with 2 threads; in fresh processes, where
-page faults weigh more, LMS 77 -> 64-68 ms, Bayer 52-55 -> 50-55 ms."""
-
-BAND_BLOCKS = 4
-"""Block rows summarised together in one band (BAND_BLOCKS * BLOCK rows, about 2 MB of a 12 MP
-uint16 raw): large enough that NumPy's per-call overhead is small next to the work, small enough
-to stay in cache and to keep a memory-mapped raw's reading in bands."""
+"""Threads of the noise measurement: the samples and each channel's fit are tasks shared among
+them (NumPy releases the GIL in its loops)."""
 
 
 @dataclass(frozen=True)
 class _Layout:
-    """What every band pass shares: the block grid, the cells and the per-channel constants.
+    """The grid and the per-channel constants the analysis applies to the statistics' table.
 
     Pixel sizes are px; DN are the raw's units; "WB'd" values are black-subtracted, white-normalised
     and white-balanced (``(DN - black) * scale``)."""
@@ -208,12 +187,6 @@ class _Layout:
     pattern: np.ndarray         # (p, p) channel of each CFA phase
     rows: int                   # block rows
     cols: int                   # block columns
-    wc: int                     # whole cells per image row
-    px_edges: np.ndarray        # (cols,) first pixel column of each block
-    cell_edges: np.ndarray      # first cell column of each block (whole cells only)
-    lap_edges: np.ndarray       # first Laplacian column of each block (it drops a cell each side)
-    cross: np.ndarray           # (w - p,) bool: comparisons of x with x + p that cross a block edge
-    clip_tile: np.ndarray       # (block, w) clip threshold per sample of a block row (see _clip_tile)
     black: np.ndarray           # (nch,) DN
     scale: np.ndarray           # (nch,) DN -> WB'd normalised
     gains: np.ndarray           # (nch,) pass-1 gains (a WB'd sample at CLIP_FRACTION * gain is clipped)
@@ -221,28 +194,9 @@ class _Layout:
     luma_w: np.ndarray          # (nch,) luma weights on WB'd channels
     chroma_w: np.ndarray        # (k, nch) chroma weights
     planes: np.ndarray          # (1 + k, nch) luma, chroma of WB'd cell means per DN of a channel's cell sum
-    sums_dtype: type            # dtype of the cell sums (int32 for integer raws: exact)
 
 
-def _clip_tile(clip_dn: np.ndarray, pattern: np.ndarray, block: int, w: int, dtype: np.dtype) -> np.ndarray:
-    """(block, w) threshold per sample of a block row (its rows start on CFA phase 0) in the raw's
-    own dtype, such that ``band >= tile`` is exactly ``band >= clip_dn[channel]`` (float64): each
-    threshold is rounded up to the next value the dtype holds (x >= t <=> x >= ceil(t) for integer
-    x; the same with the next float32 for float32 x). Other dtypes compare in float64."""
-    p = pattern.shape[0]
-    per_phase = clip_dn[pattern]                                     # (p, p) float64
-    if np.issubdtype(dtype, np.integer):
-        info = np.iinfo(dtype)
-        whole = np.ceil(per_phase)
-        if whole.max() <= info.max:
-            per_phase = np.maximum(whole, info.min).astype(dtype)
-    elif dtype == np.float32:
-        single = per_phase.astype(np.float32)
-        per_phase = np.where(single < per_phase, np.nextafter(single, np.float32(np.inf)), single)
-    return np.tile(per_phase, (block // p, -(-w // p)))[:, :w].copy()
-
-
-def _layout(raw: RawImage, block: int) -> _Layout:
+def _layout(raw: RawImage, block: int = BLOCK) -> _Layout:
     """The grid and constants of ``raw`` for :func:`analyse` (raises ClispError on bad sizes)."""
     cfa: CFA = raw.cfa
     p, nch = cfa.period, cfa.n_channels
@@ -253,55 +207,49 @@ def _layout(raw: RawImage, block: int) -> _Layout:
         raise ClispError(f"raw of {w}x{h} is too small to analyse")
     black = np.asarray(raw.black_level, dtype=np.float64)
     gains = raw.pass1_gains()
-    clip_dn = black + CLIP_FRACTION * (float(raw.white_level) - black)
     luma_w, chroma_w = _luma_chroma(raw)
     pattern = cfa.pattern
-    wc, cb = w // CELL, block // CELL
     scale = gains / (float(raw.white_level) - black)
     counts = np.array([np.count_nonzero(pattern == c) for c in range(nch)], dtype=np.float64) * (CELL // p) ** 2
-    cross = np.zeros(max(w - p, 0), dtype=bool)
-    for e in range(block, w, block):
-        cross[e - p:e] = True
     return _Layout(
         h=h, w=w, block=block, p=p, nch=nch, pattern=pattern, rows=-(-h // block), cols=-(-w // block),
-        wc=wc, px_edges=np.arange(0, w, block), cell_edges=np.arange(0, wc, cb),
-        lap_edges=np.arange(0, max(wc - 2, 0), cb), cross=cross,
-        clip_tile=_clip_tile(clip_dn, pattern, block, w, raw.data.dtype), black=black,
-        scale=scale, gains=gains,
-        counts=counts, luma_w=luma_w, chroma_w=chroma_w,
+        black=black, scale=scale, gains=gains, counts=counts, luma_w=luma_w, chroma_w=chroma_w,
         planes=np.concatenate([luma_w[None], chroma_w]).astype(np.float32).astype(np.float64)
-        * (scale.astype(np.float32) / counts)[None, :],
-        sums_dtype=np.int32 if raw.data.dtype.kind in "ui" and raw.data.dtype.itemsize <= 2 else np.float32)
+        * (scale.astype(np.float32) / counts)[None, :])
 
 
-def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -> SceneAnalysis:
-    """Analyse ``raw`` (see the module docstring) on a grid of ``block`` x ``block`` blocks.
+def analyse(raw: RawImage, strip_every: int | None = None, statistics: SceneStatistics | None = None) -> SceneAnalysis:
+    """Analyse ``raw`` (see the module docstring) from its statistics (clisp.scene.statistics:
+    ``statistics``, else measured here by the NumPy reference).
 
     ``strip_every``: measure noise on the strip of every n-th block row only (None: as many as
     give NOISE_STRIPS strips, 1 = all)."""
     start = time.perf_counter()
-    lay = _layout(raw, block)
+    lay = _layout(raw)
+    stats = statistics if statistics is not None else reference_statistics(raw)
+    table = stats.table
+    if table is None or stats.block != lay.block or stats.shape != (lay.h, lay.w):
+        raise ClispError(f"{raw.source}: the scene statistics do not serve the analysis's blocks")
     h, w, nch = lay.h, lay.w, lay.nch
     if strip_every is None:
         strip_every = max(1, lay.rows // NOISE_STRIPS)
-    strips = [np.array(raw.data[r * block:r * block + 3 * lay.p]) for r in _strip_rows(lay, strip_every)]
+    strips = [stats.strips[r][:STRIP_PERIODS * lay.p] for r in range(0, lay.rows, strip_every) if r in stats.strips]
     model = _model_noise(raw)
-    acc = _BlockSums.empty(lay)
-    # the first free thread takes each task: the noise samples, half the bands, each channel's noise
-    # fit (queued once the samples are there), the other half
-    bands = _bands(lay)
     with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-analysis") as pool:
-        sampled = pool.submit(_strip_samples, strips, lay)
-        scans = [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in bands[:len(bands) // 2]]
-        fits = [pool.submit(_channel_noise, one, c, model) for c, one in enumerate(sampled.result())]
-        scans += [pool.submit(_scan_band, raw.data, r0, r1, lay, acc) for r0, r1 in bands[len(bands) // 2:]]
-        for done in scans:
-            done.result()
+        sampled = strip_samples(strips, lay.pattern, lay.black, lay.scale, lay.gains, lay.w)
+        fits = [pool.submit(_channel_noise, one, c, model) for c, one in enumerate(sampled)]
         noise, sigma, sigma_model, levels = _noise(model, [f.result() for f in fits])
-    px_per_block = np.outer(np.diff(np.append(np.arange(0, h, block), h)), np.diff(np.append(lay.px_edges, w)))
-    clipped_fraction = float(acc.clipped.sum() / float(h * w))
-    clipped = acc.clipped / px_per_block
-    means = acc.means
+    px_per_block = np.outer(np.diff(np.append(np.arange(0, h, lay.block), h)),
+                            np.diff(np.append(np.arange(0, w, lay.block), w)))
+    clipped_count = table.clipped.sum(axis=0)
+    clipped_fraction = float(clipped_count.sum() / float(h * w))
+    clipped = clipped_count / px_per_block
+    shape = (-1, 1, 1)                           # black and scale rounded to float32, as the cell means always were
+    with np.errstate(divide="ignore", invalid="ignore"):
+        means = np.where(table.cells > 0, (table.sums / (lay.counts.reshape(shape) * table.cells)
+                                           - lay.black.astype(np.float32).reshape(shape))
+                         * lay.scale.astype(np.float32).reshape(shape), 0.0)
+    energy = table.energy(lay.planes)                                 # (1 + k, rows, cols)
     # noise-only energy of the Laplacians of the cell means, per block, from the noise in use
     ref = model if model is not None else noise
     luma_w, chroma_w, counts = lay.luma_w, lay.chroma_w, lay.counts
@@ -315,23 +263,17 @@ def analyse(raw: RawImage, block: int = BLOCK, strip_every: int | None = None) -
         var_y = np.zeros_like(luma)
         var_c = np.zeros_like(chroma_means)
     tiny = 1e-12
-    detail = acc.lap_y / (LAPLACIAN_NOISE_GAIN * var_y + tiny)
-    chroma = (acc.lap_c / (LAPLACIAN_NOISE_GAIN * var_c + tiny)).max(axis=0)
+    detail = energy[0] / (LAPLACIAN_NOISE_GAIN * var_y + tiny)
+    chroma = (energy[1:] / (LAPLACIAN_NOISE_GAIN * var_c + tiny)).max(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         saturation = np.sqrt((chroma_means ** 2).sum(axis=0)) / np.maximum(np.abs(luma), 1e-6)
     cfa = raw.cfa
     return SceneAnalysis(
-        shape=(h, w), cfa=cfa.name, block=block, noise=noise, model=model, sigma=sigma,
+        shape=(h, w), cfa=cfa.name, block=lay.block, noise=noise, model=model, sigma=sigma,
         sigma_model=sigma_model, levels=levels, clipped_fraction=clipped_fraction, luma=luma,
-        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=acc.uniform, means=means,
-        seconds=time.perf_counter() - start, channel_names=tuple(getattr(cfa, "channels", ()) or ()))
-
-
-def _strip_rows(lay: _Layout, strip_every: int) -> list[int]:
-    """Block rows whose strip (their first 3 p rows) measures the noise: every ``strip_every``-th
-    one that has those rows and at least one whole cell row."""
-    return [r for r in range(0, lay.rows, strip_every)
-            if min(lay.block, lay.h - r * lay.block) >= max(3 * lay.p, CELL)]
+        detail=detail, chroma=chroma, saturation=saturation, clipped=clipped, uniform=table.uniform.copy(),
+        means=means, seconds=time.perf_counter() - start + stats.seconds,
+        channel_names=tuple(getattr(cfa, "channels", ()) or ()))
 
 
 def _noise(model: ChannelNoise | None, fits: list["_ChannelFit"]
@@ -351,217 +293,6 @@ def _noise(model: ChannelNoise | None, fits: list["_ChannelFit"]
         ratio = np.array([f.ratio for f in fits])
         sigma = np.where(np.isfinite(ratio), ratio * sigma_model, sigma)
     return noise, sigma, sigma_model, levels
-
-
-@dataclass
-class _BlockSums:
-    """The per-block sums the band passes fill in (each band writes only its own block rows).
-
-    means    (nch, rows, cols) mean WB'd value of each channel.
-    lap_y    (rows, cols) mean squared Laplacian of the luma cell means.
-    lap_c    (k, rows, cols) the same for each chroma plane.
-    clipped  (rows, cols) clipped samples (a count).
-    uniform  (rows, cols) every CFA phase exactly constant in the block."""
-
-    means: np.ndarray
-    lap_y: np.ndarray
-    lap_c: np.ndarray
-    clipped: np.ndarray
-    uniform: np.ndarray
-
-    @classmethod
-    def empty(cls, lay: _Layout) -> "_BlockSums":
-        shape = (lay.rows, lay.cols)
-        return cls(np.zeros((lay.nch,) + shape), np.zeros(shape), np.zeros((lay.chroma_w.shape[0],) + shape),
-                   np.zeros(shape), np.ones(shape, dtype=bool))
-
-
-def _bands(lay: _Layout) -> list[tuple[int, int]]:
-    """(first, end) block rows of each band: BAND_BLOCKS whole block rows at a time, and a last
-    partial block row (image height not a multiple of the block) on its own."""
-    whole = lay.h // lay.block
-    bands = [(r, min(r + BAND_BLOCKS, whole)) for r in range(0, whole, BAND_BLOCKS)]
-    if whole < lay.rows:
-        bands.append((whole, lay.rows))
-    return bands
-
-
-def _scan_band(data: np.ndarray, r0: int, r1: int, lay: _Layout, acc: _BlockSums) -> None:
-    """Read block rows r0 .. r1 - 1 of the mosaic ``data`` (H x W DN) and write their per-block
-    sums to ``acc`` (only those rows: bands may run in parallel)."""
-    band = np.asarray(data[r0 * lay.block:min(lay.h, r1 * lay.block)])
-    band = band.reshape(r1 - r0, -1, lay.w)      # (kb, bh, W): bh = block, but in a last partial block row
-    rs = slice(r0, r1)
-    acc.clipped[rs] = _clipped_counts(band, lay)
-    acc.uniform[rs] = _uniform(band, lay)
-    hc = band.shape[1] // CELL
-    if hc > 0:
-        _cell_activity(_cell_sums(band, lay, hc), rs, lay, acc)
-
-
-def _clipped_counts(band: np.ndarray, lay: _Layout) -> np.ndarray:
-    """(kb, cols) clipped samples (at or above their channel's threshold) per block of ``band``;
-    a band whose largest sample is below every threshold (most of a photo) is not compared."""
-    if band.max() < lay.clip_tile.min():
-        return np.zeros((band.shape[0], lay.cols), dtype=np.int64)
-    hit = band >= lay.clip_tile[:band.shape[1]]
-    per_column = hit.sum(axis=1, dtype=np.uint16 if band.shape[1] <= 0xFFFF else np.int64)
-    return np.add.reduceat(per_column.astype(np.int64), lay.px_edges, axis=-1)
-
-
-def _uniform(band: np.ndarray, lay: _Layout) -> np.ndarray:
-    """(kb, cols) bool: every CFA phase exactly constant in the block. Most blocks of a photo
-    differ within their first 2 p rows, so those are compared first and the whole band only when
-    some block is still a candidate."""
-    top = _differs(band[:, :2 * lay.p], lay)
-    if top.all():
-        return ~top
-    return ~_differs(band, lay)
-
-
-def _differs(band: np.ndarray, lay: _Layout) -> np.ndarray:
-    """(kb, cols) bool: some sample of the block differs from the one a CFA period to its right or
-    below it in the same block (False <=> every phase is constant in the block)."""
-    p = lay.p
-    right = (band[:, :, p:] != band[:, :, :-p]).any(axis=1)          # (kb, W - p)
-    right[:, lay.cross] = False                                      # a block's last p columns vs the next block
-    below = (band[:, p:] != band[:, :-p]).any(axis=1)                # (kb, W)
-    below[:, :right.shape[1]] |= right
-    return np.logical_or.reduceat(below, lay.px_edges, axis=-1)
-
-
-def _cell_sums(band: np.ndarray, lay: _Layout, hc: int) -> np.ndarray:
-    """(nch, kb, hc, wc) sum of each channel's samples in every CELL x CELL cell, DN: int32 for
-    integer raws (exact), float32 (as always) for others."""
-    kb = band.shape[0]
-    v = band[:, :hc * CELL, :lay.wc * CELL].reshape(kb, hc, CELL, lay.wc, CELL)
-    sums = np.empty((lay.nch, kb, hc, lay.wc), dtype=lay.sums_dtype)
-    started = set()
-    for py in range(CELL):
-        for px in range(CELL):
-            c = int(lay.pattern[py % lay.p, px % lay.p])
-            if c in started:
-                sums[c] += v[:, :, py, :, px]
-            else:
-                sums[c] = v[:, :, py, :, px]
-                started.add(c)
-    return sums
-
-
-def _cell_activity(sums: np.ndarray, rs: slice, lay: _Layout, acc: _BlockSums) -> None:
-    """Block means of the cells' WB'd channel means, and the mean squared Laplacian of their luma
-    and chroma planes (within each block row: it reads no cell of the block rows above or below),
-    from the cell sums ``sums`` (nch, kb, hc, wc) DN, written to the block rows ``rs`` of ``acc``.
-
-    The Laplacian is linear and its taps sum to 0, so the luma / chroma Laplacian is lay.planes
-    times the Laplacians of the channels' cell sums: those are exact (int32 for integer raws,
-    float64 of the float32 sums for others), and only the weighting and squaring round (float64)."""
-    _, _, hc, wc = sums.shape
-    block_sum = np.add.reduceat(sums.sum(axis=2, dtype=np.float64), lay.cell_edges, axis=-1)   # (nch, kb, cols')
-    n_cells = np.add.reduceat(np.full(wc, hc, dtype=np.float64), lay.cell_edges)
-    shape = (-1, 1, 1)                         # black and scale rounded to float32, as the cell means always were
-    acc.means[:, rs, :block_sum.shape[-1]] = (block_sum / (lay.counts.reshape(shape) * n_cells)
-                                              - lay.black.astype(np.float32).reshape(shape)) \
-        * lay.scale.astype(np.float32).reshape(shape)
-    if hc < 3 or wc < 3:
-        return
-    planes = np.tensordot(lay.planes, _laplacian(sums if sums.dtype.kind == "i" else sums.astype(np.float64)), axes=1)
-    planes *= planes                                                 # (1 + k, kb, hc - 2, wc - 2)
-    e = lay.lap_edges
-    k = min(len(e), lay.cols)
-    n_lap = np.add.reduceat(np.full(wc - 2, hc - 2.0), e)[:k]                       # Laplacians per block
-    energy = np.add.reduceat(planes.sum(axis=-2), e, axis=-1)[..., :k] / n_lap
-    acc.lap_y[rs, :k] = energy[0]
-    acc.lap_c[:, rs, :k] = energy[1:]
-
-
-def _laplacian(a: np.ndarray) -> np.ndarray:
-    """4-neighbour Laplacian on the interior of the last two axes (in a's dtype)."""
-    lap = a[..., :-2, 1:-1] + a[..., 2:, 1:-1]
-    lap += a[..., 1:-1, :-2]
-    lap += a[..., 1:-1, 2:]
-    lap -= 4 * a[..., 1:-1, 1:-1]
-    return lap
-
-
-Samples = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
-"""Per channel, the noise samples of every strip: (level, Immerkaer residual, squared Sobel
-gradient), each (n,) float64 in WB'd normalised units, in the order strip, phase row, phase column,
-position."""
-
-
-def _strip_samples(strips: list[np.ndarray], lay: _Layout) -> Samples:
-    """Noise samples of the strips (each (3 p, W) DN): on each phase's lattice (3 rows), the 3 x 3
-    residual, level and texture of every position whose 3 x 3 holds no clipped sample."""
-    p, w, s = lay.p, lay.w, len(strips)
-    n = -(-w // p)                                                   # lattice columns, the last padded
-    # the phases (py, px) sorted by channel (row-major within one), so each channel's are a slice
-    py, px = np.divmod(np.argsort(lay.pattern.ravel(), kind="stable"), p)
-    ends = np.cumsum([np.count_nonzero(lay.pattern == c) for c in range(lay.nch)])
-    chan = lay.pattern[py, px]
-    black, scale = lay.black[chan][:, None, None], lay.scale[chan][:, None, None]
-    clip = (CLIP_FRACTION * lay.gains[chan])[:, None, None]
-    columns = -(-(w - px) // p)                                      # lattice columns of each phase
-    inside = np.arange(n - 2)[None, :] < (columns - 2)[:, None]      # (phase, n - 2): not reading the padding
-    measures = np.zeros((3, s, p * p, n - 2))                        # level, residual, texture
-    keep = np.empty((s, p * p, n - 2), dtype=bool)
-    dn = np.zeros((3, p, n, p), dtype=strips[0].dtype if strips else np.float64)
-    lat = np.empty((p * p, 3, n))                                    # (phase, lattice row, lattice column)
-    for i, strip in enumerate(strips):
-        dn.reshape(3 * p, n * p)[:, :w] = strip
-        lat[...] = dn[:, py, :, px]                                  # every phase's lattice, WB'd
-        lat -= black
-        lat *= scale
-        bad = (lat >= clip).any(axis=-2)
-        keep[i] = ~(bad[..., :-2] | bad[..., 1:-1] | bad[..., 2:]) & inside
-        _lattice_measures(lat, *measures[:, i])
-    samples = []
-    for a, b in zip(np.append(0, ends[:-1]), ends):
-        k = keep[:, a:b]
-        lvl, res, tex = (m[:, a:b][k] for m in measures)
-        samples.append((lvl, res, tex))
-    return samples
-
-
-_IMMERKAER_UNIT = float(IMMERKAER[0, 0])
-_IMMERKAER_TAPS = np.rint(IMMERKAER / _IMMERKAER_UNIT).astype(int)
-"""IMMERKAER = _IMMERKAER_UNIT (1/6) times these taps (1, -2 or 4: powers of two, so each tap's product
-is the unit's product scaled exactly)."""
-
-
-def _lattice_measures(lat: np.ndarray, level: np.ndarray, resid: np.ndarray, texture: np.ndarray) -> None:
-    """Level (3 x 3 mean), Immerkaer residual and squared Sobel gradient of 3-row lattice strips
-    ``lat`` (..., 3, n), written into the zeroed (..., n - 2) arrays ``level``, ``resid``, ``texture``.
-
-    Bit for bit the tap-by-tap sums 0 + k[0, 0] x[0, 0:] + k[0, 1] x[0, 1:] + ... (row-major) of
-    noise_estimate's correlation: every tap is one value (1/9, 1/6, 1) times +-1, 2 or 4, whose
-    products are exact scalings of one product array."""
-    sixth = lat * _IMMERKAER_UNIT
-    _taps(resid, (sixth, sixth * 2.0, sixth * 4.0), _IMMERKAER_TAPS)
-    _taps(level, (lat * (1.0 / 9.0),), np.ones((3, 3), dtype=int))
-    double = lat * 2.0
-    _taps(texture, (lat, double), SOBEL.astype(int))
-    gy = _taps(np.zeros_like(texture), (lat, double), SOBEL.T.astype(int))
-    texture *= texture
-    gy *= gy
-    texture += gy
-
-
-def _taps(out: np.ndarray, scaled: tuple[np.ndarray, ...], weights: np.ndarray) -> np.ndarray:
-    """Add to ``out`` (..., n) each tap weights[dy, dx] * lat[..., dy, dx:dx + n] in turn (row-major),
-    from ``scaled`` = (lat, 2 lat, 4 lat)[:k] (k as the largest |weight| needs); returns ``out``."""
-    n = out.shape[-1]
-    for dy in range(3):
-        for dx in range(3):
-            wt = int(weights[dy, dx])
-            if wt == 0:
-                continue
-            term = scaled[abs(wt).bit_length() - 1][..., dy, dx:dx + n]
-            if wt > 0:
-                out += term
-            else:
-                out -= term
-    return out
 
 
 @dataclass(frozen=True)

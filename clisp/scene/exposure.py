@@ -18,6 +18,7 @@ tools/bench_auto_exposure.py compares it with rawpy on camera raws.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -31,16 +32,27 @@ MAX_TILES = 2**18
 columns reads about 1 MB of it)."""
 
 
-def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float) -> float:
+def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float, statistics: Any = None) -> float:
     """The exposure in EV (0..``limit``) that takes the level 1 % of the output's pixels exceed, in
     its brightest channel, to white (module docstring). ``gains2``: white balance pass 2's gains
-    on linear sRGB (3,). 0 for a raw whose estimate is black."""
-    linear = tile_colours(raw) @ np.asarray(raw.colour_matrix, dtype=np.float64).T * np.asarray(gains2)
+    on linear sRGB (3,). 0 for a raw whose estimate is black. ``statistics``: the raw's
+    clisp.scene.statistics.SceneStatistics, whose cell thumbnail then gives the tile colours
+    (:func:`thumbnail_colours`); None reads them here (:func:`tile_colours`)."""
+    colours = thumbnail_colours(raw, statistics) if statistics is not None else tile_colours(raw)
+    linear = colours @ np.asarray(raw.colour_matrix, dtype=np.float64).T * np.asarray(gains2)
     levels = np.minimum(np.percentile(linear.reshape(-1, 3), 100.0 * (1.0 - AUTO_SHARE), axis=0), 1.0)
     white = float(levels.max())
     if not white > 0.0:
         return 0.0
     return min(max(-math.log2(white), 0.0), limit)
+
+
+def thumbnail_colours(raw: RawImage, statistics: Any) -> np.ndarray:
+    """:func:`tile_colours` from the statistics pass's cell thumbnail: each cell's channel means
+    clipped to [0, 1] (the samples' mean, clipped, where tile_colours clips each sample first: the
+    two differ only in cells that straddle black or white, and the estimate reads the top 1 %),
+    times the pass-1 gains, on every step-th cell (at most MAX_CELLS, 2^19)."""
+    return np.clip(statistics.thumbnail()[0].astype(np.float64), 0.0, 1.0) * raw.pass1_gains()
 
 
 def tile_colours(raw: RawImage, max_tiles: int = MAX_TILES) -> np.ndarray:

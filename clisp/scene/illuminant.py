@@ -14,11 +14,12 @@ Three parts, each usable alone:
    ``diag(1/d) M^-1 w``; its pass-1 multipliers are ``d * (M^-1 1) / (M^-1 w)``, which are
    ``d`` for D65 itself.
 
-2. **The statistics** (:func:`block_statistics` -> :class:`BlockStats`): what the estimate reads
-   of the raw, per block of a grid aligned to the CFA (blocks of CFA cells, about BLOCKS of
+2. **The statistics** (:func:`block_statistics_of` -> :class:`BlockStats`): what the estimate
+   reads of the raw, per block of a grid aligned to the CFA (blocks of CFA cells, about BLOCKS of
    them; a cell is one CFA period, period x period pixels, and gives one camera triplet: the mean
-   of each channel's samples in it). See :class:`BlockStats` for the list. One function computes
-   them from the mosaic in NumPy; a statistics kernel can fill the same table.
+   of each channel's samples in it). See :class:`BlockStats` for the list. They are sums over the
+   statistics pass's cell thumbnail (clisp.scene.statistics), which reads the mosaic once for
+   every estimate; :func:`block_statistics` measures them from a mosaic alone.
 
 3. **The estimate** (:func:`estimate_light`): evidence against a prior over the lights,
    described in its docstring; it returns an :class:`Estimate` with the light, the pass-1
@@ -32,6 +33,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..sim.colorimetry import XYZ_TO_SRGB
+from .statistics import CLIP_FRACTION, MAX_CELLS, cell_thumbnail, thumbnail_step
 
 # --------------------------------------------------------------------------------------------
 # 1. The lights
@@ -146,11 +148,6 @@ class CameraLights:
 # 2. The statistics
 # --------------------------------------------------------------------------------------------
 
-CLIP_FRACTION = 0.98
-"""A sample at or above black + 0.98 (white - black) is clipped; its cell is left out of every sum."""
-MAX_CELLS = 2 ** 19
-"""At most about this many cells enter the statistics; larger raws use every k-th cell row and
-column (a 768 x 512 Bayer raw: all of its 98304 cells; the 24 MP Bayer raw: k = 4)."""
 BLOCKS = 1024
 """About this many blocks cover the image: a block is the side sqrt(cells / BLOCKS) in read
 cells, at least MIN_BLOCK_CELLS (a 768 x 512 Bayer raw: 9 x 9 cells, 18 px; the 24 MP Bayer
@@ -208,44 +205,26 @@ def cell_means(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level:
     """(cells, clipped, step): one camera triplet per whole CFA cell, the mean of each channel's
     normalised samples in it, float32 (H/p/step, W/p/step, n); ``clipped`` marks cells with a
     sample at or above CLIP_FRACTION; every ``step``-th cell row and column when the raw has more
-    than ``max_cells`` cells. Rows are read through clisp.engine.streaming.window_source (pread
-    for a raw file mapped in memory)."""
-    from ..engine.streaming import window_source     # deferred: the engine is not needed to import this module
-    p = cfa.period
-    h, w = data.shape[0] // p * p, data.shape[1] // p * p
-    step = max(1, int(np.ceil(np.sqrt((h // p) * (w // p) / max_cells))))
-    black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
-    scale = 1.0 / (float(white_level) - black)
-    channel = cfa.channel_map(p, p)
-    source = window_source(data)
-    try:
-        rows = np.concatenate([source.read(y, 0, p, w, p) for y in range(0, h, step * p)]) if step > 1 \
-            else source.read(0, 0, h, w, p)
-    finally:
-        source.close()
-    ny, nx = rows.shape[0] // p, (w // p + step - 1) // step
-    cells = np.zeros((ny, nx, cfa.n_channels), dtype=np.float32)
-    clipped = np.zeros((ny, nx), dtype=bool)
-    counts = np.bincount(channel.ravel(), minlength=cfa.n_channels)
-    for dy in range(p):
-        for dx in range(p):
-            c = int(channel[dy, dx])
-            plane = rows[dy::p, dx::p * step].astype(np.float32)
-            plane = (plane - np.float32(black[c])) * np.float32(scale[c])
-            clipped |= plane >= CLIP_FRACTION
-            cells[..., c] += plane
-    cells /= counts.astype(np.float32)
+    than ``max_cells`` cells: the statistics pass's cell thumbnail (clisp.scene.statistics)."""
+    step = thumbnail_step(data.shape, cfa.period, max_cells)
+    cells, clipped = cell_thumbnail(data, cfa, black_level, white_level, step)
     return cells, clipped, step
 
 
 def block_statistics(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
                      block: int | None = None, max_cells: int = MAX_CELLS) -> BlockStats:
     """The :class:`BlockStats` of a mosaic ``data`` (H x W, DN with black) on CFA ``cfa``: cells
-    by :func:`cell_means`, then per block of ``block`` x ``block`` read cells (None: BLOCKS blocks
-    over the image; the last partial row and column of blocks dropped) the sums of BlockStats.
-    This is the NumPy definition; a statistics kernel that reads the mosaic once can fill the
-    same table."""
+    by :func:`cell_means`, then :func:`block_statistics_of`."""
     cells, clipped, step = cell_means(data, cfa, black_level, white_level, max_cells)
+    return block_statistics_of(cells, clipped, step, tuple(cfa.channels), block)
+
+
+def block_statistics_of(cells: np.ndarray, clipped: np.ndarray, step: int, channels: tuple[str, ...],
+                        block: int | None = None) -> BlockStats:
+    """The :class:`BlockStats` of a cell thumbnail (``cells`` (ty, tx, n) normalised camera
+    triplets, ``clipped`` (ty, tx), every ``step``-th cell: the statistics pass's, clisp.scene.
+    statistics.SceneStatistics): per block of ``block`` x ``block`` cells (None: BLOCKS blocks over
+    the image; the last partial row and column of blocks dropped) the sums of BlockStats."""
     if block is None:
         block = max(MIN_BLOCK_CELLS, int(np.sqrt(cells.shape[0] * cells.shape[1] / BLOCKS)))
     b = max(1, min(block, cells.shape[0], cells.shape[1]))
@@ -278,7 +257,7 @@ def block_statistics(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
                       grey_sum=per_block((weight[..., None] * cells).astype(np.float64)),
                       bright_weight=per_block(power.astype(np.float64)),
                       bright_sum=per_block((power[..., None] * cells).astype(np.float64)),
-                      block=b, step=step, channels=tuple(cfa.channels))
+                      block=b, step=step, channels=tuple(channels))
 
 
 # --------------------------------------------------------------------------------------------

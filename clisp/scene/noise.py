@@ -185,15 +185,127 @@ def estimate_raw_noise(data: np.ndarray, cfa: CFA, black_level: np.ndarray, whit
     return ChannelNoise(tuple(shot), tuple(floor), "estimate")
 
 
-def raw_noise(raw: RawImage, estimate: bool | None = None) -> ChannelNoise:
+Samples = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+"""Per channel, the noise samples of every strip: (level, Immerkaer residual, squared Sobel
+gradient), each (n,) float64 in WB'd normalised units, in the order strip, phase row, phase column,
+position."""
+
+
+def strip_samples(strips: list[np.ndarray], pattern: np.ndarray, black_level: np.ndarray, scale: np.ndarray,
+                  gains: np.ndarray, w: int) -> Samples:
+    """Noise samples of the strips (each (k p, ``w``) DN with k >= 3, starting on CFA phase row 0:
+    the statistics pass's noise strips, clisp.scene.statistics): on each phase's lattice, the 3 x 3
+    residual, level and texture of every position whose 3 x 3 holds no clipped sample, in WB'd
+    normalised units (``(DN - black_level[c]) * scale[c]``; a sample at or above CLIP_FRACTION *
+    gains[c] there is clipped). ``pattern``: the CFA's (p, p) channel of each phase. A strip of k
+    lattice rows is read as its k - 2 windows of 3 (one residual row each)."""
+    p = pattern.shape[0]
+    strips = [strip[k * p:(k + 3) * p] for strip in strips for k in range(strip.shape[0] // p - 2)]
+    s = len(strips)
+    nch = int(pattern.max()) + 1
+    black_level, scale, gains = (np.asarray(a, dtype=np.float64) for a in (black_level, scale, gains))
+    n = -(-w // p)                                                   # lattice columns, the last padded
+    # the phases (py, px) sorted by channel (row-major within one), so each channel's are a slice
+    py, px = np.divmod(np.argsort(pattern.ravel(), kind="stable"), p)
+    ends = np.cumsum([np.count_nonzero(pattern == c) for c in range(nch)])
+    chan = pattern[py, px]
+    black, scl = black_level[chan][:, None, None], scale[chan][:, None, None]
+    clip = (CLIP_FRACTION * gains[chan])[:, None, None]
+    columns = -(-(w - px) // p)                                      # lattice columns of each phase
+    inside = np.arange(n - 2)[None, :] < (columns - 2)[:, None]      # (phase, n - 2): not reading the padding
+    measures = np.zeros((3, s, p * p, n - 2))                        # level, residual, texture
+    keep = np.empty((s, p * p, n - 2), dtype=bool)
+    dn = np.zeros((3, p, n, p), dtype=strips[0].dtype if strips else np.float64)
+    lat = np.empty((p * p, 3, n))                                    # (phase, lattice row, lattice column)
+    for i, strip in enumerate(strips):
+        dn.reshape(3 * p, n * p)[:, :w] = strip
+        lat[...] = dn[:, py, :, px]                                  # every phase's lattice, WB'd
+        lat -= black
+        lat *= scl
+        bad = (lat >= clip).any(axis=-2)
+        keep[i] = ~(bad[..., :-2] | bad[..., 1:-1] | bad[..., 2:]) & inside
+        _lattice_measures(lat, *measures[:, i])
+    samples = []
+    for a, b in zip(np.append(0, ends[:-1]), ends):
+        k = keep[:, a:b]
+        lvl, res, tex = (m[:, a:b][k] for m in measures)
+        samples.append((lvl, res, tex))
+    return samples
+
+
+_IMMERKAER_UNIT = float(IMMERKAER[0, 0])
+_IMMERKAER_TAPS = np.rint(IMMERKAER / _IMMERKAER_UNIT).astype(int)
+"""IMMERKAER = _IMMERKAER_UNIT (1/6) times these taps (1, -2 or 4: powers of two, so each tap's product
+is the unit's product scaled exactly)."""
+
+
+def _lattice_measures(lat: np.ndarray, level: np.ndarray, resid: np.ndarray, texture: np.ndarray) -> None:
+    """Level (3 x 3 mean), Immerkaer residual and squared Sobel gradient of 3-row lattice strips
+    ``lat`` (..., 3, n), written into the zeroed (..., n - 2) arrays ``level``, ``resid``, ``texture``.
+
+    Bit for bit the tap-by-tap sums 0 + k[0, 0] x[0, 0:] + k[0, 1] x[0, 1:] + ... (row-major) of
+    noise_estimate's correlation: every tap is one value (1/9, 1/6, 1) times +-1, 2 or 4, whose
+    products are exact scalings of one product array."""
+    sixth = lat * _IMMERKAER_UNIT
+    _taps(resid, (sixth, sixth * 2.0, sixth * 4.0), _IMMERKAER_TAPS)
+    _taps(level, (lat * (1.0 / 9.0),), np.ones((3, 3), dtype=int))
+    double = lat * 2.0
+    _taps(texture, (lat, double), SOBEL.astype(int))
+    gy = _taps(np.zeros_like(texture), (lat, double), SOBEL.T.astype(int))
+    texture *= texture
+    gy *= gy
+    texture += gy
+
+
+def _taps(out: np.ndarray, scaled: tuple[np.ndarray, ...], weights: np.ndarray) -> np.ndarray:
+    """Add to ``out`` (..., n) each tap weights[dy, dx] * lat[..., dy, dx:dx + n] in turn (row-major),
+    from ``scaled`` = (lat, 2 lat, 4 lat)[:k] (k as the largest |weight| needs); returns ``out``."""
+    n = out.shape[-1]
+    for dy in range(3):
+        for dx in range(3):
+            wt = int(weights[dy, dx])
+            if wt == 0:
+                continue
+            term = scaled[abs(wt).bit_length() - 1][..., dy, dx:dx + n]
+            if wt > 0:
+                out += term
+            else:
+                out -= term
+    return out
+
+
+def strip_noise(raw: RawImage, statistics: Any, bins: int = 16) -> ChannelNoise:
+    """:class:`ChannelNoise` of ``raw`` (WB'd normalised units) from the noise strips of its
+    statistics (clisp.scene.statistics.SceneStatistics): :func:`strip_samples` of every strip, then
+    :func:`fit_affine_variance` per channel, as :func:`estimate_raw_noise` does on its crops.
+    NoiseEstimateError when a channel has too few samples."""
+    cfa = raw.cfa
+    black = np.broadcast_to(np.asarray(raw.black_level, dtype=np.float64), (cfa.n_channels,))
+    gains = raw.pass1_gains()
+    strips = [statistics.strips[r] for r in sorted(statistics.strips)]
+    samples = strip_samples(strips, cfa.pattern, black, gains / (float(raw.white_level) - black), gains,
+                            raw.shape[1])
+    lines = [fit_affine_variance(*one, bins=bins) for one in samples]
+    return ChannelNoise(tuple(shot for shot, _ in lines), tuple(floor for _, floor in lines), "estimate")
+
+
+def has_noise_model(raw: RawImage) -> bool:
+    """Whether ``raw``'s metadata carries its sensor's noise model (clisp simulations)."""
+    md: dict[str, Any] = raw.metadata or {}
+    return "noise" in md and "gain" in md
+
+
+def raw_noise(raw: RawImage, estimate: bool | None = None, statistics: Any = None) -> ChannelNoise:
     """The noise of ``raw``'s white-balanced channels.
 
     ``estimate=None`` (default): from the metadata when it carries the sensor model (clisp
     simulations: ``metadata['noise']`` and ``metadata['gain']``; gain None = noiseless, zero
-    noise), else estimated from the data (camera raws). True / False force one or the other.
+    noise), else estimated from the data (camera raws). True / False force one or the other. The
+    estimate reads the noise strips of ``statistics`` (clisp.scene.statistics.SceneStatistics:
+    :func:`strip_noise`) where given, else crops of the mosaic (:func:`estimate_raw_noise`).
     """
     md: dict[str, Any] = raw.metadata or {}
-    has_model = "noise" in md and "gain" in md
+    has_model = has_noise_model(raw)
     if estimate is None:
         estimate = not has_model
     if not estimate:
@@ -202,4 +314,6 @@ def raw_noise(raw: RawImage, estimate: bool | None = None) -> ChannelNoise:
         if md["gain"] is None:
             return ChannelNoise.zero(raw.cfa.n_channels)
         return ChannelNoise.from_model(NoiseModel.from_dict(md["noise"]), float(md["gain"]), raw.pass1_gains())
+    if statistics is not None:
+        return strip_noise(raw, statistics)
     return estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())

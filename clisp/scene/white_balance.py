@@ -24,6 +24,7 @@ The reference channel is G for Bayer and L for LMS, whose gain is therefore 1.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -87,7 +88,7 @@ GREY_SHIFT_STEPS = 30
 
 
 def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
-                     share: float = GREY_SHARE) -> tuple[np.ndarray, str]:
+                     share: float = GREY_SHARE, statistics: Any = None) -> tuple[np.ndarray, str]:
     """Pass-1 multipliers per CFA channel from the scene's grey pixels, reference channel = 1, and
     the method's name.
 
@@ -113,16 +114,36 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     surface (wood, foliage, sky) does not pull the estimate; edges of neutral objects (metal,
     paper, greys, black frames against white) drive it. A scene without such pixels (a flat
     field) falls back to gray world (:func:`gray_world_gains`), and says so in the name.
+
+    ``statistics``: the raw's clisp.scene.statistics.SceneStatistics, whose cell thumbnail is then
+    the thumbnail (every step-th cell of at most MAX_CELLS; the gray-world fallback over its
+    unclipped cells); None reads the mosaic here.
     """
     from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
-    from .white_balance_pass2 import raw_thumbnail
-    thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
+    if statistics is not None:
+        cells, clipped = statistics.thumbnail()
+        thumb, ok = cells.astype(np.float64), ~clipped
+    else:
+        from .white_balance_pass2 import raw_thumbnail   # deferred: only a raw read without its statistics
+        thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
     candidates = _grey_candidates(thumb, ok, share, ndimage)
     if candidates is None:
+        if statistics is not None:
+            return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
         return gray_world_gains(data, cfa, black_level, white_level), "gray world (no grey pixels found)"
     ref = reference_channel(cfa)
     illuminant = _dominant_colour(candidates, ref)
     return illuminant[ref] / illuminant, "auto (grey pixels)"
+
+
+def _thumbnail_gray_world(thumb: np.ndarray, ok: np.ndarray, cfa: CFA) -> np.ndarray:
+    """Gray-world multipliers (reference channel = 1) over a thumbnail's unclipped cells."""
+    if not ok.any():
+        raise ClispError("gray-world white balance: every CFA block has a clipped pixel")
+    means = thumb[ok].mean(axis=0)
+    if np.any(means <= 0):
+        raise ClispError("gray-world white balance: a channel has no signal above black")
+    return means[reference_channel(cfa)] / means
 
 
 def _grey_candidates(thumb: np.ndarray, ok: np.ndarray, share: float, ndimage) -> np.ndarray | None:
@@ -170,15 +191,16 @@ def _dominant_colour(pixels: np.ndarray, ref: int) -> np.ndarray:
 # The choice (``--wb``)
 # --------------------------------------------------------------------------------------------
 
-def with_white_balance(raw: RawImage, choice: str = "camera") -> RawImage:
+def with_white_balance(raw: RawImage, choice: str = "camera", statistics: Any = None) -> RawImage:
     """``raw`` with the pass-1 multipliers ``choice`` picks (module docstring), and
     ``metadata['wb_source']`` saying which; ``raw`` itself for ``camera``. ClispError naming the
-    raw for a choice it cannot serve (no daylight multipliers, unusable multipliers)."""
+    raw for a choice it cannot serve (no daylight multipliers, unusable multipliers).
+    ``statistics``: the raw's SceneStatistics for ``auto`` (None: measured from the mosaic)."""
     if choice == "camera":
         return raw
     extra = {}
     if choice == "auto":
-        gains, source, extra = auto_gains(raw)
+        gains, source, extra = auto_gains(raw, statistics)
     elif choice == "daylight":
         gains, source = daylight_gains(raw), "daylight"
     else:
@@ -186,35 +208,41 @@ def with_white_balance(raw: RawImage, choice: str = "camera") -> RawImage:
     return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source, **extra})
 
 
-def auto_gains(raw: RawImage) -> tuple[np.ndarray, str, dict[str, str]]:
+def auto_gains(raw: RawImage, statistics: Any = None) -> tuple[np.ndarray, str, dict[str, str]]:
     """``--wb auto``'s pass-1 multipliers (reference channel = 1), its short name (the output
     file's description) and ``{'wb_explain': line}`` (what ``--explain`` prints): :func:`scene_light_gains`
-    with the raw's daylight multipliers where it has them (:func:`daylight_gains`)."""
+    with the raw's daylight multipliers where it has them (:func:`daylight_gains`), from the raw's
+    ``statistics`` (clisp.scene.statistics; None: measured from the mosaic)."""
     try:
         daylight = daylight_gains(raw)
     except ClispError:
         daylight = None
     gains, source, explain = scene_light_gains(raw.data, raw.cfa, raw.black_level, raw.white_level,
-                                               raw.colour_matrix, daylight)
+                                               raw.colour_matrix, daylight, statistics)
     return gains, source, {"wb_explain": explain}
 
 
 def scene_light_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
-                      matrix: np.ndarray, daylight: np.ndarray | None) -> tuple[np.ndarray, str, str]:
+                      matrix: np.ndarray, daylight: np.ndarray | None,
+                      statistics: Any = None) -> tuple[np.ndarray, str, str]:
     """(multipliers, short name, explanation line) of the scene's light, reference channel = 1.
 
     With the camera's D65 white known (``daylight``: its D65 pass-1 multipliers; ``matrix``:
     white-balanced camera -> linear sRGB) the light is estimated among the plausible ones from the
     mosaic's block statistics (clisp.scene.illuminant.estimate_light); without it (None), from the
-    scene's grey pixels (:func:`grey_pixel_gains`), which need no matrix."""
+    scene's grey pixels (:func:`grey_pixel_gains`), which need no matrix. Both read the cell thumbnail
+    of ``statistics`` (clisp.scene.statistics.SceneStatistics), measured here when None."""
     if daylight is None:
-        gains, source = grey_pixel_gains(data, cfa, black_level, white_level)
+        gains, source = grey_pixel_gains(data, cfa, black_level, white_level, statistics=statistics)
         return gains, source, (f"white balance auto: {source} (no daylight multipliers, so no plausible "
                                f"lights to choose among)")
-    from .illuminant import CameraLights, block_statistics, estimate_light   # deferred: only --wb auto estimates
+    from .illuminant import CameraLights, block_statistics, block_statistics_of, estimate_light   # deferred: only --wb auto
     ref = reference_channel(cfa)
     daylight = np.asarray(daylight, dtype=np.float64) / float(daylight[ref])
-    stats = block_statistics(data, cfa, black_level, white_level)
+    if statistics is not None:
+        stats = block_statistics_of(*statistics.thumbnail(), statistics.step, tuple(cfa.channels))
+    else:
+        stats = block_statistics(data, cfa, black_level, white_level)
     estimate = estimate_light(stats, CameraLights(np.asarray(matrix, dtype=np.float64), daylight), ref)
     return estimate.gains, f"auto ({estimate.temperature:.0f} K)", estimate.describe()
 

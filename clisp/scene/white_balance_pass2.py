@@ -133,16 +133,23 @@ def gray_pixel_gains(rgb: np.ndarray, mask: np.ndarray | None = None, threshold:
     return gains
 
 
-def estimate_wb2(raw: RawImage, method: str = "metadata", **options: Any) -> np.ndarray:
+def estimate_wb2(raw: RawImage, method: str = "metadata", statistics: Any = None, **options: Any) -> np.ndarray:
     """Pass-2 gains (3,) for ``raw`` by ``method`` (see module docstring). ``options`` go to the
-    gray-pixel estimator (threshold, iterations, min_fraction)."""
+    gray-pixel estimator (threshold, iterations, min_fraction). ``statistics``: the raw's
+    clisp.scene.statistics.SceneStatistics, whose cell thumbnail (times the pass-1 gains) is then the
+    thumbnail (every step-th cell of at most MAX_CELLS, 2^19, where :func:`raw_thumbnail` reads up to
+    THUMBNAIL_TILES, 2^21); None reads the mosaic here."""
     if method not in METHODS:
         raise ClispError(f"unknown white balance pass 2 method {method!r}; expected one of {', '.join(METHODS)}")
     matrix = np.asarray(raw.colour_matrix, dtype=np.float64)
     if method == "metadata":
         white = (raw.metadata or {}).get("illuminant_white")
         return illuminant_gains(matrix, white) if white is not None else np.array(raw.wb2, dtype=np.float64)
-    thumb, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    if statistics is not None:
+        cells, clipped = statistics.thumbnail()
+        thumb, ok = cells.astype(np.float64) * raw.pass1_gains(), ~clipped
+    else:
+        thumb, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
     rgb = thumb @ matrix.T
     mask = _exposed(rgb, ok)
     if method == "gray_world":
