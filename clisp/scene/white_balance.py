@@ -32,6 +32,7 @@ import numpy as np
 from ..cfa import CFA
 from ..errors import ClispError, clip
 from ..io.rawimage import MAX_GAIN, NO_CAMERA_WB, RawImage
+from .statistics import thumbnail
 
 WB_CHOICES = ("camera", "auto", "daylight")
 """The named ``--wb`` choices; anything else is read as multipliers."""
@@ -95,7 +96,7 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
 
     1. Grey pixels, after K.-F. Yang, S.-B. Gao, Y.-J. Li, "Efficient illuminant estimation for
        color constancy using grey pixels", CVPR 2015. On a raw thumbnail (one camera triplet per
-       CFA tile, clisp.scene.white_balance_pass2.raw_thumbnail) the illuminant-invariant measure of each
+       CFA cell: the statistics pass's cell thumbnail, clisp.scene.statistics) the illuminant-invariant measure of each
        channel is the local contrast of its logarithm, |grad log I_c| (Gaussian derivative,
        GREY_SIGMA): the edge between two grey surfaces changes every channel in the same
        proportion under any illuminant, an edge involving a coloured surface changes them
@@ -116,22 +117,17 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     paper, greys, black frames against white) drive it. A scene without such pixels (a flat
     field) falls back to gray world (:func:`gray_world_gains`), and says so in the name.
 
-    ``statistics``: the raw's clisp.scene.statistics.SceneStatistics, whose cell thumbnail is then
-    the thumbnail (every step-th cell of at most MAX_CELLS; the gray-world fallback over its
-    unclipped cells); None reads the mosaic here.
+    ``statistics``: the raw's clisp.scene.statistics.SceneStatistics, whose cell thumbnail (every
+    k-th cell of at most 2^19) is the thumbnail, and the gray-world fallback is taken over its
+    unclipped cells; None reads that thumbnail here.
     """
     from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
-    if statistics is not None:
-        cells, clipped = statistics.thumbnail()
-        thumb, ok = cells.astype(np.float64), ~clipped
-    else:
-        from .white_balance_pass2 import raw_thumbnail   # deferred: only a raw read without its statistics
-        thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
+    cells, clipped = statistics.thumbnail() if statistics is not None else \
+        thumbnail(data, cfa, black_level, white_level)
+    thumb, ok = cells.astype(np.float64), ~clipped
     candidates = _grey_candidates(thumb, ok, share, ndimage)
     if candidates is None:
-        if statistics is not None:
-            return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
-        return gray_world_gains(data, cfa, black_level, white_level), "gray world (no grey pixels found)"
+        return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
     ref = reference_channel(cfa)
     illuminant = _dominant_colour(candidates, ref)
     return illuminant[ref] / illuminant, "auto (grey pixels)"
