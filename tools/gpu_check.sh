@@ -121,6 +121,9 @@ step "every preset's 1 MP outputs against the CPU's (tests/tolerance.py's rule)"
 $PY tools/bench_device.py stats --save "$OUT/gpu_stats.json"
 $PY tools/bench_device.py stats --against "$OUT/gpu_stats.json" .gpu/cpu_stats.json | tee "$OUT/stats.txt"
 
+step "the statistics pass on the GPU (issue 42, items 2 and 5): kernels against the reference, 24 MP"
+timeout 120 $PY tools/bench_statistics.py $W/bayer24.dng --repeat 5 | tee "$OUT/statistics.txt"
+
 step "table"
 $PY - "$OUT" <<'EOF'
 import re, statistics, sys
@@ -145,5 +148,7 @@ print("many files:", (out / "many.txt").read_text().strip())
 print("tests:", (out / "tests.txt").read_text().strip().splitlines()[-1])
 print("stats:", (out / "stats.txt").read_text().strip().splitlines()[-1])
 print((out / "throughput.txt").read_text())
+if (out / "statistics.txt").is_file():
+    print((out / "statistics.txt").read_text())
 EOF
 echo "done in $((SECONDS - T0)) s"

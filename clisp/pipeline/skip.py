@@ -160,9 +160,11 @@ def why_not_skip(rt: Any, cfa: Any = None, stages: list[Any] | None = None) -> s
     none (build_pipeline's SKIP_WHERE_IT_PAYS):
 
     * on a device that is not the host's CPU (a GPU), the full path's device time is a few ms where
-      the analysis, NumPy on the host, costs 10-20 ms/MP. Measured (issue 30, 12 MP striped sky,
-      LMS, NVIDIA H100 through its OpenCL): the guided demosaic's kernels took 6 ms and the chroma
-      denoiser's 1 ms of device time, the analysis 215 ms; the process took 1.16x of --no-skip.
+      the analysis costs tens of ms of host time. Measured (issue 30, 12 MP striped sky, LMS, NVIDIA
+      H100 through its OpenCL): the guided demosaic's kernels took 6 ms and the chroma denoiser's
+      1 ms of device time, the analysis 215 ms; the process took 1.16x of --no-skip. With the
+      statistics pass on the device (issue 42) the host's part is the analysis from its tables, 31-44
+      ms for 12 MP on a 2-core Xeon (clisp/scene/README.md): still more than the 7 ms it could save.
     * with ``stages`` given, where they have no flat path (:func:`flat_path`: behind RI or ARI, the
       Bayer quality and best presets): what is left, the denoiser's ``light`` and ``none`` paths,
       took no tile of any scene measured (issue 30's acceptance: striped sky, Kodak and McMaster

@@ -3,9 +3,10 @@
 
 ``--wb`` picks the pass-1 multipliers per CFA channel (:func:`with_white_balance`):
 
-``camera``      as shot: the camera's multipliers where the raw has them; a raw without them (the
-                Canon D30 CRW) was given the ``auto`` estimate when read (clisp.io.camera), and
-                clisp's simulated raws carry their known illuminant (D65).
+``camera``      as shot: the camera's multipliers where the raw has them; a raw read without them
+                (the Canon D30 CRW: clisp.io.rawimage.NO_CAMERA_WB) gets its scene's grey pixels
+                (:func:`grey_pixel_gains`, from the run's statistics), as LibRaw falls back to its
+                auto white balance; clisp's simulated raws carry their known illuminant (D65).
 ``auto``        the scene's light among the plausible ones (:func:`auto_gains`, clisp.scene.illuminant:
                 bright surfaces, grey edges and gray world weighed against a prior over the
                 Planckian and daylight lights in the camera's space); a raw without daylight
@@ -29,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from ..cfa import CFA
-from ..errors import ClispError
-from ..io.rawimage import MAX_GAIN, RawImage
+from ..errors import ClispError, clip
+from ..io.rawimage import MAX_GAIN, NO_CAMERA_WB, RawImage
 
 WB_CHOICES = ("camera", "auto", "daylight")
 """The named ``--wb`` choices; anything else is read as multipliers."""
@@ -196,9 +197,15 @@ def with_white_balance(raw: RawImage, choice: str = "camera", statistics: Any = 
     ``metadata['wb_source']`` saying which; ``raw`` itself for ``camera``. ClispError naming the
     raw for a choice it cannot serve (no daylight multipliers, unusable multipliers).
     ``statistics``: the raw's SceneStatistics for ``auto`` (None: measured from the mosaic)."""
-    if choice == "camera":
+    if choice == "camera" and has_camera_wb(raw):
         return raw
     extra = {}
+    if choice == "camera":                      # a file without as-shot multipliers: its scene's grey pixels
+        try:
+            gains, how = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level, statistics=statistics)
+        except ClispError as exc:
+            raise ClispError(f"{raw.source}: no camera white balance, and {clip(exc, 120)}") from exc
+        return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": f"{how}, file has no camera WB"})
     if choice == "auto":
         gains, source, extra = auto_gains(raw, statistics)
     elif choice == "daylight":
@@ -206,6 +213,11 @@ def with_white_balance(raw: RawImage, choice: str = "camera", statistics: Any = 
     else:
         gains, source = parse_multipliers(choice, raw.cfa, raw.source), "multipliers (--wb)"
     return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source, **extra})
+
+
+def has_camera_wb(raw: RawImage) -> bool:
+    """Whether ``raw`` was read with as-shot multipliers (False: clisp.io.rawimage.NO_CAMERA_WB)."""
+    return (raw.metadata or {}).get("wb_source") != NO_CAMERA_WB
 
 
 def auto_gains(raw: RawImage, statistics: Any = None) -> tuple[np.ndarray, str, dict[str, str]]:
