@@ -25,10 +25,9 @@ from ..cfa import CFA, cfa_from_pattern
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import ISO, read_exif
-from .rawimage import RawImage
+from .rawimage import NO_CAMERA_WB, RawImage
 from .rawfile import page_opcodes
 from ..engine.streaming import aligned_copy
-from ..scene.white_balance import grey_pixel_gains
 
 CFA_LETTERS = "RGB"
 """Our CFA channel order for Bayer raws."""
@@ -99,12 +98,10 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
     data = aligned_copy(visible, np.uint16)         # rawpy's buffer goes with the file; aligned: read in place
     black = channel_values(raw.black_level_per_channel, pattern, colours, cfa)
     wb, wb_source = pick_wb(raw.camera_whitebalance, pattern, colours, cfa)
-    if wb is None:
-        try:
-            wb, how = grey_pixel_gains(data, cfa, black, float(raw.white_level))
-        except ClispError as exc:
-            raise ClispError(f"cannot read raw file '{p}': no camera white balance, and {exc}") from exc
-        wb_source = f"{how}, file has no camera WB"
+    daylight = _wb_candidate(raw.daylight_whitebalance, pattern, colours, cfa)
+    if wb is None:                                  # reading decides nothing: the run estimates the light
+        wb = daylight if daylight is not None else np.ones(cfa.n_channels)
+        wb_source = NO_CAMERA_WB
     matrix, matrix_source = pick_colour_matrix(np.asarray(raw.color_matrix, dtype=np.float64),
                                                np.asarray(raw.rgb_xyz_matrix, dtype=np.float64))
     if matrix_source.startswith("identity"):
@@ -112,7 +109,6 @@ def _from_rawpy(raw: Any, p: Path) -> RawImage:
         if probed is not None:
             matrix, matrix_source = probed, "probed from LibRaw (not exposed by rawpy)"
     metadata = _camera_metadata(raw, p, wb_source, matrix_source)
-    daylight = _wb_candidate(raw.daylight_whitebalance, pattern, colours, cfa)
     if daylight is not None:
         metadata["daylight_multipliers"] = [float(v) for v in daylight]
     linear_max = _linear_max(raw, pattern, colours, cfa)
@@ -212,9 +208,10 @@ def pick_wb(camera: Any, pattern: np.ndarray, colours: str, cfa: CFA) -> tuple[n
     (None, reason) when the file has none usable.
 
     A candidate is rejected when any value for a colour index used by the pattern is <= 0 or not
-    finite (the Canon D30 CRW reports R = -1); the caller then estimates the white balance from
-    the scene's grey pixels (clisp.scene.white_balance.grey_pixel_gains, ``--wb auto``), as LibRaw
-    falls back to its auto WB, rather than guess daylight for an unknown scene.
+    finite (the Canon D30 CRW reports R = -1); the raw is then read with ``wb_source``
+    NO_CAMERA_WB (its daylight multipliers, or ones, as placeholders) and a run's ``--wb camera``
+    estimates the light from the scene's grey pixels (clisp.scene.white_balance.with_white_balance),
+    as LibRaw falls back to its auto WB, rather than guess daylight for an unknown scene.
     LibRaw stores 0 for the second green when it equals the first, so index 3 falls back to index 1.
     """
     wb = _wb_candidate(camera, pattern, colours, cfa)

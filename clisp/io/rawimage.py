@@ -58,6 +58,11 @@ class RawImage:
         return self.wb * self.exposure
 
 
+NO_CAMERA_WB = "none: the file has no camera white balance"
+"""``metadata['wb_source']`` of a raw read without usable as-shot multipliers (the Canon D30 CRW):
+its ``wb`` holds the daylight multipliers (or ones) as placeholders, and a run's ``--wb camera``
+estimates the light (clisp.scene.white_balance.with_white_balance)."""
+
 MAX_GAIN = 1e4
 """Largest white-balance or exposure multiplier (and smallest: its inverse) a raw may carry; past
 it the float32 kernels' intermediates (squares in the guided filters) leave their precision."""

@@ -224,7 +224,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     tone = tone_curve_for(output)
     if tone is not None:
         stages.append(tone)
-    explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: read-time auto
+    explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: a file without it
     pipeline = Pipeline(cfa, stages, exposure_ev=scene.exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
                         wb_explain=explain_wb, stage_choice=choice)
     pipeline.corrections = corrections

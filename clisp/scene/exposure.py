@@ -6,9 +6,9 @@ white = max_c v_c, and maps white to 1.0 (``auto_bright_thr`` 0.01; it never dar
 level is above 1.0). rawpy's default postprocess does this, which is why camera JPEGs and rawpy
 look brighter than clisp's colorimetric default.
 
-clisp takes the same rule, measured before processing on a subsample of the raw's CFA tiles:
-each tile's mean per CFA channel (black-subtracted, white-normalised, clipped at the sensor's white
-as the samples are), white-balanced (pass 1), through the raw's colour matrix and white balance
+clisp takes the same rule, measured before processing on the statistics pass's cell thumbnail (at
+most 2^19 CFA cells): each cell's mean per CFA channel (black-subtracted, white-normalised, clipped
+to [0, 1]), white-balanced (pass 1), through the raw's colour matrix and white balance
 pass 2, as the pipeline would take a flat patch. The result is an exposure in EV applied like
 ``--exposure`` (clisp.pipeline.build_pipeline). On noise and fine texture a tile mean's 1 % level
 is below the pixels', so the output's top 1 % can land above white: on dead leaves at a fifth of
@@ -23,13 +23,10 @@ from typing import Any
 import numpy as np
 
 from ..io.rawimage import RawImage
+from .statistics import thumbnail
 
 AUTO_SHARE = 0.01
 """The share of the pixels that reach white (LibRaw's auto_bright_thr)."""
-
-MAX_TILES = 2**18
-"""Most CFA tiles read for the estimate (a 24 MP Bayer raw has 6 M; a 1 in 24 subsample by rows and
-columns reads about 1 MB of it)."""
 
 
 def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float, statistics: Any = None) -> float:
@@ -37,9 +34,8 @@ def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float, statistics
     its brightest channel, to white (module docstring). ``gains2``: white balance pass 2's gains
     on linear sRGB (3,). 0 for a raw whose estimate is black. ``statistics``: the raw's
     clisp.scene.statistics.SceneStatistics, whose cell thumbnail then gives the tile colours
-    (:func:`thumbnail_colours`); None reads them here (:func:`tile_colours`)."""
-    colours = thumbnail_colours(raw, statistics) if statistics is not None else tile_colours(raw)
-    linear = colours @ np.asarray(raw.colour_matrix, dtype=np.float64).T * np.asarray(gains2)
+    (:func:`thumbnail_colours`), read here when None."""
+    linear = thumbnail_colours(raw, statistics) @ np.asarray(raw.colour_matrix, dtype=np.float64).T * np.asarray(gains2)
     levels = np.minimum(np.percentile(linear.reshape(-1, 3), 100.0 * (1.0 - AUTO_SHARE), axis=0), 1.0)
     white = float(levels.max())
     if not white > 0.0:
@@ -47,37 +43,17 @@ def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float, statistics
     return min(max(-math.log2(white), 0.0), limit)
 
 
-def thumbnail_colours(raw: RawImage, statistics: Any) -> np.ndarray:
-    """:func:`tile_colours` from the statistics pass's cell thumbnail: each cell's channel means
-    clipped to [0, 1] (the samples' mean, clipped, where tile_colours clips each sample first: the
-    two differ only in cells that straddle black or white, and the estimate reads the top 1 %),
-    times the pass-1 gains, on every step-th cell (at most MAX_CELLS, 2^19)."""
-    return np.clip(statistics.thumbnail()[0].astype(np.float64), 0.0, 1.0) * raw.pass1_gains()
-
-
-def tile_colours(raw: RawImage, max_tiles: int = MAX_TILES) -> np.ndarray:
-    """White-balanced camera colour (pass 1) of a subsample of the raw's CFA tiles, R x C x n: each
-    tile's mean per channel of the black-subtracted, white-normalised samples clipped to [0, 1].
+def thumbnail_colours(raw: RawImage, statistics: Any = None) -> np.ndarray:
+    """White-balanced camera colour (pass 1) of the raw's CFA cells, R x C x n: the statistics
+    pass's cell thumbnail (every k-th cell of at most 2^19; ``statistics`` None: read here), each
+    cell's channel means clipped to [0, 1] (LibRaw clips each sample first: the two differ only in
+    cells that straddle black or white, and the estimate reads the top 1 %), times the pass-1 gains.
 
     >>> from clisp.sim.simulate import simulate
     >>> sim = simulate(np.full((64, 64, 3), 0.25), "bayer", gain=None, optics="none")
-    >>> tile_colours(sim.raw).shape
+    >>> thumbnail_colours(sim.raw).shape
     (32, 32, 3)
     """
-    cfa, data = raw.cfa, raw.data
-    p = cfa.period
-    tiles_y, tiles_x = data.shape[0] // p, data.shape[1] // p
-    step = max(1, math.ceil(math.sqrt(tiles_y * tiles_x / max_tiles)))
-    rows = (np.arange(0, tiles_y, step)[:, None] * p + np.arange(p)).ravel()
-    cols = (np.arange(0, tiles_x, step)[:, None] * p + np.arange(p)).ravel()
-    block = np.asarray(data[np.ix_(rows, cols)], dtype=np.float64)
-    block = block.reshape(len(rows) // p, p, len(cols) // p, p).transpose(0, 2, 1, 3).reshape(
-        len(rows) // p, len(cols) // p, p * p)
-    channel = cfa.pattern.ravel()
-    black = np.asarray(raw.black_level, dtype=np.float64)
-    gains = raw.pass1_gains()
-    out = np.empty(block.shape[:2] + (cfa.n_channels,))
-    for c in range(cfa.n_channels):
-        samples = (block[..., channel == c] - black[c]) / (raw.white_level - black[c])
-        out[..., c] = np.clip(samples, 0.0, 1.0).mean(axis=-1) * gains[c]
-    return out
+    cells = statistics.thumbnail()[0] if statistics is not None else \
+        thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level)[0]
+    return np.clip(cells.astype(np.float64), 0.0, 1.0) * raw.pass1_gains()

@@ -18,9 +18,9 @@ import numpy as np
 from ..errors import ClispError, clip
 from ..io.rawimage import MAX_GAIN, RawImage
 from .noise import NoiseEstimateError, has_noise_model, raw_noise
+from .white_balance import has_camera_wb, with_white_balance
 from .statistics import SceneStatistics
 from .statistics_device import scene_statistics
-from .white_balance import with_white_balance
 from .white_balance_pass2 import estimate_wb2
 
 
@@ -63,10 +63,8 @@ def measure_scene(raw: RawImage, wb: str = "camera", wb2: str = "metadata", nois
     first need, on ``runtime``'s device when given (clisp.scene.statistics.statistics_runtime), else
     by the NumPy reference. ClispError naming the raw for estimates it cannot serve."""
     scene = Scene(raw, None, np.ones(3), exposure, runtime=runtime)
-    if wb == "auto":
-        scene.raw = with_white_balance(raw, wb, scene.measured())
-    else:
-        scene.raw = with_white_balance(raw, wb)
+    estimated = wb == "auto" or (wb == "camera" and not has_camera_wb(raw))
+    scene.raw = with_white_balance(raw, wb, scene.measured() if estimated else None)
     raw = scene.raw
     if noise:
         try:

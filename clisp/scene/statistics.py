@@ -393,6 +393,14 @@ def _laplacian(a: np.ndarray) -> np.ndarray:
     return lap
 
 
+def thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
+              max_cells: int = MAX_CELLS) -> tuple[np.ndarray, np.ndarray]:
+    """(cells, clipped): the cell thumbnail of SceneStatistics read alone, for an estimate made
+    without the run's statistics (tools, a RawImage read and estimated by hand); every k-th cell
+    row and column where the raw has more than ``max_cells`` cells."""
+    return cell_thumbnail(data, cfa, black_level, white_level, thumbnail_step(data.shape, cfa.period, max_cells))
+
+
 def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
                step: int) -> tuple[np.ndarray, np.ndarray]:
     """(cells, clipped) of SceneStatistics: every ``step``-th whole CFA cell row and column, each

@@ -3,9 +3,10 @@
 
 ``--wb`` picks the pass-1 multipliers per CFA channel (:func:`with_white_balance`):
 
-``camera``      as shot: the camera's multipliers where the raw has them; a raw without them (the
-                Canon D30 CRW) was given the ``auto`` estimate when read (clisp.io.camera), and
-                clisp's simulated raws carry their known illuminant (D65).
+``camera``      as shot: the camera's multipliers where the raw has them; a raw read without them
+                (the Canon D30 CRW: clisp.io.rawimage.NO_CAMERA_WB) gets its scene's grey pixels
+                (:func:`grey_pixel_gains`, from the run's statistics), as LibRaw falls back to its
+                auto white balance; clisp's simulated raws carry their known illuminant (D65).
 ``auto``        the scene's light among the plausible ones (:func:`auto_gains`, clisp.scene.illuminant:
                 bright surfaces, grey edges and gray world weighed against a prior over the
                 Planckian and daylight lights in the camera's space); a raw without daylight
@@ -29,8 +30,9 @@ from typing import Any
 import numpy as np
 
 from ..cfa import CFA
-from ..errors import ClispError
-from ..io.rawimage import MAX_GAIN, RawImage
+from ..errors import ClispError, clip
+from ..io.rawimage import MAX_GAIN, NO_CAMERA_WB, RawImage
+from .statistics import thumbnail
 
 WB_CHOICES = ("camera", "auto", "daylight")
 """The named ``--wb`` choices; anything else is read as multipliers."""
@@ -94,7 +96,7 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
 
     1. Grey pixels, after K.-F. Yang, S.-B. Gao, Y.-J. Li, "Efficient illuminant estimation for
        color constancy using grey pixels", CVPR 2015. On a raw thumbnail (one camera triplet per
-       CFA tile, clisp.scene.white_balance_pass2.raw_thumbnail) the illuminant-invariant measure of each
+       CFA cell: the statistics pass's cell thumbnail, clisp.scene.statistics) the illuminant-invariant measure of each
        channel is the local contrast of its logarithm, |grad log I_c| (Gaussian derivative,
        GREY_SIGMA): the edge between two grey surfaces changes every channel in the same
        proportion under any illuminant, an edge involving a coloured surface changes them
@@ -115,22 +117,17 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     paper, greys, black frames against white) drive it. A scene without such pixels (a flat
     field) falls back to gray world (:func:`gray_world_gains`), and says so in the name.
 
-    ``statistics``: the raw's clisp.scene.statistics.SceneStatistics, whose cell thumbnail is then
-    the thumbnail (every step-th cell of at most MAX_CELLS; the gray-world fallback over its
-    unclipped cells); None reads the mosaic here.
+    ``statistics``: the raw's clisp.scene.statistics.SceneStatistics, whose cell thumbnail (every
+    k-th cell of at most 2^19) is the thumbnail, and the gray-world fallback is taken over its
+    unclipped cells; None reads that thumbnail here.
     """
     from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
-    if statistics is not None:
-        cells, clipped = statistics.thumbnail()
-        thumb, ok = cells.astype(np.float64), ~clipped
-    else:
-        from .white_balance_pass2 import raw_thumbnail   # deferred: only a raw read without its statistics
-        thumb, ok = raw_thumbnail(data, cfa, black_level, white_level, np.ones(cfa.n_channels))
+    cells, clipped = statistics.thumbnail() if statistics is not None else \
+        thumbnail(data, cfa, black_level, white_level)
+    thumb, ok = cells.astype(np.float64), ~clipped
     candidates = _grey_candidates(thumb, ok, share, ndimage)
     if candidates is None:
-        if statistics is not None:
-            return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
-        return gray_world_gains(data, cfa, black_level, white_level), "gray world (no grey pixels found)"
+        return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
     ref = reference_channel(cfa)
     illuminant = _dominant_colour(candidates, ref)
     return illuminant[ref] / illuminant, "auto (grey pixels)"
@@ -196,9 +193,15 @@ def with_white_balance(raw: RawImage, choice: str = "camera", statistics: Any = 
     ``metadata['wb_source']`` saying which; ``raw`` itself for ``camera``. ClispError naming the
     raw for a choice it cannot serve (no daylight multipliers, unusable multipliers).
     ``statistics``: the raw's SceneStatistics for ``auto`` (None: measured from the mosaic)."""
-    if choice == "camera":
+    if choice == "camera" and has_camera_wb(raw):
         return raw
     extra = {}
+    if choice == "camera":                      # a file without as-shot multipliers: its scene's grey pixels
+        try:
+            gains, how = grey_pixel_gains(raw.data, raw.cfa, raw.black_level, raw.white_level, statistics=statistics)
+        except ClispError as exc:
+            raise ClispError(f"{raw.source}: no camera white balance, and {clip(exc, 120)}") from exc
+        return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": f"{how}, file has no camera WB"})
     if choice == "auto":
         gains, source, extra = auto_gains(raw, statistics)
     elif choice == "daylight":
@@ -206,6 +209,11 @@ def with_white_balance(raw: RawImage, choice: str = "camera", statistics: Any = 
     else:
         gains, source = parse_multipliers(choice, raw.cfa, raw.source), "multipliers (--wb)"
     return replace(raw, wb=gains, metadata={**raw.metadata, "wb_source": source, **extra})
+
+
+def has_camera_wb(raw: RawImage) -> bool:
+    """Whether ``raw`` was read with as-shot multipliers (False: clisp.io.rawimage.NO_CAMERA_WB)."""
+    return (raw.metadata or {}).get("wb_source") != NO_CAMERA_WB
 
 
 def auto_gains(raw: RawImage, statistics: Any = None) -> tuple[np.ndarray, str, dict[str, str]]:

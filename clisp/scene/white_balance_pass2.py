@@ -18,9 +18,10 @@ Methods (``estimate_wb2(raw, method)``):
                  points in images", IEEE Trans. Consumer Electronics 52(2), 2006): a pixel is gray
                  when (|U| + |V|) / Y < threshold in BT.601 YUV after the current gains.
 
-The statistics come from a raw thumbnail (:func:`raw_thumbnail`): one camera triplet per CFA tile
-(the mean of each channel's samples in the tile), no demosaic needed, so the estimate is cheap and
-independent of tiling. Gains are normalised so G = 1 unless stated.
+The statistics come from the statistics pass's cell thumbnail (clisp.scene.statistics): one camera
+triplet per CFA cell (the mean of each channel's samples in the cell, times the pass-1 gains), no
+demosaic needed, so the estimate is cheap and independent of tiling. Gains are normalised so G = 1
+unless stated.
 """
 from __future__ import annotations
 
@@ -28,15 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from ..cfa import CFA
-from ..engine.streaming import window_source
 from ..errors import ClispError
 from ..io.rawimage import RawImage
+from .statistics import thumbnail
 
 BT601 = np.array([0.299, 0.587, 0.114])
 METHODS = ("metadata", "gray_world", "gray_pixels")
-CLIP_FRACTION = 0.98
-"""A normalised raw sample at or above this counts as clipped; its CFA tile is dropped."""
 DARK_FRACTION = 0.01
 """Tiles whose luminance is below this fraction of the 99th percentile are dropped (noise)."""
 
@@ -56,35 +54,6 @@ def illuminant_gains(matrix: np.ndarray, white_cam: np.ndarray | None = None) ->
     if np.any(rgb <= 0):
         raise ClispError(f"illuminant white maps to non-positive RGB {rgb}; cannot white-balance")
     return 1.0 / rgb
-
-
-THUMBNAIL_TILES = 2 ** 21
-"""At most about this many CFA tiles enter the statistics; larger raws use every k-th tile row
-and column (a memory-mapped 400 MP raw then reads ~1/12 of its rows)."""
-
-
-def raw_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float,
-                  gains: np.ndarray, max_tiles: int = THUMBNAIL_TILES) -> tuple[np.ndarray, np.ndarray]:
-    """(thumb, ok): one pass-1-balanced camera triplet per whole CFA tile, shape (H/p, W/p, n)
-    (every k-th tile row and column when there are more than ``max_tiles`` tiles), the mean of
-    each channel's samples in the tile; ``ok`` marks tiles with no clipped sample."""
-    p = cfa.period
-    h, w = data.shape[0] // p * p, data.shape[1] // p * p
-    k = max(1, int(np.ceil(np.sqrt((h // p) * (w // p) / max_tiles))))
-    black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
-    channel = cfa.channel_map(p, p)
-    source = window_source(data)     # pread for mapped raw files: truncation is an error, not SIGBUS
-    try:
-        rows = np.concatenate([source.read(y, 0, p, w, p) for y in range(0, h, k * p)]) if k > 1 \
-            else source.read(0, 0, h, w, p)
-    finally:
-        source.close()
-    rows = rows.reshape(-1, p, w // p, p)[:, :, ::k]
-    tiles = rows.astype(np.float64).transpose(0, 2, 1, 3)
-    norm = (tiles - black[channel]) / (float(white_level) - black[channel])
-    ok = ~(norm >= CLIP_FRACTION).any(axis=(2, 3))
-    thumb = np.stack([norm[:, :, channel == c].mean(axis=2) * gains[c] for c in range(cfa.n_channels)], axis=-1)
-    return thumb, ok
 
 
 def _exposed(rgb: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -136,20 +105,17 @@ def gray_pixel_gains(rgb: np.ndarray, mask: np.ndarray | None = None, threshold:
 def estimate_wb2(raw: RawImage, method: str = "metadata", statistics: Any = None, **options: Any) -> np.ndarray:
     """Pass-2 gains (3,) for ``raw`` by ``method`` (see module docstring). ``options`` go to the
     gray-pixel estimator (threshold, iterations, min_fraction). ``statistics``: the raw's
-    clisp.scene.statistics.SceneStatistics, whose cell thumbnail (times the pass-1 gains) is then the
-    thumbnail (every step-th cell of at most MAX_CELLS, 2^19, where :func:`raw_thumbnail` reads up to
-    THUMBNAIL_TILES, 2^21); None reads the mosaic here."""
+    clisp.scene.statistics.SceneStatistics, whose cell thumbnail (every k-th cell of at most 2^19)
+    times the pass-1 gains is the thumbnail; None reads that thumbnail here."""
     if method not in METHODS:
         raise ClispError(f"unknown white balance pass 2 method {method!r}; expected one of {', '.join(METHODS)}")
     matrix = np.asarray(raw.colour_matrix, dtype=np.float64)
     if method == "metadata":
         white = (raw.metadata or {}).get("illuminant_white")
         return illuminant_gains(matrix, white) if white is not None else np.array(raw.wb2, dtype=np.float64)
-    if statistics is not None:
-        cells, clipped = statistics.thumbnail()
-        thumb, ok = cells.astype(np.float64) * raw.pass1_gains(), ~clipped
-    else:
-        thumb, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
+    cells, clipped = statistics.thumbnail() if statistics is not None else \
+        thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level)
+    thumb, ok = cells.astype(np.float64) * raw.pass1_gains(), ~clipped
     rgb = thumb @ matrix.T
     mask = _exposed(rgb, ok)
     if method == "gray_world":

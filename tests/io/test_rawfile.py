@@ -15,6 +15,8 @@ from clisp.cfa import BAYER_PHASES, CFA, bayer_cfa, cfa_from_pattern, lms_cfa
 from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS, XYZ_TO_SRGB
 from clisp.errors import ClispError
 from clisp.io.rawfile import raw_info, read_raw, write_raw
+from clisp.io.rawimage import NO_CAMERA_WB
+from clisp.scene.measure import measure_scene
 from clisp.io.rawimage import RawImage
 
 CAMERA_DIR = CAMERA_RAWS
@@ -404,11 +406,15 @@ def test_camera_raws(name: str, tmp_path: Path) -> None:
     assert raw.colour_matrix.shape == (3, 3)
     assert np.allclose(raw.colour_matrix.sum(axis=1), 1.0, atol=1e-3)
     assert raw.metadata["flip"] == 0
-    assert raw.metadata["wb_source"] == "camera" or raw.metadata["wb_source"].endswith("file has no camera WB")
+    assert raw.metadata["wb_source"] in ("camera", NO_CAMERA_WB)
     with rawpy.imread(str(path)) as rp:
         assert np.array_equal(raw.data, rp.raw_image_visible)
     if name.endswith(".CRW"):
-        assert raw.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"   # camera WB has R = -1
+        assert raw.metadata["wb_source"] == NO_CAMERA_WB            # camera WB has R = -1: reading decides nothing
+        assert np.allclose(raw.wb, raw.metadata["daylight_multipliers"])
+        run = measure_scene(raw).raw                                   # the run's --wb camera: the scene's grey pixels
+        assert run.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"
+        assert run.wb[1] == 1.0 and 1.5 < run.wb[0] < 2.1 and not np.allclose(run.wb, raw.wb, rtol=0.05)
         assert raw.metadata["colour_matrix_source"].startswith("derived")
     if name.endswith(".KDC"):
         # LibRaw keeps the DC50's matrix internally; clisp measures it (white-preserving rows).

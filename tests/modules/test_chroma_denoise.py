@@ -409,13 +409,13 @@ def test_large_raws_are_sampled(monkeypatch):
     """Big (memory-mapped) raws: the WB thumbnail takes every k-th CFA tile, the noise estimate a
     grid of crops; both give the same answers as the full read on a uniform capture."""
     import clisp.scene.noise as ne
-    from clisp.scene.white_balance_pass2 import raw_thumbnail
+    from clisp.scene.statistics import thumbnail
     y, x = np.mgrid[0:512, 0:768] / 768.0
     scene = np.stack([0.1 + 0.5 * x, 0.1 + 0.4 * x, 0.1 + 0.3 * x + 0.1 * y], axis=-1)
     raw = simulate(scene, "lms", gain=16, optics="none", seed=4).raw
-    full, ok = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())
-    part, ok2 = raw_thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains(),
-                              max_tiles=full.shape[0] * full.shape[1] // 8)   # k = ceil(sqrt(8)) = 3
+    full, ok = thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level)
+    part, ok2 = thumbnail(raw.data, raw.cfa, raw.black_level, raw.white_level,
+                          max_cells=full.shape[0] * full.shape[1] // 8)   # k = ceil(sqrt(8)) = 3
     np.testing.assert_array_equal(part, full[::3, ::3])
     np.testing.assert_array_equal(ok2, ok[::3, ::3])
     whole = estimate_raw_noise(raw.data, raw.cfa, raw.black_level, raw.white_level, raw.pass1_gains())

@@ -10,6 +10,8 @@ from clisp.cfa import bayer_cfa, lms_cfa
 from clisp.errors import ClispError
 from clisp.sim.simulate import simulate
 from clisp.scene.white_balance import gray_world_gains, grey_pixel_gains, reference_channel, with_white_balance
+from clisp.io.rawimage import NO_CAMERA_WB
+from clisp.scene.measure import measure_scene
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa("GRBG"), lms_cfa()], ids=lambda c: c.name)
@@ -120,3 +122,14 @@ def test_explain_says_what_auto_found(tmp_path, capsys) -> None:
                  "--preset", "fast"]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("explain: white balance auto: "))
     assert " K, Duv " in line and "confidence" in line and "decided by" in line
+
+
+def test_a_raw_without_camera_white_balance_gets_its_grey_pixels_in_the_run() -> None:
+    """Reading decides nothing (clisp.io.camera leaves NO_CAMERA_WB and a placeholder); the run's
+    ``--wb camera`` measures the scene once and takes its grey pixels, from the statistics' thumbnail."""
+    raw = simulate(_wood_and_steel(), "bayer", gain=4, optics="none", seed=3).raw
+    unknown = replace(raw, wb=np.ones(3), metadata={**raw.metadata, "wb_source": NO_CAMERA_WB})
+    scene = measure_scene(unknown)
+    assert scene.raw.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"
+    assert scene.statistics is not None and _angle(scene.raw.wb, raw.wb) < 2.0
+    assert with_white_balance(raw, "camera") is raw and measure_scene(raw).statistics is None
