@@ -182,7 +182,24 @@ def estimate_raw_noise(data: np.ndarray, cfa: CFA, black_level: np.ndarray, whit
                                    np.concatenate(textures[c]), bins)
         shot.append(s)
         floor.append(f)
-    return ChannelNoise(tuple(shot), tuple(floor), "estimate")
+    least = quantisation_floor(data.dtype, black, white_level, gains)
+    return ChannelNoise(tuple(shot), tuple(max(f, q) for f, q in zip(floor, least)), "estimate")
+
+
+def quantisation_floor(dtype: np.dtype, black_level: np.ndarray, white_level: float,
+                       gains: np.ndarray) -> np.ndarray:
+    """(nch,) the least variance floor an estimate may give (WB'd normalised units^2): the
+    quantisation of an integer raw's samples, step^2 / 12 with step = gain / (white - black); 0 for
+    a float raw. A line fitted through bright bins alone can extrapolate to a floor below it (the
+    D30's blue: 0), which no sensor has, and which would make dark pixels look noiseless.
+
+    >>> quantisation_floor(np.dtype(np.uint16), np.array([0.0]), 1024.0, np.array([2.0])).round(10).tolist()
+    [3.179e-07]
+    """
+    if np.dtype(dtype).kind not in "ui":
+        return np.zeros(len(gains))
+    step = np.asarray(gains, dtype=np.float64) / (float(white_level) - np.asarray(black_level, dtype=np.float64))
+    return step * step / 12.0
 
 
 Samples = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -286,7 +303,9 @@ def strip_noise(raw: RawImage, statistics: Any, bins: int = 16) -> ChannelNoise:
     samples = strip_samples(strips, cfa.pattern, black, gains / (float(raw.white_level) - black), gains,
                             raw.shape[1])
     lines = [fit_affine_variance(*one, bins=bins) for one in samples]
-    return ChannelNoise(tuple(shot for shot, _ in lines), tuple(floor for _, floor in lines), "estimate")
+    least = quantisation_floor(raw.data.dtype, black, raw.white_level, gains)
+    return ChannelNoise(tuple(shot for shot, _ in lines), tuple(max(floor, q) for (_, floor), q in zip(lines, least)),
+                        "estimate")
 
 
 def has_noise_model(raw: RawImage) -> bool:
