@@ -232,10 +232,6 @@ def block_statistics_of(cells: np.ndarray, clipped: np.ndarray, step: int, chann
     cells, clipped = cells[:by * b, :bx * b], clipped[:by * b, :bx * b]
     ok = ~clipped
 
-    def per_block(a: np.ndarray) -> np.ndarray:
-        return a.reshape(by, b, bx, b, *a.shape[2:]).sum(axis=(1, 3))
-
-    total = per_block(np.where(ok[..., None], cells, 0.0).astype(np.float64))
     # grey-edge cells: the relative spread of the channels' log-contrast to the right and lower cells
     logs = np.log(np.maximum(cells, 1e-4))
     gx = np.zeros_like(logs)
@@ -243,21 +239,35 @@ def block_statistics_of(cells: np.ndarray, clipped: np.ndarray, step: int, chann
     gx[:, :-1] = np.diff(logs, axis=1)
     gy[:-1] = np.diff(logs, axis=0)
     contrast = np.sqrt(gx * gx + gy * gy)
-    mean = contrast.mean(axis=-1)
-    spread = np.sqrt(((contrast - mean[..., None]) ** 2).mean(axis=-1))
-    grey = ok & np.all(contrast >= GREY_MIN_CONTRAST, axis=-1) & (spread < GREY_INDEX * mean)
+    n = cells.shape[-1]
+    planes = [contrast[..., c] for c in range(n)]      # per channel: NumPy reduces a last axis of 3 slowly
+    mean = sum(planes[1:], planes[0]) / np.float32(n)
+    spread = np.sqrt(sum(((p - mean) ** 2 for p in planes[1:]), (planes[0] - mean) ** 2) / np.float32(n))
+    grey = ok & (spread < GREY_INDEX * mean)
+    for plane in planes:
+        grey &= plane >= GREY_MIN_CONTRAST
     grey[:, :-1] &= ok[:, 1:]
     grey[:-1] &= ok[1:]
     grey[:, -1] = grey[-1, :] = False
     weight = np.where(grey, mean, 0.0).astype(np.float32)
     # bright: a soft maximum per block, the cells weighted by (channel sum) ^ BRIGHT_POWER
-    power = np.where(ok, cells.sum(axis=-1), 0.0).astype(np.float32) ** BRIGHT_POWER
-    return BlockStats(count=per_block(ok.astype(np.int64)), clipped=per_block(clipped.astype(np.int64)),
-                      sum=total, grey_weight=per_block(weight.astype(np.float64)),
-                      grey_sum=per_block((weight[..., None] * cells).astype(np.float64)),
-                      bright_weight=per_block(power.astype(np.float64)),
-                      bright_sum=per_block((power[..., None] * cells).astype(np.float64)),
-                      block=b, step=step, channels=tuple(channels))
+    level = sum((cells[..., c] for c in range(1, n)), cells[..., 0])
+    power = np.where(ok, level, np.float32(0.0)).astype(np.float32) ** np.float32(BRIGHT_POWER)
+    # every per-cell quantity in one float32 stack, summed per block in float64: the rows of each
+    # block row first (whole rows, contiguous), then each block's columns
+    stack = np.empty(cells.shape[:2] + (4 + 3 * n,), dtype=np.float32)
+    stack[..., 0], stack[..., 1] = ok, clipped
+    stack[..., 2:2 + n] = np.where(ok[..., None], cells, 0.0)
+    stack[..., 2 + n] = weight
+    stack[..., 3 + n:3 + 2 * n] = weight[..., None] * cells
+    stack[..., 3 + 2 * n] = power
+    stack[..., 4 + 2 * n:] = power[..., None] * cells
+    rows = stack.reshape(by, b, -1).sum(axis=1, dtype=np.float64)
+    sums = rows.reshape(by, bx, b, stack.shape[-1]).sum(axis=2)
+    return BlockStats(count=sums[..., 0].astype(np.int64), clipped=sums[..., 1].astype(np.int64),
+                      sum=sums[..., 2:2 + n], grey_weight=sums[..., 2 + n],
+                      grey_sum=sums[..., 3 + n:3 + 2 * n], bright_weight=sums[..., 3 + 2 * n],
+                      bright_sum=sums[..., 4 + 2 * n:], block=b, step=step, channels=tuple(channels))
 
 
 # --------------------------------------------------------------------------------------------
@@ -354,10 +364,12 @@ def _chroma_kernel(y: np.ndarray, matrix: np.ndarray, q: np.ndarray, sigma: floa
     daylight-balanced camera), each light's multipliers ``q`` (H, 3) on them, ``matrix`` to sRGB."""
     a = (y[:, None, :] * matrix[None, :, :]).astype(np.float32)           # a[n, i, k] = M[i, k] y[n, k]
     s = a @ q.T.astype(np.float32)                                        # (n, 3, H) implied sRGB
-    top = s.max(axis=1, keepdims=True)
-    logs = np.log(np.maximum(s, np.maximum(top, 1e-12) * 1e-2))
-    chroma = logs - logs.mean(axis=1, keepdims=True)
-    return 1.0 / (1.0 + (chroma * chroma).sum(axis=1) / np.float32(sigma * sigma))
+    planes = [s[:, i] for i in range(s.shape[1])]                        # per channel (NumPy reduces an axis of 3 slowly)
+    low = np.maximum(np.maximum.reduce(planes), np.float32(1e-12)) * np.float32(1e-2)
+    logs = [np.log(np.maximum(plane, low)) for plane in planes]
+    mean = sum(logs[1:], logs[0]) / np.float32(len(logs))
+    spread = sum(((v - mean) ** 2 for v in logs[1:]), (logs[0] - mean) ** 2)
+    return 1.0 / (1.0 + spread / np.float32(sigma * sigma))
 
 
 def estimate_light(stats: BlockStats, lights: CameraLights, reference: int,
