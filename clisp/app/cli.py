@@ -394,7 +394,7 @@ def _record_defects(args: argparse.Namespace, raw, defects, gain: float | None) 
     raw as a camera would (GainMap, FixBadPixelsList); the note for simulate's line."""
     if defects is None:
         return ""
-    from ..sim import defects as sd
+    from ..sim import defects as sd   # deferred: only a simulation with defects loads the defect model (start-up)
     ops = []
     if args.gainmap:
         ops += sd.gain_map_opcodes(defects, raw.cfa, raw.shape)

@@ -396,7 +396,7 @@ def raw_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         if key in md:
             info[key] = md[key]
     if md.get("opcodes"):
-        from .opcodes import opcodes_of
+        from .opcodes import opcodes_of   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
         ops = opcodes_of(md)
         counts: dict[str, int] = {}
         for op in ops:
@@ -476,7 +476,7 @@ def page_opcodes(page: Any, where: str, origin1: tuple[int, int] = (0, 0), image
     imported only for a page that has one)."""
     if not any(code in page.tags for code in TAG_OPCODE_LISTS):
         return []
-    from .opcodes import read_opcode_tags
+    from .opcodes import read_opcode_tags   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
     return read_opcode_tags(page, where, origin1, image1, image23)
 
 

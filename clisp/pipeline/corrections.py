@@ -91,7 +91,7 @@ class Corrections:
         """The stage after the chroma stage that applies the smooth gain (None: there is none)."""
         if self.smooth is None:
             return None
-        from ..modules.sensor.stage import SensorShade
+        from ..modules.sensor.stage import SensorShade   # deferred: only raws that get a sensor correction load the stage (start-up)
         return SensorShade(self.smooth, colour_matrix, scale)
 
     def noise(self, noise: Any) -> Any:
@@ -106,7 +106,7 @@ class Corrections:
         how many pixels the auto test found in it; none on the reference backend)."""
         lines = [f"sensor: {note}" for note in self.notes] or ["sensor: no corrections (--bad-pixels off, no frames)"]
         if self.pre is not None and self.pre.test is not None and stats is not None:
-            from ..modules.sensor.stage import FOUND
+            from ..modules.sensor.stage import FOUND   # deferred: only raws that get a sensor correction load the stage (start-up)
             found = getattr(stats, "counts", {}).get(FOUND)
             if found is not None:
                 lines.append(f"sensor: the auto test found and replaced {found} pixels")
@@ -147,7 +147,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         mask |= listed
         known.append(f"{int(listed.sum())} from {Path(bad_pixels).name}")
     if bad_pixels != "off" and ops:
-        from ..io.opcodes import bad_pixel_mask
+        from ..io.opcodes import bad_pixel_mask   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
         dng = bad_pixel_mask(ops, raw.data, shape)
         if dng is not None:
             mask |= dng
@@ -174,7 +174,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
             known.append(f"{int(wild.sum())} dead or wild in the flat")
     gains: list[Any] = []
     if ops:
-        from ..io.opcodes import FixVignetteRadial, GainMap
+        from ..io.opcodes import FixVignetteRadial, GainMap   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
         gains = [op for op in ops if isinstance(op, (GainMap, FixVignetteRadial))]
     if flat and gains:                       # the flat measured the same lens: it replaces them
         out.notes.append(f"the flat replaces the DNG's {len(gains)} gain opcodes (the same lens shading)")
@@ -217,7 +217,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
 
 def _applies_to_mosaic(op: Any) -> bool:
     """A gain opcode of OpcodeList1 or 2 acts on the CFA mosaic's one plane."""
-    from ..io.opcodes import GainMap
+    from ..io.opcodes import GainMap   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
     return not isinstance(op, GainMap) or op.plane == 0
 
 
@@ -248,7 +248,7 @@ def _noise_of(raw: RawImage, noise: Any) -> Any:
 
 def defect_test(raw: RawImage, noise: Any = None) -> tuple[DefectTest, str]:
     """The auto search's model for ``raw`` and where it came from."""
-    from ..modules.sensor.stage import DefectTest
+    from ..modules.sensor.stage import DefectTest   # deferred: only raws that get a sensor correction load the stage (start-up)
     model = _noise_of(raw, noise)
     gains = raw.pass1_gains()
     if model is not None:
@@ -375,7 +375,7 @@ def dark_master(raw: RawImage, paths: list[str]) -> tuple[np.ndarray, str, int]:
 def flat_master(raw: RawImage, paths: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(H x W flat-field gain, H x W bool of wild pixels, the gain's per-channel smooth part at the
     grid's nodes (C x GH x GW), a note) from the flat frames at ``paths``."""
-    from ..modules.sensor.stage import GRID_CELL, SmoothGain
+    from ..modules.sensor.stage import GRID_CELL, SmoothGain   # deferred: only raws that get a sensor correction load the stage (start-up)
     frames = _frames(raw, paths, "flat", levels=False)
     shape, cfa = raw.shape, raw.cfa
     ch = cfa.channel_map(*shape)
@@ -457,7 +457,7 @@ def smooth_grid(raw: RawImage, terms: GainTerms | None, flat_smooth: np.ndarray 
     channel of the OpcodeList1 / 2 gains at the node's nearest site of the phase, times the flat's
     smooth part. SensorCorrect divides it out of the mosaic; SensorShade applies it after the chroma
     stage."""
-    from ..modules.sensor.stage import SmoothGain
+    from ..modules.sensor.stage import SmoothGain   # deferred: only raws that get a sensor correction load the stage (start-up)
     shape, cfa = raw.shape, raw.cfa
     ny, nx = SmoothGain.nodes(shape)
     p = cfa.period
@@ -481,8 +481,8 @@ def smooth_grid(raw: RawImage, terms: GainTerms | None, flat_smooth: np.ndarray 
 
 def _list3_grid(raw: RawImage, ops: list[Any]) -> np.ndarray:
     """OpcodeList3's gains (GainMap per plane, FixVignetteRadial) at the grid's nodes, C x GH x GW."""
-    from ..io.opcodes import FixVignetteRadial, gain_map_at, selects, vignette_at
-    from ..modules.sensor.stage import SmoothGain
+    from ..io.opcodes import FixVignetteRadial, gain_map_at, selects, vignette_at   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
+    from ..modules.sensor.stage import SmoothGain   # deferred: only raws that get a sensor correction load the stage (start-up)
     ny, nx = SmoothGain.nodes(raw.shape)
     ys, xs = ny[:, None], nx[None, :]
     out = np.ones((raw.cfa.n_channels, len(ny), len(nx)))
@@ -594,7 +594,7 @@ def _all_hot(raw: RawImage, pre: SensorCorrect, k: int, ys: np.ndarray, xs: np.n
     every same-channel neighbour inside the image by K noise sigmas at its level plus FLOOR."""
     if pre.test is None:
         return False
-    from ..modules.sensor.stage import FLOOR, neighbour_tables
+    from ..modules.sensor.stage import FLOOR, neighbour_tables   # deferred: only raws that get a sensor correction load the stage (start-up)
     data, p, (height, width) = raw.data, raw.cfa.period, raw.shape
     nb, nb_n, _, _ = neighbour_tables(raw.cfa)
     t = pre.test

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..sim.colorimetry import XYZ_TO_SRGB
-from .statistics import CLIP_FRACTION, MAX_CELLS, cell_thumbnail, thumbnail_step
+from .statistics import MAX_CELLS, cell_thumbnail, thumbnail_step
 
 # --------------------------------------------------------------------------------------------
 # 1. The lights
@@ -204,7 +204,7 @@ def cell_means(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level:
                max_cells: int = MAX_CELLS) -> tuple[np.ndarray, np.ndarray, int]:
     """(cells, clipped, step): one camera triplet per whole CFA cell, the mean of each channel's
     normalised samples in it, float32 (H/p/step, W/p/step, n); ``clipped`` marks cells with a
-    sample at or above CLIP_FRACTION; every ``step``-th cell row and column when the raw has more
+    sample at or above clisp.scene.statistics.CLIP_FRACTION; every ``step``-th cell row and column when the raw has more
     than ``max_cells`` cells: the statistics pass's cell thumbnail (clisp.scene.statistics)."""
     step = thumbnail_step(data.shape, cfa.period, max_cells)
     cells, clipped = cell_thumbnail(data, cfa, black_level, white_level, step)

@@ -163,7 +163,7 @@ def simulate(scene: np.ndarray, cfa: CFA | str = "lms", gain: float | None = Non
     a, k_exp = inverse_isp_matrix(cfa.spectral)
     truth, raw = optics_and_mosaic(scene, cfa, kernel, a)
     if defects is not None and defects.any:
-        from .defects import capture
+        from .defects import capture   # deferred: only a simulation with defects loads the defect model (start-up)
         data = capture(raw, defects, cfa, gain_value, noise, np.random.default_rng(seed))
     else:
         data = _digitise(raw, gain_value, noise, np.random.default_rng(seed))

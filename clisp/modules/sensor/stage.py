@@ -208,7 +208,7 @@ class GainTerms:
 
     def pack(self) -> tuple[np.ndarray, np.ndarray]:
         """(terms: n x TERM_SIZE float32, maps: the GainMaps' planes, float32) for sensor.cl."""
-        from ...io.opcodes import GainMap
+        from ...io.opcodes import GainMap   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
         terms, maps = [], []
         offset = 0
         for op in self.ops:
