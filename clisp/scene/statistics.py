@@ -208,6 +208,14 @@ def strip_height(shape: tuple[int, int], period: int, block: int = BLOCK) -> int
     return min(periods * period, block // period * period)
 
 
+def noise_strips(read: Any, shape: tuple[int, int], period: int) -> dict[int, np.ndarray]:
+    """{block row: its noise strip, a copy}: rows r BLOCK .. r BLOCK + strip_height (whole periods,
+    within the image) of every block row of :func:`strip_rows`, each read by ``read(y0, y1)``."""
+    h, tall = shape[0], strip_height(shape, period)
+    return {r: np.array(read(r * BLOCK, r * BLOCK + (min(h - r * BLOCK, tall) // period) * period))
+            for r in strip_rows(shape, period)}
+
+
 def strip_rows(shape: tuple[int, int], period: int, block: int = BLOCK) -> list[int]:
     """Block rows that have a noise strip: their first STRIP_PERIODS periods of rows and at least
     one whole CELL row inside the image."""
@@ -232,17 +240,16 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistic
     from ..engine.streaming import FileWindows, window_source     # deferred: the engine is not needed to import this
     clip = clip_levels(raw.black_level, raw.white_level, nch, data.dtype)
     step = thumbnail_step((h, w), p, max_cells)
-    rows, tall = strip_rows((h, w), p), strip_height((h, w), p)
     source = window_source(data)       # a raw file mapped in memory is read with pread: a file truncated
     try:                               # meanwhile raises ClispError instead of a bus error
         def read(y0: int, y1: int) -> np.ndarray:
             """Rows y0 .. y1 - 1: pread from a mapped file, a view of an array in memory."""
             return source.read(y0, 0, y1 - y0, w, p) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
 
-        strips = {r: np.array(read(r * BLOCK, r * BLOCK + (min(h - r * BLOCK, tall) // p) * p)) for r in rows}
+        strips = noise_strips(read, (h, w), p)
         table = None
         if table_fits(cfa, (h, w)):
-            table = _empty_table(h, w, nch)
+            table = empty_table(h, w, nch)
             tile = clip_tile(clip, cfa, w, data.dtype)
             with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-statistics") as pool:
                 pending: list[Any] = []
@@ -259,7 +266,9 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistic
                            step=step, strips=strips, seconds=time.perf_counter() - start, raw=raw)
 
 
-def _empty_table(h: int, w: int, nch: int) -> BlockTable:
+def empty_table(h: int, w: int, nch: int) -> BlockTable:
+    """A zeroed :class:`BlockTable` for an H x W raw of ``nch`` channels, with its grid's counts
+    (whole cells and Laplacian positions per block) filled in: what both faces of the pass fill."""
     rows, cols = -(-h // BLOCK), -(-w // BLOCK)
     hc, wc, cb = h // CELL, w // CELL, BLOCK // CELL
     # whole cells per block, and Laplacian positions: cell rows 1 .. hc_b - 2 of each block row, centre

@@ -26,8 +26,8 @@ import numpy as np
 
 from ..engine.runtime import Runtime
 from ..engine.stage import as_f32
-from .statistics import (BLOCK, CELL, CLIP_FRACTION, MAX_CELLS, SceneStatistics, _empty_table,
-                         clip_levels, reference_statistics, strip_height, strip_rows, table_fits, thumbnail_step)
+from .statistics import (BLOCK, CELL, CLIP_FRACTION, MAX_CELLS, SceneStatistics, empty_table, noise_strips,
+                         clip_levels, reference_statistics, table_fits, thumbnail_step)
 
 DEVICE_DTYPES = (np.dtype(np.uint16), np.dtype(np.float32))
 """Raw sample types the kernels read (RAW_T); others take the reference."""
@@ -50,7 +50,7 @@ def device_statistics(raw: Any, rt: Runtime, max_cells: int = MAX_CELLS) -> Scen
     defines = {"RAW_T": "ushort" if integer else "float", "ACC_T": "long" if integer else "float",
                "CFA_PERIOD": p, "NCH": nch, "BLOCK": BLOCK, "CELL": CELL}
     acc = np.dtype(np.int64 if integer else np.float32)
-    table = _empty_table(h, w, nch)
+    table = empty_table(h, w, nch)
     rows, cols = table.uniform.shape
     step = thumbnail_step((h, w), p, max_cells)
     th, tw = -(-(h // p) // step), -(-(w // p) // step)
@@ -79,8 +79,7 @@ def device_statistics(raw: Any, rt: Runtime, max_cells: int = MAX_CELLS) -> Scen
     table.clipped[...] = host["clipped"].reshape(nch, rows, cols)
     table.uniform[...] = host["uniform"].reshape(rows, cols) != 0
     table.lap[...] = host["lap"].reshape(-1, rows, cols)
-    tall = strip_height((h, w), p)
-    strips = {r: np.array(data[r * BLOCK:r * BLOCK + (min(h - r * BLOCK, tall) // p) * p]) for r in strip_rows((h, w), p)}
+    strips = noise_strips(lambda y0, y1: data[y0:y1], (h, w), p)
     return SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table,
                            cells=host["cells"].reshape(th, tw, nch),     # written pixel-interleaved
                            cells_clipped=host["cells_clipped"].reshape(th, tw) != 0, step=step, strips=strips,
