@@ -25,6 +25,12 @@
  * (width + 2 SC_HALO) x (height + 2 SC_HALO), i.e. (width + 6) x (height + 6); (x, y) an output
  * pixel; the image pixel is (y + SC_HALO + oy, x + SC_HALO + ox). */
 #define W_AT(q) ((float)src[q] * g1 - OFF(q))
+/* OpcodeList 1's gain at image pixel (gy, gx): the product of its terms, 1 without any. */
+#if SC_TERMS
+#define GAIN1(gy, gx) list_gain(terms, maps, 1, gy, gx)
+#else
+#define GAIN1(gy, gx) 1.0f
+#endif
 #if SC_DARK
 #define OFF(q) dark[q]
 #else
@@ -137,11 +143,7 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
         for (int k = 0; k < LANES && x0 + k < width; k++) {
             const int i = i0 + k, gx = gx0 + k;
             const int c = cfa_channel(pattern, gy, gx);
-#if SC_TERMS
-            const float g1 = list_gain(terms, maps, 1, gy, gx);
-#else
-            const float g1 = 1.0f;
-#endif
+            const float g1 = GAIN1(gy, gx);
             const float w = W_AT(i);
 #if SC_DETECT || SC_MASK
             if (screen_one(src, pattern, black, inv_range, noise_a, noise_b, mask, dark, g1, i, sw, c, w)
@@ -355,11 +357,7 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
         const int k = py * CFA_PERIOD + px;
         const int c = pattern[k];
         const int i = (y + SC_HALO) * sw + x + SC_HALO;
-#if SC_TERMS
-        const float g1 = list_gain(terms, maps, 1, gy, gx);
-#else
-        const float g1 = 1.0f;
-#endif
+        const float g1 = GAIN1(gy, gx);
         const float w = W_AT(i);
 #if SC_MASK
         int bad = mask[i] != 0;
