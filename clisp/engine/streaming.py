@@ -99,6 +99,13 @@ class FileWindows:
         block = self.read_block(r0, int(rows.max()) + 1, c0, int(cols.max()) + 1)
         return gather(block, rows - r0, cols - c0, out)
 
+    def read_rows(self, r0: int, r1: int) -> np.ndarray:
+        """Whole rows r0..r1 (inside the image) as a new native-endian (r1 - r0) x W array: one
+        pread straight into it, no mirror indices to gather."""
+        rows = np.empty((r1 - r0, self.shape[1]), dtype=self.dtype)
+        self._pread(rows.reshape(-1).view(np.uint8), self.offset + r0 * self.shape[1] * self.dtype.itemsize)
+        return rows.astype(self.dtype.newbyteorder("="), copy=False)
+
     def read_block(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """Rows r0..r1, columns c0..c1 of the image as a native-endian array: a view of a buffer
         the next call reuses (copy it, as ``read`` does, before reading again)."""

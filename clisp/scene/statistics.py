@@ -244,7 +244,7 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistic
     try:                               # meanwhile raises ClispError instead of a bus error
         def read(y0: int, y1: int) -> np.ndarray:
             """Rows y0 .. y1 - 1: pread from a mapped file, a view of an array in memory."""
-            return source.read(y0, 0, y1 - y0, w, p) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
+            return source.read_rows(y0, y1) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
 
         strips = noise_strips(read, (h, w), p)
         table = None
@@ -426,10 +426,9 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
     try:
         if not isinstance(source, FileWindows):       # in memory: the rows as one strided view
             rows = np.asarray(data[:h, :w]).reshape(h // p, p, w)[::step].reshape(-1, w)
-        elif step > 1:
-            rows = np.concatenate([source.read(y, 0, p, w, p) for y in range(0, h, step * p)])
-        else:
-            rows = source.read(0, 0, h, w, p)
+        else:                                          # whole rows inside the image: no mirroring to do
+            starts = range(0, h, step * p)
+            rows = np.concatenate([source.read_rows(y, y + p)[:, :w] for y in starts])
     finally:
         source.close()
     ny, nx = rows.shape[0] // p, (w // p + step - 1) // step

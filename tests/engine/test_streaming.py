@@ -298,6 +298,10 @@ def test_file_windows_equal_array_windows(tmp_path: Path, dtype: type) -> None:
             got = source.read(*window, 4)
             assert got.dtype == dtype and got.flags.c_contiguous
             np.testing.assert_array_equal(got, gather_window(raw.data, *window, 4), err_msg=str(window))
+        for r0, r1 in [(0, 37), (4, 8), (36, 37)]:                    # whole rows, one pread
+            rows = source.read_rows(r0, r1)
+            assert rows.dtype == dtype and rows.flags.c_contiguous
+            np.testing.assert_array_equal(rows, raw.data[r0:r1])
     finally:
         source.close()
     assert isinstance(window_source(lazy.data[1:]), ArrayWindows)      # a slice is not the file
@@ -460,6 +464,9 @@ def test_file_windows_big_endian(tmp_path: Path) -> None:
         got = source.read(-2, 5, 24, 10, 2)
         assert got.dtype == np.uint16
         np.testing.assert_array_equal(got, gather_window(data, -2, 5, 24, 10, 2))
+        rows = source.read_rows(3, 7)
+        assert rows.dtype == np.uint16
+        np.testing.assert_array_equal(rows, data[3:7])
     finally:
         source.close()
 

@@ -99,6 +99,25 @@ def test_device_equals_the_reference(rt, cfa: str) -> None:
     assert np.array_equal(ref.thumbnail()[0], dev.cells)
 
 
+@pytest.mark.parametrize("cfa", ["bayer", "lms"])
+def test_a_raw_file_reads_as_the_array(tmp_path, cfa: str) -> None:
+    """The pass over a raw file mapped in memory (whole rows by pread) equals the pass over the
+    same mosaic in memory: the table, the strips, and a subsampled thumbnail (about every 3rd cell)."""
+    from clisp.io.rawfile import read_raw, write_raw
+    raw = make_raw(cfa)
+    write_raw(tmp_path / "r.dng", raw)
+    lazy = read_raw(tmp_path / "r.dng", lazy=True)
+    assert isinstance(lazy.data, np.memmap)
+    cells = (raw.data.shape[0] // raw.cfa.period) * (raw.data.shape[1] // raw.cfa.period)
+    mem, fil = reference_statistics(raw, max_cells=cells // 9), reference_statistics(lazy, max_cells=cells // 9)
+    assert mem.step == fil.step > 1
+    for name in ("sums", "clipped", "uniform", "lap"):
+        assert np.array_equal(getattr(mem.table, name), getattr(fil.table, name)), name
+    assert all(np.array_equal(mem.strips[r], fil.strips[r]) for r in mem.strips)
+    for a, b in zip(mem.thumbnail(), fil.thumbnail()):
+        assert np.array_equal(a, b)
+
+
 def test_the_grid_and_its_subsamples() -> None:
     assert thumbnail_step((512, 768), 2) == 1 and thumbnail_step((4000, 6000), 2) == 4
     assert strip_rows((100, 64), 2) == [0, 1]                        # a 36-row last block row has its strip
