@@ -35,8 +35,10 @@ def auto_exposure_ev(raw: RawImage, gains2: np.ndarray, limit: float, statistics
     on linear sRGB (3,). 0 for a raw whose estimate is black. ``statistics``: the raw's
     clisp.scene.statistics.SceneStatistics, whose cell thumbnail then gives the tile colours
     (:func:`thumbnail_colours`), read here when None."""
-    linear = thumbnail_colours(raw, statistics) @ np.asarray(raw.colour_matrix, dtype=np.float64).T * np.asarray(gains2)
-    levels = np.minimum(np.percentile(linear.reshape(-1, 3), 100.0 * (1.0 - AUTO_SHARE), axis=0), 1.0)
+    colours = thumbnail_colours(raw, statistics)
+    matrix = np.asarray(raw.colour_matrix, dtype=np.float64)
+    linear = (matrix @ colours.reshape(-1, colours.shape[-1]).T) * np.asarray(gains2, dtype=np.float64)[:, None]
+    levels = np.minimum(np.percentile(linear, 100.0 * (1.0 - AUTO_SHARE), axis=1), 1.0)   # per channel row
     white = float(levels.max())
     if not white > 0.0:
         return 0.0

@@ -253,17 +253,18 @@ def block_statistics_of(cells: np.ndarray, clipped: np.ndarray, step: int, chann
     # bright: a soft maximum per block, the cells weighted by (channel sum) ^ BRIGHT_POWER
     level = sum((cells[..., c] for c in range(1, n)), cells[..., 0])
     power = np.where(ok, level, np.float32(0.0)).astype(np.float32) ** np.float32(BRIGHT_POWER)
-    # every per-cell quantity in one float32 stack, summed per block in float64: the rows of each
-    # block row first (whole rows, contiguous), then each block's columns
-    stack = np.empty(cells.shape[:2] + (4 + 3 * n,), dtype=np.float32)
-    stack[..., 0], stack[..., 1] = ok, clipped
-    stack[..., 2:2 + n] = np.where(ok[..., None], cells, 0.0)
-    stack[..., 2 + n] = weight
-    stack[..., 3 + n:3 + 2 * n] = weight[..., None] * cells
-    stack[..., 3 + 2 * n] = power
-    stack[..., 4 + 2 * n:] = power[..., None] * cells
-    rows = stack.reshape(by, b, -1).sum(axis=1, dtype=np.float64)
-    sums = rows.reshape(by, bx, b, stack.shape[-1]).sum(axis=2)
+    # every per-cell quantity in one float32 plane (planes, not a last axis: writing 13 strided
+    # columns cost 30 ms on 375 k cells), summed per block in float64: the rows of each block row
+    # first, then each block's columns
+    k = 4 + 3 * n
+    planes = np.zeros((k,) + cells.shape[:2], dtype=np.float32)
+    planes[0], planes[1], planes[2 + n], planes[3 + 2 * n] = ok, clipped, weight, power
+    for c in range(n):
+        np.copyto(planes[2 + c], cells[..., c], where=ok)
+        np.multiply(cells[..., c], weight, out=planes[3 + n + c])
+        np.multiply(cells[..., c], power, out=planes[4 + 2 * n + c])
+    rows = planes.reshape(k, by, b, -1).sum(axis=2, dtype=np.float64)
+    sums = rows.reshape(k, by, bx, b).sum(axis=3).transpose(1, 2, 0)
     return BlockStats(count=sums[..., 0].astype(np.int64), clipped=sums[..., 1].astype(np.int64),
                       sum=sums[..., 2:2 + n], grey_weight=sums[..., 2 + n],
                       grey_sum=sums[..., 3 + n:3 + 2 * n], bright_weight=sums[..., 3 + 2 * n],
