@@ -1,22 +1,7 @@
 /* A tile's window gathered from the whole mosaic on the device (the engine's streaming, when the
  * whole mosaic is resident). Defines from the host: RAW_T (the sample type), CFA_PERIOD, MIRROR_X. */
 
-/* cfa_mirror: tiling.cfa_mirror_index for one index: i inside [0, n) unchanged; outside, the
- * whole-sample reflection (-1 -> 1, n -> n-2), then the nearest index congruent to i modulo
- * period, so the padded sample keeps its CFA colour. Needs n >= period, n >= 2. */
-inline int cfa_mirror(const int i, const int n, const int period)
-{
-    if (i >= 0 && i < n)
-        return i;
-    const int cycle = 2 * n - 2;
-    int m = abs(i) % cycle;
-    if (m >= n)
-        m = cycle - m;
-    const int delta = ((i - m) % period + period) % period;
-    const int up = m + delta;
-    const int down = up - period;
-    return ((delta <= period / 2 && up < n) || down < 0) ? up : down;
-}
+#include "mirror.h"
 
 /* gather_window: dst (h x dst_w) = the window at (y0, x0) of the whole src_h x src_w mosaic src,
  * rows and columns outside the mosaic CFA-mirrored (cfa_mirror with CFA_PERIOD), as

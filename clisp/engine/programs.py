@@ -69,6 +69,7 @@ def kernel_sources() -> dict[str, Path]:
     if _SOURCES is None:
         package = Path(__file__).resolve().parents[1]             # clisp/ (this file is clisp/engine/)
         found = [*package.glob("modules/*/*.cl"), *package.glob("modules/*/*.h"), *package.glob("engine/*.cl"),
+                 *package.glob("engine/*.h"),
                  *package.glob("scene/*.cl")]
         _SOURCES = {path.name: path for path in sorted(found)}
         if "common.h" not in _SOURCES:

@@ -199,6 +199,23 @@ def test_no_false_corrections_on_a_smooth_raw_at_gain_64():
     assert_close(on, off, "the search on a defect-free gain-64 raw")
 
 
+@pytest.mark.parametrize("cfa", ["bayer", "lms"])
+def test_an_edge_beside_the_border_is_no_defect(cfa):
+    """A defect-free raw whose last two rows are dark under a bright area: the mirrored margin below
+    the image puts bright copies two rows under the dark ones, which, tested with only the dark
+    neighbours inside, were taken for hot pixels, and the demosaic and denoiser carried the change
+    40 rows up (Kodak 7, Bayer gain 64: 0.087). Only pixels of the image are tested; the margin is the
+    corrected image, padded: the search changes nothing, whole or tiled."""
+    img = np.full((64, 96, 3), 0.7)
+    img[-2:] = 0.04
+    img[:, :3] = 0.04                                    # and the same at the left edge
+    raw = simulate(img, cfa=cfa, gain=1, seed=3, optics="none").raw
+    off = build_pipeline(raw, bad_pixels="off").run(raw.data)
+    for tile in (None, 32):
+        on = build_pipeline(raw, bad_pixels="auto").run(raw.data, tile=tile)
+        assert_close(on, off, f"the search beside an edge at the border, {cfa}, tile {tile}")
+
+
 def test_fast_preset_searches_only_when_asked(defective):
     _, sim, _ = defective
     assert build_pipeline(sim.raw, preset="fast", opcodes=False).corrections.pre is None

@@ -20,6 +20,7 @@
  */
 
 #include "sensor.h"
+#include "mirror.h"
 
 /* The window's geometry and the per-pixel steps shared by both kernels. src is the window,
  * (width + 2 SC_HALO) x (height + 2 SC_HALO), i.e. (width + 6) x (height + 6); (x, y) an output
@@ -289,11 +290,10 @@ __kernel void sensor_compact(__global const uchar *restrict flags, __global uint
 }
 
 /* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
- * window's pixels within 2 of the image's edge, inside or beyond it (stage.edge_strips: one further
- * out has no neighbour inside and stays as it is): sensor_fix tests them with the neighbours inside
- * the image only). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
- * atomic for them (an atomic per pixel made the strips beyond the image cost as much as the
- * screen), bounds checked. */
+ * window's pixels inside the image within 2 of its edge, stage.edge_strips: sensor_fix tests them
+ * with the neighbours inside the image only; pixels beyond the image are not tested, sensor_mirror
+ * pads them). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one atomic for them (an
+ * atomic per pixel cost as much as the screen), bounds checked. */
 __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
                            const int width, const int y0, const int x0, const int rows, const int cols)
 {
@@ -337,7 +337,8 @@ inline float y_near(__global const RAW_T *src, __constant const char *pattern, _
  *   beyond every same-channel neighbour by SC_K noise sigmas (the sensor model at that neighbour's
  *   level) plus SC_FLOOR plus SC_ALPHA times their range, and its 4 nearest pixels carry less than
  *   SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess: an optical detail
- *   lights its neighbours through the lens, a hot pixel does not); its output is then rewritten.
+ *   lights its neighbours through the lens, a hot pixel does not; without a pair, beside the
+ *   image's edge, the good neighbours' mean w and Y); its output is then rewritten.
  * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx), pairs_n[k]
  * opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
 __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
@@ -415,17 +416,20 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
                 est = wbar + (yp - ybar) / (wbc * s);
             }
         }
-        if (best == INFINITY) {
-            float sum = 0.0f;
+        if (best == INFINITY) {          /* no pair: the good neighbours' means stand for it */
+            float sum = 0.0f, ysum = 0.0f;
             int good = 0;
             for (int j = 0; j < n; j++) {
                 const int q = i + o[2 * j] * sw + o[2 * j + 1];
                 if (SKIP(q, j))
                     continue;
                 sum += W_AT(q);
+                ysum += y_near(src, pattern, black, inv_range, wb, dark, g1, q, sw, gy + o[2 * j], gx + o[2 * j + 1]);
                 good++;
             }
             est = good ? sum / (float)good : w;
+            wbar = good ? est : 0.0f;
+            ybar = good ? ysum / (float)good : NAN;
         }
 #if SC_DETECT
         if (!bad && extreme) {
@@ -435,7 +439,7 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
              * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
              * look unsupported */
             const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
-            bad = fabs(excess) > 0.0f && (best == INFINITY || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
+            bad = fabs(excess) > 0.0f && (isnan(ybar) || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
                                           + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
             if (bad && gy >= 0 && gy < img_h && gx >= 0 && gx < img_w)    /* a mirrored copy is no pixel */
                 atomic_inc(found);
@@ -447,4 +451,25 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
 #undef OUTSIDE
 #undef SKIP
     }
+}
+
+/* sensor_mirror: the window's output pixels beyond the image, the rectangle (y0, x0, rows, cols)
+ * (stage.beyond_strips), take the output at their CFA-mirror source (cfa_mirror, as the tile
+ * windows are padded): the corrected image padded, which is what a later stage's halo reads of a
+ * whole corrected image. A mirrored copy is never tested itself: with half its neighbours missing
+ * it was taken for a defect across any edge near the image's border. A source outside the window
+ * (a window less than a CFA period deep inside the image) leaves the pixel as it is. Halo 0; the
+ * sources are inside the image, which no work-item writes. */
+__kernel void sensor_mirror(__global float *restrict dst, const int width, const int height, const int oy,
+                            const int ox, const int img_h, const int img_w, const int y0, const int x0,
+                            const int rows, const int cols)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= cols || y >= rows)
+        return;
+    const int yo = y0 + y, xo = x0 + x;
+    const int sy = cfa_mirror(yo + SC_HALO + oy, img_h, CFA_PERIOD) - SC_HALO - oy;
+    const int sx = cfa_mirror(xo + SC_HALO + ox, img_w, CFA_PERIOD) - SC_HALO - ox;
+    if (sy >= 0 && sy < height && sx >= 0 && sx < width)
+        dst[yo * width + xo] = dst[sy * width + sx];
 }

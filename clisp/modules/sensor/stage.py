@@ -53,7 +53,7 @@ import numpy as np
 from ...cfa import CFA
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32, image_extent
-from ...engine.tiling import gather_window
+from ...engine.tiling import cfa_mirror_index, gather_window
 from ..raw_scale.stage import CfaAffine
 
 HALO = 3
@@ -383,7 +383,8 @@ class SensorCorrect(Stage):
                 return mask[idx] | (outside[idx] if (dy or dx) else False)
 
             w = w_at(0, 0)
-            bad = masked(0, 0).copy()
+            within = ~outside[np.ix_(rows, cols)]               # a pixel beyond the image is not tested
+            bad = masked(0, 0) & within
             offs = [tuple(int(v) for v in nb[k, j]) for j in range(nb_n[k])]
             t = self.test or DefectTest.noiseless(cfa.n_channels)
             wb = np.asarray(t.wb)
@@ -407,7 +408,7 @@ class SensorCorrect(Stage):
                 spread = t.alpha * (uhi - ulo) + FLOOR
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
                 cold = ulo - up - t.k * np.sqrt(t.noise_a[c] * np.maximum(ulo, 0) + t.noise_b[c]) - spread
-                cand = ~bad & used & ((hot > 0) | (cold > 0))
+                cand = ~bad & used & within & ((hot > 0) | (cold > 0))
                 with np.errstate(all="ignore"):
                     excess = (w - w_bar) * inv_range[c] * wb[c]
                     var = wb[c] * t.noise_a[c] * np.maximum(np.nan_to_num(y_bar), 0) + wb[c] ** 2 * t.noise_b[c]
@@ -426,6 +427,8 @@ class SensorCorrect(Stage):
             if self.smooth is not None:
                 gain = gain / self.smooth.at(c, (rows + oy)[:, None], (cols + ox)[None, :])
             w_out[np.ix_(rows - r, cols - r)] = w * gain * self.out_scale[c] + self.out_offset[c]
+        if image_extent(origin) is not None:
+            pad_from_image(w_out, (oy + r, ox + r), extent, cfa.period)
         return w_out, found
 
     @staticmethod
@@ -433,8 +436,9 @@ class SensorCorrect(Stage):
         """(the replacement, the chosen pair's mean Y, its mean w) per pixel: along the opposite
         same-channel pair that differs least (in the channel and in Y, the white-balanced mean of
         each member's 4 nearest pixels), the pair's mean plus the colour difference Y(p) - Y(pair)
-        (the channel follows the other channels' detail, as a demosaic assumes); without a pair the
-        good neighbours' mean (Y of the pair NaN, its w 0: the support test then passes)."""
+        (the channel follows the other channels' detail, as a demosaic assumes); without a pair (a
+        pixel beside the image's edge or known bad ones) the good neighbours' mean, and their mean Y
+        and w stand for the pair's in the support test (NaN and 0 without any good neighbour)."""
         best = np.full(w.shape, np.inf)
         est = np.zeros(w.shape)
         y_bar = np.full(w.shape, np.nan)
@@ -454,9 +458,14 @@ class SensorCorrect(Stage):
         if offs:
             good = np.stack([~masked(*o) for o in offs])
             vals = np.stack([w_at(*o) for o in offs])
+            ys = np.stack([y_at(*o) for o in offs])
             n = good.sum(axis=0)
             with np.errstate(all="ignore"):
                 mean = np.where(n > 0, (vals * good).sum(axis=0) / np.maximum(n, 1), w)
+                mean_y = np.where(n > 0, (ys * good).sum(axis=0) / np.maximum(n, 1), np.nan)
+            none = np.isinf(best)                     # no pair: the good neighbours' means stand for it
+            y_bar = np.where(none, mean_y, y_bar)
+            w_bar = np.where(none, mean, w_bar)
         else:
             mean = w
         return np.where(np.isinf(best), mean, est), y_bar, w_bar
@@ -586,28 +595,52 @@ class SensorCorrect(Stage):
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
                 pairs_n=state["pairs_n"], wb=state["wb"],
                 found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
+        for y0, x0, rows, cols in (beyond_strips(origin, width, height, extent)      # the corrected image, padded
+                                   if image_extent(origin) is not None else []):
+            rt.launch_named("sensor", "sensor_mirror", cols, rows, dict(
+                dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0],
+                img_w=extent[1], y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
 
 
+def pad_from_image(out: np.ndarray, at: tuple[int, int], extent: tuple[int, int], period: int) -> None:
+    """Set ``out``'s pixels beyond the image (``out``'s pixel (0, 0) is image pixel ``at``; the image
+    is ``extent`` = (H, W)) to the value at their CFA-mirror source (tiling.cfa_mirror_index) where
+    that source is in ``out``, in place: the corrected image padded as the tile windows are (the
+    reference of sensor_mirror).
+
+    >>> out = np.arange(12.0).reshape(3, 4)            # image rows 0..2, columns -1..2 of a 3 x 5 image
+    >>> pad_from_image(out, (0, -1), (3, 5), 2); out[:, 0].tolist()    # column -1 is column 1
+    [2.0, 6.0, 10.0]
+    """
+    h, w = out.shape
+    ys = np.arange(h) + at[0]
+    xs = np.arange(w) + at[1]
+    sy = cfa_mirror_index(ys, extent[0], period) - at[0]
+    sx = cfa_mirror_index(xs, extent[1], period) - at[1]
+    beyond = ((ys < 0) | (ys >= extent[0]))[:, None] | ((xs < 0) | (xs >= extent[1]))[None, :]
+    ok = beyond & ((sy >= 0) & (sy < h))[:, None] & ((sx >= 0) & (sx < w))[None, :]
+    yy, xx = np.nonzero(ok)
+    out[yy, xx] = out[sy[yy], sx[xx]]
+
+
 def edge_strips(origin: tuple[int, int], width: int, height: int,
                 extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
-    """(y0, x0, rows, cols) in output coordinates of the output window's pixels within RADIUS of the
-    image's edge, inside it or beyond it (an output window of ``width`` x ``height`` whose pixel (0, 0)
-    is image pixel origin + HALO): the rows along the top and bottom, then the columns between them,
-    each pixel once. The screen leaves these pixels out; sensor_fix tests them with the neighbours
-    inside the image only, as the reference does. A pixel more than RADIUS beyond the image (the
-    mirrored margin a later stage's halo reads, 90 px on every side of a default tile) has no
-    neighbour inside: the reference leaves it as it is (known bad or not: the replacement of a pixel
-    without good neighbours is itself), so it is not listed.
+    """(y0, x0, rows, cols) in output coordinates of the output window's pixels inside the image
+    within RADIUS of its edge (an output window of ``width`` x ``height`` whose pixel (0, 0) is image
+    pixel origin + HALO): the rows along the top and bottom, then the columns between them, each
+    pixel once. The screen leaves these pixels out; sensor_fix tests them with the neighbours inside
+    the image only, as the reference does. Pixels beyond the image are not tested: they are padded
+    from the corrected image (:func:`beyond_strips`).
 
     >>> edge_strips((-4, -3), 10, 8, (8, 10))       # one row above the image
-    [(0, 0, 3, 10), (7, 0, 1, 10), (3, 0, 4, 2), (3, 8, 4, 2)]
+    [(1, 0, 2, 10), (7, 0, 1, 10), (3, 0, 4, 2), (3, 8, 4, 2)]
     >>> edge_strips((-3, -3), 10, 8, (8, 10))
     [(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2), (2, 8, 4, 2)]
-    >>> edge_strips((-13, -13), 30, 28, (8, 10))     # 10 px of margin: the 2 px next to the image only
-    [(8, 8, 4, 14), (16, 8, 4, 14), (12, 8, 4, 4), (12, 18, 4, 4)]
+    >>> edge_strips((-13, -13), 30, 28, (8, 10))     # 10 px of margin
+    [(10, 10, 2, 10), (16, 10, 2, 10), (12, 10, 4, 2), (12, 18, 4, 2)]
     """
     ty, tx = origin[0] + HALO, origin[1] + HALO
 
@@ -617,17 +650,43 @@ def edge_strips(origin: tuple[int, int], width: int, height: int,
 
     out = []
     h, w = extent
-    cols = span(-RADIUS, w + RADIUS, tx, width)                 # the columns with a neighbour inside
-    mid = (RADIUS, max(RADIUS, h - RADIUS))                     # the rows the row strips leave
-    for lo, hi in ((-RADIUS, RADIUS), (mid[1], h + RADIUS)):
+    cols = span(0, w, tx, width)                                # the image's columns
+    mid = (min(RADIUS, h), max(RADIUS, h - RADIUS))             # the rows the row strips leave
+    for lo, hi in ((0, mid[0]), (mid[1], h)):
         a, b = span(lo, hi, ty, height)
         if b > a and cols[1] > cols[0]:
             out.append((a, cols[0], b - a, cols[1] - cols[0]))
     a, b = span(mid[0], mid[1], ty, height)
-    for lo, hi in ((-RADIUS, RADIUS), (max(RADIUS, w - RADIUS), w + RADIUS)):
+    for lo, hi in ((0, min(RADIUS, w)), (max(RADIUS, w - RADIUS), w)):
         c0, c1 = span(lo, hi, tx, width)
         if b > a and c1 > c0:
             out.append((a, c0, b - a, c1 - c0))
+    return out
+
+
+def beyond_strips(origin: tuple[int, int], width: int, height: int,
+                  extent: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+    """(y0, x0, rows, cols) in output coordinates of the output window's pixels beyond the image
+    (the margin a later stage's halo reads), each pixel once: the rows above and below it, then
+    the columns left and right of it between them. sensor_mirror pads them from the corrected image.
+
+    >>> beyond_strips((-4, -3), 10, 8, (8, 10))       # one row above the image
+    [(0, 0, 1, 10)]
+    >>> beyond_strips((-13, -13), 30, 28, (8, 10))    # 10 px of margin on every side
+    [(0, 0, 10, 30), (18, 0, 10, 30), (10, 0, 8, 10), (10, 20, 8, 10)]
+    """
+    ty, tx = origin[0] + HALO, origin[1] + HALO
+    h, w = extent
+    top, bottom = min(max(-ty, 0), height), min(max(h - ty, 0), height)     # output rows [top, bottom) inside
+    left, right = min(max(-tx, 0), width), min(max(w - tx, 0), width)
+    out = [(0, 0, top, width)] if top > 0 else []
+    if bottom < height and bottom >= top:
+        out.append((bottom, 0, height - bottom, width))
+    if bottom > top:
+        if left > 0:
+            out.append((top, 0, bottom - top, left))
+        if right < width:
+            out.append((top, right, bottom - top, width - right))
     return out
 
 
