@@ -46,10 +46,11 @@ class Scene:
     runtime: Any = None
     """The runtime whose device measures the statistics (None: the NumPy reference)."""
 
-    def measured(self) -> SceneStatistics:
-        """The raw's statistics, measured now if no estimate needed them yet (then kept)."""
+    def measured(self, cells: bool = False) -> SceneStatistics:
+        """The raw's statistics, measured now if no estimate needed them yet (then kept); ``cells``:
+        with the cell thumbnail read in the same pass (the estimates that read it ask for it)."""
         if self.statistics is None:
-            self.statistics = scene_statistics(self.raw, self.runtime)
+            self.statistics = scene_statistics(self.raw, self.runtime, cells)
         return self.statistics
 
 
@@ -64,17 +65,18 @@ def measure_scene(raw: RawImage, wb: str = "camera", wb2: str = "metadata", nois
     by the NumPy reference. ClispError naming the raw for estimates it cannot serve."""
     scene = Scene(raw, None, np.ones(3), exposure, runtime=runtime)
     estimated = wb == "auto" or (wb == "camera" and not has_camera_wb(raw))
-    scene.raw = with_white_balance(raw, wb, scene.measured() if estimated else None)
+    thumbnail = estimated or auto_exposure or wb2 != "metadata"      # the estimates that read the cells
+    scene.raw = with_white_balance(raw, wb, scene.measured(thumbnail) if estimated else None)
     raw = scene.raw
     if noise:
         try:
-            scene.noise = raw_noise(raw, statistics=None if has_noise_model(raw) else scene.measured())
+            scene.noise = raw_noise(raw, statistics=None if has_noise_model(raw) else scene.measured(thumbnail))
         except NoiseEstimateError:
             scene.noise = None    # a raw too small to estimate its noise is processed without chroma denoise
-    scene.gains2 = wb2_gains(raw, wb2, None if wb2 == "metadata" else scene.measured())
+    scene.gains2 = wb2_gains(raw, wb2, None if wb2 == "metadata" else scene.measured(thumbnail))
     if auto_exposure:
         from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
-        scene.exposure = float(np.clip(exposure + auto_exposure_ev(raw, scene.gains2, limit, scene.measured()),
+        scene.exposure = float(np.clip(exposure + auto_exposure_ev(raw, scene.gains2, limit, scene.measured(thumbnail)),
                                        -limit, limit))
     return scene
 

@@ -227,9 +227,11 @@ def strip_rows(shape: tuple[int, int], period: int, block: int = BLOCK) -> list[
 # the reference
 # --------------------------------------------------------------------------------------------
 
-def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistics:
+def reference_statistics(raw: Any, max_cells: int = MAX_CELLS, cells: bool = False) -> SceneStatistics:
     """The NumPy definition of :class:`SceneStatistics` for ``raw`` (RawImage: data H x W DN, cfa,
-    black_level, white_level): the mosaic read once, in bands of BAND_BLOCKS block rows."""
+    black_level, white_level): the mosaic read once, in bands of BAND_BLOCKS block rows. ``cells``:
+    the cell thumbnail too, from the same bands (an estimate will read it; without, it is read on
+    first need: :meth:`SceneStatistics.thumbnail`)."""
     start = time.perf_counter()
     cfa: CFA = raw.cfa
     data = raw.data
@@ -247,23 +249,30 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS) -> SceneStatistic
             return source.read_rows(y0, y1) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
 
         strips = noise_strips(read, (h, w), p)
-        table = None
+        table = thumb = None
         if table_fits(cfa, (h, w)):
             table = empty_table(h, w, nch)
             tile = clip_tile(clip, cfa, w, data.dtype)
+            thumb = _Thumbnail(cfa, raw.black_level, raw.white_level, step, (h, w)) if cells else None
             with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-statistics") as pool:
                 pending: list[Any] = []
                 for r0, r1 in _bands(h):               # at most 2 THREADS bands read ahead (flat memory)
                     if len(pending) >= 2 * THREADS:
                         pending.pop(0).result()
                     pending.append(pool.submit(_scan_band, read(r0 * BLOCK, min(h, r1 * BLOCK)), r0, r1, cfa, tile,
-                                               table))
+                                               table, thumb))
                 for done in pending:
                     done.result()
     finally:
         source.close()
-    return SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table, cells=None, cells_clipped=None,
-                           step=step, strips=strips, seconds=time.perf_counter() - start, raw=raw)
+    stats = SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table, cells=None, cells_clipped=None,
+                            step=step, strips=strips, raw=raw)
+    if thumb is not None:
+        stats.cells, stats.cells_clipped, stats.raw = thumb.cells, thumb.clipped, None
+    stats.seconds = time.perf_counter() - start
+    if cells:
+        stats.thumbnail()                              # a CFA whose period does not divide CELL: read now
+    return stats
 
 
 def empty_table(h: int, w: int, nch: int) -> BlockTable:
@@ -295,9 +304,12 @@ def _bands(h: int) -> list[tuple[int, int]]:
     return bands
 
 
-def _scan_band(rows: np.ndarray, r0: int, r1: int, cfa: CFA, tile: np.ndarray, table: BlockTable) -> None:
-    """Write the sums of block rows r0 .. r1 - 1 (``rows``: their samples, DN) into ``table`` (only
-    those rows: bands may run in parallel)."""
+def _scan_band(rows: np.ndarray, r0: int, r1: int, cfa: CFA, tile: np.ndarray, table: BlockTable,
+               thumb: "_Thumbnail | None" = None) -> None:
+    """Write the sums of block rows r0 .. r1 - 1 (``rows``: their samples, DN) into ``table``, and the
+    band's cell rows into ``thumb`` when given (only those rows: bands may run in parallel)."""
+    if thumb is not None:
+        thumb.fill(rows, r0 * BLOCK)
     w = rows.shape[1]
     band = rows.reshape(r1 - r0, -1, w)          # (kb, bh, W): bh = BLOCK, but in a last partial block row
     rs = slice(r0, r1)
@@ -385,7 +397,8 @@ def _laplacian_products(sums: np.ndarray, rs: slice, table: BlockTable) -> None:
     most 8 x 16 x 65535 < 2^23), their products and the products' sums over a block's positions (at
     most 224) integers below 2^53, which float64 holds exactly in any order."""
     nch, _, _, wc = sums.shape
-    lap = _laplacian(sums).astype(np.float64) if sums.dtype.kind == "i" else _laplacian(sums.astype(np.float64))                                          # (nch, kb, hc - 2, wc - 2)
+    # (nch, kb, hc - 2, wc - 2)
+    lap = _laplacian(sums).astype(np.float64) if sums.dtype.kind == "i" else _laplacian(sums.astype(np.float64))
     edges = np.arange(0, wc - 2, BLOCK // CELL)
     k = min(len(edges), table.lap.shape[-1])
     for i, (a, b) in enumerate(zip(*np.triu_indices(nch))):
@@ -419,9 +432,6 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
     from ..engine.streaming import FileWindows, window_source     # deferred: the engine is not needed to import this
     p = cfa.period
     h, w = data.shape[0] // p * p, data.shape[1] // p * p
-    black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
-    scale = 1.0 / (float(white_level) - black)
-    channel = cfa.channel_map(p, p)
     source = window_source(data)
     try:
         if not isinstance(source, FileWindows):       # in memory: the rows as one strided view
@@ -431,6 +441,18 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
             rows = np.concatenate([source.read_rows(y, y + p)[:, :w] for y in starts])
     finally:
         source.close()
+    return thumbnail_cells(rows, cfa, black_level, white_level, step, w)
+
+
+def thumbnail_cells(rows: np.ndarray, cfa: CFA, black_level: np.ndarray, white_level: float, step: int,
+                    w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(cells, clipped) of the thumbnail cell rows whose samples are ``rows`` (their p rows each, in
+    order; columns from 0, the first ``w`` used): every ``step``-th whole cell of each, each channel's
+    mean normalised sample (float32 arithmetic) and whether a sample is at or above CLIP_FRACTION."""
+    p = cfa.period
+    black = np.broadcast_to(np.asarray(black_level, dtype=np.float64), (cfa.n_channels,))
+    scale = 1.0 / (float(white_level) - black)
+    channel = cfa.channel_map(p, p)
     ny, nx = rows.shape[0] // p, (w // p + step - 1) // step
     cells = np.zeros((ny, nx, cfa.n_channels), dtype=np.float32)
     clipped = np.zeros((ny, nx), dtype=bool)
@@ -438,9 +460,35 @@ def cell_thumbnail(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_le
     for dy in range(p):
         for dx in range(p):
             c = int(channel[dy, dx])
-            plane = rows[dy::p, dx::p * step].astype(np.float32)
+            plane = rows[dy::p, dx:w:p * step].astype(np.float32)
             plane = (plane - np.float32(black[c])) * np.float32(scale[c])
             clipped |= plane >= CLIP_FRACTION
             cells[..., c] += plane
     cells /= counts.astype(np.float32)
     return cells, clipped
+
+
+class _Thumbnail:
+    """The cell thumbnail filled band by band by the reference's pass (:func:`_scan_band`)."""
+
+    def __init__(self, cfa: CFA, black_level: np.ndarray, white_level: float, step: int,
+                 shape: tuple[int, int]) -> None:
+        p = cfa.period
+        self.cfa, self.black, self.white, self.step = cfa, black_level, white_level, step
+        self.h, self.w = shape[0] // p * p, shape[1] // p * p
+        ny, nx = -(-(self.h // p) // step), -(-(self.w // p) // step)
+        self.cells = np.zeros((ny, nx, cfa.n_channels), dtype=np.float32)
+        self.clipped = np.zeros((ny, nx), dtype=bool)
+
+    def fill(self, rows: np.ndarray, y0: int) -> None:
+        """The thumbnail's cell rows among the mosaic rows y0 .. y0 + len(rows) - 1 (``rows``)."""
+        p, every = self.cfa.period, self.step * self.cfa.period
+        first = -(-y0 // every)                                   # the first cell row at or after y0
+        last = min(y0 + rows.shape[0], self.h)
+        starts = np.arange(first * every, last - p + 1, every)
+        if not len(starts):
+            return
+        take = (starts[:, None] - y0 + np.arange(p)[None, :]).ravel()
+        cells, clipped = thumbnail_cells(rows[take], self.cfa, self.black, self.white, self.step, self.w)
+        self.cells[first:first + len(starts)] = cells
+        self.clipped[first:first + len(starts)] = clipped

@@ -33,17 +33,18 @@ DEVICE_DTYPES = (np.dtype(np.uint16), np.dtype(np.float32))
 """Raw sample types the kernels read (RAW_T); others take the reference."""
 
 
-def device_statistics(raw: Any, rt: Runtime, max_cells: int = MAX_CELLS) -> SceneStatistics:
+def device_statistics(raw: Any, rt: Runtime, max_cells: int = MAX_CELLS, cells: bool = True) -> SceneStatistics:
     """:class:`SceneStatistics` of ``raw`` computed by ``statistics.cl`` on ``rt``'s device (the
     NumPy reference for a raw whose samples the kernels do not read, whose CFA the block table
     does not serve (the thumbnail alone would not pay for a launch), or that streams from its file
-    (read in bands there: flat memory, and a truncated file is an error, not a bus error))."""
+    (read in bands there: flat memory, and a truncated file is an error, not a bus error)). The
+    kernels always fill the thumbnail; ``cells`` is the reference's (:func:`reference_statistics`)."""
     from ..engine.streaming import FileWindows, window_source   # deferred: as the reference, only when measuring
     data = raw.data
     cfa = raw.cfa
     h, w = data.shape
     if data.dtype not in DEVICE_DTYPES or not table_fits(cfa, (h, w)) or isinstance(window_source(data), FileWindows):
-        return reference_statistics(raw, max_cells)     # a raw streamed from its file is read in bands, with pread
+        return reference_statistics(raw, max_cells, cells)   # a raw streamed from its file is read in bands, with pread
     start = time.perf_counter()
     p, nch = cfa.period, cfa.n_channels
     integer = data.dtype.kind == "u"
@@ -96,9 +97,10 @@ def statistics_runtime(rt: Any) -> Any:
     return rt
 
 
-def scene_statistics(raw: Any, rt: Any = None) -> SceneStatistics:
+def scene_statistics(raw: Any, rt: Any = None, cells: bool = False) -> SceneStatistics:
     """The statistics of ``raw`` (a RawImage): on ``rt``'s device when given (:func:`device_statistics`),
-    else the NumPy reference (clisp.scene.statistics.reference_statistics)."""
+    else the NumPy reference (clisp.scene.statistics.reference_statistics). ``cells``: an estimate
+    will read the cell thumbnail, so the reference fills it in the same read of the mosaic."""
     if rt is not None:
-        return device_statistics(raw, rt)
-    return reference_statistics(raw)
+        return device_statistics(raw, rt, cells=cells)
+    return reference_statistics(raw, cells=cells)
