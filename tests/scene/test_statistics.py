@@ -116,6 +116,11 @@ def test_a_raw_file_reads_as_the_array(tmp_path, cfa: str) -> None:
     assert all(np.array_equal(mem.strips[r], fil.strips[r]) for r in mem.strips)
     for a, b in zip(mem.thumbnail(), fil.thumbnail()):
         assert np.array_equal(a, b)
+    for source in (raw, lazy):                         # the thumbnail from the pass's own bands
+        fused = reference_statistics(source, max_cells=cells // 9, cells=True)
+        assert fused.raw is None and fused.cells is not None
+        for a, b in zip(mem.thumbnail(), (fused.cells, fused.cells_clipped)):
+            assert np.array_equal(a, b)
 
 
 def test_the_grid_and_its_subsamples() -> None:
