@@ -121,11 +121,10 @@ def grey_pixel_gains(data: np.ndarray, cfa: CFA, black_level: np.ndarray, white_
     k-th cell of at most 2^19) is the thumbnail, and the gray-world fallback is taken over its
     unclipped cells; None reads that thumbnail here.
     """
-    from scipy import ndimage                       # deferred: only --wb auto / raws without camera WB
     cells, clipped = statistics.thumbnail() if statistics is not None else \
         thumbnail(data, cfa, black_level, white_level)
     thumb, ok = cells.astype(np.float64), ~clipped
-    candidates = _grey_candidates(thumb, ok, share, ndimage)
+    candidates = _grey_candidates(thumb, ok, share)
     if candidates is None:
         return _thumbnail_gray_world(thumb, ok, cfa), "gray world (no grey pixels found)"
     ref = reference_channel(cfa)
@@ -143,27 +142,91 @@ def _thumbnail_gray_world(thumb: np.ndarray, ok: np.ndarray, cfa: CFA) -> np.nda
     return means[reference_channel(cfa)] / means
 
 
-def _grey_candidates(thumb: np.ndarray, ok: np.ndarray, share: float, ndimage) -> np.ndarray | None:
+def _grey_candidates(thumb: np.ndarray, ok: np.ndarray, share: float) -> np.ndarray | None:
     """The greyest pixels of ``thumb`` (R x C x 3, camera units), shape (n, 3), or None when
     fewer than GREY_MIN_PIXELS are usable (step 1 of :func:`grey_pixel_gains`)."""
     logs = np.log(np.maximum(thumb, 1e-6))
-    contrast = np.stack([ndimage.gaussian_gradient_magnitude(logs[..., c], GREY_SIGMA, mode="nearest")
-                         for c in range(thumb.shape[-1])], axis=-1)
+    contrast = np.stack([gradient_magnitude(logs[..., c], GREY_SIGMA) for c in range(thumb.shape[-1])], axis=-1)
     mean = contrast.mean(axis=-1)
     index = np.sqrt(((contrast - mean[..., None]) ** 2).mean(axis=-1)) / np.maximum(mean, 1e-12)
     if not ok.any():
         return None
     level = thumb.mean(axis=-1)
-    usable = (ndimage.binary_erosion(ok, iterations=2, border_value=1)
+    usable = (eroded(ok, 2)
               & (level > GREY_DARK_FRACTION * np.percentile(level[ok], 99))
               & np.all(contrast > GREY_MIN_CONTRAST, axis=-1) & np.all(thumb > 0, axis=-1))
     if usable.sum() < GREY_MIN_PIXELS:
         return None
-    index = ndimage.uniform_filter(np.where(usable, index, 1.0), GREY_WINDOW, mode="nearest")
+    index = box_mean(np.where(usable, index, 1.0), GREY_WINDOW)
     candidates = np.flatnonzero(usable)
     n = min(candidates.size, max(GREY_MIN_PIXELS, int(share * usable.size)))
     chosen = candidates[np.argpartition(index.ravel()[candidates], n - 1)[:n]]
     return thumb.reshape(-1, thumb.shape[-1])[chosen]
+
+
+# The three filters of the grey-pixel search, in NumPy: scipy.ndimage computes the same (to float64
+# rounding; tests/scene/test_white_balance.py compares them), but importing it costs 0.4 s of every run
+# of a raw without camera white balance, where the filters take a few ms on the 2^19-cell thumbnail.
+
+def _gaussian_kernel(sigma: float, order: int) -> np.ndarray:
+    """scipy.ndimage's Gaussian (order 0) or its derivative (order 1), radius int(4 sigma + 0.5),
+    as the correlation weights gaussian_filter1d uses (the kernel reversed)."""
+    radius = int(4.0 * sigma + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    phi = np.exp(-0.5 / sigma ** 2 * x ** 2)
+    phi /= phi.sum()
+    kernel = phi if order == 0 else -x / sigma ** 2 * phi
+    return kernel[::-1]
+
+
+def _correlate1d(a: np.ndarray, weights: np.ndarray, axis: int) -> np.ndarray:
+    """``a`` correlated with ``weights`` (odd length) along ``axis``, edges repeated (mode 'nearest')."""
+    r = len(weights) // 2
+    pad = [(0, 0)] * a.ndim
+    pad[axis] = (r, r)
+    padded = np.pad(a, pad, mode="edge")
+    n = a.shape[axis]
+
+    def shifted(k: int) -> np.ndarray:
+        index = [slice(None)] * a.ndim
+        index[axis] = slice(k, k + n)
+        return padded[tuple(index)]
+
+    out = weights[0] * shifted(0)
+    for k in range(1, len(weights)):
+        out += weights[k] * shifted(k)
+    return out
+
+
+def gradient_magnitude(a: np.ndarray, sigma: float) -> np.ndarray:
+    """scipy.ndimage.gaussian_gradient_magnitude(a, sigma, mode='nearest') of a 2-D float array: the
+    root of the squared Gaussian derivatives along each axis (smoothed along the other).
+
+    >>> ramp = np.tile(np.arange(6.0), (4, 1))          # slope 1 along the columns: the sampled
+    >>> np.round(gradient_magnitude(ramp, 0.5)[1:3, 2:4], 5).tolist()   # derivative at sigma 0.5 gives 0.86
+    [[0.86005, 0.86005], [0.86005, 0.86005]]
+    """
+    smooth, derive = _gaussian_kernel(sigma, 0), _gaussian_kernel(sigma, 1)
+    dy = _correlate1d(_correlate1d(a, derive, 0), smooth, 1)
+    dx = _correlate1d(_correlate1d(a, smooth, 0), derive, 1)
+    return np.sqrt(dy * dy + dx * dx)
+
+
+def eroded(mask: np.ndarray, iterations: int) -> np.ndarray:
+    """scipy.ndimage.binary_erosion(mask, iterations=..., border_value=1): each pass keeps a pixel
+    whose 4 neighbours are set too (outside the image counts as set)."""
+    out = mask.astype(bool)
+    for _ in range(iterations):
+        p = np.pad(out, 1, constant_values=True)
+        out = out & p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:]
+    return out
+
+
+def box_mean(a: np.ndarray, size: int) -> np.ndarray:
+    """scipy.ndimage.uniform_filter(a, size, mode='nearest') for an odd ``size``: the mean over the
+    size x size box, edges repeated."""
+    weights = np.full(size, 1.0 / size)
+    return _correlate1d(_correlate1d(a, weights, 0), weights, 1)
 
 
 def _dominant_colour(pixels: np.ndarray, ref: int) -> np.ndarray:

@@ -133,3 +133,31 @@ def test_a_raw_without_camera_white_balance_gets_its_grey_pixels_in_the_run() ->
     assert scene.raw.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"
     assert scene.statistics is not None and _angle(scene.raw.wb, raw.wb) < 2.0
     assert with_white_balance(raw, "camera") is raw and measure_scene(raw).statistics is None
+
+
+@pytest.mark.parametrize("shape", [(37, 53), (4, 5), (1, 9)])
+def test_grey_pixel_filters_equal_scipy(shape) -> None:
+    """The grey-pixel search's NumPy filters against scipy.ndimage, which they stand in for (its
+    import cost 0.4 s of every run of a raw without camera white balance)."""
+    from scipy import ndimage
+    from clisp.scene.white_balance import box_mean, eroded, gradient_magnitude
+    rng = np.random.default_rng(sum(shape))
+    a = rng.random(shape)
+    mask = rng.random(shape) > 0.15
+    np.testing.assert_allclose(gradient_magnitude(a, 0.5), ndimage.gaussian_gradient_magnitude(a, 0.5, mode="nearest"),
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(box_mean(a, 7), ndimage.uniform_filter(a, 7, mode="nearest"), rtol=0, atol=1e-12)
+    assert np.array_equal(eroded(mask, 2), ndimage.binary_erosion(mask, iterations=2, border_value=1))
+
+
+def test_the_grey_pixel_estimate_imports_no_scipy() -> None:
+    """A raw without camera white balance gets its grey pixels without importing scipy.ndimage."""
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np; from clisp.sim.simulate import simulate; "
+            "from clisp.scene.white_balance import grey_pixel_gains; "
+            "r = simulate(np.random.default_rng(0).random((64, 96, 3)), cfa='bayer', gain=4, seed=1, optics='none').raw; "
+            "grey_pixel_gains(r.data, r.cfa, r.black_level, r.white_level); "
+            "print('scipy.ndimage' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out.stdout + out.stderr
