@@ -26,7 +26,7 @@ from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import ISO, read_exif
 from .rawimage import NO_CAMERA_WB, RawImage
-from .rawfile import page_opcodes
+from .opcode_pages import page_opcodes
 from ..engine.streaming import aligned_copy
 
 CFA_LETTERS = "RGB"

@@ -27,6 +27,7 @@ from ..cfa import CFA, cfa_from_name, kind_before_issue45
 from ..sim.colorimetry import XYZ_TO_SRGB
 from ..errors import ClispError, clip, library_output, one_line
 from .exif import camera_make_model, simulated_model_name
+from .opcode_pages import page_opcodes
 from .rawimage import RawImage, check_levels
 
 ROWS_PER_STRIP = 16
@@ -57,9 +58,6 @@ TAG_CFA_LAYOUT = 50711
 TAG_BLACK_LEVEL_REPEAT_DIM = 50713
 TAG_BLACK_LEVEL = 50714
 TAG_WHITE_LEVEL = 50717
-TAG_OPCODE_LISTS = (51008, 51009, 51022)
-"""OpcodeList1, 2 and 3 (clisp.io.opcodes.TAG_OPCODE_LIST): a raw without them does not import that
-module (start-up)."""
 TAG_DEFAULT_CROP_ORIGIN = 50719
 TAG_DEFAULT_CROP_SIZE = 50720
 TAG_COLOR_MATRIX1 = 50721
@@ -468,16 +466,6 @@ def _try_read_clisp(p: Path, lazy: bool = False) -> tuple[RawImage | None, str |
     if ops:
         raw.metadata["opcodes"] = ops
     return raw, None
-
-
-def page_opcodes(page: Any, where: str, origin1: tuple[int, int] = (0, 0), image1: tuple[int, int] | None = None,
-                 image23: tuple[int, int] | None = None) -> list[Any]:
-    """clisp.io.opcodes.read_opcode_tags of a tifffile page, [] without an OpcodeList tag (that module
-    imported only for a page that has one)."""
-    if not any(code in page.tags for code in TAG_OPCODE_LISTS):
-        return []
-    from .opcodes import read_opcode_tags   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
-    return read_opcode_tags(page, where, origin1, image1, image23)
 
 
 def _private_metadata(page: Any, p: Path) -> dict[str, Any] | None:
