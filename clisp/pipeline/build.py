@@ -204,7 +204,8 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if params is not None and noise is not None:
         colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
     highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), scene.gains2,
-                                noise=noise, scale=2 if half_size else 1)
+                                noise=noise, scale=2 if half_size else 1,
+                                peaks=scene.statistics.peaks if scene.statistics is not None else None)
     if highlight is not None and only_isolated_clips(raw, corrections.pre):
         highlight = None                                    # a hot pixel is not a clipped light
     # 4. the stages, in the order they run

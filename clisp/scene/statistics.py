@@ -59,6 +59,11 @@ BAND_BLOCKS = 4
 """Block rows the reference summarises together in one band (BAND_BLOCKS * BLOCK rows, about 2 MB
 of a 12 MP uint16 raw): large enough that NumPy's per-call overhead is small next to the work,
 small enough to stay in cache and to keep a memory-mapped raw's reading in bands."""
+PEAK = 16
+"""Side (px) of the blocks whose largest sample the pass keeps (``SceneStatistics.peaks``): the
+highlight stage's clip map looks for clipped samples in such blocks (clisp.modules.highlights:
+TEST); a divisor of BLOCK, so a band holds whole ones."""
+
 THREADS = 2
 """Threads of the reference's bands (NumPy releases the GIL in its loops)."""
 
@@ -132,6 +137,9 @@ class SceneStatistics:
     strips: dict[int, np.ndarray]
     seconds: float = 0.0
     device: str = ""
+    peaks: np.ndarray | None = None
+    """(ceil(H / PEAK), ceil(W / PEAK)) the largest sample (DN, the raw's dtype) of each PEAK px
+    block from (0, 0), the last row and column cut by the edge; None where the pass made no table."""
     raw: Any = field(default=None, repr=False)
     """The raw whose thumbnail the reference reads on first need (None once it is read)."""
 
@@ -249,9 +257,10 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS, cells: bool = Fal
             return source.read_rows(y0, y1) if isinstance(source, FileWindows) else np.asarray(data[y0:y1])
 
         strips = noise_strips(read, (h, w), p)
-        table = thumb = None
+        table = thumb = peaks = None
         if table_fits(cfa, (h, w)):
             table = empty_table(h, w, nch)
+            peaks = np.zeros((-(-h // PEAK), -(-w // PEAK)), dtype=data.dtype)
             tile = clip_tile(clip, cfa, w, data.dtype)
             thumb = _Thumbnail(cfa, raw.black_level, raw.white_level, step, (h, w)) if cells else None
             with ThreadPoolExecutor(THREADS, thread_name_prefix="clisp-statistics") as pool:
@@ -260,13 +269,13 @@ def reference_statistics(raw: Any, max_cells: int = MAX_CELLS, cells: bool = Fal
                     if len(pending) >= 2 * THREADS:
                         pending.pop(0).result()
                     pending.append(pool.submit(_scan_band, read(r0 * BLOCK, min(h, r1 * BLOCK)), r0, r1, cfa, tile,
-                                               table, thumb))
+                                               table, thumb, peaks))
                 for done in pending:
                     done.result()
     finally:
         source.close()
     stats = SceneStatistics(shape=(h, w), period=p, block=BLOCK, table=table, cells=None, cells_clipped=None,
-                            step=step, strips=strips, raw=raw)
+                            step=step, strips=strips, peaks=peaks, raw=raw)
     if thumb is not None:
         stats.cells, stats.cells_clipped, stats.raw = thumb.cells, thumb.clipped, None
     stats.seconds = time.perf_counter() - start
@@ -305,11 +314,16 @@ def _bands(h: int) -> list[tuple[int, int]]:
 
 
 def _scan_band(rows: np.ndarray, r0: int, r1: int, cfa: CFA, tile: np.ndarray, table: BlockTable,
-               thumb: "_Thumbnail | None" = None) -> None:
-    """Write the sums of block rows r0 .. r1 - 1 (``rows``: their samples, DN) into ``table``, and the
-    band's cell rows into ``thumb`` when given (only those rows: bands may run in parallel)."""
+               thumb: "_Thumbnail | None" = None, peaks: np.ndarray | None = None) -> None:
+    """Write the sums of block rows r0 .. r1 - 1 (``rows``: their samples, DN) into ``table``, the
+    band's cell rows into ``thumb`` and its PEAK px blocks' maxima into ``peaks`` when given (only
+    those rows: bands may run in parallel)."""
     if thumb is not None:
         thumb.fill(rows, r0 * BLOCK)
+    if peaks is not None:
+        first = r0 * BLOCK // PEAK
+        band_peaks = block_maxima(rows, PEAK)
+        peaks[first:first + band_peaks.shape[0]] = band_peaks
     w = rows.shape[1]
     band = rows.reshape(r1 - r0, -1, w)          # (kb, bh, W): bh = BLOCK, but in a last partial block row
     rs = slice(r0, r1)
@@ -324,6 +338,33 @@ def _scan_band(rows: np.ndarray, r0: int, r1: int, cfa: CFA, tile: np.ndarray, t
         table.sums[:, rs, :block_sum.shape[-1]] = block_sum
         if hc >= 3 and wc >= 3:
             _laplacian_products(sums, rs, table)
+
+
+def block_maxima(data: np.ndarray, b: int) -> np.ndarray:
+    """The largest sample of each b x b block of ``data`` (blocks on its grid from (0, 0); the last
+    row and column of blocks may be cut by its edge): ceil(H / b) x ceil(W / b), ``data``'s dtype.
+    By b strided maxima along the rows, then b along the columns (NumPy's reductions over short
+    axes are several times slower).
+
+    >>> block_maxima(np.arange(30).reshape(5, 6), 4).tolist()
+    [[21, 23], [27, 29]]
+    """
+    h, w = data.shape
+    wf = w // b * b
+    cols = np.zeros((h, -(-w // b)), dtype=data.dtype)
+    if wf:
+        cols[:, :w // b] = data[:, 0:wf:b]
+        for k in range(1, b):
+            np.maximum(cols[:, :w // b], data[:, k:wf:b], out=cols[:, :w // b])
+    if wf < w:
+        cols[:, -1] = data[:, wf:].max(axis=1)
+    rows = np.zeros((-(-h // b) * b, cols.shape[1]), dtype=data.dtype)
+    rows[:h] = cols
+    rows = rows.reshape(-1, b, cols.shape[1])
+    out = rows[:, 0].copy()
+    for k in range(1, b):
+        np.maximum(out, rows[:, k], out=out)
+    return out
 
 
 def clip_tile(clip: np.ndarray, cfa: CFA, w: int, dtype: np.dtype) -> np.ndarray:

@@ -10,7 +10,7 @@ import pytest
 
 from clisp.io.rawimage import RawImage
 from clisp.scene.noise import raw_noise
-from clisp.scene.statistics import (BLOCK, CELL, CLIP_FRACTION, reference_statistics, strip_height, strip_rows,
+from clisp.scene.statistics import (BLOCK, CELL, CLIP_FRACTION, PEAK, reference_statistics, strip_height, strip_rows,
                                     thumbnail_step)
 from clisp.scene.statistics_device import device_statistics
 from clisp.sim.simulate import simulate
@@ -70,8 +70,13 @@ def per_block(raw: RawImage) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("cfa", ["bayer", "lms"])
 def test_block_table_is_its_definition(cfa: str) -> None:
     raw = make_raw(cfa)
-    table = reference_statistics(raw).table
+    stats = reference_statistics(raw)
+    table = stats.table
     expect = per_block(raw)
+    h, w = raw.data.shape                                # the block maxima the clip map reads
+    assert stats.peaks.shape == (-(-h // PEAK), -(-w // PEAK)) and stats.peaks.dtype == raw.data.dtype
+    assert all(stats.peaks[i, j] == raw.data[i * PEAK:(i + 1) * PEAK, j * PEAK:(j + 1) * PEAK].max()
+               for i in range(stats.peaks.shape[0]) for j in range(stats.peaks.shape[1]))
     for name, value in expect.items():
         assert np.array_equal(getattr(table, name), value), name
     assert expect["uniform"][1, 1] and not expect["uniform"][0, 0]

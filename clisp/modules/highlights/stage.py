@@ -78,6 +78,7 @@ import numpy as np
 
 from ...errors import ClispError
 from ...scene.noise import CLIP_FRACTION, NoiseEstimateError, raw_noise
+from ...scene.statistics import PEAK, block_maxima
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ..colour.stage import ColourMatrix, camera_neutral
@@ -729,7 +730,7 @@ class ClipMap:
     true: np.ndarray
 
 
-def clip_map(raw, noise=None) -> ClipMap | None:
+def clip_map(raw, noise=None, peaks: np.ndarray | None = None) -> ClipMap | None:
     """The clip map of ``raw`` (3-channel CFA, integer samples), or None where no sample reached
     its channel's threshold (:func:`clip_thresholds_dn`). ``noise``: the white-balanced channels'
     noise (clisp.sim.noise.ChannelNoise: var_c(s) = shot_c s + floor_c), None: every clipped block
@@ -750,13 +751,15 @@ def clip_map(raw, noise=None) -> ClipMap | None:
 
     The map: a MAP px cell allows channel c where it holds a clipped sample of c in a true block,
     and in the 8 cells around such a cell (the demosaic carries a clipped channel a few pixels
-    past its samples). Cost: one maximum per TEST block over the mosaic; the counts only in the
-    blocks that reach the lowest threshold."""
+    past its samples). Cost: one maximum per TEST block over the mosaic (``peaks``: those maxima
+    from the statistics pass, clisp.scene.statistics.SceneStatistics.peaks, which reads the mosaic
+    anyway; None: taken here); the counts only in the blocks that reach the lowest threshold."""
     data = raw.data
     if data.dtype != np.uint16 or raw.cfa.n_channels != 3:
         return None
     thr = clip_thresholds_dn(raw)
-    peaks = block_peaks(data, TEST)
+    if peaks is None or PEAK != TEST or peaks.shape != (-(-data.shape[0] // TEST), -(-data.shape[1] // TEST)):
+        peaks = block_maxima(data, TEST)
     found = np.argwhere(peaks >= thr.min())
     if not len(found):
         return None
@@ -851,29 +854,6 @@ def threshold_sigma(raw, noise, thr: np.ndarray) -> np.ndarray | None:
     return np.array([math.sqrt(max(float(noise.variance(c, level[c])), 0.0)) / gains[c] * span[c] for c in range(3)])
 
 
-def block_peaks(data: np.ndarray, b: int) -> np.ndarray:
-    """The largest sample of each b x b block of a mosaic (blocks on its grid from (0, 0); the
-    last row and column of blocks may be cut by its edge): ceil(H / b) x ceil(W / b). By b strided
-    maxima along the rows, then b along the columns (NumPy's reductions over short axes are
-    several times slower: 24 MP, 16 px blocks, 2 Xeon cores: 35 against 72-95 ms)."""
-    h, w = data.shape
-    wf = w // b * b
-    cols = np.zeros((h, -(-w // b)), dtype=data.dtype)
-    if wf:
-        cols[:, :w // b] = data[:, 0:wf:b]
-        for k in range(1, b):
-            np.maximum(cols[:, :w // b], data[:, k:wf:b], out=cols[:, :w // b])
-    if wf < w:
-        cols[:, -1] = data[:, wf:].max(axis=1)
-    rows = np.zeros((-(-h // b) * b, cols.shape[1]), dtype=data.dtype)
-    rows[:h] = cols
-    rows = rows.reshape(-1, b, cols.shape[1])
-    out = rows[:, 0].copy()
-    for k in range(1, b):
-        np.maximum(out, rows[:, k], out=out)
-    return out
-
-
 def gather_blocks(data: np.ndarray, by: np.ndarray, bx: np.ndarray, b: int) -> np.ndarray:
     """The b x b blocks (by, bx) of a mosaic, n x b x b, zeros past its edge."""
     h, w = data.shape
@@ -956,14 +936,14 @@ def display_matrix(colour_matrix: np.ndarray, neutral: np.ndarray) -> np.ndarray
 
 
 def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool = False, noise=None,
-                    scale: int = 1) -> Stage | None:
+                    scale: int = 1, peaks: np.ndarray | None = None) -> Stage | None:
     """The highlight stage for ``raw`` (3-channel CFAs), or None for mode 'off', a raw without
     clipped samples, one whose clipped samples are all the noise of whites at full scale
     (:func:`clip_map`; ``clip`` and ``reconstruct``), unless ``force``, or a colour matrix without
     a positive neutral. ``noise``: the raw's channel noise for the noise test (ChannelNoise); None:
     the raw's own (clisp.scene.noise.raw_noise: its sensor model, else estimated; a raw too
     small to estimate it gets no test). ``scale``: mosaic px per pixel of the stage's grid (2 after
-    the half-size binning)."""
+    the half-size binning). ``peaks``: the statistics pass's block maxima (:func:`clip_map`), if any."""
     if mode not in MODES:
         raise ClispError(f"unknown highlight mode {mode!r}; expected one of {', '.join(MODES)}")
     if mode == "off" or raw.cfa.n_channels != 3:
@@ -973,7 +953,7 @@ def highlight_stage(raw, mode: str, wb2: np.ndarray | None = None, force: bool =
         if not (force or has_clipped(raw)):
             return None
     else:
-        found = clip_map(raw, raw_noise_or_none(raw) if noise is None else noise)
+        found = clip_map(raw, raw_noise_or_none(raw) if noise is None else noise, peaks)
         if found is not None and found.bits.any():
             bits = found.bits
         elif not force:
