@@ -441,7 +441,7 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
             bad = fabs(excess) > 0.0f && (isnan(ybar) || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
                                           + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
-            if (bad && gy >= 0 && gy < img_h && gx >= 0 && gx < img_w)    /* a mirrored copy is no pixel */
+            if (bad)                       /* the list holds the image's pixels only (sensor_mirror pads) */
                 atomic_inc(found);
         }
 #endif
