@@ -22,6 +22,19 @@ would make the default --mem of in-process CLI calls depend on test order. Subpr
 (tools' smoke tests) see the real figure."""
 
 
+MAX_WORKERS = 4
+"""At most this many worker processes for ``-n auto`` (pyproject's addopts). Each worker holds its
+own OpenCL context, whose CPU device (PoCL) already uses every core for a kernel: the workers win
+where the suite is single-threaded Python, NumPy references and first builds of programs (one
+process: 113 % of 2 cores, 13:00 with empty caches; two workers: 191 %, 7:35), and more than a few
+would only multiply the processes' memory."""
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """pytest-xdist's ``-n auto``: one worker per core, at most MAX_WORKERS."""
+    return max(1, min(os.cpu_count() or 1, MAX_WORKERS))
+
+
 @pytest.fixture(scope="module")
 def rt():
     return get_runtime()

@@ -76,7 +76,8 @@ PY="python3"
 CLISP="python3 -m clisp"
 
 step "kernel tests on the GPU (CLISP_DEVICE=$CLISP_DEVICE)"
-timeout 240 $PY -m pytest -q -x -p no:cacheprovider tests/modules tests/engine -m "not stress" \
+# -o addopts="": one process (the GPU image's pytest may lack pytest-xdist, which addopts' -n needs)
+timeout 240 $PY -m pytest -q -x -p no:cacheprovider -o addopts="" tests/modules tests/engine -m "not stress" \
     2>&1 | tail -15 | tee "$OUT/tests.txt"
 
 step "in-process throughput, 24 MP, this tree and BASE ($BASE)"
