@@ -8,7 +8,7 @@ import pytest
 import clisp
 from clisp.app.cli import main
 from clisp.pipeline import build_pipeline
-from clisp.modules.highlights.stage import Highlights, has_clipped, highlight_stage
+from clisp.modules.highlights.stage import MARGIN, Highlights, has_clipped, highlight_stage
 from tolerance import assert_close
 from test_kernels import from_device, to_device
 
@@ -81,7 +81,9 @@ def test_highlights_kernel_matches_reference(rt, mode):
 
 def test_highlights_rule():
     """Unclipped pixels far from a clip are untouched; all-clipped pixels are neutral, never darker;
-    clipped channels never fall below what was recorded."""
+    clipped channels never fall below a record that bounds the truth: one that is itself a clipped
+    value (at or above the clip threshold, threshold / MARGIN), or any of a pixel with two clipped
+    channels."""
     stage = STAGE
     x = stage_input(2, stage)
     h = stage.halo
@@ -91,7 +93,9 @@ def test_highlights_rule():
     full = clipped.all(-1)
     assert full.any() and (clipped.any(-1) & ~full).any()
     assert np.allclose(out[full], y[full].max(-1, keepdims=True))
-    assert np.all(out[clipped] >= y[clipped] - 1e-12)
+    saturated = clipped & ((y >= stage.threshold / MARGIN) | (clipped.sum(-1, keepdims=True) >= 2))
+    assert saturated.any() and (clipped & ~saturated).any()
+    assert np.all(out[saturated] >= y[saturated] - 1e-12)
     far = y.max(-1) < 0.3 * stage.threshold.min()
     from scipy.ndimage import maximum_filter
     far &= ~maximum_filter(clipped.any(-1), size=2 * stage.rim + 1)
@@ -314,6 +318,34 @@ def test_lamp_beside_the_shirt_is_a_true_clip(cfa):
     bits = clip_map(sim.raw, raw_noise_or_none(sim.raw)).bits
     assert not bits[:, :(32 - TEST) // MAP].any(), "the shirt counts as clipped"
     assert bits[40 // MAP:56 // MAP, 40 // MAP:56 // MAP].all(), "the lamp does not count as clipped"
+
+
+def test_a_record_under_the_clip_is_no_floor():
+    """Issue 43, item 2: a channel flagged clipped whose record lies under the clip threshold (the
+    demosaic's interpolation across a light's edge: Bayer gain 64, R at a B site beside a clipped R
+    sample, 1.69 where the truth is 1.0) takes the estimate from the free channels, not its record;
+    a record at the threshold still bounds the output from below."""
+    from clisp.modules.highlights.stage import SUMS, reconstruct
+    t = np.array([1.6, 0.88, 1.66])
+    y = np.array([[[1.69, 0.67, 0.87]]])
+    clipped = np.array([[[True, False, False]]])
+    sums = np.zeros((1, 1, SUMS))
+    sums[..., 9:12] = (1.0, 1.0, 1.0)                   # a neutral surface, no far references
+    under = reconstruct(y, clipped, np.ones((1, 1), bool), sums, saturated=clipped & (y >= t / MARGIN))
+    assert under[0, 0, 0] < 1.0, under
+    at = reconstruct(y, clipped, np.ones((1, 1), bool), sums, saturated=clipped)
+    assert at[0, 0, 0] >= 1.69, at
+
+
+def test_light_beside_keeps_its_rim_within_one():
+    """Issue 43's ``--accept`` case that failed (tools/bench_highlights.py): the light beside the
+    shirt, Bayer gain 64, seed 1; its rim pixel (109, 107) was 1.28 off the truth while the stage
+    took the interpolated R record 1.69 for a lower bound."""
+    from clisp.sim.highlight_scenes import highlight_scenes, specular_rim
+    sim = clisp.simulate(highlight_scenes(192)["light beside"], cfa="bayer", gain=64, seed=1)
+    rim = specular_rim(sim.truth, "bayer")[10:-10, 10:-10]
+    err = _errors(sim, "reconstruct")[10:-10, 10:-10]
+    assert err[rim].max() <= 1.0, f"rim worst {err[rim].max():.2f}"
 
 
 @pytest.mark.parametrize("cfa", ["lms", "bayer"])

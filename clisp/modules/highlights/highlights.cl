@@ -3,7 +3,7 @@
  * of n (3). */
 
 /* The reconstruct/clip kernels need the host's constants (clisp/modules/highlights/stage.py, as
- * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_RHO_MIN,
+ * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_MARGIN, HL_RHO_MIN,
  * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
  * HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
@@ -335,6 +335,12 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
         const float s0 = box[4 * cplane + cell], s3 = box[5 * cplane + cell];
         const float delta[3] = {box[6 * cplane + cell], box[7 * cplane + cell], box[8 * cplane + cell]};
         const int clipped[3] = {c0, c1, c2};
+        /* sat: a clipped channel whose record bounds the truth from below (reconstruct's saturated):
+         * the record is itself a clipped value (at or above the clip threshold t / HL_MARGIN), or two
+         * channels are clipped (one free channel cannot tell a colour) */
+        int sat[3];
+        for (int c = 0; c < 3; c++)
+            sat[c] = clipped[c] && (v[c] >= t[c] / HL_MARGIN || count >= 2);
         /* trust in the far chroma (highlights.trust_in_far): agreement with the rim's (per cell) */
         float trust = box[3 * cplane + cell];
         float fy[3], fr[3], sy = 0.0f, sr = 0.0f;
@@ -381,8 +387,8 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
                     wsum += wt[c];
                 }
             float k = num / hl_max(den, 1e-6f);
-            for (int c = 0; c < 3; c++)          /* a clipped record bounds the brightness below */
-                if (clipped[c] && rho[c] >= HL_RHO_MIN)
+            for (int c = 0; c < 3; c++)          /* a saturated record bounds the brightness below */
+                if (sat[c] && rho[c] >= HL_RHO_MIN)
                     k = hl_max(k, v[c] / rho[c]);
             /* the additive estimate (highlights.additive_estimate): white b plus s of the rim's Delta */
             float pair = 0.0f, sfd = 0.0f, sfd2 = 0.0f, sfy = 0.0f, wy = 0.0f, wd = 0.0f;
@@ -407,11 +413,13 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
                 sa *= HL_ADD_LIMIT * b0 / hl_max(size, 1e-12f);
             float b = (wy - sa * wd) / wfree;
             for (int c = 0; c < 3; c++)
-                if (clipped[c])
+                if (sat[c])
                     b = hl_max(b, v[c] - sa * delta[c]);
             for (int c = 0; c < 3; c++)
-                if (clipped[c])
-                    v[c] = hl_max(v[c], trust * k * rho[c] + (1.0f - trust) * (b + sa * delta[c]));
+                if (clipped[c]) {
+                    const float e = trust * k * rho[c] + (1.0f - trust) * (b + sa * delta[c]);
+                    v[c] = sat[c] ? hl_max(v[c], e) : e;
+                }
         }
     }
 #endif

@@ -288,6 +288,7 @@ class Highlights(Stage):
         clipped = clipped_channels(y, t, hard)
         y = y[d:y.shape[0] - d, d:y.shape[1] - d]
         clipped = clipped[d:clipped.shape[0] - d, d:clipped.shape[1] - d]
+        saturated = clipped & ((y >= t / MARGIN) | (clipped.sum(axis=-1, keepdims=True) >= 2))
         if self.mode == "clip":
             mean = y.mean(axis=-1, keepdims=True)
             out = np.where(near[..., None], mean, y)
@@ -296,7 +297,8 @@ class Highlights(Stage):
         weights = reference_weights(y, t, near) * sampled(offset, y.shape[:2])[..., None]   # H x W x 7
         sums = cell_box_sums(weights, offset, r)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
-        return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display, self.weights) * n
+        return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display, self.weights,
+                           saturated[crop]) * n
 
     # ------------------------------------------------------------------------------- OpenCL
 
@@ -357,7 +359,7 @@ class Highlights(Stage):
         r = self.radius if self.mode == "reconstruct" else 0
         ow, oh = w - 2 * (d + r), h - 2 * (d + r)
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_MC": MAP_CELL, "HL_WC": WORK, "HL_REF": repr(REF) + "f",
-                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f",
+                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_MARGIN": repr(MARGIN) + "f",
                    "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip"),
                    "HL_AGREE_LO": repr(AGREE_LO) + "f", "HL_AGREE_HI": repr(AGREE_HI) + "f",
                    "HL_RISE_LO": repr(RISE_LO) + "f", "HL_RISE_HI": repr(RISE_HI) + "f",
@@ -627,7 +629,7 @@ def rim_difference(sums: np.ndarray, display: np.ndarray) -> np.ndarray:
 
 
 def additive_estimate(y: np.ndarray, clipped: np.ndarray, delta: np.ndarray, display: np.ndarray,
-                      weights: np.ndarray = np.ones(3)) -> np.ndarray:
+                      weights: np.ndarray = np.ones(3), saturated: np.ndarray | None = None) -> np.ndarray:
     """The additive (difference) chroma estimate of every channel, b + s Delta (H x W x 3), at
     pixels with one or two clipped channels: a specular highlight is white (b) added to the surface
     colour, whose difference chroma the unclipped rim around it shows (Delta, :func:`rim_difference`).
@@ -639,8 +641,10 @@ def additive_estimate(y: np.ndarray, clipped: np.ndarray, delta: np.ndarray, dis
     beside a coloured surface from a highlight on it: the least bright neutral the records allow,
     as before issue 43). Bounded so the colour matrix cannot blow
     it up: s Delta at most ADD_LIMIT times b in every output channel (display @ s Delta). b: the
-    free channels' mean less s Delta, at least every clipped channel's record less s Delta_c (a
-    clipped record bounds the truth from below)."""
+    free channels' mean less s Delta, at least every saturated channel's record less s Delta_c (a
+    clipped record bounds the truth from below; ``saturated`` as in :func:`reconstruct`, None: all
+    of ``clipped``)."""
+    saturated = clipped if saturated is None else saturated
     free = ~clipped
     count = clipped.sum(axis=-1)
     fy, fd = np.where(free, y, 0.0), np.where(free, delta, 0.0)
@@ -655,7 +659,7 @@ def additive_estimate(y: np.ndarray, clipped: np.ndarray, delta: np.ndarray, dis
     s = np.where(size > ADD_LIMIT * b0, s * ADD_LIMIT * b0 / np.maximum(size, 1e-12), s)
     sd = s[..., None] * delta
     b = np.maximum(np.where(free, weights * (y - sd), 0.0).sum(axis=-1) / wfree,
-                   np.where(clipped, y - sd, -np.inf).max(axis=-1))
+                   np.where(saturated, y - sd, -np.inf).max(axis=-1))
     return b[..., None] + sd
 
 
@@ -687,10 +691,18 @@ def surface_projection(y: np.ndarray, far: np.ndarray, display: np.ndarray) -> n
 
 
 def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.ndarray,
-                display: np.ndarray = np.eye(3), weights: np.ndarray = np.ones(3)) -> np.ndarray:
+                display: np.ndarray = np.eye(3), weights: np.ndarray = np.ones(3),
+                saturated: np.ndarray | None = None) -> np.ndarray:
     """The reconstruction rule on y (H x W x 3, units of n), given the clipped channels, the near
-    mask, the box sums of :func:`reference_weights` (H x W x SUMS), the display matrix and the
-    free channels' weights (:func:`channel_weights`)."""
+    mask, the box sums of :func:`reference_weights` (H x W x SUMS), the display matrix, the
+    free channels' weights (:func:`channel_weights`) and the clipped channels whose record bounds
+    the truth from below (``saturated``; None: all of ``clipped``). The stage passes those whose
+    record is itself a clipped value (at or above the clip threshold t_c / MARGIN), and every
+    clipped record of a pixel with two clipped channels (its one free channel cannot tell a colour,
+    so the records are the evidence): with two free channels, a record under the threshold is the
+    demosaic's interpolation across the clip's edge, which can lie above the truth as well as below
+    it, and the free channels' estimate decides (README.md, issue 43)."""
+    saturated = clipped if saturated is None else saturated
     far = chroma_of(sums[..., :3])
     trust = trust_in_far(y, clipped, sums, display)
     rho = 1.0 + trust[..., None] * (far - 1.0)
@@ -698,11 +710,11 @@ def reconstruct(y: np.ndarray, clipped: np.ndarray, near: np.ndarray, sums: np.n
     count = clipped.sum(axis=-1)
     num = np.sum(np.where(free, weights * y, 0.0), axis=-1)
     den = np.maximum(np.sum(np.where(free, weights * rho, 0.0), axis=-1), 1e-6)
-    bound = np.where(clipped & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
+    bound = np.where(saturated & (rho >= RHO_MIN), y / np.maximum(rho, RHO_MIN), 0.0).max(axis=-1)
     ratio = np.maximum(num / den, bound)[..., None] * rho
-    additive = additive_estimate(y, clipped, rim_difference(sums, display), display, weights)
+    additive = additive_estimate(y, clipped, rim_difference(sums, display), display, weights, saturated)
     estimate = trust[..., None] * ratio + (1.0 - trust[..., None]) * additive
-    out = np.where(clipped, np.maximum(y, estimate), y)
+    out = np.where(clipped, np.where(saturated, np.maximum(y, estimate), estimate), y)
     mean = y.mean(axis=-1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore"):
         own = np.where(mean > 0, y / mean, 1.0)
