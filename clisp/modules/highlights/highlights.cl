@@ -3,8 +3,8 @@
  * of n (3). */
 
 /* The reconstruct/clip kernels need the host's constants (clisp/modules/highlights/stage.py, as
- * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_MARGIN, HL_RHO_MIN,
- * HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
+ * defines): HL_RADIUS, HL_RIM, HL_MC, HL_WC, HL_CLIP, HL_REF, HL_LOW, HL_PRIOR, HL_DIP, HL_MARGIN,
+ * HL_RHO_MIN, HL_AGREE_LO, HL_AGREE_HI, HL_RISE_LO, HL_RISE_HI, HL_EVIDENCE, HL_SUMS, HL_CELL, HL_CELL_R,
  * HL_WORK_CELLS, HL_WORK_ROWS, HL_WORK_BOX. Built without them (the clamp alone), the file holds hl_clamp only. */
 #ifdef HL_RADIUS
 

@@ -288,7 +288,6 @@ class Highlights(Stage):
         clipped = clipped_channels(y, t, hard)
         y = y[d:y.shape[0] - d, d:y.shape[1] - d]
         clipped = clipped[d:clipped.shape[0] - d, d:clipped.shape[1] - d]
-        saturated = clipped & ((y >= t / MARGIN) | (clipped.sum(axis=-1, keepdims=True) >= 2))
         if self.mode == "clip":
             mean = y.mean(axis=-1, keepdims=True)
             out = np.where(near[..., None], mean, y)
@@ -297,6 +296,7 @@ class Highlights(Stage):
         weights = reference_weights(y, t, near) * sampled(offset, y.shape[:2])[..., None]   # H x W x 7
         sums = cell_box_sums(weights, offset, r)
         crop = (slice(r, y.shape[0] - r), slice(r, y.shape[1] - r))
+        saturated = clipped & ((y >= t / MARGIN) | (clipped.sum(axis=-1, keepdims=True) >= 2))
         return reconstruct(y[crop], clipped[crop], near[crop], sums, self.display, self.weights,
                            saturated[crop]) * n
 
@@ -359,8 +359,8 @@ class Highlights(Stage):
         r = self.radius if self.mode == "reconstruct" else 0
         ow, oh = w - 2 * (d + r), h - 2 * (d + r)
         defines = {"HL_RADIUS": r, "HL_RIM": d, "HL_MC": MAP_CELL, "HL_WC": WORK, "HL_REF": repr(REF) + "f",
-                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f", "HL_MARGIN": repr(MARGIN) + "f",
-                   "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip"),
+                   "HL_LOW": repr(LOW) + "f", "HL_PRIOR": repr(PRIOR) + "f", "HL_DIP": repr(DIP) + "f",
+                   "HL_MARGIN": repr(MARGIN) + "f", "HL_RHO_MIN": repr(RHO_MIN) + "f", "HL_CLIP": int(self.mode == "clip"),
                    "HL_AGREE_LO": repr(AGREE_LO) + "f", "HL_AGREE_HI": repr(AGREE_HI) + "f",
                    "HL_RISE_LO": repr(RISE_LO) + "f", "HL_RISE_HI": repr(RISE_HI) + "f",
                    "HL_EVIDENCE": repr(EVIDENCE) + "f", "HL_SUMS": SUMS, "HL_REFS": REFS, "HL_ADD_PRIOR": repr(ADD_PRIOR) + "f",
