@@ -216,11 +216,11 @@ def fmt(value: float | None, spec: str) -> str:
 
 
 def report_host(trees: dict[str, dict]) -> None:
-    print(f"{'tree':<14}{'cfa preset output':<24}{'0.26 MP ms':>11}{'12 MP ms':>10}{'12 MP MP/s':>11}"
+    print(f"{'tree':<22}{'cfa preset output':<24}{'0.26 MP ms':>11}{'12 MP ms':>10}{'12 MP MP/s':>11}"
           f"{'share x':>9}{'busy %':>8}{'outside %':>10}{'launches':>9}")
     for name, rows in trees.items():
         for key, r in rows.items():
-            print(f"{name:<14}{key:<24}{1e3 * r['small']:>11.2f}{1e3 * r['big']:>10.1f}"
+            print(f"{name:<21} {key:<24}{1e3 * r['small']:>11.2f}{1e3 * r['big']:>10.1f}"
                   f"{BIG[0] * BIG[1] / 1e6 / r['big']:>11.1f}{r['share']:>9.2f}"
                   f"{fmt(100 * r['busy'] if 'busy' in r else None, '.0f'):>8}"
                   f"{fmt(100 * r['outside'] if 'outside' in r else None, '.1f'):>10}"
@@ -228,10 +228,10 @@ def report_host(trees: dict[str, dict]) -> None:
 
 
 def report_throughput(trees: dict[str, dict]) -> None:
-    print(f"{'tree':<14}{'cfa preset output':<24}{'s':>8}{'MP/s':>9}{'busy %':>8}{'launches':>9}")
+    print(f"{'tree':<22}{'cfa preset output':<24}{'s':>8}{'MP/s':>9}{'busy %':>8}{'launches':>9}")
     for name, rows in trees.items():
         for key, r in rows.items():
-            print(f"{name:<14}{key:<24}{r['s']:>8.3f}{r['mp_s']:>9.1f}"
+            print(f"{name:<21} {key:<24}{r['s']:>8.3f}{r['mp_s']:>9.1f}"
                   f"{fmt(100 * r['busy'] if 'busy' in r else None, '.0f'):>8}{fmt(r.get('launches'), '.0f'):>9}")
 
 
