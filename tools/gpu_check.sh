@@ -116,8 +116,8 @@ for i in $(seq -w 1 ${COUNT:-20}); do cp $W/bayer24.dng $W/many/r$i.dng; done
     | tail -1 | tee "$OUT/many.txt"
 
 step "every preset's 1 MP outputs against the CPU's (tests/tolerance.py's rule)"
-$PY tools/bench_device.py stats --save "$OUT/gpu_stats.json"
-$PY tools/bench_device.py stats --against "$OUT/gpu_stats.json" .gpu/cpu_stats.json | tee "$OUT/stats.txt"
+$PY tools/bench_device.py stats --save "$W/gpu_stats.json"
+$PY tools/bench_device.py stats --against "$W/gpu_stats.json" .gpu/cpu_stats.json | tee "$OUT/stats.txt"
 
 step "kernel tests on the GPU (CLISP_DEVICE=$CLISP_DEVICE)"
 # -o addopts="": one process (the GPU image's pytest may lack pytest-xdist, which addopts' -n needs)
