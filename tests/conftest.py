@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 import pytest
 
 import clisp.engine.memory
+from clisp.engine import executor
 from clisp.engine.runtime import get_runtime
 
 os.environ.setdefault("CLISP_CACHE_DIR", tempfile.mkdtemp(prefix="clisp-test-cache-"))
@@ -60,3 +63,39 @@ needs_cpu_device = pytest.mark.skipif(not has_cpu_device(), reason="needs a CPU 
                                       "this machine's OpenCL lists none (a GPU-only machine)")
 """For tests that ask for the CPU device by name (``Runtime("cpu")``): skipped, with the reason, where
 there is none, instead of failing."""
+
+
+@contextmanager
+def discrete_gpu(monkeypatch: pytest.MonkeyPatch, rt: Any) -> Iterator[Any]:
+    """``rt`` as the engine sees a discrete GPU (NVIDIA's OpenCL on an H200), on whatever device it
+    is: no memory shared with the host (Runtime.host_unified False: the mosaic copied to the device
+    once or the windows uploaded, transfers on a second queue, pinned staging buffers) and its
+    buffers not counted against the host budget (executor.device_buffers_in_host_memory False, as
+    for any device that is not a CPU). The second queue, the pools and the memoised plans are made
+    anew inside and dropped after it; monkeypatch undoes the rest."""
+    rt.finish()
+    monkeypatch.setattr(rt, "host_unified", False)
+    monkeypatch.setattr(rt, "_transfer_queue", None)
+    monkeypatch.setattr(executor, "device_buffers_in_host_memory", lambda runtime: bool(runtime.host_unified))
+    executor.PLANS.clear()            # a plan's memo key holds the device limits, not the predicate
+    rt.trim_pool()
+    rt.staging.trim()                 # staging left by earlier runs would make the counts depend on them
+    try:
+        yield rt
+    finally:
+        rt.finish()
+        rt.trim_pool()
+        rt.staging.trim()
+        executor.PLANS.clear()
+
+
+@pytest.fixture(params=["device", "discrete-gpu"])
+def device_kind(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    """The process's runtime as it is, and as a discrete GPU (:func:`discrete_gpu`): a test of the
+    paths that differ runs both on a machine without a GPU."""
+    rt = get_runtime()
+    if request.param == "device":
+        yield rt
+    else:
+        with discrete_gpu(monkeypatch, rt):
+            yield rt

@@ -181,14 +181,14 @@ class Pipeline:
                   sink_bands: bool) -> Callable[[int, int], float]:
         """Bytes one tile of (rows, columns) output pixels takes while it runs, as a function:
         its device buffers, measured by enqueueing the tile's schedule in a metering run (exact,
-        whatever the stages allocate), counted as host memory when the device shares it (a CPU
-        device: PoCL's buffers are resident pages of this process); READ_WINDOWS raw windows; with
+        whatever the stages allocate), counted as host memory when they are
+        (:func:`device_buffers_in_host_memory`: a CPU device, not a discrete GPU); READ_WINDOWS raw windows; with
         ``sink_bands`` SINK_BANDS output bands of the image's width and the writer's converted rows.
         inf past DEVICE_SHARE of the device's memory or its largest allocation. ``image_width``:
         the output's (:meth:`output_shape`)."""
         rt = get_runtime()
         schedule = self.schedule()
-        shared = rt.host_unified or bool(rt.device.type & rt.cl.device_type.CPU)
+        shared = device_buffers_in_host_memory(rt)
         raw_item = np.dtype(raw_dtype).itemsize
         out_px = self.out_channels * self.out_dtype.itemsize
         halo, scale = self.halo, self.downscale
@@ -599,6 +599,14 @@ class KeepAlive:
         if self.event is not None:
             self.event.wait()
         self.arrays = ()
+
+
+def device_buffers_in_host_memory(rt: Any) -> bool:
+    """Whether the device buffers of runtime ``rt`` are this host's memory, so that a plan counts
+    them against the host budget (``--mem``; :meth:`Pipeline.tile_cost`): on a device sharing host
+    memory or a CPU device (PoCL's buffers are resident pages of this process). False on a
+    discrete GPU: its own memory bounds its buffers (DEVICE_SHARE), the budget only the host's."""
+    return bool(rt.host_unified or rt.device.type & rt.cl.device_type.CPU)
 
 
 def device_limits(backend: str) -> DeviceLimits:

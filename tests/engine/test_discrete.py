@@ -1,5 +1,6 @@
 """The path a discrete GPU takes, run on this machine's device with its shared memory switched off
-(Runtime.host_unified False): the whole mosaic uploaded once from a pinned staging buffer and the
+(Runtime.host_unified False) and its buffers not counted as host memory (conftest.discrete_gpu; on
+a GPU, the device's own path): the whole mosaic uploaded once from a pinned staging buffer and the
 windows gathered on the device, uploads and downloads on a second queue beside the kernels, a
 download's buffer reused only after it (issue 41, items 2 and 5). Every output equals the
 shared-memory path's, bit for bit: the same kernels run on the same pixels."""
@@ -15,30 +16,26 @@ from clisp.engine.runtime import get_runtime
 from clisp.engine.streaming import ArraySink, ArrayWindows
 from clisp.pipeline import build_pipeline, process_file
 
-from test_streaming import make_raw, unaligned
+from conftest import discrete_gpu
+from test_streaming import band_plan, make_raw, unaligned
 
 
 @pytest.fixture()
 def discrete(monkeypatch: pytest.MonkeyPatch):
-    """The runtime as a discrete device sees it; its second queue and staging buffers made anew
-    and dropped after the test."""
-    rt = get_runtime()
-    rt.finish()
-    monkeypatch.setattr(rt, "host_unified", False)
-    monkeypatch.setattr(rt, "_transfer_queue", None)
-    rt.trim_pool()
-    rt.staging.trim()                 # staging left by earlier runs would make the counts depend on them
-    yield rt
-    rt.finish()
-    rt.trim_pool()
-    rt.staging.trim()
+    """The runtime as a discrete GPU sees it (conftest.discrete_gpu): its second queue and staging
+    buffers made anew and dropped after the test."""
+    with discrete_gpu(monkeypatch, get_runtime()) as rt:
+        yield rt
 
 
-@pytest.mark.parametrize("kind, preset", [("bayer", "fast"), ("lms", "quality"), ("bayer", "quality")])
-def test_discrete_path_equals_shared_memory(kind: str, preset: str, discrete) -> None:
+@pytest.mark.parametrize("kind, preset, tile", [("bayer", "fast", None), ("lms", "quality", 104),
+                                                ("bayer", "quality", 152)])
+def test_discrete_path_equals_shared_memory(kind: str, preset: str, tile: int | None, discrete) -> None:
+    """Tiles of a given size (a discrete device's automatic plan of so small a raw is one tile):
+    ``tile`` x ``tile`` squares, None bands of 52 rows."""
     raw = make_raw(kind, shape=(301, 517))
     pipeline = build_pipeline(raw, preset=preset, output="srgb16")
-    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**23 if preset == "quality" else 2**20)
+    plan = band_plan(pipeline, raw.shape, 52) if tile is None else pipeline.plan(raw.shape, raw.data.dtype, tile)
     assert len(plan.tiles) > 2
     rt = discrete
     uploads, gathers = [], []

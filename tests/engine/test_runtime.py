@@ -135,13 +135,28 @@ class _Terminal(list):
         pass
 
 
-def test_first_build_notice_once_per_machine(tmp_path, monkeypatch):
+def new_runtime(cheap_binaries: bool) -> Runtime:
+    """A fresh runtime keeping its programs as a driver whose binaries are cheap does (NVIDIA's: at
+    once, after each build) or as PoCL does (when the command ends: Programs.cheap_binaries)."""
+    runtime = Runtime()
+    runtime.programs.cheap_binaries = cheap_binaries
+    return runtime
+
+
+def records(folder) -> int:
+    """How many program records the cache folder ``folder`` holds."""
+    return len(list((folder / "programs").iterdir())) if (folder / "programs").exists() else 0
+
+
+@pytest.mark.parametrize("cheap", [False, True], ids=["kept-at-exit", "kept-at-once"])
+def test_first_build_notice_once_per_machine(tmp_path, monkeypatch, cheap):
     """A program this cache has not seen built prints the notice once per runtime; the record it
-    keeps (when the runtime saves its programs, as the CLI does when a command ends) keeps the next
-    process (a fresh runtime) quiet; a pipe (not a terminal) never gets it."""
+    keeps (at once where the driver's binaries are cheap, else when the runtime saves its programs,
+    as the CLI does when a command ends) keeps the next process (a fresh runtime) quiet; a pipe
+    (not a terminal) never gets it."""
     import uuid
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
-    first = Runtime()
+    first = new_runtime(cheap)
     stream = _Terminal()
     first.programs.notice_stream = stream
     tag = uuid.uuid4().hex
@@ -150,15 +165,16 @@ def test_first_build_notice_once_per_machine(tmp_path, monkeypatch):
     first.program("raw_scale", defines, generated=f"/* {tag} b */")
     text = "".join(stream)
     assert text.count("compiling OpenCL kernels") == 1 and first.device.name.strip() in text
-    assert first.save_programs() == 2 and len(list((tmp_path / "programs").iterdir())) == 2
-    fresh = Runtime()
+    assert records(tmp_path) == (2 if cheap else 0)
+    assert first.save_programs() == (0 if cheap else 2) and records(tmp_path) == 2
+    fresh = new_runtime(cheap)
     quiet = _Terminal()
     fresh.programs.notice_stream = quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} a */")
     assert not quiet
     fresh.program("raw_scale", defines, generated=f"/* {tag} c */")
     assert "".join(quiet).count("compiling") == 1
-    piped = Runtime()
+    piped = new_runtime(cheap)
     piped.program("raw_scale", defines, generated=f"/* {tag} d */")     # sys.stderr: captured, not a tty
     assert not piped.programs.noticed
     closed = _Terminal()
@@ -181,32 +197,36 @@ def _scale_twice(runtime: Runtime, tag: str) -> np.ndarray:
     return runtime.download(dst).ravel()
 
 
-def test_program_binary_kept_and_loaded(tmp_path, monkeypatch):
-    """A program compiled here is kept as a record (binary and kernel parameters); a later runtime
-    loads it instead of compiling (no notice) and its kernels run the same, their parameters known
-    without asking the driver; a damaged record is rebuilt from source, not an error."""
+@pytest.mark.parametrize("cheap", [False, True], ids=["kept-at-exit", "kept-at-once"])
+def test_program_binary_kept_and_loaded(tmp_path, monkeypatch, cheap):
+    """A program compiled here is kept as a record (binary and kernel parameters; at once where the
+    driver's binaries are cheap, else by save_programs); a later runtime loads it instead of
+    compiling (no notice) and its kernels run the same, their parameters known without asking the
+    driver; a damaged record is rebuilt from source and kept again, not an error."""
     import uuid
     from clisp.engine import program_store
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
     tag = uuid.uuid4().hex
-    first = Runtime()
+    first = new_runtime(cheap)
     first.programs.notice_stream = None
     expected = np.arange(8, dtype=np.float32) * 2
     assert np.array_equal(_scale_twice(first, tag), expected)
-    assert first.save_programs() == 1
+    assert records(tmp_path) == (1 if cheap else 0)
+    assert first.save_programs() == (0 if cheap else 1)
     (record,) = (tmp_path / "programs").iterdir()
     binary, kernels = program_store.read_record(record)
     assert binary and [p[0] for p in kernels["twice"]] == ["src", "dst", "k"]
-    later = Runtime()
+    later = new_runtime(cheap)
     stream = _Terminal()
     later.programs.notice_stream = stream
     assert np.array_equal(_scale_twice(later, tag), expected)
     assert not stream and later.save_programs() == 0                  # loaded: nothing to keep
     record.write_bytes(record.read_bytes()[:100])                      # damaged
     assert program_store.read_record(record) is None
-    again = Runtime()
+    again = new_runtime(cheap)
     again.programs.notice_stream = None
-    assert np.array_equal(_scale_twice(again, tag), expected) and again.save_programs() == 1
+    assert np.array_equal(_scale_twice(again, tag), expected) and again.save_programs() == (0 if cheap else 1)
+    assert program_store.read_record(record) is not None                # kept again, whole
 
 
 def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):

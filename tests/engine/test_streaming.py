@@ -24,6 +24,7 @@ from clisp.io.imageio import ImageWriter, read_image
 import clisp.engine.memory
 from clisp.engine.memory import RSS_MARGIN
 from clisp.pipeline import PRESETS, build_pipeline, process_file
+import clisp.engine.executor
 from clisp.engine.runtime import get_runtime
 from clisp.io.rawfile import raw_band_writer, read_raw, write_raw
 from clisp.io.rawimage import RawImage
@@ -31,7 +32,8 @@ from clisp.sim.simulate import mirror_repeat_index, simulate, simulate_large
 from clisp.engine.stage import Stage
 import clisp.engine.streaming
 from clisp.engine.streaming import ArrayWindows, FileWindows, WindowPool, run_tiles, window_source
-from clisp.engine.tiling import MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, gather_window, make_plan
+from clisp.engine.tiling import (MIN_BAND_ROWS, MIN_TILE, DeviceLimits, TileNeeds, TilePlan, gather_window, grid,
+                                 make_plan)
 from tolerance import TOL, assert_close
 
 simulate_module = importlib.import_module("clisp.sim.simulate")   # clisp.sim.simulate is the function
@@ -52,6 +54,14 @@ def make_raw(kind: str, shape: tuple[int, int] = SHAPE, dtype: type = np.uint16,
         data = (rng.random(shape) * 1100.0 - 30.0).astype(np.float32)
     return RawImage(data=data, cfa=cfa, black_level=np.array([64.0, 65.0, 66.0]), white_level=1023.0,
                     wb=wb, colour_matrix=matrix, exposure=1.0 / 0.98951)
+
+
+def band_plan(pipeline, shape: tuple[int, int], rows: int) -> TilePlan:
+    """Full-width bands of ``rows`` output rows (a multiple of the CFA period) for an H x W raw: the
+    shape of a CPU device's automatic plans, on every device (a discrete GPU plans a small raw as one
+    tile whatever the host budget: executor.device_buffers_in_host_memory)."""
+    height, width = pipeline.output_shape(shape)
+    return TilePlan(grid(height, width, rows, width), rows, width, pipeline.halo, pipeline.downscale)
 
 
 # ------------------------------------------------------------------------------------------
@@ -85,22 +95,29 @@ def test_every_preset_tiled_equals_whole(name: str, kind: str) -> None:
         assert pipeline.stats.tiles > 1
         assert_close(tiled, whole, f"{name}/{kind} tile {tile}")
     auto = pipeline.run(raw.data, budget=budget)              # tiles chosen from a small budget
-    assert pipeline.stats.tiles > 1                           # bands or squares, by the stages' needs
+    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=budget)
+    device = pipeline.metered_tile(pipeline.schedule(), plan.window_shape, raw.data.dtype)[0]
+    assert pipeline.stats.tiles == len(plan.tiles)
+    if clisp.engine.executor.device_buffers_in_host_memory(get_runtime()):
+        assert len(plan.tiles) > 1 and device <= budget      # bands or squares, by the stages' needs
+    else:           # a discrete device: the host's budget does not bound its buffers (here: fewer tiles)
+        assert device > budget
     assert_close(auto, whole, f"{name}/{kind} automatic tiles")
 
 
 @pytest.mark.parametrize("kind", ["lms", "bayer"])
 @pytest.mark.parametrize("output", ["linear", "srgb16"])
-def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind: str, output: str) -> None:
+def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind: str, output: str,
+                                           device_kind) -> None:
     """Full-width bands of the fast pipeline: on a device that shares host memory the last kernel
     writes straight into the output where the band's first row is aligned (Runtime.host_image);
     the others, and the last, ragged band, whose window's output would run past the image, are
-    downloaded. The result equals the download path's and
+    downloaded (on a discrete device every band is). The result equals the download path's and
     the reference."""
     raw = make_raw(kind, shape=(301, 517))
     # highlights off: the random raw passes white, and the highlight stage's halo would make squares
     pipeline = build_pipeline(raw, preset="fast", output=output, highlights="off")
-    rt = get_runtime()
+    rt = device_kind
     made = []
     host_image = rt.host_image
 
@@ -110,8 +127,8 @@ def test_last_stage_writes_into_host_bands(monkeypatch: pytest.MonkeyPatch, kind
         return image
 
     monkeypatch.setattr(rt, "host_image", counting)
-    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
-    assert len(plan.tiles) > 2 and plan.tile_w == raw.shape[1] and raw.shape[0] % plan.tile_h != 0
+    plan = band_plan(pipeline, raw.shape, 52)
+    assert len(plan.tiles) > 2 and raw.shape[0] % plan.tile_h != 0
     out = clisp.engine.streaming.aligned_array(raw.shape + (3,), pipeline.out_dtype)
     pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
     align = int(rt.device.mem_base_addr_align) // 8                # a band's first row must be aligned
@@ -197,11 +214,15 @@ def test_metered_tiles_are_kept_per_pipeline_and_code(tmp_path: Path, monkeypatc
     assert edited(64, 517) == costs[0] and len(metered) == 2
 
 
-def test_metering_run_counts_what_the_tile_creates() -> None:
-    """A metering run creates nothing and predicts the pool of a real tile exactly."""
+def test_metering_run_counts_what_the_tile_creates(device_kind) -> None:
+    """A metering run creates nothing and predicts the pool of a real tile exactly, with the
+    buffers of the run's input: on a device sharing host memory the metering run reads the window
+    in place (not counted), the run gathers it into the pool from the mosaic where the mosaic is
+    read in place or staged; a discrete device's metering run counts the uploaded window, the run
+    gathers that window from the whole mosaic, copied to the device into a pooled buffer."""
     raw = make_raw("lms", shape=(301, 517))
     pipeline = build_pipeline(raw, preset="quality")
-    rt = get_runtime()
+    rt = device_kind
     created, largest = pipeline.metered_tile(pipeline.schedule(), (301, 517), raw.data.dtype)
     rt.trim_pool()
     held = rt.pool.created                     # buffers other tests still hold (not in the pool)
@@ -209,7 +230,10 @@ def test_metering_run_counts_what_the_tile_creates() -> None:
     window = (301 + 2 * pipeline.halo, 517 + 2 * pipeline.halo)
     expected = pipeline.metered_tile(pipeline.schedule(), window, raw.data.dtype)[0]
     from clisp.engine.executor import resident_policy
-    if rt.host_source(raw.data) is not None or resident_policy(rt, raw.data.nbytes, tiles=1):
+    if not rt.host_unified:
+        assert resident_policy(rt, raw.data.nbytes, tiles=1)
+        expected += raw.data.nbytes                                     # the resident mosaic (pooled)
+    elif rt.host_source(raw.data) is not None or resident_policy(rt, raw.data.nbytes, tiles=1):
         expected += window[0] * window[1] * raw.data.dtype.itemsize     # the gathered window (pooled)
     assert expected == rt.pool.created - held
     assert 0 < largest <= created
@@ -385,21 +409,23 @@ def test_run_tiles_releases_a_window_after_its_tile_finished() -> None:
     assert 2 < len(plan.tiles) and most <= clisp.engine.streaming.READ_AHEAD + 2
 
 
-def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyPatch) -> None:
-    """On a device sharing host memory the first stage reads the pooled window in place (no
-    upload); the result equals the upload path's."""
+def test_window_read_in_place_on_host_memory_devices(monkeypatch: pytest.MonkeyPatch, device_kind) -> None:
+    """Windows the host reads (a mosaic that does not stay on the device): on a device sharing host
+    memory the first stage reads each pooled window in place (no upload), a discrete device gets
+    each uploaded; the result equals the upload path's."""
     raw = make_raw("bayer", shape=(301, 517))
-    raw.data = unaligned(raw.data)                  # else the device gathers from the whole mosaic
+    raw.data = unaligned(raw.data)                  # else a shared-memory device gathers from the whole mosaic
+    monkeypatch.setattr(clisp.engine.executor, "RESIDENT_SHARE", 0.0)    # and a discrete one from its copy
     pipeline = build_pipeline(raw, preset="fast")
-    rt = get_runtime()
+    rt = device_kind
     uploads, in_place = [], []
     upload, host_input = rt.upload, rt.host_input
     monkeypatch.setattr(rt, "upload", lambda a: uploads.append(a.shape) or upload(a))
     monkeypatch.setattr(rt, "host_input", lambda a: (lambda i: in_place.append(i is not None) or i)(host_input(a)))
-    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=2**20)
+    plan = band_plan(pipeline, raw.shape, 52)
     out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
     pipeline.stream(ArrayWindows(raw.data), clisp.engine.streaming.ArraySink(out), plan)
-    assert len(in_place) == len(plan.tiles) > 2 and all(in_place) == rt.host_unified
+    assert len(plan.tiles) > 2 and in_place == [rt.host_unified] * len(plan.tiles)
     assert len(uploads) == (0 if rt.host_unified else len(plan.tiles))
     monkeypatch.setattr(rt, "host_unified", False)
     assert_close(out, pipeline.run(raw.data, tile=0), "in place vs upload")
@@ -436,22 +462,27 @@ def test_device_gather_equals_host_gather(kind: str, dtype: type, one_launch: bo
         rt.release(whole)
 
 
-@pytest.mark.parametrize("preset, budget", [("fast", 2**20), ("quality", 2**23)])
-def test_pipeline_gathers_windows_on_the_device(preset: str, budget: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    """An aligned in-memory mosaic on a device sharing host memory: no host window per tile, the
-    device gathers each one from the whole mosaic; the output equals the host-gather path's."""
+@pytest.mark.parametrize("preset, tile", [("fast", None), ("quality", 104)])
+def test_pipeline_gathers_windows_on_the_device(preset: str, tile: int | None, monkeypatch: pytest.MonkeyPatch,
+                                                device_kind) -> None:
+    """An aligned in-memory mosaic, read in place by a device sharing host memory, copied once to a
+    discrete one (Runtime.resident_mosaic): no host window per tile, the device gathers each one
+    from the whole mosaic; the output equals the host-gather path's. ``tile``: squares of that
+    side, None bands of 52 rows."""
     raw = make_raw("bayer", shape=(301, 517))
     pipeline = build_pipeline(raw, preset=preset)
-    rt = get_runtime()
+    rt = device_kind
     gathered = []
     gather = rt.gather_window
     monkeypatch.setattr(rt, "gather_window", lambda *a: gathered.append(a[1:]) or gather(*a))
-    plan = pipeline.plan(raw.shape, raw.data.dtype, budget=budget)
+    plan = band_plan(pipeline, raw.shape, 52) if tile is None else pipeline.plan(raw.shape, raw.data.dtype, tile)
     out = np.zeros(raw.shape + (3,), pipeline.out_dtype)
     pipeline.stream(ArrayWindows(clisp.engine.streaming.aligned_copy(raw.data)), clisp.engine.streaming.ArraySink(out), plan)
-    assert len(gathered) == (len(plan.tiles) if rt.host_unified else 0) and len(plan.tiles) > 2
+    assert len(gathered) == len(plan.tiles) > 2
+    monkeypatch.setattr(clisp.engine.executor, "RESIDENT_SHARE", 0.0)    # a discrete device: no copy either
     host = np.zeros_like(out)
     pipeline.stream(ArrayWindows(unaligned(raw.data)), clisp.engine.streaming.ArraySink(host), plan)
+    assert len(gathered) == len(plan.tiles)                              # the host gathered these
     np.testing.assert_array_equal(out, host)
 
 
