@@ -118,8 +118,9 @@ class FileWindows:
         if self._block.size < nbytes:
             self._block = np.empty(nbytes, dtype=np.uint8)
         block = self._block[:nbytes].reshape(r1 - r0, (c1 - c0) * item)
-        if c1 - c0 == self.shape[1]:
-            self._pread(block.reshape(-1), self.offset + r0 * row_bytes)
+        if c1 - c0 == self.shape[1]:                  # whole rows: one pread per band of rows, in parallel
+            host_threads.run_bands(lambda a, b: self._pread(block[a:b].reshape(-1), self.offset + (r0 + a) * row_bytes),
+                                   r1 - r0, nbytes)
         else:
             for i in range(r1 - r0):
                 self._pread(block[i], self.offset + (r0 + i) * row_bytes + c0 * item)
