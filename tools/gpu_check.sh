@@ -121,6 +121,15 @@ for i in $(seq -w 1 ${COUNT:-20}); do cp $W/bayer24.dng $W/many/r$i.dng; done
 step "every preset's 1 MP outputs against the CPU's (tests/tolerance.py's rule)"
 $PY tools/bench_device.py stats --save "$W/gpu_stats.json"
 $PY tools/bench_device.py stats --against "$W/gpu_stats.json" .gpu/cpu_stats.json | tee "$OUT/stats.txt"
+# the Bayer raw with clipped lights through the best preset, whole, to compare pixel by pixel here
+$PY - "$OUT" <<'EOF'
+import sys
+import numpy as np
+sys.path.insert(0, "tools")
+import bench_device, clisp
+raw = bench_device.tiled_raw("bayer", (832, 1248), clip=True)
+np.save(f"{sys.argv[1]}/clipped_best.npy", clisp.process(raw, preset="best").astype(np.float32))
+EOF
 
 step "kernel tests on the GPU (CLISP_DEVICE=$CLISP_DEVICE)"
 # -o addopts="": one process (the GPU image's pytest may lack pytest-xdist, which addopts' -n needs)
