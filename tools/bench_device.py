@@ -2,6 +2,7 @@
 
     python tools/bench_device.py host [--repeat 9] [--rounds 3] [--baseline DIR]
     python tools/bench_device.py throughput [--size 6000x4000] [--repeat 5] [--rounds 1] [--baseline DIR]
+    python tools/bench_device.py profile [--size 6000x4000]    # where one warm call's time goes
     python tools/bench_device.py stats --save OUT.json          # 1 MP outputs' statistics (per device)
     python tools/bench_device.py stats --against A.json B.json  # compared under tests/tolerance.py's rule
 
@@ -101,6 +102,24 @@ def child_host(repeat: int) -> dict:
                 row.update(busy_of(lambda: clisp.process(small, preset=preset, output=output), repeat))
             out[f"{cfa} {preset} {output}"] = row
     return out
+
+
+def profile_calls(shape: tuple[int, int], repeat: int = 5) -> None:
+    """``profile``: for a Bayer raw of ``shape`` (H, W) in memory, fast and quality to 'srgb16', the
+    warm call's median time and one profiled call's report (clisp.engine.profile: device busy, host
+    per launch, bytes moved, device time per stage and kernel, host activities), in this process."""
+    import clisp
+    from clisp.engine.profile import recording
+    raw = tiled_raw("bayer", shape)
+    megapixels = shape[0] * shape[1] / 1e6
+    for preset in ("fast", "quality"):
+        call = lambda: clisp.process(raw, preset=preset, output="srgb16")     # noqa: E731
+        print(f"\nbayer {preset} srgb16 {megapixels:.1f} MP: {1e3 * median_call(call, repeat):.1f} ms warm (median of {repeat})")
+        with recording() as prof:
+            start = time.perf_counter()
+            call()
+            wall = time.perf_counter() - start
+        print(prof.report(megapixels, wall))
 
 
 def busy_of(call, repeat: int) -> dict:
@@ -262,6 +281,8 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--baseline", type=Path, default=None, help="the clisp checkout to compare with")
         if name == "throughput":
             p.add_argument("--size", type=toolkit.parse_size, default=(6000, 4000), help="W x H")
+    p = sub.add_parser("profile")
+    p.add_argument("--size", type=toolkit.parse_size, default=(6000, 4000), help="W x H")
     p = sub.add_parser("stats")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--save", type=Path)
@@ -284,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
         import clisp
         assert Path(clisp.__file__).resolve().is_relative_to(args.tree.resolve()), clisp.__file__
         print(json.dumps({"device": device_line(), "rows": result}))
+        return 0
+    if args.cmd == "profile":
+        profile_calls((args.size[1], args.size[0]))
         return 0
     if args.cmd == "stats":
         if args.against:

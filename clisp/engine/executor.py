@@ -27,8 +27,8 @@ from . import profile
 from .profile import host_timer, path_label, stage_label
 from .runtime import DeviceImage, get_runtime
 from .stage import Origin, Stage, advance, fuse_stages
-from .streaming import (READ_AHEAD, ArraySink, ArrayWindows, TileSink, WindowPool, WindowSource, aligned_array, run_tiles,
-                        window_source)
+from .streaming import (READ_AHEAD, ArrayWindows, TileSink, WindowPool, WindowSource, aligned_array, array_sink,
+                        run_tiles, window_source)
 from .tiling import (DEVICE_SHARE, GPU_TARGET_TILE_PIXELS, TARGET_TILE_PIXELS, DeviceLimits, Tile, TileNeeds,
                      TilePlan, make_plan)
 
@@ -248,8 +248,9 @@ class Pipeline:
         self._check(data.shape, backend)
         out = aligned_array(self.output_shape(data.shape) + (self.out_channels,), self.out_dtype)
         plan = self.plan(data.shape, data.dtype, tile, budget, backend)
-        with closing(window_source(data)) as source:
-            self.stream(source, ArraySink(out), plan, backend, fuse)
+        sink = array_sink(out, get_runtime() if backend == "opencl" else None)
+        with closing(window_source(data)) as source, closing(sink):
+            self.stream(source, sink, plan, backend, fuse)
         return out
 
     def stream(self, source: WindowSource, sink: TileSink, plan: TilePlan, backend: str = "opencl",

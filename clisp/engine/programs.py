@@ -20,7 +20,6 @@ command ends (:meth:`save`; see :attr:`Programs.cheap_binaries`).
 from __future__ import annotations
 
 import json
-import os
 import re
 import sys
 import warnings
@@ -32,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 from . import program_store
 from .disk_cache import cache_dir, device_identity
 from .program_builder import build_and_keep, keep, kernel_parameters
+from .host_threads import usable_cores as _usable_cores
 from ..errors import ClispError
 from ..version import __version__
 
@@ -319,14 +319,6 @@ def _program_source(name: str, generated: str) -> tuple[Path, str]:
         return path, "\n".join([kernel_path("common.h").read_text(), generated, with_headers(path.read_text())])
     except OSError as exc:
         raise ClispError(f"kernel source {path} cannot be read: {exc}") from exc
-
-
-def _usable_cores() -> int:
-    """The CPU cores this process may run on (its affinity, e.g. a container's share), else all."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):                       # not on Linux
-        return os.cpu_count() or 1
 
 
 def _device_index(cl: Any, platform: Any, device: Any) -> tuple[int, int]:

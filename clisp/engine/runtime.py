@@ -20,7 +20,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from . import profile
+from . import host_threads, profile
 from .programs import Programs, kernel_path
 from ..errors import ClispError
 
@@ -462,7 +462,7 @@ class Runtime:
         staged = self.staging.take(array.nbytes)
         view = staged[:array.nbytes].view(array.dtype).reshape(array.shape)
         with profile.host_timer("stage the mosaic (host copy)", array.nbytes):
-            np.copyto(view, array)
+            host_threads.copy(view, array)
         if self.host_unified:
             image = self._host_plane(view)
             if image is None:

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ClispError
+from . import host_threads
 
 TARGET_TILE_PIXELS = 2_000_000
 """On a device that shares host memory (a CPU device: PoCL), automatic tiles stop growing at about
@@ -304,7 +305,7 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
         window = out
     dy, sy, ny = _longest_run(rows)
     dx, sx, nx = _longest_run(cols)
-    window[dy:dy + ny, dx:dx + nx] = data[sy:sy + ny, sx:sx + nx]
+    host_threads.copy(window[dy:dy + ny, dx:dx + nx], data[sy:sy + ny, sx:sx + nx])   # on the host's cores
     edge_cols = np.r_[0:dx, dx + nx:shape[1]]
     if edge_cols.size:
         window[dy:dy + ny, edge_cols] = data[sy:sy + ny, cols[edge_cols]]

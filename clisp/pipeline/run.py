@@ -19,7 +19,7 @@ from ..io.rawfile import read_raw
 from ..io.rawimage import RawImage
 from ..engine.executor import DEFAULT_BUDGET, Pipeline, RunStats, device_limits
 from ..engine.runtime import DEVICE_LOCK, get_runtime
-from ..engine.streaming import ArraySink, BandSink, progress_bar, window_source
+from ..engine.streaming import BandSink, array_sink, progress_bar, window_source
 from ..engine.tiling import MIN_TILE, TilePlan, make_plan
 from ..modules.colour.stage import tone_curve_for
 from ..modules.resize.stage import (ResizeSink, StreamingResize, check_long_edge, resize_image, resize_reference,
@@ -207,8 +207,9 @@ def process_file(raw: RawImage, path: str | Path, tile: int | None = None, budge
                                    extra=2 * resizer.window_bytes if resizer else 0)
         if in_memory:               # rotated output rows are input columns: orient the whole result
             image = np.empty(pipeline.output_shape(raw.shape) + (pipeline.out_channels,), dtype=pipeline.out_dtype)
-            with closing(window_source(raw.data)) as source:
-                pipeline.stream(source, ArraySink(image), plan, backend)
+            sink = array_sink(image, get_runtime() if backend == "opencl" else None)
+            with closing(window_source(raw.data)) as source, closing(sink):
+                pipeline.stream(source, sink, plan, backend)
             oriented = orient(_crop_image(image, region), flip)
             if resized:
                 _write_resized(path, oriented, target, encoding, backend, compression, attributes)

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..cfa import CFA
 from ..errors import ClispError
+from ..engine import host_threads
 
 BLOCK = 64
 """Side of the table's blocks (px): a multiple of every CFA period and of the denoiser's 2^J
@@ -344,11 +345,22 @@ def block_maxima(data: np.ndarray, b: int) -> np.ndarray:
     """The largest sample of each b x b block of ``data`` (blocks on its grid from (0, 0); the last
     row and column of blocks may be cut by its edge): ceil(H / b) x ceil(W / b), ``data``'s dtype.
     By b strided maxima along the rows, then b along the columns (NumPy's reductions over short
-    axes are several times slower).
+    axes are several times slower), in row bands on the host's threads (clisp.engine.host_threads).
 
     >>> block_maxima(np.arange(30).reshape(5, 6), 4).tolist()
     [[21, 23], [27, 29]]
     """
+    h, w = data.shape
+    out = np.zeros((-(-h // b), -(-w // b)), dtype=data.dtype)
+
+    def band(r0: int, r1: int) -> None:           # rows r0:r1 (a multiple of b from r0)
+        out[r0 // b:-(-r1 // b)] = _block_maxima_rows(data[r0:r1], b)
+    host_threads.run_bands(band, h, data.nbytes, multiple=b)
+    return out
+
+
+def _block_maxima_rows(data: np.ndarray, b: int) -> np.ndarray:
+    """:func:`block_maxima` of one band of rows, on this thread."""
     h, w = data.shape
     wf = w // b * b
     cols = np.zeros((h, -(-w // b)), dtype=data.dtype)

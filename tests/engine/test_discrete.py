@@ -56,8 +56,10 @@ def test_discrete_path_equals_shared_memory(kind: str, preset: str, tile: int | 
 
 
 def test_staging_is_reused_and_never_handed_out(discrete) -> None:
-    """Two calls stage their mosaics in the same pinned buffer; the arrays returned are the
-    caller's own (a later call never writes into an earlier result)."""
+    """Two calls stage their mosaics and download their tiles through the same pinned buffers (the
+    first call makes them: the mosaic's and one per tile in flight, StagedSink; the second makes
+    none); the arrays returned are the caller's own (a later call never writes into an earlier
+    result)."""
     raw = make_raw("bayer", shape=(200, 240))
     pipeline = build_pipeline(raw, preset="fast")
     rt = discrete
@@ -66,11 +68,12 @@ def test_staging_is_reused_and_never_handed_out(discrete) -> None:
     rt.staging._new = lambda n: made.append(n) or new(n)
     try:
         first = pipeline.run(unaligned(raw.data), tile=64)
+        by_first = len(made)
         kept = first.copy()
         second = pipeline.run(unaligned(raw.data[::-1].copy()), tile=64)
     finally:
         del rt.staging._new
-    assert len(made) == 1
+    assert made[0] == raw.data.nbytes and by_first == 3 and len(made) == by_first
     np.testing.assert_array_equal(first, kept)
     assert not np.array_equal(first, second)
 

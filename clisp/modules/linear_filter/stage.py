@@ -138,6 +138,14 @@ class LinearPhaseFilter(Stage):
             return out
         return quantize16(srgb_encode(out)) if self.quantize else srgb_encode(out)
 
+    def __getstate__(self) -> dict:
+        """The stage's parameters without the kernel text it caches on first use (``_source``):
+        a pickle names the stage (the metering and schedule caches' keys), and must not change
+        once it has run."""
+        state = dict(vars(self))
+        state.pop("_source", None)
+        return state
+
     def generated_source(self) -> str:
         """OpenCL source of ``phase_apply(k, v, o, w, bias)``: one inline function per CFA phase
         summing only the taps in ``support`` (weights read from the constant buffer at literal
