@@ -30,10 +30,10 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 import numpy as np
 
 from ..errors import ClispError
+from . import host_threads
 from .profile import host_timer
 from .runtime import aligned_empty
 from .tiling import Tile, TilePlan, gather, gather_window, window_indices
-from . import host_threads
 
 
 class WindowSource(Protocol):

@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 from ..cfa import CFA
-from ..errors import ClispError
 from ..engine import host_threads
+from ..errors import ClispError
 
 BLOCK = 64
 """Side of the table's blocks (px): a multiple of every CFA period and of the denoiser's 2^J

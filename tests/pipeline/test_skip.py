@@ -284,7 +284,7 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     import weakref
     import clisp.engine.executor as pipeline_module
     from clisp.engine.runtime import get_runtime
-    from clisp.engine.streaming import ArrayWindows
+    from clisp.engine.streaming import ArraySink, ArrayWindows
     rt = get_runtime()
     raw, pipe, sk = _skipper(1, "lms", smooth_scene())
     monkeypatch.setattr(pipeline_module.Pipeline, "_device_source", staticmethod(lambda source, plan: None))
@@ -306,7 +306,7 @@ def test_path_windows_stay_alive_until_their_tile_completes(monkeypatch: pytest.
     monkeypatch.setattr(pipeline_module, "run_tiles", checking_run_tiles)
     out = np.zeros(raw.shape + (3,), np.float32)
     plan = pipe.plan(raw.shape, raw.data.dtype, 64)
-    pipe.stream(ArrayWindows(raw.data), pipeline_module.ArraySink(out), plan)
+    pipe.stream(ArrayWindows(raw.data), ArraySink(out), plan)
     assert set(pipe.skip_plan.counts) - {PATH_FULL}, pipe.skip_plan.explain()
     assert alive and all(alive)
     rt.queue.finish()
