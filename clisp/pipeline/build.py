@@ -5,6 +5,8 @@ work can drop or swap stages per image or per tile without touching it.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+from importlib import import_module
 from typing import Any, Sequence
 
 import numpy as np
@@ -18,13 +20,6 @@ from ..engine.stage import Stage
 from ..modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
                                            space_for_cfa)
 from ..modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
-from ..modules.demosaic_ari.stage import DemosaicARI
-from ..modules.demosaic_ri.stage import DemosaicRI
-from ..modules.demosaic_bilinear.stage import DemosaicBilinear
-from ..modules.demosaic_dlmmse.stage import DemosaicDLMMSE
-from ..modules.demosaic_lms.stage import DemosaicLMSHybrid
-from ..modules.demosaic_lms_guided.stage import DemosaicLMSGuided
-from ..modules.demosaic_malvar.stage import DemosaicMalvar
 from ..modules.half_size.stage import HalfSize
 from ..modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from ..modules.raw_scale.stage import normalize, white_balance1
@@ -34,17 +29,40 @@ from ..scene.measure import measure_scene
 from ..scene.statistics_device import statistics_runtime
 
 
-DEMOSAICS: dict[str, type[Stage]] = {
-    "bilinear": DemosaicBilinear,
-    "malvar": DemosaicMalvar,
-    "dlmmse": DemosaicDLMMSE,
-    "hybrid": DemosaicLMSHybrid,
-    "guided": DemosaicLMSGuided,
-    "ari": DemosaicARI,
-    "ri": DemosaicRI,
-}
+class StageRegistry(Mapping[str, type[Stage]]):
+    """Stage classes by name, each module imported the first time its class is asked for: a run
+    needs one demosaic, and importing all seven cost about 70 ms of every command's start-up
+    (``python -X importtime``; ARI's alone 30-60 ms). Iterating gives the names in order."""
+
+    def __init__(self, where: dict[str, tuple[str, str]]) -> None:
+        self._where = where                  # name -> (module, class)
+
+    def __getitem__(self, name: str) -> type[Stage]:
+        module, cls = self._where[name]
+        return getattr(import_module(module), cls)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._where)
+
+    def __len__(self) -> int:
+        return len(self._where)
+
+
+DEMOSAICS = StageRegistry({
+    "bilinear": ("clisp.modules.demosaic_bilinear.stage", "DemosaicBilinear"),
+    "malvar": ("clisp.modules.demosaic_malvar.stage", "DemosaicMalvar"),
+    "dlmmse": ("clisp.modules.demosaic_dlmmse.stage", "DemosaicDLMMSE"),
+    "hybrid": ("clisp.modules.demosaic_lms.stage", "DemosaicLMSHybrid"),
+    "guided": ("clisp.modules.demosaic_lms_guided.stage", "DemosaicLMSGuided"),
+    "ari": ("clisp.modules.demosaic_ari.stage", "DemosaicARI"),
+    "ri": ("clisp.modules.demosaic_ri.stage", "DemosaicRI"),
+})
 """Demosaic stages by CLI name, each built by its ``for_raw(raw)`` (Stage: from the raw's CFA;
-stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA layouts it supports."""
+stages that adapt to the raw's noise override it); ``cfa_kinds`` lists the CFA layouts it supports.
+
+>>> list(DEMOSAICS)[:3], DEMOSAICS["ri"].__name__
+(['bilinear', 'malvar', 'dlmmse'], 'DemosaicRI')
+"""
 
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": {"demosaic": {"lms": "bilinear", "bayer": "bilinear", "other": "bilinear"}, "denoise_levels": 0,
