@@ -96,6 +96,25 @@ def test_download_buffer_waits_for_its_copy(discrete) -> None:
     rt.release(again)
 
 
+def test_uploads_wait_for_the_compute_queue(discrete, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An upload of the transfer queue, a table's or the resident mosaic's, waits for a marker of
+    the compute queue: the pool hands a buffer out again once its kernels are enqueued, not done,
+    and a copy beside them would overwrite what a kernel still reads."""
+    rt = discrete
+    cl = rt.cl
+    seen = []
+    copy = cl.enqueue_copy
+    monkeypatch.setattr(cl, "enqueue_copy", lambda queue, *a, **k: seen.append((queue, k.get("wait_for"))) or
+                        copy(queue, *a, **k))
+    table = rt.upload(np.ones((4, 8), np.float32))
+    mosaic = rt.resident_mosaic(unaligned(np.arange(64 * 48, dtype=np.uint16).reshape(64, 48)))
+    assert [q for q, _ in seen] == [rt.transfer_queue] * 2
+    for _, wait in seen:
+        assert wait and wait[0].get_info(cl.event_info.COMMAND_QUEUE) == rt.queue
+    rt.release(table)
+    rt.release(mosaic)
+
+
 def test_whole_process_on_the_discrete_path(tmp_path: Path, discrete) -> None:
     """process_file of an in-memory camera-style raw writes the same TIFF on both paths."""
     import tifffile
