@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..cfa import CFA
+from ..engine import host_threads
 from ..errors import ClispError, clip
 from ..io.rawimage import MAX_GAIN, NO_CAMERA_WB, RawImage
 from .statistics import thumbnail
@@ -146,7 +147,8 @@ def _grey_candidates(thumb: np.ndarray, ok: np.ndarray, share: float) -> np.ndar
     """The greyest pixels of ``thumb`` (R x C x 3, camera units), shape (n, 3), or None when
     fewer than GREY_MIN_PIXELS are usable (step 1 of :func:`grey_pixel_gains`)."""
     logs = np.log(np.maximum(thumb, 1e-6))
-    contrast = np.stack([gradient_magnitude(logs[..., c], GREY_SIGMA) for c in range(thumb.shape[-1])], axis=-1)
+    contrast = np.stack(host_threads.map_items(lambda c: gradient_magnitude(logs[..., c], GREY_SIGMA),
+                                               range(thumb.shape[-1])), axis=-1)   # a channel per core
     mean = contrast.mean(axis=-1)
     index = np.sqrt(((contrast - mean[..., None]) ** 2).mean(axis=-1)) / np.maximum(mean, 1e-12)
     if not ok.any():
