@@ -214,9 +214,8 @@ class Runtime:
         """For a copy of the transfer queue into a pooled buffer: a marker of the compute queue
         (flushed), so that the copy waits for every kernel already enqueued, among them the last
         users of a buffer the pool hands out again (the pool takes a buffer back once its kernels
-        are enqueued, not done); None where the compute queue does the copies itself. Without it a
-        discrete device's upload overwrote a buffer a kernel still read: 18 of 20 runs of the
-        quality warm-up scene differed on PoCL with shared memory switched off, 0 of 20 with it."""
+        are enqueued, not done); None where the compute queue does the copies itself (README.md:
+        the race it closes)."""
         if self.transfer_queue is self.queue:
             return None
         marker = self.cl.enqueue_marker(self.queue)

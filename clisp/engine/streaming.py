@@ -169,10 +169,9 @@ class StagedSink:
     """Tile results downloaded into pinned staging (Runtime.staging), then copied into their place
     in an H x W x C array on the host's threads (host_threads.copy): the sink of a discrete device,
     whose copy engine writes pinned memory at the bus's speed but a pageable array, whose pages
-    the caller's new result touches for the first time, about twenty times slower (an H200: 144 MB
-    in 2.6 ms pinned, 60 ms pageable). The staging buffers are reused across tiles and calls and
-    never handed out: the array is the caller's own. :meth:`close` gives back what a failed run
-    still holds."""
+    the caller's new result touches for the first time, many times slower (README.md). The staging
+    buffers are reused across tiles and calls and never handed out: the array is the caller's own.
+    :meth:`close` gives back what a failed run still holds."""
 
     def __init__(self, out: np.ndarray, staging: Any) -> None:
         self.out = out
