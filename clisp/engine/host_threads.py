@@ -64,16 +64,7 @@ def bands(rows: int, nbytes: int, multiple: int = 1) -> list[tuple[int, int]]:
 def run_bands(work: Callable[[int, int], None], rows: int, nbytes: int, multiple: int = 1) -> None:
     """``work(start, stop)`` for every band of :func:`bands`, on the pool (the last on this
     thread); returns when all are done and re-raises the first error."""
-    spans = bands(rows, nbytes, multiple)
-    if len(spans) == 1:
-        work(*spans[0])
-        return
-    futures = [_pool().submit(work, *span) for span in spans[:-1]]
-    try:
-        work(*spans[-1])
-    finally:
-        for future in futures:
-            future.result()
+    map_items(lambda span: work(*span), bands(rows, nbytes, multiple))
 
 
 def map_items(work: Callable[[T], R], items: Sequence[T]) -> list[R]:
