@@ -4,7 +4,6 @@ All matrices map white-balanced camera values to linear sRGB (D65), column vecto
 """
 from __future__ import annotations
 
-from functools import lru_cache
 
 import numpy as np
 
@@ -63,14 +62,32 @@ def _chebyshev_fit(fn, lo: float, hi: float, degree: int, prefix: str) -> dict[s
     return defines
 
 
-@lru_cache(maxsize=1)
-def srgb_poly_defines() -> dict[str, float]:
-    """Defines for clisp/modules/colour/srgb.h: the fits SRGB_M* of SRGB_SCALE * m^SRGB_INV_GAMMA on [1, 2)
-    and SRGB_F* of 2^f on [0, 1) (see SRGB_POLY_DEGREES)."""
+SRGB_POLY = {
+    "SRGB_M_SCALE": 2.0, "SRGB_M_OFFSET": -3.0,
+    "SRGB_M0": 1.2491765614159531, "SRGB_M1": 0.17349806032483545, "SRGB_M2": -0.01686858426068129,
+    "SRGB_M3": 0.002957095985751344, "SRGB_M4": -0.0006346843237356093, "SRGB_M5": 0.00017266937067188148,
+    "SRGB_M6": -4.524187018461095e-05,
+    "SRGB_F_SCALE": 2.0, "SRGB_F_OFFSET": -1.0,
+    "SRGB_F0": 1.4142136691449845, "SRGB_F1": 0.4901290902263858, "SRGB_F2": 0.08493097498438115,
+    "SRGB_F3": 0.009811685023203794, "SRGB_F4": 0.0008552490163495446, "SRGB_F5": 5.922210706845672e-05,
+}
+"""The defines of clisp/modules/colour/srgb.h: :func:`srgb_poly_fit`'s result, written out (the fit
+took 50 ms of every process that encodes sRGB; tests/sim/test_colorimetry.py fits it again and
+compares), so every machine's kernels get the same constants."""
+
+
+def srgb_poly_fit() -> dict[str, float]:
+    """The fits SRGB_M* of SRGB_SCALE * m^SRGB_INV_GAMMA on [1, 2) and SRGB_F* of 2^f on [0, 1)
+    (see SRGB_POLY_DEGREES), as defines: what SRGB_POLY holds."""
     k = SRGB_ENCODING
     gamma = k["SRGB_INV_GAMMA"]
     return {**_chebyshev_fit(lambda m: k["SRGB_SCALE"] * m ** gamma, 1.0, 2.0, SRGB_POLY_DEGREES[0], "SRGB_M"),
             **_chebyshev_fit(lambda f: 2.0 ** f, 0.0, 1.0, SRGB_POLY_DEGREES[1], "SRGB_F")}
+
+
+def srgb_poly_defines() -> dict[str, float]:
+    """Defines for clisp/modules/colour/srgb.h (SRGB_POLY)."""
+    return dict(SRGB_POLY)
 
 
 def srgb_encode(x: np.ndarray) -> np.ndarray:
