@@ -1,3 +1,3 @@
-from .app.cli import console
+from .app.launch import console
 
 console()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import os
+import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -158,8 +159,14 @@ class Runtime:
     def __init__(self, spec: str | None = None, profiling: bool = False) -> None:
         cl = _import_cl()
         self.cl = cl
-        self.platform, self.device = choose_device(spec if spec is not None else os.environ.get("CLISP_DEVICE"))
-        self.context = cl.Context([self.device])
+        spec = spec if spec is not None else os.environ.get("CLISP_DEVICE")
+        started = sys.modules.get("clisp.engine.device_start")      # the CLI's bring-up on a thread, if begun
+        prepared = started.take(spec) if started is not None else None
+        if prepared is not None:
+            self.platform, self.device, self.context = prepared
+        else:
+            self.platform, self.device = choose_device(spec)
+            self.context = cl.Context([self.device])
         self.profiling = profiling
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
         self.queue = cl.CommandQueue(self.context, properties=props)
