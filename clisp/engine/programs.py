@@ -23,14 +23,16 @@ import json
 import re
 import sys
 import warnings
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 from . import program_store
 from .disk_cache import cache_dir, device_identity
+from .profile import host_timer
 from .program_builder import build_and_keep, keep, kernel_parameters
+from . import host_threads
 from .host_threads import usable_cores as _usable_cores
 from ..errors import ClispError
 from ..version import __version__
@@ -146,14 +148,16 @@ class Programs:
             return prg
         path, source = _program_source(name, generated)
         record = self.record_path(source, flags)
-        prg = self._load(record, key, flags) if record is not None else None
-        if prg is None and self._wanted is not None and record is not None:
+        if self._wanted is not None and record is not None:     # loaded or built with the others at the end
             self._wanted.setdefault(key, Wanted(name, flags, generated, path, source, record))
             return None
+        with host_timer("load kept programs (start-up)"):
+            prg = self._load(record, key, flags) if record is not None else None
         if prg is None:
             if record is None or not record.exists():
                 self.first_build_notice()
-            prg = self._build(path, source, flags)
+            with host_timer("build programs (a first run)"):
+                prg = self._build(path, source, flags)
             if record is not None:
                 self._keep_later(key, record, prg)
         self.built[key] = prg
@@ -187,7 +191,7 @@ class Programs:
         helper processes (clisp.engine.program_builder) and this one, longest sources first, each
         to the least loaded; the helpers' programs are then loaded from their records (a program a
         helper left out is built here)."""
-        todo = [(key, w) for key, w in wanted.items() if key not in self.built]
+        todo = self._load_kept([(key, w) for key, w in wanted.items() if key not in self.built])
         if not todo:
             return
         self.first_build_notice()
@@ -223,6 +227,19 @@ class Programs:
             for _, w in share:
                 self.get(w.name, w.flags, w.generated)       # the helper's record, else built here
 
+    def _load_kept(self, todo: list[tuple[Key, Wanted]]) -> list[tuple[Key, Wanted]]:
+        """Load the programs of ``todo`` that have a record, on the host's threads (the driver's
+        clBuildProgram of a binary releases the GIL); returns those left to build."""
+        kept = [(key, w) for key, w in todo if w.record.exists()]
+        with host_timer("load kept programs (start-up)"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")       # here: catch_warnings is not for threads (one process-wide filter)
+            loaded = host_threads.map_items(lambda item: self._load(item[1].record, item[0], item[1].flags,
+                                                                    quiet=False), kept)
+        for (key, _), prg in zip(kept, loaded):
+            if prg is not None:
+                self.built[key] = prg
+        return [(key, w) for key, w in todo if key not in self.built]
+
     def _start_helper(self, share: list[tuple[Key, Wanted]]) -> subprocess.Popen | None:
         """A helper process building ``share`` (None when it cannot start: this process builds it)."""
         import subprocess      # here: only a first build starts helpers (3 ms of every start-up otherwise)
@@ -252,17 +269,19 @@ class Programs:
         except RuntimeError:                               # Path.home() without a home
             return None
 
-    def _load(self, record: Path, key: Key, flags: tuple[str, ...]) -> Any | None:
+    def _load(self, record: Path, key: Key, flags: tuple[str, ...], quiet: bool = True) -> Any | None:
         """The program built from the binary in ``record``, its kernels' parameters noted; None when
-        the record is missing, damaged or refused by the driver."""
+        the record is missing, damaged or refused by the driver. ``quiet``: silence pyopencl's
+        build-log warnings here (False on a thread: the caller does, see _load_kept)."""
         found = program_store.read_record(record)
         if found is None:
             return None
         binary, kernels = found
         options = list(flags) + BUILD_OPTIONS
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
+            with warnings.catch_warnings() if quiet else nullcontext():
+                if quiet:
+                    warnings.simplefilter("ignore")
                 prg = self.cl.Program(self.context, [self.device], [binary]).build(options=options)
         except (self.cl.Error, ValueError):
             return None

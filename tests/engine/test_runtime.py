@@ -252,6 +252,15 @@ def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
     for tag in tags:
         params = fresh.signature("raw_scale", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4}, f"/* {tag} */")
         assert params and params[0].pointer
+    later = Runtime()                                   # the records kept: loaded together at the end, none built
+    later.programs.notice_stream = None
+    monkeypatch.setattr(later.programs, "_build", lambda *a: pytest.fail("a kept program was built again"))
+    with later.metering():
+        for tag in tags:
+            later.launch_named("raw_scale", "cfa_affine", 8, 4, {}, {"RAW_T": "float", "CFA_PERIOD": 4},
+                               generated=f"/* {tag} */")
+        assert not later.programs.built
+    assert len(later.programs.built) == 3
 
 
 def test_warm_builds_what_a_run_needs(tmp_path):
