@@ -15,6 +15,8 @@
 #       tree and BASE's (tools/bench_device.py throughput), the whole process against rawpy on a
 #       24 MP Bayer DNG simulated there, 20 such raws through one `clisp process`, and the outputs'
 #       statistics against the CPU's; prints one table at the end. Logs and JSON go to $OUT.
+#   QUICK=1: a first look instead (no tests or statistics): the throughput, the whole process and
+#       where it goes (cProfile), about 2 minutes.
 #
 # Nothing here is timed in a test: these are benchmarks (docs/RESULTS.md, issue 41).
 set -u
@@ -122,6 +124,31 @@ for i in $(seq -w 1 ${COUNT:-20}); do cp $W/bayer24.dng $W/many/r$i.dng; done
 (cd /tmp && PYTHONPATH=$ROOT:/tmp/site timeout $(cap 120) python3 -m clisp process $W/many -o $W/out --format tif) \
     | tail -1 | tee "$OUT/many.txt"
 
+if [ -n "${QUICK:-}" ]; then                          # a first look: where the whole process goes, no tests
+    step "whole process under cProfile (QUICK)"
+    (cd /tmp && PYTHONPATH=$ROOT:/tmp/site python3 - "$W" <<'EOF' | tee "$OUT/cprofile.txt"
+import cProfile, io, pstats, sys, time
+w = sys.argv[1]
+start = time.perf_counter()
+profiler = cProfile.Profile(); profiler.enable()
+from clisp.engine import device_start
+device_start.begin(None)
+from clisp.app.cli import main
+main(["process", f"{w}/bayer24.dng", "-o", f"{w}/cp.tif"])
+profiler.disable()
+print(f"in-process wall {time.perf_counter() - start:.3f} s")
+for key, n in (("cumulative", 70), ("tottime", 30)):
+    text = io.StringIO(); pstats.Stats(profiler, stream=text).sort_stats(key).print_stats(n)
+    print("\n".join(l[:170] for l in text.getvalue().splitlines() if l.strip()))
+EOF
+    )
+    step "table"
+    cat "$OUT/whole.txt" "$OUT/many.txt"
+    grep -E "wall|busy|per launch|start-up|load kept|write output|read tile|copy out|stage the" "$OUT/profile.txt"
+    echo "done in $((SECONDS - T0)) s"
+    exit 0
+fi
+
 step "every preset's 1 MP outputs against the CPU's (tests/tolerance.py's rule)"
 $PY tools/bench_device.py stats --save "$W/gpu_stats.json"
 $PY tools/bench_device.py stats --against "$W/gpu_stats.json" .gpu/cpu_stats.json | tee "$OUT/stats.txt"
@@ -161,13 +188,16 @@ for line in text("whole.txt").splitlines():
 med = {k: statistics.median(v) for k, v in whole.items()}
 prof = text("profile.txt")
 startup = re.search(r"start-up \(interpreter, imports, OpenCL\)\s+([\d.]+)", prof)
+loads = re.search(r"load kept programs \(start-up\)\s+([\d.]+)", prof)
 busy = re.search(r"device busy (\d+) %", prof)
 if {"clisp", "base", "rawpy"} <= med.keys():
     print(f"whole process, 24 MP Bayer DNG to TIFF, quality: clisp {med['clisp']:.2f} s, base {med['base']:.2f} s, "
           f"rawpy LINEAR {med['rawpy']:.2f} s: clisp / rawpy {med['clisp'] / med['rawpy']:.2f}")
     if startup:
-        st = float(startup.group(1))
-        print(f"  start-up {st:.2f} s; after start-up {med['clisp'] - st:.2f} s = {(med['clisp'] - st) / med['rawpy']:.2f} x rawpy")
+        st = float(startup.group(1)) + (float(loads.group(1)) if loads else 0.0)
+        print(f"  start-up {st:.2f} s (interpreter, imports, OpenCL {float(startup.group(1)):.2f}, program loads "
+              f"{float(loads.group(1)) if loads else 0:.3f}); after start-up {med['clisp'] - st:.2f} s = "
+              f"{(med['clisp'] - st) / med['rawpy']:.2f} x rawpy")
 if busy:
     print(f"  --profile: device busy {busy.group(1)} % of the tile loop")
 print("many files:", last("many.txt"))
