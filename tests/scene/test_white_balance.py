@@ -161,3 +161,19 @@ def test_the_grey_pixel_estimate_imports_no_scipy() -> None:
             "print('scipy.ndimage' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False", out.stdout + out.stderr
+
+
+def test_percentile_and_channel_mean_are_numpys_bit_for_bit():
+    """The grey-pixel search's percentile and channel mean, written to skip NumPy's costs, give
+    NumPy's own values exactly (random sizes, scales and percentiles)."""
+    from clisp.scene.white_balance import channel_mean, every_channel_above, percentile_linear, row_sum
+    rng = np.random.default_rng(42)
+    for _ in range(400):
+        values = rng.random(int(rng.integers(1, 3000))) * rng.choice([1e-3, 1.0, 1e3])
+        q = float(rng.choice([0.0, 1.0, 50.0, 99.0, 100.0, rng.random() * 100]))
+        assert percentile_linear(values, q) == np.percentile(values, q)
+    planes = rng.random((64, 96, 3))
+    assert np.array_equal(channel_mean(planes), planes.mean(axis=-1))
+    assert np.array_equal(every_channel_above(planes, 0.3), np.all(planes > 0.3, axis=-1))
+    pairs = rng.random((500, 2)) - 0.5
+    assert np.array_equal(row_sum(pairs), pairs.sum(axis=1)) and np.array_equal(row_sum(planes), planes.sum(axis=-1))
