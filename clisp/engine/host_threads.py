@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
 import numpy as np
@@ -83,6 +83,28 @@ def map_items(work: Callable[[T], R], items: Sequence[T]) -> list[R]:
     finally:
         done = [future.result() for future in futures]
     return done + [last]
+
+
+def touch(array: np.ndarray) -> list[Future]:
+    """Start writing zeros over ``array`` by row bands on the pool, returning at once: its pages
+    faulted in while the caller does other work (a device computing the result that will be copied
+    there), so that the copy itself runs at memory speed; :func:`wait` for the futures before
+    writing ``array``. None started for an array of one band (it is touched by its copy).
+
+    >>> a = np.ones((2, 3)); wait(touch(a)); a.tolist()      # a small array: left as it was
+    [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
+    """
+    spans = bands(array.shape[0], array.nbytes) if array.ndim else [(0, 0)]
+    if len(spans) < 2:
+        return []
+    pool = _pool()
+    return [pool.submit(array[a:b].fill, 0) for a, b in spans]
+
+
+def wait(futures: Sequence[Future]) -> None:
+    """Wait for every future (of :func:`touch`), re-raising the first error."""
+    for future in futures:
+        future.result()
 
 
 def copy(dst: np.ndarray, src: np.ndarray) -> None:

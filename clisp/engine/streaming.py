@@ -171,14 +171,19 @@ class StagedSink:
     whose copy engine writes pinned memory at the bus's speed but a pageable array, whose pages
     the caller's new result touches for the first time, many times slower (README.md). The staging
     buffers are reused across tiles and calls and never handed out: the array is the caller's own.
+    From the first tile on, the array's pages are faulted in on the host's threads
+    (host_threads.touch) while the device computes, so that the copies run at memory speed.
     :meth:`close` gives back what a failed run still holds."""
 
     def __init__(self, out: np.ndarray, staging: Any) -> None:
         self.out = out
         self.staging = staging
         self._held: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}   # (y0, x0) -> (buffer, view)
+        self._touching: list | None = None      # host_threads.touch of ``out``, from the first tile on
 
     def target(self, tile: Tile) -> tuple[np.ndarray, int, int]:
+        if self._touching is None:              # the caller's new array faulted in while the device works
+            self._touching = host_threads.touch(self.out)
         shape = (tile.h, tile.w) + self.out.shape[2:]
         nbytes = int(np.prod(shape)) * self.out.itemsize
         buffer = self.staging.take(nbytes)
@@ -188,11 +193,16 @@ class StagedSink:
 
     def done(self, tile: Tile) -> None:
         buffer, view = self._held.pop((tile.y0, tile.x0))
+        if self._touching:
+            with host_timer("wait for the result's pages (host threads)"):
+                host_threads.wait(self._touching)
+            self._touching = []
         with host_timer("copy out of pinned staging", view.nbytes):
             host_threads.copy(self.out[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w], view)
         self.staging.give(buffer)
 
     def close(self) -> None:
+        host_threads.wait(self._touching or [])  # nothing writes the caller's array after the run
         for buffer, _ in self._held.values():
             self.staging.give(buffer)
         self._held.clear()

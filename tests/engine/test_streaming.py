@@ -669,3 +669,35 @@ def test_threads_share_the_device_safely() -> None:
                                  [(raw, preset) for raw in raws for preset in ("fast", "quality")]))
     for a, b in zip(alone, together):
         np.testing.assert_array_equal(a, b)
+
+
+def test_staged_sink_touches_the_callers_array_and_copies_every_tile(monkeypatch):
+    """A discrete device's in-memory sink (streaming.StagedSink): the caller's new array is faulted in
+    by row bands on the host's threads from the first tile on (host_threads.touch), and every tile's
+    staged result then lands in its place, nothing of the zeros left."""
+    from clisp.engine import host_threads
+    from clisp.engine.streaming import StagedSink
+    from clisp.engine.tiling import Tile
+    monkeypatch.setattr(host_threads, "MIN_BAND_BYTES", 1)
+    monkeypatch.setattr(host_threads, "usable_cores", lambda: 4)
+    started = []
+    touch = host_threads.touch
+    monkeypatch.setattr(host_threads, "touch", lambda a: started.append(touch(a)) or started[-1])
+
+    class Staging:                       # HostStaging's interface, plain memory
+        def take(self, nbytes):
+            return np.empty(nbytes, np.uint8)
+
+        def give(self, buffer):
+            pass
+
+    out = np.full((8, 6, 3), 7, dtype=np.uint16)
+    sink = StagedSink(out, Staging())
+    tiles = [Tile(0, 0, 8, 3), Tile(0, 3, 8, 3)]
+    for i, tile in enumerate(tiles):
+        view, _, _ = sink.target(tile)
+        view[...] = 100 + i
+        sink.done(tile)
+    sink.close()
+    assert len(started) == 1 and len(started[0]) == 4              # once, one band per core
+    assert (out[:, :3] == 100).all() and (out[:, 3:] == 101).all()
