@@ -30,8 +30,8 @@ def console(argv: Sequence[str] | None = None) -> None:
     """Begin the device's bring-up where the command needs it, then run the command line."""
     arguments = list(sys.argv[1:] if argv is None else argv)
     if uses_device(arguments):
-        from ..engine import device_start
-        from ..errors import ClispError
+        from ..engine import device_start        # here: other commands never import pyopencl or ctypes
+        from ..errors import ClispError          # here: with the line above
         try:
             device_start.begin(os.environ.get("CLISP_DEVICE"))
         except ClispError:

@@ -4,7 +4,6 @@ All matrices map white-balanced camera values to linear sRGB (D65), column vecto
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 P_LMS = np.array([[4.73, -3.87, 0.14],
