@@ -32,11 +32,21 @@ def scene(kind: str, size: int, seed: int = 0) -> np.ndarray:
             rgb[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.random(3)
     elif kind == "noise":                     # white noise mosaic, [-0.1, 1.2]
         rgb = rng.uniform(-0.1, 1.2, (size, size, 3))
+    elif kind == "clipped":                   # white-balanced lights clipped flat at each channel's white
+        rgb = np.stack([0.3 + 0.4 * xx, 0.35 + 0.3 * yy, 0.25 + 0.2 * (xx + yy)], axis=-1) * CLIPPED_WHITE
+        for _ in range(4):
+            cy, cx, r = rng.uniform(0.2, 0.8), rng.uniform(0.2, 0.8), rng.uniform(0.05, 0.12)
+            rgb += 3.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / r ** 2)[..., None] * rng.uniform(0.5, 1, 3)
+        return np.minimum(rgb, CLIPPED_WHITE)
     else:
         raise ValueError(kind)
     if kind != "noise":
         rgb += rng.normal(0, 0.005, rgb.shape)
     return rgb
+
+
+CLIPPED_WHITE = np.array([1.9, 1.0, 1.5])
+"""The ``clipped`` scene's white per channel: a raw's white level times white-balance gains (R, G, B)."""
 
 
 def mosaic(rgb: np.ndarray, phase: str | CFA, origin: tuple[int, int] = (0, 0)) -> np.ndarray:

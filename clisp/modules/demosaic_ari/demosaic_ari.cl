@@ -18,8 +18,9 @@
  *  - Directions are steps (sy, sx): h (0, 1), v (1, 0), d1 (1, 1), d2 (1, -1).
  *
  * Defines, all from the host and every one in every program (stage.py's program_defines; none has
- * a default here): ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG (reference.py's EPS,
- * RMSE_FLOOR, WEIGHT_REG, CRIT_REG); the site codes SITE_R, SITE_B, SITE_C (R or B), SITE_G; and the
+ * a default here): ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG, ARI_CRIT_FLOOR
+ * (reference.py's ARI_EPS, RMSE_FLOOR, WEIGHT_REG, CRIT_REG, CRIT_FLOOR); the site codes SITE_R,
+ * SITE_B, SITE_C (R or B), SITE_G; and the
  * modes of the launched kernel (0 where it does not read them): ARI_DIR (0: lines are rows, windows
  * along x; 1: columns, along y), ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the
  * fits of a line pair, statistics per line set ARI_SET, fit ARI_FIT), ARI_SY, ARI_SX (the criterion's
@@ -31,7 +32,8 @@
  * one), so that a program compiles only what can run with its modes. */
 
 #if !defined(ARI_EPS) || !defined(ARI_RMSE_FLOOR) || !defined(ARI_WEIGHT_REG) || !defined(ARI_CRIT_REG) \
-    || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) || !defined(ARI_DIR) \
+    || !defined(ARI_CRIT_FLOOR) || !defined(SITE_R) || !defined(SITE_B) || !defined(SITE_C) || !defined(SITE_G) \
+    || !defined(ARI_DIR) \
     || !defined(ARI_MLRI) || !defined(ARI_PAIR) || !defined(ARI_R) || !defined(ARI_SET) || !defined(ARI_FIT) \
     || !defined(ARI_SY) || !defined(ARI_SX) || !defined(ARI_REGION) || !defined(ARI_KNOWN) || !defined(ARI_TARGET) \
     || !defined(ARI_P) || !defined(ARI_Q) || !defined(ARI_LS)
@@ -487,9 +489,10 @@ __kernel void ari_gauss_y(__global const float *restrict src, const int src_base
 #endif
 
 /* ari_select: one iteration's selection: criterion c^2 g from the smoothed terms (planes c, g of the
- * view crit); where it is below the best so far (always on the ``first`` iteration) the estimates
- * become the new values n1, n2 (views), else the previous ones (planes estimate 1, estimate 2, best
- * criterion of the view prev). Out planes estimate 1, estimate 2, best criterion. Halo 0. */
+ * view crit), at least ARI_CRIT_FLOOR (below it criteria are rounding: ties); where it is below the
+ * best so far (always on the ``first`` iteration) the estimates become the new values n1, n2 (views),
+ * else the previous ones (planes estimate 1, estimate 2, best criterion of the view prev). Out planes
+ * estimate 1, estimate 2, best criterion. Halo 0. */
 #ifdef ARI_WITH_ari_select
 __kernel void ari_select(__global const float *restrict crit, const int crit_base, const int crit_pitch,
                          const int crit_plane,
@@ -502,7 +505,7 @@ __kernel void ari_select(__global const float *restrict crit, const int crit_bas
     const int x = get_global_id(0), y = get_global_id(1);
     const int ci = crit_base + y * crit_pitch + x;
     const float c = crit[ci], g = crit[crit_plane + ci];
-    const float cr = c * c * g;
+    const float cr = fmax(c * c * g, ARI_CRIT_FLOOR);
     const float v1 = n1[n1_base + y * n1_pitch + x], v2 = n2[n2_base + y * n2_pitch + x];
     const int i = y * w + x, plane = w * h;
     if (first) {
