@@ -116,10 +116,10 @@ def test_other_iteration_counts(rt, iterations):
 
 @pytest.mark.parametrize("iterations, phase", [((1, 1), "RGGB"), ((2, 1), "GBRG")])
 def test_clipped_lights_match_reference(rt, iterations, phase):
-    """Lights clipped flat at each channel's white (a white-balanced raw): the windows of a flat
-    guide are well-conditioned (ARI_EPS) and criteria of rounding size tie (CRIT_FLOOR), so the
-    device follows the reference beside the clipped patches too. With the published EPS (1e-10)
-    and no floor the device differed by 0.02-0.04 there (max; mean 1-2e-4); now at most 1.7e-4."""
+    """Lights clipped flat at each channel's white (a white-balanced raw): the fits of a flat guide
+    are well-conditioned (ARI_EPS), fits better than a level weigh alike (ARI_RMSE_FLOOR) and criteria
+    of rounding size tie (CRIT_FLOOR), so the device follows the reference beside the clipped patches
+    too. With the published constants it differed by 0.02-0.04 there (max; mean 1-2e-4); now 1-2e-5."""
     stage = DemosaicARI(bayer_cfa(phase), *iterations)
     size = 32 + 2 * stage.halo
     emax, emean = compare(rt, stage, mosaic(scene("clipped", size, 1), phase))

@@ -49,11 +49,12 @@ def run_device(rt, stage: DemosaicRI, mos: np.ndarray, origin=(0, 0)) -> np.ndar
 def study_version(m: np.ndarray, phase: str, monkeypatch) -> np.ndarray:
     """The same algorithm through the study's mirrored-border functions: ARI's step 1 with the RI
     kind only, one iteration, window 7 x 1 along the line; the GBTF merge; weighted MLRI chroma on
-    5 x 5 windows (docs/RESULTS.md, issue 27's study), with the published regulariser (RI keeps EPS;
-    ARI's own ARI_EPS and CRIT_FLOOR came later, for clipped lights)."""
+    5 x 5 windows (docs/RESULTS.md, issue 27's study), with the published constants (RI keeps EPS and
+    RMSE_FLOOR; ARI's own ARI_EPS, ARI_RMSE_FLOOR and CRIT_FLOOR came later, for clipped lights)."""
     monkeypatch.setitem(ari.KINDS, "ri", (3, 0))
     monkeypatch.setattr(ari, "ARI_EPS", ari.EPS)
     monkeypatch.setattr(ari, "CRIT_FLOOR", 0.0)
+    monkeypatch.setattr(ari, "ARI_RMSE_FLOOR", ari.RMSE_FLOOR)
 
     def core(raw, sites, lo, hi):
         lines = ari._ari_green(raw, sites, 1, ("ri",))

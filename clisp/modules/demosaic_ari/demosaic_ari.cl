@@ -19,7 +19,7 @@
  *
  * Defines, all from the host and every one in every program (stage.py's program_defines; none has
  * a default here): ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG, ARI_CRIT_FLOOR
- * (reference.py's ARI_EPS, RMSE_FLOOR, WEIGHT_REG, CRIT_REG, CRIT_FLOOR); the site codes SITE_R,
+ * (reference.py's ARI_EPS, ARI_RMSE_FLOOR, WEIGHT_REG, CRIT_REG, CRIT_FLOOR); the site codes SITE_R,
  * SITE_B, SITE_C (R or B), SITE_G; and the
  * modes of the launched kernel (0 where it does not read them): ARI_DIR (0: lines are rows, windows
  * along x; 1: columns, along y), ARI_MLRI (slope from the Laplacian moments), ARI_PAIR (step 1: the

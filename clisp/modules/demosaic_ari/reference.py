@@ -71,9 +71,11 @@ Units and constants
 -------------------
 The mosaic is multiplied by ``SCALE`` (255) inside, so the published constants, given for 8-bit
 data, apply to data in [0, 1] unchanged (a linear raw normalised to white = 1 is in the same units);
-the output is scaled back. ARI's constants are named once here (``EPS``, ``RMSE_FLOOR``,
-``WEIGHT_REG``, ``CRIT_REG``, ``CRITERION_RADIUS``, ``CRITERION_SIGMA``) and the device stage takes
-them from here.
+the output is scaled back. ARI's constants are named once here (``ARI_EPS``, ``ARI_RMSE_FLOOR``,
+``WEIGHT_REG``, ``CRIT_REG``, ``CRIT_FLOOR``, ``CRITERION_RADIUS``, ``CRITERION_SIGMA``) and the
+device stage takes them from here; ``ARI_EPS``, ``ARI_RMSE_FLOOR`` and ``CRIT_FLOOR`` are not the
+paper's (the published ``EPS`` and ``RMSE_FLOOR`` left the stage ill-conditioned beside clipped
+lights: README.md), and RI and MLRI keep ``EPS`` and ``RMSE_FLOOR``.
 
 Borders
 -------
@@ -100,12 +102,18 @@ ARI_EPS = 1e-2
 """ARI's regulariser of the slope (8-bit units^2), in place of the published EPS: a window whose
 guide is flat to within rounding (a clipped light, a flat estimate of an earlier iteration) has
 var and cov of that rounding, about 1e-9 for float32 values of a few hundred, and EPS = 1e-10 made
-its slope their ratio, any value; such windows fit best (1 / RMSE weights of RMSE_FLOOR), so their
-slopes ruled the pixels beside them, differently on every device. 1e-2 (a tenth of a level, squared)
-puts those slopes at 0; PSNR against the truth on 6 Kodak and 4 McMaster crops, noiseless and with
-noise, is the same to 0.001 dB (README)."""
+its slope their ratio, any value, in the windows that fit best. 1e-2 (a tenth of a level, squared)
+puts those slopes at 0 (README: the measurements)."""
 RMSE_FLOOR = 1e-3
-"""ARI's weighted guided filter: a window's fit weighs 1 / max(RMSE, RMSE_FLOOR) (8-bit units)."""
+"""The weighted guided filter (ARI's, weighted MLRI's): a window's fit weighs 1 / max(RMSE,
+RMSE_FLOOR) (8-bit units); ARI itself uses ARI_RMSE_FLOOR."""
+ARI_RMSE_FLOOR = 1.0
+"""ARI's RMSE floor (8-bit units), in place of the published RMSE_FLOOR: a window's mse is a
+difference of its variances, and across a clipped light's edge (variances of 1e4-1e5) float32 leaves
+it uncertain by about 1e-2, so the weights of fits better than a level were rounding, fed from one
+iteration to the next. With the floor at a level they weigh alike (README: on a clipped raw the
+device followed the reference to 0.16 of `best`'s output before, 0.0043 after; PSNR on 10 Kodak and
+McMaster crops 0.03 dB higher)."""
 WEIGHT_REG = 1e-4
 """ARI's weighted guided filter divides by the window's sum of those weights + WEIGHT_REG."""
 CRIT_REG = 1e-10
@@ -275,7 +283,7 @@ class WindowStats:
 
 
 def _fit(stats: WindowStats, guide: Array, target: Array, eps: float, laplacian: dict | None,
-         lap_mask: Array | None, weighted: bool, lap_floor: float) -> Array:
+         lap_mask: Array | None, weighted: bool, lap_floor: float, rmse_floor: float = RMSE_FLOOR) -> Array:
     """The guided filter of ``target`` (y of ``stats``) against ``guide`` (x): see guided_filter."""
     window = stats.window
     if laplacian is None:
@@ -293,14 +301,14 @@ def _fit(stats: WindowStats, guide: Array, target: Array, eps: float, laplacian:
         return _box(a, window) / count * guide + _box(b, window) / count
     # mean squared residual of a x + b ~ y over the window (b makes the mean residual zero)
     mse = a * a * stats.var_x - 2.0 * a * stats.cov + stats.var_y
-    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), RMSE_FLOOR)
+    weight = 1.0 / np.maximum(np.sqrt(np.maximum(mse, 0.0)), rmse_floor)
     total = _box(weight, window) + WEIGHT_REG
     return _box(a * weight, window) / total * guide + _box(b * weight, window) / total
 
 
 def guided_filter(guide: Array, target: Array, mask: Array | None, window: Window, eps: float = EPS,
                   laplacian: dict | None = None, lap_mask: Array | None = None, weighted: bool = False,
-                  lap_floor: float = 0.0) -> Array:
+                  lap_floor: float = 0.0, rmse_floor: float = RMSE_FLOOR) -> Array:
     """Masked guided filter q = mean(a) guide + mean(b) (He et al.), statistics over ``mask`` (None:
     every pixel) in ``window`` (8-bit units).
 
@@ -308,20 +316,20 @@ def guided_filter(guide: Array, target: Array, mask: Array | None, window: Windo
     ``laplacian`` (MLRI): a = sum(lap guide * lap target) / (sum((lap guide)^2) + eps) over the
     ``lap_mask`` sites of the window (the mean of (lap guide)^2 floored at ``lap_floor``); b as above.
     ``weighted`` (ARI): mean(a), mean(b) weighted by 1 / RMSE of each window's fit a guide + b ~ target
-    over the mask (RMSE floored at RMSE_FLOOR); else the plain window means (over every pixel).
+    over the mask (RMSE floored at ``rmse_floor``); else the plain window means (over every pixel).
     """
     stats = WindowStats(guide, target, mask, window)
-    return _fit(stats, guide, target, eps, laplacian, lap_mask, weighted, lap_floor)
+    return _fit(stats, guide, target, eps, laplacian, lap_mask, weighted, lap_floor, rmse_floor)
 
 
 def guided_pair(x: Array, y: Array, mask: Array | None, window: Window, laplacian: dict | None = None,
                 lap_masks: tuple[Array | None, Array | None] = (None, None), weighted: bool = True,
-                eps: float = EPS) -> tuple[Array, Array]:
+                eps: float = EPS, rmse_floor: float = RMSE_FLOOR) -> tuple[Array, Array]:
     """(guided_filter of y against x, of x against y) sharing the window sums; lap_masks: the
     Laplacian masks of the two fits."""
     stats = WindowStats(x, y, mask, window)
-    return (_fit(stats, x, y, eps, laplacian, lap_masks[0], weighted, 0.0),
-            _fit(stats.swapped(), y, x, eps, laplacian, lap_masks[1], weighted, 0.0))
+    return (_fit(stats, x, y, eps, laplacian, lap_masks[0], weighted, 0.0, rmse_floor),
+            _fit(stats.swapped(), y, x, eps, laplacian, lap_masks[1], weighted, 0.0, rmse_floor))
 
 
 # ----------------------------------------------------------------------------------- RI / MLRI
@@ -471,7 +479,8 @@ def _ari_green(raw: Array, sites: Sites, iterations: int, kinds: tuple[str, ...]
                 lap = _along(d, LAPLACIAN) if kind == "mlri" else None
                 t_g, t_c = np.zeros_like(raw), np.zeros_like(raw)
                 for line, c_sites, g_sites in sites.lines(d):
-                    fit_g, fit_c = guided_pair(c, g, line, window, lap, (g_sites, c_sites), eps=ARI_EPS)
+                    fit_g, fit_c = guided_pair(c, g, line, window, lap, (g_sites, c_sites), eps=ARI_EPS,
+                                               rmse_floor=ARI_RMSE_FLOOR)
                     t_g += line * fit_g
                     t_c += line * fit_c
                 r_g = _taps(np.where(sites.g, raw - t_g, 0.0), _along(d, RESIDUAL_LINEAR))
@@ -508,7 +517,7 @@ def _ari_chroma(guide: Array, planes: list[tuple[Array, Array, Array]], directio
                 new, errs = [], []
                 for (values, known, targets), x in zip(planes, cur):
                     t = guided_filter(guide, x, mask, window, eps=ARI_EPS, laplacian=lap, lap_mask=known,
-                                      weighted=True)
+                                      weighted=True, rmse_floor=ARI_RMSE_FLOOR)
                     residual = _taps(np.where(known, values - t, 0.0), mean_d)
                     new.append(np.where(targets, t + residual, values))
                     errs.append(x - t if mask is None else (x - t) * mask)

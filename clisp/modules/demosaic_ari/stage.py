@@ -12,7 +12,7 @@ window's border; the device never does: it is valid-only, and the halo is the fo
 chain, so the two agree on the whole output).
 
 Units: the device scales the mosaic by ``SCALE`` (255) once (``ari_scale``) and the output back by
-1 / SCALE, so the reference's constants (``ARI_EPS``, ``RMSE_FLOOR``, ``WEIGHT_REG``, ``CRIT_REG``,
+1 / SCALE, so the reference's constants (``ARI_EPS``, ``ARI_RMSE_FLOOR``, ``WEIGHT_REG``, ``CRIT_REG``,
 ``CRIT_FLOOR``, in 8-bit units) apply unchanged, in float32. They reach the kernels as defines with the site codes and
 each kernel's modes (``program_defines``); every kernel is launched by name (``Runtime.launch_named``).
 
@@ -28,8 +28,8 @@ from ...cfa import CFA
 from ...errors import ClispError
 from ...engine.profile import stage_label
 from ...engine.runtime import DeviceImage, Runtime
-from .reference import (ARI_EPS, CRIT_FLOOR, CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, KINDS, LAPLACIAN, PHASES,
-                        RB_KINDS, RMSE_FLOOR, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
+from .reference import (ARI_EPS, ARI_RMSE_FLOOR, CRIT_FLOOR, CRIT_REG, CRITERION_RADIUS, CRITERION_SIGMA, KINDS,
+                        LAPLACIAN, PHASES, RB_KINDS, SCALE, STEPS, WEIGHT_REG, ari_window, demosaic_ari, gaussian_taps)
 from ...engine.stage import Stage
 from ..demosaic_malvar.stage import channel_order, check_bayer
 from ..common.box import enqueue_box
@@ -38,8 +38,8 @@ SITE_R, SITE_B, SITE_C, SITE_G = 0, 1, 2, 3
 """Site codes of the kernels (R, B, chroma = R or B, G; demosaic_ari.cl's ari_site)."""
 LAPLACIAN_RADIUS = len(LAPLACIAN) // 2
 """MLRI's Laplacian [-1, 0, 2, 0, -1] along the direction reads 2 px each way."""
-CONSTANTS = {"ARI_EPS": ARI_EPS, "ARI_RMSE_FLOOR": RMSE_FLOOR, "ARI_WEIGHT_REG": WEIGHT_REG, "ARI_CRIT_REG": CRIT_REG,
-             "ARI_CRIT_FLOOR": CRIT_FLOOR,
+CONSTANTS = {"ARI_EPS": ARI_EPS, "ARI_RMSE_FLOOR": ARI_RMSE_FLOOR, "ARI_WEIGHT_REG": WEIGHT_REG,
+             "ARI_CRIT_REG": CRIT_REG, "ARI_CRIT_FLOOR": CRIT_FLOOR,
              "SITE_R": SITE_R, "SITE_B": SITE_B, "SITE_C": SITE_C, "SITE_G": SITE_G}
 """Defines of every program: the reference's constants (8-bit units; float32 literals in the kernels)
 and the site codes."""
