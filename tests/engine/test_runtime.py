@@ -236,15 +236,19 @@ def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
     import uuid
     from clisp.engine import programs
     monkeypatch.setenv("CLISP_CACHE_DIR", str(tmp_path))
-    fresh = Runtime()
-    fresh.programs.notice_stream = None
     tags = [uuid.uuid4().hex for _ in range(3)]
-    with fresh.metering():
-        for tag in tags:
-            fresh.launch_named("raw_scale", "cfa_affine", 8, 4, {}, {"RAW_T": "float", "CFA_PERIOD": 4},
-                               generated=f"/* {tag} */")
-        assert not fresh.programs.built
-    assert len(fresh.programs.built) == 3
+
+    def metered(runtime: Runtime) -> None:
+        """A metering run asking for the three programs: none built inside it, all three after."""
+        runtime.programs.notice_stream = None
+        with runtime.metering():
+            for tag in tags:
+                runtime.launch_named("raw_scale", "cfa_affine", 8, 4, {}, {"RAW_T": "float", "CFA_PERIOD": 4},
+                                     generated=f"/* {tag} */")
+            assert not runtime.programs.built
+        assert len(runtime.programs.built) == 3
+    fresh = Runtime()
+    metered(fresh)
     if not fresh.programs.cheap_binaries and programs._usable_cores() > 1:    # built in parallel: kept at once
         assert len(list((tmp_path / "programs").iterdir())) == 3
     fresh.save_programs()
@@ -253,14 +257,8 @@ def test_metering_builds_its_programs_at_once(tmp_path, monkeypatch):
         params = fresh.signature("raw_scale", "cfa_affine", {"RAW_T": "float", "CFA_PERIOD": 4}, f"/* {tag} */")
         assert params and params[0].pointer
     later = Runtime()                                   # the records kept: loaded together at the end, none built
-    later.programs.notice_stream = None
     monkeypatch.setattr(later.programs, "_build", lambda *a: pytest.fail("a kept program was built again"))
-    with later.metering():
-        for tag in tags:
-            later.launch_named("raw_scale", "cfa_affine", 8, 4, {}, {"RAW_T": "float", "CFA_PERIOD": 4},
-                               generated=f"/* {tag} */")
-        assert not later.programs.built
-    assert len(later.programs.built) == 3
+    metered(later)
 
 
 def test_warm_builds_what_a_run_needs(tmp_path):
