@@ -23,7 +23,7 @@ import json
 import re
 import sys
 import warnings
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
@@ -151,7 +151,8 @@ class Programs:
         if self._wanted is not None and record is not None:     # loaded or built with the others at the end
             self._wanted.setdefault(key, Wanted(name, flags, generated, path, source, record))
             return None
-        with host_timer("load kept programs (start-up)"):
+        with host_timer("load kept programs (start-up)"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")                   # pyopencl warns on non-empty build logs
             prg = self._load(record, key, flags) if record is not None else None
         if prg is None:
             if record is None or not record.exists():
@@ -233,8 +234,7 @@ class Programs:
         kept = [(key, w) for key, w in todo if w.record.exists()]
         with host_timer("load kept programs (start-up)"), warnings.catch_warnings():
             warnings.simplefilter("ignore")       # here: catch_warnings is not for threads (one process-wide filter)
-            loaded = host_threads.map_items(lambda item: self._load(item[1].record, item[0], item[1].flags,
-                                                                    quiet=False), kept)
+            loaded = host_threads.map_items(lambda item: self._load(item[1].record, item[0], item[1].flags), kept)
         for (key, _), prg in zip(kept, loaded):
             if prg is not None:
                 self.built[key] = prg
@@ -269,20 +269,17 @@ class Programs:
         except RuntimeError:                               # Path.home() without a home
             return None
 
-    def _load(self, record: Path, key: Key, flags: tuple[str, ...], quiet: bool = True) -> Any | None:
+    def _load(self, record: Path, key: Key, flags: tuple[str, ...]) -> Any | None:
         """The program built from the binary in ``record``, its kernels' parameters noted; None when
-        the record is missing, damaged or refused by the driver. ``quiet``: silence pyopencl's
-        build-log warnings here (False on a thread: the caller does, see _load_kept)."""
+        the record is missing, damaged or refused by the driver. Callers silence pyopencl's build-log
+        warnings (catch_warnings is one process-wide filter, not for threads: _load_kept)."""
         found = program_store.read_record(record)
         if found is None:
             return None
         binary, kernels = found
         options = list(flags) + BUILD_OPTIONS
         try:
-            with warnings.catch_warnings() if quiet else nullcontext():
-                if quiet:
-                    warnings.simplefilter("ignore")
-                prg = self.cl.Program(self.context, [self.device], [binary]).build(options=options)
+            prg = self.cl.Program(self.context, [self.device], [binary]).build(options=options)
         except (self.cl.Error, ValueError):
             return None
         for kernel_name, params in kernels.items():
