@@ -57,7 +57,7 @@ def take(spec: str | None) -> tuple[Any, Any, Any] | None:
 def _bring_up(cl: Any, spec: str | None) -> None:
     """The thread: drivers opened and the context created with the GIL released (ctypes)."""
     try:
-        library = _loader(cl)
+        library = _loader()
         if library is not None:
             count = ctypes.c_uint32(0)
             library.clGetPlatformIDs(0, None, ctypes.byref(count))      # opens the vendors' drivers
@@ -83,10 +83,10 @@ def _context(cl: Any, library: Any, device: Any) -> Any:
     return cl.Context.from_int_ptr(pointer, retain=False)
 
 
-def _loader(cl: Any) -> Any | None:
+def _loader() -> Any | None:
     """The OpenCL ICD loader this process's pyopencl calls (ctypes), found among the libraries
-    mapped into the process (Linux); None elsewhere or when it is not found."""
-    del cl                                                  # pyopencl is imported: its loader is mapped
+    mapped into the process (Linux; pyopencl, imported by then, has mapped it); None elsewhere or
+    when it is not found."""
     try:
         with open("/proc/self/maps") as maps:
             fields = [line.split() for line in maps]
