@@ -90,8 +90,9 @@ class CFA:
 
     @property
     def layout(self) -> str:
-        """'bayer', 'lms' or 'other' (LAYOUTS): the arrangement of the pattern, which picks the demosaic."""
-        return layout_of(self.pattern)
+        """'bayer', 'lms' or 'other' (LAYOUTS): the arrangement of the pattern, which picks the demosaic.
+        Memoised per pattern (asked several times in every build of a pipeline)."""
+        return _layout(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.pattern.shape)
 
     def bayer_phase(self, origin: tuple[int, int] = (0, 0)) -> str:
         """The Bayer phase name (RGGB, GRBG, GBRG or BGGR) of a window whose pixel (0, 0) is image pixel
@@ -177,6 +178,12 @@ def _covering_radius(pattern: bytes, p: int, channel: int) -> int:
     dy = np.abs((sites[:, 0][:, None] - ys[None, :] + p // 2) % p - p // 2)
     dx = np.abs((sites[:, 1][:, None] - xs[None, :] + p // 2) % p - p // 2)
     return int(np.maximum(dy, dx).min(axis=0).max())       # the farthest pixel from its nearest site
+
+
+@lru_cache(maxsize=64)
+def _layout(pattern: bytes, shape: tuple[int, ...]) -> str:
+    """:func:`layout_of` of the int8 pattern ``pattern`` (its bytes) of ``shape``."""
+    return layout_of(np.frombuffer(pattern, dtype=np.int8).reshape(shape))
 
 
 def spectral_of(channels: tuple[str, ...]) -> str:

@@ -1,6 +1,7 @@
 """The in-memory raw image: mosaic data plus everything the pipeline needs to process it."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -79,21 +80,33 @@ _SCAN_ROWS = 256
 def check_levels(raw: RawImage) -> str | None:
     """What is wrong with ``raw``'s levels and gains (black, white, WB passes, exposure, colour
     matrix), as a short phrase, or None when the pipeline can use them: finite, black below white,
-    gains within [1/MAX_GAIN, MAX_GAIN]."""
-    black, white = raw.black_level, float(raw.white_level)
-    if not np.all(np.isfinite(black)) or not np.isfinite(white):
+    gains within [1/MAX_GAIN, MAX_GAIN]. Read as Python floats: a dozen numbers, where numpy's
+    reductions cost about 70 us of every call (a fifth of a small raw's host time).
+
+    >>> from dataclasses import replace
+    >>> from clisp.cfa import bayer_cfa
+    >>> raw = RawImage(np.zeros((2, 2), np.uint16), bayer_cfa(), np.full(3, 64.0), 1023.0, np.ones(3), np.eye(3))
+    >>> check_levels(raw) is None, check_levels(replace(raw, wb=np.array([1.0, 0.0, 1.0])))
+    (True, 'white balance 1, 0, 1 outside 0.0001..10000')
+    """
+    black, white = _floats(raw.black_level), float(raw.white_level)
+    if not all(map(math.isfinite, black)) or not math.isfinite(white):
         return "black or white level is not a finite number"
-    if white <= float(np.max(black)):
-        return f"white level {white:g} is not above the black level {float(np.max(black)):g}"
-    for name, gains in (("white balance", raw.wb), ("exposure", np.array([raw.exposure])),
-                        ("white balance pass 2", raw.wb2)):
-        if not np.all(np.isfinite(gains)) or np.any(gains < 1.0 / MAX_GAIN) or np.any(gains > MAX_GAIN):
-            shown = ", ".join(f"{float(v):.4g}" for v in np.ravel(gains)[:3])
-            return f"{name} {shown} outside {1 / MAX_GAIN:g}..{MAX_GAIN:g}"
-    m = raw.colour_matrix
-    if not np.all(np.isfinite(m)) or np.max(np.abs(m)) > MAX_GAIN:
+    if white <= max(black):
+        return f"white level {white:g} is not above the black level {max(black):g}"
+    for name, values in (("white balance", raw.wb), ("exposure", raw.exposure), ("white balance pass 2", raw.wb2)):
+        gains = _floats(values)
+        if not all(1.0 / MAX_GAIN <= g <= MAX_GAIN for g in gains):        # also NaN
+            return f"{name} {', '.join(f'{g:.4g}' for g in gains[:3])} outside {1 / MAX_GAIN:g}..{MAX_GAIN:g}"
+    m = _floats(raw.colour_matrix)
+    if not all(math.isfinite(v) and abs(v) <= MAX_GAIN for v in m):
         return "colour matrix is not finite or has entries beyond 1e4"
     return None
+
+
+def _floats(values: Any) -> list[float]:
+    """``values`` (a number or an array of any shape) as a flat list of Python floats."""
+    return np.ravel(np.asarray(values, dtype=np.float64)).tolist()
 
 
 def check_samples(raw: RawImage) -> None:

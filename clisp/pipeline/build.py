@@ -36,10 +36,14 @@ class StageRegistry(Mapping[str, type[Stage]]):
 
     def __init__(self, where: dict[str, tuple[str, str]]) -> None:
         self._where = where                  # name -> (module, class)
+        self._classes: dict[str, type[Stage]] = {}
 
     def __getitem__(self, name: str) -> type[Stage]:
-        module, cls = self._where[name]
-        return getattr(import_module(module), cls)
+        cls = self._classes.get(name)
+        if cls is None:
+            module, attr = self._where[name]
+            cls = self._classes[name] = getattr(import_module(module), attr)
+        return cls
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._where)
@@ -238,7 +242,7 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
     if shade is not None:                                   # the smooth gain, after highlights and denoiser
         stages.append(shade)
     output_gains = scene.gains2 * 2.0 ** scene.exposure
-    if not np.allclose(output_gains, 1.0, rtol=0, atol=0):
+    if np.any(output_gains != 1.0):                          # the identity is left out
         stages.append(WhiteBalance2(output_gains))
     tone = tone_curve_for(output)
     if tone is not None:
