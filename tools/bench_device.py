@@ -11,7 +11,9 @@ demo chart (the mosaic of a simulated 416 x 624 raw tiled, so the 12 MP raw cost
 LMS and Bayer, already in memory: ``clisp.process(raw, preset, output)``, the two sizes
 interleaved, ``--repeat`` calls each after a warm-up, median kept. Printed per CFA, preset and
 output: both times, the 12 MP call's MP/s and the small call's time over its pixels' share of the
-12 MP call (the host's share: 1.0 where a call costs only its pixels). For the quality preset also
+12 MP call (the host's share: 1.0 where a call costs only its pixels). ``warm x``: the same share
+from ``--repeat`` calls of one size in a row (each size after its own kind: the small call then
+meets its code and data in the caches, where interleaved it follows 75 ms of another call). For the quality preset also
 the small call under event profiling (clisp.engine.profile.recording): device busy (the union of
 its kernel and copy events over the tile loop) and the host time outside the device's events over
 the whole call. ``throughput``: 24 MP raws (``--size``) to 16-bit sRGB ('srgb16', what a TIFF
@@ -99,6 +101,8 @@ def child_host(repeat: int) -> dict:
                     times[size].append(time.perf_counter() - start)
             row = {size: statistics.median(t) for size, t in times.items()}
             row["share"] = row["small"] / (row["big"] * small.data.size / big.data.size)
+            warm = {size: median_call(fn, repeat) for size, fn in calls.items()}     # one size at a time
+            row["warm share"] = warm["small"] / (warm["big"] * small.data.size / big.data.size)
             if preset == "quality":
                 row.update(busy_of(lambda: clisp.process(small, preset=preset, output=output), repeat))
             out[f"{cfa} {preset} {output}"] = row
@@ -237,11 +241,12 @@ def fmt(value: float | None, spec: str) -> str:
 
 def report_host(trees: dict[str, dict]) -> None:
     print(f"{'tree':<22}{'cfa preset output':<24}{'0.26 MP ms':>11}{'12 MP ms':>10}{'12 MP MP/s':>11}"
-          f"{'share x':>9}{'busy %':>8}{'outside %':>10}{'launches':>9}")
+          f"{'share x':>9}{'warm x':>8}{'busy %':>8}{'outside %':>10}{'launches':>9}")
     for name, rows in trees.items():
         for key, r in rows.items():
             print(f"{name:<21} {key:<24}{1e3 * r['small']:>11.2f}{1e3 * r['big']:>10.1f}"
                   f"{BIG[0] * BIG[1] / 1e6 / r['big']:>11.1f}{r['share']:>9.2f}"
+                  f"{fmt(r.get('warm share'), '.2f'):>8}"
                   f"{fmt(100 * r['busy'] if 'busy' in r else None, '.0f'):>8}"
                   f"{fmt(100 * r['outside'] if 'outside' in r else None, '.1f'):>10}"
                   f"{fmt(r.get('launches'), '.0f'):>9}")

@@ -7,6 +7,8 @@ float64 references; raw inputs in DN scale):
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -318,6 +320,41 @@ def test_linear_phase_filter_factored(rt, name, dtype):
         assert_close(run_stage(rt, f, x, origin), ref, f"factored phase_filter {name} {origin}")
 
 
+PX8_CASES = [(False, False, 16), (True, False, 16), (True, True, 16), (True, True, 8)]
+
+
+@pytest.mark.parametrize("dense", [False, True], ids=["factored", "dense"])
+@pytest.mark.parametrize("encode, quantize, bits", PX8_CASES, ids=["linear", "srgb", "srgb16", "srgb8"])
+def test_phase_filter_px8_equals_per_column(rt, monkeypatch, dense, encode, quantize, bits):
+    """On a CPU device an interleaved period-2 filter runs phase_filter_px8 (eight columns per
+    work-item, the tone curve in its store): it equals the per-column kernel phase_filter_px bit for
+    bit (each lane the same sums in the same order) and the reference under the rule (codes: one
+    off where the curve's error meets a half code), for both column parities of the last
+    work-item (output widths 68 and 69) and two origins."""
+    cfa = cfa_from_name("bayer-grbg")
+    chain = [normalize(cfa, BLACK, WHITE), white_balance1(cfa, np.array([2.0, 1.0, 1.6])), DemosaicBilinear(cfa),
+             ColourMatrix(np.array([[1.7, -0.5, -0.2], [-0.3, 1.6, -0.3], [0.05, -0.6, 1.55]]))]
+    f = fuse_stages(chain)[0]
+    if dense:
+        f = replace(f, basis=None, mix=None)
+    f = replace(f, encode=encode, quantize=quantize, bits=bits, interleaved=True)
+    assert f.factored != dense
+    rng = np.random.default_rng(8)
+    for shape in ((38, 70), (38, 71)):
+        x = rng.integers(0, 1024, size=shape).astype(np.uint16)
+        for origin in ((0, 0), (1, 3)):
+            monkeypatch.setattr(linear_filter, "eight_per_item", lambda rt: True)
+            eight = run_stage(rt, f, x, origin)
+            monkeypatch.setattr(linear_filter, "eight_per_item", lambda rt: False)
+            column = run_stage(rt, f, x, origin)
+            assert eight.dtype == f.out_dtype and np.array_equal(eight, column), (shape, origin)
+            ref = f.reference(x, origin)
+            if quantize:
+                assert np.abs(eight.astype(np.int32) - ref).max() <= 1
+            else:
+                assert_close(eight, ref, f"phase_filter_px8 {shape} {origin}")
+
+
 def test_linear_phase_filter_drops_factors_when_not_channel_pure():
     """A basis that mixes CFA channels cannot take per-channel scales into ``mix``: after an
     affine the filter is dense again (and still equals its definition)."""
@@ -473,7 +510,7 @@ def test_pipeline_fused_equals_unfused_reference(kind, output, wb2, dtype):
 
     fused = pipeline.schedule(fuse=True)
     assert isinstance(fused[0], LinearPhaseFilter)
-    if output == "linear" or linear_filter.FUSE_TONE_CURVE:      # everything in one kernel
+    if output == "linear" or raw.cfa.period == linear_filter.FUSE_TONE_CURVE_PERIOD:  # everything in one kernel
         assert len(fused) == 1 and fused[0].interleaved
         assert fused[0].encode == (output != "linear") and fused[0].quantize == (output == "srgb16")
     else:                                                        # the tone curve as its own kernel
