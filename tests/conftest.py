@@ -39,28 +39,6 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     return max(1, min(os.cpu_count() or 1, MAX_WORKERS))
 
 
-ARI_GROUP = "ari"
-"""pytest-xdist's group (``--dist loadgroup``, pyproject's addopts) of the tests that build the ARI
-demosaic's programs: about 175 of them, 195 s on 2 cores with empty caches. Each worker that runs
-one such test builds them all (a worker's programs stay in that process; PoCL's own cache helps
-only once a build has finished), so in one group they are built once."""
-
-
-def builds_ari(item: pytest.Item) -> bool:
-    """Whether a test runs ARI on the device: a test of its module, one parametrised with the
-    demosaic 'ari' or the preset 'best' (ARI's for Bayer), or one marked ``xdist_group('ari')`` itself."""
-    params = getattr(getattr(item, "callspec", None), "params", {})
-    return "demosaic_ari" in item.nodeid or any(value in ("ari", "best") for value in params.values()
-                                                if isinstance(value, str))
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The ARI builders into one xdist group (:data:`ARI_GROUP`)."""
-    for item in items:
-        if builds_ari(item) and item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(ARI_GROUP))
-
-
 @pytest.fixture(scope="module")
 def rt():
     return get_runtime()

@@ -90,7 +90,6 @@ def test_kind_through_dng_and_process(tmp_path: Path, name: str, kind: str, spec
         assert psnr(out, sim.truth, border=6) > floor, (name, preset)
 
 
-@pytest.mark.xdist_group("ari")                # runs ARI: with the other tests that build its programs (conftest)
 def test_lms_bayer_takes_the_bayer_demosaics() -> None:
     """The presets pick the demosaic by layout, the chroma denoiser's space by the channels."""
     raw = simulate(scene(), "lms-bayer", gain=4, seed=1).raw
