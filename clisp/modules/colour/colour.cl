@@ -20,25 +20,17 @@ __kernel void apply_matrix3(__global const float *restrict src, __global float *
  * the 3 planes of a linear image. Halo 0. QUANTIZE (define): 1 writes codes of CODE_BITS (define:
  * 16, ushort, or 8, uchar), 0 float. INTERLEAVED (define): 1 writes H x W x 3 (the host layout), 0 three planes. */
 #ifdef SRGB_M0
-#if QUANTIZE && CODE_BITS == 8
-typedef uchar out_t;
-#define STORE(v) quantize8(v)
-#elif QUANTIZE
-typedef ushort out_t;
-#define STORE(v) quantize16(v)
-#else
-typedef float out_t;
-#define STORE(v) (v)
-#endif
+#define ENCODE_SRGB 1                /* store.h's out_t and STORE: encoded, as codes where QUANTIZE */
+#include "store.h"
 __kernel void srgb_encode(__global const float *restrict src, __global out_t *restrict dst, const int width, const int height)
 {
     const int x = get_global_id(0);
     const int y = get_global_id(1);
     const int plane = width * height;
     const int i = y * width + x;
-    const out_t r = STORE(encode_srgb(src[i]));             /* written out per channel: a loop over */
-    const out_t g = STORE(encode_srgb(src[plane + i]));     /* the planes ran 2.5x slower on PoCL */
-    const out_t b = STORE(encode_srgb(src[2 * plane + i]));
+    const out_t r = STORE(src[i]);             /* written out per channel: a loop over */
+    const out_t g = STORE(src[plane + i]);     /* the planes ran 2.5x slower on PoCL */
+    const out_t b = STORE(src[2 * plane + i]);
 #if INTERLEAVED
     dst[3 * i] = r;
     dst[3 * i + 1] = g;
@@ -57,16 +49,6 @@ __kernel void srgb_encode(__global const float *restrict src, __global out_t *re
  * work-item of a row starts at width - 8 (it rewrites a few pixels with the same values), so
  * width >= 8. QUANTIZE as srgb_encode. */
 typedef float8 float8_u __attribute__((aligned(4)));
-#if QUANTIZE && CODE_BITS == 8
-typedef uchar8 out8_u __attribute__((aligned(1)));
-#define STORE8(v) quantize8x8(v)
-#elif QUANTIZE
-typedef ushort8 out8_u __attribute__((aligned(2)));
-#define STORE8(v) quantize16x8(v)
-#else
-typedef float8 out8_u __attribute__((aligned(4)));
-#define STORE8(v) (v)
-#endif
 __kernel void srgb_encode8(__global const float *restrict src, __global out_t *restrict dst, const int width, const int height)
 {
     const int gx = (int)get_global_id(0) * 8;
@@ -75,12 +57,7 @@ __kernel void srgb_encode8(__global const float *restrict src, __global out_t *r
     const int x = gx < width - 8 ? gx : width - 8;
     const int plane = width * height;
     const int i = y * width + x;
-    const float8 r = encode_srgb8(*(__global const float8_u *)(src + i));
-    const float8 g = encode_srgb8(*(__global const float8_u *)(src + plane + i));
-    const float8 b = encode_srgb8(*(__global const float8_u *)(src + 2 * plane + i));
-    __global out8_u *o = (__global out8_u *)(dst + 3 * i);
-    o[0] = STORE8(((float8)(r.s0, g.s0, b.s0, r.s1, g.s1, b.s1, r.s2, g.s2)));
-    o[1] = STORE8(((float8)(b.s2, r.s3, g.s3, b.s3, r.s4, g.s4, b.s4, r.s5)));
-    o[2] = STORE8(((float8)(g.s5, b.s5, r.s6, g.s6, b.s6, r.s7, g.s7, b.s7)));
+    store_rgb8(dst + 3 * i, *(__global const float8_u *)(src + i), *(__global const float8_u *)(src + plane + i),
+               *(__global const float8_u *)(src + 2 * plane + i));
 }
 #endif

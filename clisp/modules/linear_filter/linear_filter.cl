@@ -90,27 +90,12 @@ __kernel void phase_filter_px(__global const RAW_T *restrict src, __global out_t
  * (the host's layout), for CPU devices: PoCL turns the per-column kernel's interleaved stores into
  * scattered scalar stores, and the tone curve as a kernel of its own read and wrote every pixel again
  * (clisp/modules/colour/colour.cl, srgb_encode8). Here each row's eight outputs per channel are float8
- * (row_apply8: the same sums per lane as row_apply, the column phase of each lane a mask), encoded
- * (ENCODE_SRGB: encode_srgb8, clisp/modules/colour/srgb.h) and stored as three consecutive vectors.
+ * (row_apply8: the same sums per lane as row_apply, the column phase of each lane a mask), then
+ * encoded where ENCODE_SRGB and stored as three consecutive vectors (store.h's store_rgb8).
  * Halo RADIUS. Launched over ceil(out_w / 8) x out_h / CFA_PERIOD work-items with a bounds check;
  * the last work-item of a row starts at out_w - 8 (it rewrites a few pixels with the same values),
  * so out_w >= 8. Needs NOUT 3, CFA_PERIOD 2 and out_h a multiple of it. */
 #if CFA_PERIOD == 2 && NOUT == 3
-#if ENCODE_SRGB && QUANTIZE && CODE_BITS == 8
-typedef uchar8 out8_u __attribute__((aligned(1)));
-#define STORE8(v) quantize8x8(v)
-#elif ENCODE_SRGB && QUANTIZE
-typedef ushort8 out8_u __attribute__((aligned(2)));
-#define STORE8(v) quantize16x8(v)
-#else
-typedef float8 out8_u __attribute__((aligned(4)));
-#define STORE8(v) (v)
-#endif
-#if ENCODE_SRGB
-#define ENCODE8(v) encode_srgb8(v)
-#else
-#define ENCODE8(v) (v)
-#endif
 __kernel void phase_filter_px8(__global const RAW_T *restrict src, __global out_t *restrict dst,
                                const int in_w, const int out_w, const int out_h,
                                __constant const float *restrict w, __constant const float *restrict bias)
@@ -139,11 +124,7 @@ __kernel void phase_filter_px8(__global const RAW_T *restrict src, __global out_
                                              f[dx + 4], f[dx + 5], f[dx + 6], f[dx + 7]);
         }
         row_apply8((i + PHASE_Y) % CFA_PERIOD, m1, v, o, w, bias);
-        const float8 r = ENCODE8(o[0]), g = ENCODE8(o[1]), b = ENCODE8(o[2]);
-        __global out8_u *d = (__global out8_u *)(dst + 3 * (y * out_w + x));
-        d[0] = STORE8(((float8)(r.s0, g.s0, b.s0, r.s1, g.s1, b.s1, r.s2, g.s2)));
-        d[1] = STORE8(((float8)(b.s2, r.s3, g.s3, b.s3, r.s4, g.s4, b.s4, r.s5)));
-        d[2] = STORE8(((float8)(g.s5, b.s5, r.s6, g.s6, b.s6, r.s7, g.s7, b.s7)));
+        store_rgb8(dst + 3 * (y * out_w + x), o[0], o[1], o[2]);
     }
 }
 #endif
