@@ -317,6 +317,29 @@ print(','.join(m for m in mods if m in sys.modules))"""
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_dead_pixels_are_told_from_dark_texture_by_their_ratio(cfa):
+    """A dead pixel reads black: it is found though its 4 nearest pixels are darker than its pair's
+    (the support test alone kept it, as a dark detail). A live pixel darker than all its same-channel
+    neighbours but above RHO of them (0.6: a dark point through the lens) is left alone though nothing
+    near it is darker. Kernel equals reference."""
+    rt = get_runtime()
+    h, w = 40, 48
+    x = np.full((h, w), 600, np.uint16)
+    x[20, 20] = 66                                     # dead, black 64
+    for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        x[20 + dy, 20 + dx] = 300                      # its 4 nearest pixels darker than its pair's
+    x[10, 12] = 64 + int(0.6 * (600 - 64))             # a live dark point, unsupported
+    stage = SensorCorrect(cfa, np.full(3, 64.0), 1023.0, DefectTest((1e-4,) * 3, (1e-6,) * 3, (1.0, 1.0, 1.0)))
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(x, origin[0], origin[1], h + 2 * HALO, w + 2 * HALO, cfa.period)
+    expected, found = stage.correct(window, origin)
+    got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert found[20, 20] and not found[10, 12]
+    assert found.sum() == 1
+    assert_close(got, expected, f"sensor_correct {cfa.name}, a dead pixel and a dark point")
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
 def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
     """A hot and a dead pixel 2 px from a brighter / darker known bad one (sensor_fix leaves that
     neighbour out, so the screen must pass them on), and a window 10-12 px past the image (its
@@ -324,7 +347,7 @@ def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
     rt = get_runtime()
     h, w = 40, 48
     x = np.full((h, w), 300, np.uint16)
-    x[20, 20], x[20, 22], x[10, 10], x[10, 12] = 800, 1000, 200, 70
+    x[20, 20], x[20, 22], x[10, 10], x[10, 12] = 800, 1000, 66, 64   # a dead pixel reads black
     x[1, 30] = 900                                     # hot, within RADIUS of the top edge
     mask = np.zeros((h, w), np.uint16)
     mask[20, 22] = mask[10, 12] = mask[0, 5] = 1

@@ -14,7 +14,7 @@
  *   SC_FLAT       1: a per-pixel flat-field gain
  *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
- *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_FLOOR   the auto test's constants (float literals)
+ *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
  *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
  */
@@ -335,10 +335,11 @@ inline float y_near(__global const RAW_T *src, __constant const char *pattern, _
  *   assumes); without a pair, the good neighbours' mean.
  *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
  *   beyond every same-channel neighbour by SC_K noise sigmas (the sensor model at that neighbour's
- *   level) plus SC_FLOOR plus SC_ALPHA times their range, and its 4 nearest pixels carry less than
- *   SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess: an optical detail
- *   lights its neighbours through the lens, a hot pixel does not; without a pair, beside the
- *   image's edge, the good neighbours' mean w and Y); its output is then rewritten.
+ *   level) plus SC_FLOOR plus SC_ALPHA times their range, and then: a hot one where its 4 nearest
+ *   pixels carry less than SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess:
+ *   an optical detail lights its neighbours through the lens, a hot pixel does not; without a pair,
+ *   beside the image's edge, the good neighbours' mean w and Y), a dead one where it also reads
+ *   below SC_RHO times the lowest neighbour by SC_KR sigmas; its output is then rewritten.
  * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx), pairs_n[k]
  * opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
 __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
@@ -391,7 +392,12 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             const float up = w * s, uhi = hi * s, ulo = lo * s;
             const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
             const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
-            const float cold = ulo - up - SC_K * sqrt(noise_a[c] * fmax(ulo, 0.0f) + noise_b[c]) - spread;
+            /* a dead pixel also reads below SC_RHO times its lowest neighbour by SC_KR sigmas of the
+             * difference: a live one darker than all of them stays near them (the lens) */
+            const float lo_p = fmax(ulo, 0.0f);
+            const float dim = SC_RHO * lo_p - up - SC_KR * sqrt(noise_a[c] * (SC_RHO + SC_RHO * SC_RHO) * lo_p
+                                                                + (1.0f + SC_RHO * SC_RHO) * noise_b[c]);
+            const float cold = fmin(ulo - up - SC_K * sqrt(noise_a[c] * lo_p + noise_b[c]), dim) - spread;
             extreme = used && (hot > 0.0f || cold > 0.0f);
             if (!extreme)
                 continue;
@@ -439,8 +445,9 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
              * must lie below SC_GAMMA by SC_Z of its sigmas, so noise alone does not make a lit detail
              * look unsupported */
             const float var = wbc * noise_a[c] * fmax(ybar, 0.0f) + wbc * wbc * noise_b[c];
-            bad = fabs(excess) > 0.0f && (isnan(ybar) || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f)
-                                          + SC_Z * sqrt(0.375f * var) < SC_GAMMA * fabs(excess));
+            bad = fabs(excess) > 0.0f && (isnan(ybar) || (excess < 0.0f && best != INFINITY)  /* dead, surrounded: no support test */
+                                          || (yp - ybar) * (excess > 0.0f ? 1.0f : -1.0f) + SC_Z * sqrt(0.375f * var)
+                                             < SC_GAMMA * fabs(excess));
             if (bad)                       /* the list holds the image's pixels only (sensor_mirror pads) */
                 atomic_inc(found);
         }

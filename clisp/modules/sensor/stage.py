@@ -25,13 +25,15 @@ bilinear) after the highlight stage and the denoiser: they see the image as the 
 it, with its own clip level and noise, which is what "the clip level moves per pixel" and "the
 noise table follows the gain" mean.
 
-The auto test (``sensor_screen`` and ``sensor_fix``, constants K, ALPHA, GAMMA; what each step
-does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
+The auto test (``sensor_screen`` and ``sensor_fix``, constants K, ALPHA, GAMMA, RHO, KR; what each
+step does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
 normalised value lies beyond every same-channel neighbour within RADIUS (above the highest for a
 hot pixel, below the lowest for a dead one) by K noise sigmas at that neighbour's level plus
-ALPHA times their spread, and its 4 nearest pixels carry less than GAMMA of its excess over the
-opposite same-channel pair that differs least. It is replaced by that pair's mean plus the colour
-difference of its 4 nearest pixels.
+ALPHA times their spread, and then, if hot, its 4 nearest pixels carry less than GAMMA of its
+excess over the opposite same-channel pair that differs least; if dead, it reads below RHO times
+its lowest neighbour by KR sigmas (the lens keeps a live pixel near its neighbours; beside the
+image's edge, without a pair, it takes the support test instead). It is replaced by that pair's
+mean plus the colour difference of its 4 nearest pixels.
 
 Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
 
@@ -76,6 +78,18 @@ GAMMA = 0.08
 """Largest share of a bad pixel's excess over its pair its 4 nearest pixels may carry (beyond the
 pair's own): the optics spread a real point of light to them (the simulated Airy PSF: about 6 %
 more than to the pair's), a hot pixel lights none (tools/bench_sensor.py --tune: 0.05 loses 0.03-0.08 dB)."""
+
+RHO = 0.25
+"""Largest share of its lowest same-channel neighbour a dead pixel reads: the lens spreads every
+point over its neighbours (the simulated Airy PSF keeps about 60 % on the pixel itself), so a live
+pixel darker than all of them stays near them (the texture the old support test replaced read 0.57 to
+0.83 of it), while a dead one reads black. Below RHO a cold pixel is dead without the support test,
+whose 4 nearest pixels are darker than the pair's as readily in a texture as beside a dark detail
+(tools/bench_sensor.py --tune --sets deadleaves: 0.5 lets LMS texture through; README.md)."""
+
+KR = 2.0
+"""Noise sigmas of RHO lo - u (var = a (RHO + RHO^2) lo + (1 + RHO^2) b) by which a dead pixel lies
+below RHO times its lowest neighbour: at gain 16 and above a dim live pixel's noise reaches the ratio."""
 
 Z = 1.0
 """Noise sigmas of Y(p) - Y(pair) by which the support must lie below GAMMA: at high gain the noise
@@ -170,6 +184,8 @@ class DefectTest:
     alpha: float = ALPHA
     gamma: float = GAMMA
     z: float = Z
+    rho: float = RHO
+    kr: float = KR
 
     @classmethod
     def from_noise(cls, noise: Any, pass1_gains: np.ndarray) -> "DefectTest":
@@ -397,7 +413,7 @@ class SensorCorrect(Stage):
                     total = total + (raw[idx] * gp - (off[idx] if np.ndim(off) == 2 else off[idx])) * inv_range[cq] * wb[cq]
                 return total / 4.0
 
-            est, y_bar, w_bar = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
+            est, y_bar, w_bar, paired = self._estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range[c], wb[c])
             if self.test is not None and offs:
                 vals = np.stack([np.where(masked(*o), np.nan, w_at(*o)) for o in offs])
                 missing = np.isnan(vals)                 # masked, or outside the image
@@ -407,13 +423,17 @@ class SensorCorrect(Stage):
                 up, uhi, ulo = w * inv_range[c], hi * inv_range[c], lo * inv_range[c]
                 spread = t.alpha * (uhi - ulo) + FLOOR
                 hot = up - uhi - t.k * np.sqrt(t.noise_a[c] * np.maximum(uhi, 0) + t.noise_b[c]) - spread
-                cold = ulo - up - t.k * np.sqrt(t.noise_a[c] * np.maximum(ulo, 0) + t.noise_b[c]) - spread
+                lo_p = np.maximum(ulo, 0)
+                dim = t.rho * lo_p - up - t.kr * np.sqrt(t.noise_a[c] * (t.rho + t.rho ** 2) * lo_p
+                                                         + (1 + t.rho ** 2) * t.noise_b[c])
+                cold = np.minimum(ulo - up - t.k * np.sqrt(t.noise_a[c] * lo_p + t.noise_b[c]), dim) - spread
                 cand = ~bad & used & within & ((hot > 0) | (cold > 0))
                 with np.errstate(all="ignore"):
                     excess = (w - w_bar) * inv_range[c] * wb[c]
                     var = wb[c] * t.noise_a[c] * np.maximum(np.nan_to_num(y_bar), 0) + wb[c] ** 2 * t.noise_b[c]
                     lit = (y_at(0, 0) - y_bar) * np.sign(excess) + t.z * np.sqrt(0.375 * var)
-                    unsupported = np.isnan(y_bar) | (lit < t.gamma * np.abs(excess))
+                    # a dead pixel between a pair (surrounded): no support test
+                    unsupported = np.isnan(y_bar) | ((excess < 0) & paired) | (lit < t.gamma * np.abs(excess))
                 new = cand & (np.abs(excess) > 0) & unsupported
                 found[np.ix_(rows - r, cols - r)] = new
                 bad = bad | new
@@ -433,7 +453,7 @@ class SensorCorrect(Stage):
 
     @staticmethod
     def _estimate(w_at, y_at, masked, offs, k, pairs, pairs_n, w, inv_range_c, wb_c):
-        """(the replacement, the chosen pair's mean Y, its mean w) per pixel: along the opposite
+        """(the replacement, the chosen pair's mean Y, its mean w, whether it has a pair) per pixel: along the opposite
         same-channel pair that differs least (in the channel and in Y, the white-balanced mean of
         each member's 4 nearest pixels), the pair's mean plus the colour difference Y(p) - Y(pair)
         (the channel follows the other channels' detail, as a demosaic assumes); without a pair (a
@@ -468,7 +488,7 @@ class SensorCorrect(Stage):
             w_bar = np.where(none, mean, w_bar)
         else:
             mean = w
-        return np.where(np.isinf(best), mean, est), y_bar, w_bar
+        return np.where(np.isinf(best), mean, est), y_bar, w_bar, ~np.isinf(best)
 
     # ------------------------------------------------------------------------------- OpenCL
 
@@ -485,7 +505,8 @@ class SensorCorrect(Stage):
                 "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE, "SC_EDGE_RUN": EDGE_RUN,
                 "SC_LANE_ROWS": LANE_ROWS, "SC_SLACK": repr(SLACK) + "f",
                 "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
-                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
+                "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f",
+                "SC_RHO": repr(float(t.rho if t else RHO)) + "f", "SC_KR": repr(float(t.kr if t else KR)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
     def lane_constants(self) -> np.ndarray:
         """sensor_screen's per-lane channel constants: for each phase (py, px) of a group's first pixel
