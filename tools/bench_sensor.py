@@ -1,9 +1,10 @@
 """The sensor corrections against their oracles (issue 44).
 
-    python tools/bench_sensor.py [--sets kodak,mcmaster] [--cfa lms,bayer] [--gains 1,16]
+    python tools/bench_sensor.py [--sets kodak,mcmaster,deadleaves] [--cfa lms,bayer] [--gains 1,16]
                                  [--cases pixels,dark,shading,prnu,gainmap] [--subset N] [--frames 16]
                                  [--csv PATH] [--results docs/RESULTS.md]
-    python tools/bench_sensor.py --tune [...]          the auto test's constants on the pixels case
+    python tools/bench_sensor.py --tune --sets deadleaves [--rho 0.25,0.5 ...]   the auto test's
+                                                        constants on the pixels case, on scenes made in code
     python tools/bench_sensor.py --false-positives --gains 64   defect-free raws: auto against off
     python tools/bench_sensor.py --gainmap-flatness    a grey field through a GainMap DNG, rawpy beside
 
@@ -115,10 +116,22 @@ def study(args: argparse.Namespace) -> list[dict]:
 def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
     out = []
     for set_name in args.sets:
-        loader = toolkit.kodak if set_name == "kodak" else toolkit.mcmaster
-        scenes = loader(args.data)
+        if set_name == "deadleaves":
+            scenes = fine_dead_leaves(4)
+        else:
+            loader = toolkit.kodak if set_name == "kodak" else toolkit.mcmaster
+            scenes = loader(args.data)
         out += [(set_name, s) for s in scenes[::args.subset]]
     return out
+
+
+def fine_dead_leaves(count: int, size: int = 384) -> list[toolkit.Scene]:
+    """The tuning set, made in code: dead leaves down to discs of 0.4 px radius (clisp.sim.charts),
+    whose points through the lens are the one-pixel details (bright and dark, in one channel or all)
+    that a defect search must leave alone; seeds 0..count - 1."""
+    from clisp.sim.charts import dead_leaves
+    return [toolkit.Scene(f"dead_leaves_fine_{seed}", dead_leaves(size, seed=seed, rmin=0.4, rmax=32.0))
+            for seed in range(count)]
 
 
 def summary(rows: list[dict]) -> list[str]:
@@ -154,8 +167,9 @@ def tune(args: argparse.Namespace) -> None:
     from clisp.metrics import psnr
     from clisp.sim.simulate import simulate
     original = corr.defect_test
-    from clisp.modules.sensor.stage import Z
-    grid = [(k, a, g, z) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])]
+    from clisp.modules.sensor.stage import KR, RHO, Z
+    grid = [(k, a, g, z, rho, kr) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])
+            for rho in (args.rho or [RHO]) for kr in (args.kr or [KR])]
     results: dict = {p: [] for p in grid}
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
@@ -165,7 +179,8 @@ def tune(args: argparse.Namespace) -> None:
                 free_off = clisp.process(clean.raw, bad_pixels="off")
                 for p in grid:
                     corr.defect_test = lambda raw, noise=None, p=p: (
-                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3]), "tuned")
+                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3],
+                                            rho=p[4], kr=p[5]), "tuned")
                     out = clisp.process(sim.raw)
                     free = clisp.process(clean.raw)
                     results[p].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
@@ -179,7 +194,8 @@ def tune(args: argparse.Namespace) -> None:
                 if not r:
                     continue
                 c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
-                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} {cfa} gain {gain:g}: corrected - defect-free "
+                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} rho {p[4]:g} kr {p[5]:g} {cfa} gain {gain:g}: "
+                      f"corrected - defect-free "
                       f"(search off) {c - fo:+.3f} dB, search on the defect-free raw {f - fo:+.3f} dB, far off "
                       f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
 
@@ -290,7 +306,8 @@ def corner_colours(img: np.ndarray) -> tuple[float, list[np.ndarray], np.ndarray
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     toolkit.add_data_option(p)
-    p.add_argument("--sets", type=lambda s: s.split(","), default=["kodak", "mcmaster"])
+    p.add_argument("--sets", type=lambda s: s.split(","), default=["kodak", "mcmaster"],
+                   help="kodak, mcmaster (the judges), deadleaves (made in code: the set to tune on)")
     p.add_argument("--cfa", type=lambda s: s.split(","), default=["lms", "bayer"])
     p.add_argument("--gains", type=lambda s: [float(v) for v in s.split(",")], default=[1.0, 16.0])
     p.add_argument("--cases", type=lambda s: s.split(","), default=list(CASES))
@@ -304,6 +321,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=[0.08])
     p.add_argument("--z", type=lambda s: [float(v) for v in s.split(",")], default=None,
                    help="the support test's noise margin(s) (default: the stage's Z)")
+    p.add_argument("--rho", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="the dead pixels' ratio to their lowest neighbour(s) (default: the stage's RHO)")
+    p.add_argument("--kr", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="noise sigmas of the ratio test (default: the stage's KR)")
     p.add_argument("--false-positives", action="store_true")
     p.add_argument("--gainmap-flatness", action="store_true")
     p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")
