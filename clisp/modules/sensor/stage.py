@@ -81,9 +81,9 @@ more than to the pair's), a hot pixel lights none (tools/bench_sensor.py --tune:
 
 RHO = 0.25
 """Largest share of its lowest same-channel neighbour a dead pixel reads: the lens spreads every
-point over its neighbours (the simulated Airy PSF keeps about 60 % on the pixel itself), so a live
-pixel darker than all of them stays near them (the texture the old support test replaced read 0.57 to
-0.83 of it), while a dead one reads black. Below RHO a cold pixel is dead without the support test,
+point over its neighbours (the simulated Airy PSF keeps 68 % on the pixel itself: a black point one
+pixel wide on an even ground reads 0.32 of it), so a live pixel darker than all of them stays near
+them (the texture the old support test replaced read 0.57 to 0.81 of it), while a dead one reads black. Below RHO a cold pixel is dead without the support test,
 whose 4 nearest pixels are darker than the pair's as readily in a texture as beside a dark detail
 (tools/bench_sensor.py --tune --sets deadleaves: 0.5 lets LMS texture through; README.md)."""
 
