@@ -112,9 +112,16 @@ class CFA:
         """
         if self.layout != "bayer":
             raise ClispError(f"CFA {self.name} does not have the Bayer layout (2x2, one channel doubled on a diagonal)")
-        g = doubled_channel(self.pattern)
-        r, b = (c for c in range(3) if c != g)
-        return r, g, b
+        return _bayer_roles(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes())
+
+    def first_site(self, channel: int) -> tuple[int, int]:
+        """(y, x) of ``channel``'s first site in the pattern, in row order; memoised per pattern (a
+        demosaic asks it at every step of every tile).
+
+        >>> cfa_from_name("ML/LS").first_site(0)
+        (0, 1)
+        """
+        return _first_site(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.pattern.shape, channel)
 
     def role_cfa(self) -> "CFA":
         """This CFA with each channel replaced by its role index (:meth:`bayer_roles`; 0 R, 1 G, 2 B) and
@@ -184,6 +191,23 @@ def _covering_radius(pattern: bytes, p: int, channel: int) -> int:
 def _layout(pattern: bytes, shape: tuple[int, ...]) -> str:
     """:func:`layout_of` of the int8 pattern ``pattern`` (its bytes) of ``shape``."""
     return layout_of(np.frombuffer(pattern, dtype=np.int8).reshape(shape))
+
+
+@lru_cache(maxsize=64)
+def _bayer_roles(pattern: bytes) -> tuple[int, int, int]:
+    """:meth:`CFA.bayer_roles` of the 2 x 2 int8 pattern ``pattern`` (its bytes), whose layout is 'bayer'."""
+    g = doubled_channel(np.frombuffer(pattern, dtype=np.int8).reshape(2, 2))
+    r, b = (c for c in range(3) if c != g)
+    return r, g, b
+
+
+@lru_cache(maxsize=64)
+def _first_site(pattern: bytes, shape: tuple[int, ...], channel: int) -> tuple[int, int]:
+    """:meth:`CFA.first_site` of the int8 pattern ``pattern`` (its bytes) of ``shape``."""
+    ys, xs = np.nonzero(np.frombuffer(pattern, dtype=np.int8).reshape(shape) == channel)
+    if not len(ys):
+        raise ClispError(f"channel {channel} has no site in the CFA pattern")
+    return int(ys[0]), int(xs[0])
 
 
 def spectral_of(channels: tuple[str, ...]) -> str:

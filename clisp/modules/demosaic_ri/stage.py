@@ -119,8 +119,8 @@ class DemosaicRI(FusedColourMatrix, Stage):
     def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
         pixel (y, x) is an R site when y + ry and x + rx are even."""
-        ys, xs = np.nonzero(self.cfa.role_cfa().pattern == 0)     # the R role (CFA.bayer_roles): R, L or M
-        return (origin[0] + margin - int(ys[0])) % 2, (origin[1] + margin - int(xs[0])) % 2
+        y0, x0 = self.cfa.first_site(self.cfa.bayer_roles[0])    # the R role (CFA.bayer_roles): R, L or M
+        return (origin[0] + margin - y0) % 2, (origin[1] + margin - x0) % 2
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.role_cfa().channel_map(2, 2, (0, 0)), origin,

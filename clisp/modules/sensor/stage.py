@@ -47,6 +47,7 @@ Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -143,20 +144,26 @@ run to run."""
 def neighbour_tables(cfa: CFA, radius: int = RADIUS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per CFA phase k = py P + px: the same-channel neighbours within ``radius`` (nb: P^2 x NB x 2
     int8 (dy, dx), nb_n: their counts) and the opposite pairs among them (pairs: P^2 x NP x 2 int8
-    indices into nb[k], pairs_n).
+    indices into nb[k], pairs_n). Memoised per pattern (every build and window asks); read-only.
 
     >>> from clisp.cfa import bayer_cfa
     >>> nb, n, pairs, pn = neighbour_tables(bayer_cfa())
     >>> n.tolist(), pn.tolist()
     ([8, 12, 12, 8], [4, 6, 6, 4])
     """
-    p = cfa.period
+    return _neighbour_tables(np.ascontiguousarray(cfa.pattern, dtype=np.int8).tobytes(), cfa.period, radius)
+
+
+@lru_cache(maxsize=16)
+def _neighbour_tables(pattern_bytes: bytes, p: int, radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`neighbour_tables` of the (p, p) int8 pattern ``pattern_bytes`` (its bytes)."""
+    pattern = np.frombuffer(pattern_bytes, dtype=np.int8).reshape(p, p)
     lists, pair_lists = [], []
     for k in range(p * p):
         ky, kx = divmod(k, p)
-        c = cfa.pattern[ky, kx]
+        c = pattern[ky, kx]
         offs = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
-                if (dy or dx) and cfa.pattern[(ky + dy) % p, (kx + dx) % p] == c]
+                if (dy or dx) and pattern[(ky + dy) % p, (kx + dx) % p] == c]
         lists.append(offs)
         pair_lists.append([(i, offs.index((-dy, -dx))) for i, (dy, dx) in enumerate(offs)
                            if (-dy, -dx) in offs and offs.index((-dy, -dx)) > i])
@@ -168,7 +175,10 @@ def neighbour_tables(cfa: CFA, radius: int = RADIUS) -> tuple[np.ndarray, np.nda
             nb[k, :len(lists[k])] = lists[k]
         if pair_lists[k]:
             pairs[k, :len(pair_lists[k])] = pair_lists[k]
-    return (nb, np.array([len(v) for v in lists], np.int8), pairs, np.array([len(v) for v in pair_lists], np.int8))
+    out = (nb, np.array([len(v) for v in lists], np.int8), pairs, np.array([len(v) for v in pair_lists], np.int8))
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 @dataclass(frozen=True)
