@@ -222,6 +222,8 @@ def strip_samples(strips: list[np.ndarray], pattern: np.ndarray, black_level: np
     nch = int(pattern.max()) + 1
     black_level, scale, gains = (np.asarray(a, dtype=np.float64) for a in (black_level, scale, gains))
     n = -(-w // p)                                                   # lattice columns, the last padded
+    if n < 3 or not strips:              # no 3 x 3 window on any lattice (a raw under 3 CFA tiles wide)
+        return [(np.empty(0), np.empty(0), np.empty(0)) for _ in range(nch)]
     # the phases (py, px) sorted by channel (row-major within one), so each channel's are a slice
     py, px = np.divmod(np.argsort(pattern.ravel(), kind="stable"), p)
     ends = np.cumsum([np.count_nonzero(pattern == c) for c in range(nch)])

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+import clisp
 from clisp.io.rawimage import RawImage
 from clisp.scene.noise import raw_noise
 from clisp.scene.statistics import (BLOCK, CELL, CLIP_FRACTION, PEAK, reference_statistics, strip_height, strip_rows,
@@ -146,3 +147,14 @@ def test_noise_from_the_strips_follows_the_model() -> None:
     for c in range(3):
         level = float(np.median(stats.thumbnail()[0][..., c])) * raw.pass1_gains()[c]
         assert abs(np.sqrt(est.variance(c, level) / model.variance(c, level)) - 1) < 0.1
+
+
+@pytest.mark.parametrize("cfa", ["lms", "bayer"])
+def test_a_raw_under_three_cfa_tiles_wide_is_processed(cfa: str) -> None:
+    """A 300 x 4 raw has no 3 x 3 window on its LMS lattices (one lattice column): the strips give no
+    noise samples (the estimate falls back) instead of a ValueError from a negative array size."""
+    rng = np.random.default_rng(0)
+    raw = simulate(rng.random((300, 4, 3)), cfa=cfa, gain=4, seed=1).raw
+    raw = dataclasses.replace(raw, metadata={})                 # a camera raw's: the noise is estimated
+    out = clisp.process(raw, preset="quality")
+    assert out.shape == (300, 4, 3) and np.all(np.isfinite(out))
