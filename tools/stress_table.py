@@ -73,7 +73,8 @@ def main() -> int:
     print("Beyond the stated bound, and stated instead (`clisp.app.stress.DIVERGENCE`): "
           + "; ".join(f"{s} on {c}: {b:g}" for (s, c), b in DIVERGENCE.items())
           + ". ARI picks each pixel's iteration by comparing residual criteria; on 1000x highlights or WB "
-            "gains of 64 or a 3x5 raw (all mirror padding) float32 rounding flips those comparisons, so regions take another iteration. Both "
+            "gains of 64 or a 3x5 or 300x4 raw (all mirror padding) float32 rounding flips those comparisons, so regions take another "
+            "iteration. Both "
             "faces stay finite (at a 1000x step the float64 reference itself overshoots to about -3.6e5 "
             "where the kernel gives 2.3e3).\n")
     print("## Cases and outcomes\n")

@@ -57,11 +57,14 @@ DIVERGENCE: dict[tuple[str, str], float] = {
     ("demosaic_ari", "hdr_float"): 1e3,
     ("demosaic_ari", "float_at_range"): 2.0,
     ("demosaic_ari", "size_3x5"): 1.0,
+    ("demosaic_ari", "strip_300x4"): 0.1,
 }
 """(stage, case) pairs where float32 and float64 take different paths and the bound above cannot
 hold, with the bound that does (stated, measured in docs/stress.md): ARI (adaptive residual
 interpolation) picks each pixel's iteration count by comparing residual criteria, and on
-highlights 1000x white, WB gains of 64 or a 3x5 image (all mirror padding) those comparisons flip under float32 rounding, so whole
+highlights 1000x white, WB gains of 64, a 3x5 image or a 300x4 one (all mirror padding; 0.015 measured
+on the latter since the dead pixels' ratio test changed the sensor stage's output on its random
+mosaic) those comparisons flip under float32 rounding, so whole
 regions take another iteration (both faces stay finite; at a 1000x step the float64 reference
 itself overshoots to -3.6e5 where the kernel gives 2.3e3). Outputs are still asserted finite."""
 

@@ -39,7 +39,9 @@ def test_stage_and_pipeline_within_stated_tolerance(rt, case, kind, demosaic):
     raw = case.build(kind)
     for stage, err in stage_errors(raw, demosaic):
         assert err <= stage_tol(stage, case.name), f"{case.name} {kind} {demosaic}: {stage} error {err:.3g}"
-    demosaic_stage = pipeline_for(raw, demosaic).stages[2].name
+    # the demosaic by its name: the sensor stage (issue 44) moved it from index 2, and the case's
+    # stated divergence was then looked up under another stage's name
+    demosaic_stage = next(s.name for s in pipeline_for(raw, demosaic).stages if s.name.startswith("demosaic_"))
     err, image = pipeline_error(raw, demosaic)
     assert np.all(np.isfinite(image))
     assert err <= pipeline_tol(demosaic_stage, case.name), f"{case.name} {kind} {demosaic}: pipeline {err:.3g}"
