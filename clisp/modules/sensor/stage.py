@@ -47,8 +47,8 @@ Example: a hot pixel in a flat noiseless Bayer mosaic is found and replaced::
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -84,9 +84,10 @@ RHO = 0.25
 """Largest share of its lowest same-channel neighbour a dead pixel reads: the lens spreads every
 point over its neighbours (the simulated Airy PSF keeps 68 % on the pixel itself: a black point one
 pixel wide on an even ground reads 0.32 of it), so a live pixel darker than all of them stays near
-them (the texture the old support test replaced read 0.57 to 0.81 of it), while a dead one reads black. Below RHO a cold pixel is dead without the support test,
-whose 4 nearest pixels are darker than the pair's as readily in a texture as beside a dark detail
-(tools/bench_sensor.py --tune --sets deadleaves: 0.5 lets LMS texture through; README.md)."""
+them (the texture the old support test replaced read 0.57 to 0.81 of it), while a dead one reads
+black. Below RHO a cold pixel with a pair is dead without the support test, whose 4 nearest pixels
+are darker than the pair's as readily in a texture as beside a dark detail (tools/bench_sensor.py
+--tune --sets deadleaves: 0.5 lets LMS texture through; README.md)."""
 
 KR = 2.0
 """Noise sigmas of RHO lo - u (var = a (RHO + RHO^2) lo + (1 + RHO^2) b) by which a dead pixel lies
