@@ -40,6 +40,8 @@ import numpy as np
 import toolkit
 
 CASES = ("pixels", "dark", "shading", "prnu", "gainmap")
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+"""Rec. 709 luminance of linear sRGB."""
 SEED = 1
 DEFECT_SEED = 7
 
@@ -249,7 +251,6 @@ def gainmap_flatness(args: argparse.Namespace) -> None:
     from clisp.sim import defects as sd
     from clisp.sim.simulate import simulate
     grey = np.full((args.size[1], args.size[0], 3), 0.18)
-    lum = np.array([0.2126, 0.7152, 0.0722])
     for cfa in args.cfa:
         for gain in args.gains:
             d = defects_for("gainmap")
@@ -277,7 +278,7 @@ def gainmap_flatness(args: argparse.Namespace) -> None:
                 if name in ("defect-free", "rawpy, defect-free"):
                     continue
                 base = sums["rawpy, defect-free" if name.startswith("rawpy") else "defect-free"]
-                de = max(ciede2000((c * (b @ lum) / (c @ lum))[None, None], b[None, None], clip=False)
+                de = max(ciede2000((c * (b @ LUMA) / (c @ LUMA))[None, None], b[None, None], clip=False)
                          for c, b in zip(got[:4], base[:4]))
                 print(f"{cfa} gain {gain:g} {name:<26} corner/centre luminance {ratio_of(got):.4f} "
                       f"({100 * (ratio_of(got) / ratio_of(base) - 1):+.2f} % against the defect-free raw), corner "
@@ -285,15 +286,13 @@ def gainmap_flatness(args: argparse.Namespace) -> None:
 
 
 def add_colours(sums: dict[str, np.ndarray], name: str, out: np.ndarray, weight: float) -> None:
-    """Add ``weight`` times ``out``'s 4 corner colours and its centre's (corner_colours) to sums[name]."""
-    _, corners, centre = corner_colours(out)
-    sums[name] = sums.get(name, 0.0) + weight * np.array([*corners, centre])
+    """Add ``weight`` times ``out``'s corner_colours to sums[name]."""
+    sums[name] = sums.get(name, 0.0) + weight * corner_colours(out)
 
 
 def ratio_of(colours: np.ndarray) -> float:
-    """Mean of the 4 corners' luminance over the centre's, of corner_colours' 4 corners and centre."""
-    lum = np.array([0.2126, 0.7152, 0.0722])
-    return float(np.mean(colours[:4] @ lum) / (colours[4] @ lum))
+    """Mean of the 4 corners' luminance over the centre's, of corner_colours' (5, 3) rows."""
+    return float(np.mean(colours[:4] @ LUMA) / (colours[4] @ LUMA))
 
 
 def rawpy_linear(path: Path) -> np.ndarray:
@@ -314,17 +313,15 @@ def rawpy_linear_raw(raw) -> np.ndarray:
         return rawpy_linear(Path(tmp) / "free.dng")
 
 
-def corner_colours(img: np.ndarray) -> tuple[float, list[np.ndarray], np.ndarray]:
-    """(mean of the 4 corners' luminance over the centre's; the 4 corner patches' mean colours; the
-    centre's): patches of 1/8 of each side, 8 px in from the edges."""
+def corner_colours(img: np.ndarray) -> np.ndarray:
+    """(5, 3): the mean colours of the 4 corner patches, then the centre's; patches of 1/8 of each
+    side, 8 px in from the edges."""
     h, w = img.shape[:2]
     ph, pw = h // 8, w // 8
     def patch(y, x):
         return img[y:y + ph, x:x + pw].reshape(-1, 3).mean(axis=0)
-    lum = np.array([0.2126, 0.7152, 0.0722])
-    centre = patch(h // 2 - ph // 2, w // 2 - pw // 2)
-    corners = [patch(8, 8), patch(8, w - pw - 8), patch(h - ph - 8, 8), patch(h - ph - 8, w - pw - 8)]
-    return float(np.mean([c @ lum for c in corners]) / (centre @ lum)), corners, centre
+    return np.array([patch(8, 8), patch(8, w - pw - 8), patch(h - ph - 8, 8), patch(h - ph - 8, w - pw - 8),
+                     patch(h // 2 - ph // 2, w // 2 - pw // 2)])
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
