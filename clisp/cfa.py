@@ -75,6 +75,11 @@ class CFA:
     pattern: np.ndarray = field(repr=False, compare=False)
 
     @property
+    def _pattern_bytes(self) -> bytes:
+        """The pattern as int8 bytes: the key of the lookups memoised per pattern."""
+        return np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes()
+
+    @property
     def period(self) -> int:
         """Side of the repeating tile in pixels (2 for Bayer, 4 for LMS)."""
         return int(self.pattern.shape[0])
@@ -92,7 +97,7 @@ class CFA:
     def layout(self) -> str:
         """'bayer', 'lms' or 'other' (LAYOUTS): the arrangement of the pattern, which picks the demosaic.
         Memoised per pattern (asked several times in every build of a pipeline)."""
-        return _layout(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.pattern.shape)
+        return _layout(self._pattern_bytes, self.pattern.shape)
 
     def bayer_phase(self, origin: tuple[int, int] = (0, 0)) -> str:
         """The Bayer phase name (RGGB, GRBG, GBRG or BGGR) of a window whose pixel (0, 0) is image pixel
@@ -112,7 +117,7 @@ class CFA:
         """
         if self.layout != "bayer":
             raise ClispError(f"CFA {self.name} does not have the Bayer layout (2x2, one channel doubled on a diagonal)")
-        return _bayer_roles(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes())
+        return _bayer_roles(self._pattern_bytes)
 
     def first_site(self, channel: int) -> tuple[int, int]:
         """(y, x) of ``channel``'s first site in the pattern, in row order; memoised per pattern (a
@@ -121,7 +126,7 @@ class CFA:
         >>> cfa_from_name("ML/LS").first_site(0)
         (0, 1)
         """
-        return _first_site(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.pattern.shape, channel)
+        return _first_site(self._pattern_bytes, self.pattern.shape, channel)
 
     def role_cfa(self) -> "CFA":
         """This CFA with each channel replaced by its role index (:meth:`bayer_roles`; 0 R, 1 G, 2 B) and
@@ -163,7 +168,7 @@ class CFA:
         """Smallest r such that every (2r+1)^2 window holds a sample of ``channel`` (Chebyshev metric).
         Memoised per pattern: the bilinear demosaic asks for it in every halo query, and the search
         cost 12 ms of a 0.26 MP LMS call."""
-        radius = _covering_radius(np.ascontiguousarray(self.pattern, dtype=np.int8).tobytes(), self.period, int(channel))
+        radius = _covering_radius(self._pattern_bytes, self.period, int(channel))
         if radius < 0:
             raise ClispError(f"CFA {self.name}: channel {self.channels[channel]} has no samples")
         return radius
