@@ -170,9 +170,9 @@ def tune(args: argparse.Namespace) -> None:
     from clisp.metrics import psnr
     from clisp.sim.simulate import simulate
     original = corr.defect_test
-    from clisp.modules.sensor.stage import KR, RHO, Z
-    grid = [(k, a, g, z, rho, kr) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])
-            for rho in (args.rho or [RHO]) for kr in (args.kr or [KR])]
+    from clisp.modules.sensor.stage import K_COLD, KR, RHO, Z
+    grid = [(k, a, g, z, rho, kr, kc) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])
+            for rho in (args.rho or [RHO]) for kr in (args.kr or [KR]) for kc in (args.k_cold or [K_COLD])]
     results: dict = {p: [] for p in grid}
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
@@ -183,7 +183,7 @@ def tune(args: argparse.Namespace) -> None:
                 for p in grid:
                     corr.defect_test = lambda raw, noise=None, p=p: (
                         dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3],
-                                            rho=p[4], kr=p[5]), "tuned")
+                                            rho=p[4], kr=p[5], k_cold=p[6]), "tuned")
                     out = clisp.process(sim.raw)
                     free = clisp.process(clean.raw)
                     results[p].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
@@ -197,7 +197,7 @@ def tune(args: argparse.Namespace) -> None:
                 if not r:
                     continue
                 c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
-                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} rho {p[4]:g} kr {p[5]:g} {cfa} gain {gain:g}: "
+                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} rho {p[4]:g} kr {p[5]:g} k_cold {p[6]:g} {cfa} gain {gain:g}: "
                       f"corrected - defect-free "
                       f"(search off) {c - fo:+.3f} dB, search on the defect-free raw {f - fo:+.3f} dB, far off "
                       f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
@@ -346,6 +346,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="the dead pixels' ratio to their lowest neighbour(s) (default: the stage's RHO)")
     p.add_argument("--kr", type=lambda s: [float(v) for v in s.split(",")], default=None,
                    help="noise sigmas of the ratio test (default: the stage's KR)")
+    p.add_argument("--k-cold", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="noise sigmas of a dead pixel's test (default: the stage's K_COLD)")
     p.add_argument("--false-positives", action="store_true")
     p.add_argument("--gainmap-flatness", action="store_true")
     p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")

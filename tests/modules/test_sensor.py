@@ -359,3 +359,24 @@ def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
         got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
         assert found[20 - origin[0] - HALO, 20 - origin[1] - HALO] and found[10 - origin[0] - HALO, 10 - origin[1] - HALO]
         assert_close(got, expected, f"sensor_correct {cfa.name} at {tuple(origin)}")
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_a_dead_pixel_in_the_shadows_is_found_within_its_noise(cfa):
+    """A dead pixel on a ground at 0.05 of the range whose noise (a gain-16 sensor's) puts it 5.2
+    sigmas below its neighbours: over K_COLD (the ratio test keeps texture out) though under K, the
+    hot pixels' margin. Kernel equals reference."""
+    rt = get_runtime()
+    h, w = 40, 48
+    x = np.full((h, w), 64 + 48, np.uint16)            # 0.05 of the range (black 64, white 1023)
+    x[20, 20] = 64                                     # dead: reads black
+    noise = DefectTest((1.82e-3,) * 3, (1e-6,) * 3, (1.0, 1.0, 1.0))
+    sigma = np.sqrt(1.82e-3 * 0.05 + 1e-6)
+    assert noise.k_cold < 0.05 / sigma < noise.k
+    stage = SensorCorrect(cfa, np.full(3, 64.0), 1023.0, noise)
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(x, origin[0], origin[1], h + 2 * HALO, w + 2 * HALO, cfa.period)
+    expected, found = stage.correct(window, origin)
+    got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert found[20, 20] and found.sum() == 1
+    assert_close(got, expected, f"sensor_correct {cfa.name}, a dead pixel in the shadows")

@@ -14,7 +14,7 @@
  *   SC_FLAT       1: a per-pixel flat-field gain
  *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
- *   SC_K, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's constants (float literals)
+ *   SC_K, SC_K_COLD, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
  *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
  */
@@ -74,7 +74,7 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * ``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
  * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
- * (a hot one: at their highest level; a dead one: at their lowest where the lane table allows it,
+ * (a hot one: at their highest level; a dead one, SC_K_COLD: at their lowest where the lane table allows it,
  * stage.cold_at_level, else at 0) plus SC_FLOOR plus SC_ALPHA times their range, SC_SLACK looser:
  * sensor_fix's test restricted to a subset of its neighbours, so a pixel it would replace is never
  * left out; and (SC_MASK and SC_DETECT) pixels with a known bad neighbour among those, which
@@ -106,7 +106,7 @@ inline int screen_one(__global const RAW_T *src, __constant const char *pattern,
     const float eh = up - uhi - spread, el = ulo - up - spread;
     const float level = uhi > 0.0f ? uhi : 0.0f;
     cand = ((eh > 0.0f) && (eh * eh > SC_K * SC_K * (noise_a[c] * level + noise_b[c])))
-         || ((el > 0.0f) && (el * el > SC_K * SC_K * noise_b[c])) || !SC_DIAG;
+         || ((el > 0.0f) && (el * el > SC_K_COLD * SC_K_COLD * noise_b[c])) || !SC_DIAG;
 #endif
 #if SC_MASK
     cand |= mask[i] != 0;
@@ -212,9 +212,9 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     const float8 eh = up - uhi - spread + SC_SLACK, el = ulo - up - spread + SC_SLACK;
     const float8 level = uhi > 0.0f ? uhi : (float8)(0.0f);
     const float8 cold_level = vload8(6, lc) * (ulo > 0.0f ? ulo : (float8)(0.0f));
-    const float k2 = (1.0f - SC_SLACK) * SC_K * SC_K;
+    const float k2 = (1.0f - SC_SLACK) * SC_K * SC_K, k2c = (1.0f - SC_SLACK) * SC_K_COLD * SC_K_COLD;
     cand = ((eh > 0.0f) & (eh * eh > k2 * (na * level + nb8)))
-         | ((el > 0.0f) & (el * el > k2 * (na * cold_level + nb8)));
+         | ((el > 0.0f) & (el * el > k2c * (na * cold_level + nb8)));
 #endif
 #if SC_MASK
     cand |= convert_int8(vload8(0, mask + i0)) != 0;
@@ -334,7 +334,7 @@ inline float y_near(__global const RAW_T *src, __constant const char *pattern, _
  *   difference Y(p) - Y(pair) (the channel follows the other channels' detail, as a demosaic
  *   assumes); without a pair, the good neighbours' mean.
  *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
- *   beyond every same-channel neighbour by SC_K noise sigmas (the sensor model at that neighbour's
+ *   beyond every same-channel neighbour by SC_K (hot) or SC_K_COLD (dead) noise sigmas (the sensor model at that neighbour's
  *   level) plus SC_FLOOR plus SC_ALPHA times their range, and then: a hot one where its 4 nearest
  *   pixels carry less than SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess:
  *   an optical detail lights its neighbours through the lens, a hot pixel does not; without a pair,
@@ -397,7 +397,7 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             const float lo_p = fmax(ulo, 0.0f);
             const float dim = SC_RHO * lo_p - up - SC_KR * sqrt(noise_a[c] * (SC_RHO + SC_RHO * SC_RHO) * lo_p
                                                                 + (1.0f + SC_RHO * SC_RHO) * noise_b[c]);
-            const float cold = fmin(ulo - up - SC_K * sqrt(noise_a[c] * lo_p + noise_b[c]), dim) - spread;
+            const float cold = fmin(ulo - up - SC_K_COLD * sqrt(noise_a[c] * lo_p + noise_b[c]), dim) - spread;
             extreme = used && (hot > 0.0f || cold > 0.0f);
             if (!extreme)
                 continue;

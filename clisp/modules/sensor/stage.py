@@ -25,10 +25,10 @@ bilinear) after the highlight stage and the denoiser: they see the image as the 
 it, with its own clip level and noise, which is what "the clip level moves per pixel" and "the
 noise table follows the gain" mean.
 
-The auto test (``sensor_screen`` and ``sensor_fix``, constants K, ALPHA, GAMMA, RHO, KR; what each
+The auto test (``sensor_screen`` and ``sensor_fix``, constants K, K_COLD, ALPHA, GAMMA, RHO, KR; what each
 step does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
 normalised value lies beyond every same-channel neighbour within RADIUS (above the highest for a
-hot pixel, below the lowest for a dead one) by K noise sigmas at that neighbour's level plus
+hot pixel, below the lowest for a dead one) by K (hot) or K_COLD (dead) noise sigmas at that neighbour's level plus
 ALPHA times their spread, and then, if hot, its 4 nearest pixels carry less than GAMMA of its
 excess over the opposite same-channel pair that differs least; if dead, it reads below RHO times
 its lowest neighbour by KR sigmas (the lens keeps a live pixel near its neighbours; beside the
@@ -69,6 +69,14 @@ RADIUS = 2
 K = 6.0
 """Noise sigmas (at the neighbours' level) by which a bad pixel lies beyond every same-channel
 neighbour (tools/bench_sensor.py --tune; README.md)."""
+
+K_COLD = 4.5
+"""Noise sigmas (at the lowest neighbour's level) by which a dead pixel lies below every same-channel
+neighbour: fewer than K, because a cold pixel must also pass the ratio test (below RHO of its lowest
+neighbour by KR sigmas), which keeps texture out and, with this margin, noise; a hot pixel has no
+such second test. At gain 16 a dead pixel where its channel reads 0.05 is 4 to 5 sigmas off
+(tools/bench_sensor.py --tune --sets deadleaves --k-cold 6,5,4.5,4,3.5: Bayer gain 16 -0.096 /
+-0.088 / -0.086 / -0.086 / -0.086 dB, every other cell within 0.003, gain 64 included; README.md)."""
 
 ALPHA = 0.0
 """Times the same-channel neighbours' spread (their range) a bad pixel must also exceed (texture):
@@ -197,6 +205,7 @@ class DefectTest:
     z: float = Z
     rho: float = RHO
     kr: float = KR
+    k_cold: float = K_COLD
 
     @classmethod
     def from_noise(cls, noise: Any, pass1_gains: np.ndarray) -> "DefectTest":
@@ -437,7 +446,7 @@ class SensorCorrect(Stage):
                 lo_p = np.maximum(ulo, 0)
                 dim = t.rho * lo_p - up - t.kr * np.sqrt(t.noise_a[c] * (t.rho + t.rho ** 2) * lo_p
                                                          + (1 + t.rho ** 2) * t.noise_b[c])
-                cold = np.minimum(ulo - up - t.k * np.sqrt(t.noise_a[c] * lo_p + t.noise_b[c]), dim) - spread
+                cold = np.minimum(ulo - up - t.k_cold * np.sqrt(t.noise_a[c] * lo_p + t.noise_b[c]), dim) - spread
                 cand = ~bad & used & within & ((hot > 0) | (cold > 0))
                 with np.errstate(all="ignore"):
                     excess = (w - w_bar) * inv_range[c] * wb[c]
@@ -515,7 +524,8 @@ class SensorCorrect(Stage):
                 "SC_TERMS": 0 if self.terms is None else len(self.terms.ops),
                 "SC_GRID": int(self.smooth is not None), "SC_TERM_SIZE": TERM_SIZE, "SC_EDGE_RUN": EDGE_RUN,
                 "SC_LANE_ROWS": LANE_ROWS, "SC_SLACK": repr(SLACK) + "f",
-                "SC_K": repr(float(t.k if t else K)) + "f", "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
+                "SC_K": repr(float(t.k if t else K)) + "f", "SC_K_COLD": repr(float(t.k_cold if t else K_COLD)) + "f",
+                "SC_ALPHA": repr(float(t.alpha if t else ALPHA)) + "f",
                 "SC_GAMMA": repr(float(t.gamma if t else GAMMA)) + "f", "SC_Z": repr(float(t.z if t else Z)) + "f",
                 "SC_RHO": repr(float(t.rho if t else RHO)) + "f", "SC_KR": repr(float(t.kr if t else KR)) + "f", "SC_FLOOR": repr(float(FLOOR)) + "f"}
 
@@ -525,7 +535,7 @@ class SensorCorrect(Stage):
         the screen's cold test may take the noise at its lowest neighbour's level (:func:`cold_at_level`),
         else 0 (float32, P x P x LANE_ROWS x LANES)."""
         p, t = self.cfa.period, self.test or DefectTest.noiseless(self.cfa.n_channels)
-        cold = [float(cold_at_level(a, b, t.k)) for a, b in zip(t.noise_a, t.noise_b)]
+        cold = [float(cold_at_level(a, b, t.k_cold)) for a, b in zip(t.noise_a, t.noise_b)]
         per = np.stack([self.black, 1.0 / (self.white - self.black), np.asarray(t.noise_a), np.asarray(t.noise_b),
                         self.out_scale, self.out_offset, cold])                # LANE_ROWS x C
         out = np.zeros((p, p, LANE_ROWS, LANES), np.float32)
