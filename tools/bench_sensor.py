@@ -20,6 +20,7 @@ output lies more than 0.1 (sRGB-encoded, any channel) off the truth.
 Cases (the defects; clisp.sim.defects):
 
 * ``pixels``   hot pixels (0.05 %, level 0.5 of full scale) and dead pixels (0.05 %): 0.1 % of the sensor
+* ``warm``     warm pixels (0.1 %, the simulator's level 0.05: an excess of 0.025-0.075 of full scale)
 * ``dark``     dark current 5 e-/s over 2 s with its fixed pattern (DSNU 0.4), corrected by FRAMES dark frames
 * ``shading``  lens shading to 0.5 at the corners with its colour shading, corrected by FRAMES flat frames
 * ``prnu``     PRNU 2 %, corrected by FRAMES flat frames
@@ -39,7 +40,7 @@ import numpy as np
 
 import toolkit
 
-CASES = ("pixels", "dark", "shading", "prnu", "gainmap")
+CASES = ("pixels", "warm", "dark", "shading", "prnu", "gainmap")
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 """Rec. 709 luminance of linear sRGB."""
 SEED = 1
@@ -49,6 +50,7 @@ DEFECT_SEED = 7
 def defects_for(case: str):
     from clisp.sim.defects import SensorDefects
     return {"pixels": SensorDefects(hot=0.0005, dead=0.0005, seed=DEFECT_SEED),
+            "warm": SensorDefects(warm=0.001, seed=DEFECT_SEED),
             "dark": SensorDefects(dark_current=5.0, exposure_time=2.0, seed=DEFECT_SEED),
             "shading": SensorDefects(shading=0.5, seed=DEFECT_SEED),
             "prnu": SensorDefects(prnu=0.02, seed=DEFECT_SEED),
@@ -68,7 +70,7 @@ def variants(case: str, sim, gain, frames: int) -> dict[str, dict]:
     from clisp.sim import defects as sd
     d = defects_for(case)
     raw = sim.raw
-    if case == "pixels":
+    if case in ("pixels", "warm"):
         return {"corrected": {}, "oracle": {"bad_pixels": sd.bad_sites(d, raw.shape)}, "off": {"bad_pixels": "off"}}
     if case == "dark":
         return {"corrected": {"dark": sd.frames(raw, d, "dark", frames, gain, 1000)},
@@ -109,7 +111,7 @@ def study(args: argparse.Namespace) -> list[dict]:
                     for name, options in variants(case, sim, gain, args.frames).items():
                         out = clisp.process(sim.raw, **options)
                         rows.append(dict(base, case=case, variant=name, psnr=psnr(out, clean.truth),
-                                         far_off=far_off(out, clean.truth) if case == "pixels" else ""))
+                                         far_off=far_off(out, clean.truth) if case in ("pixels", "warm") else ""))
                 print(f"{time.perf_counter() - start:7.0f} s  {set_name} {scene.name} {cfa} gain {gain:g}: "
                       + "  ".join(f"{r['case']}/{r['variant']} {r['psnr']:.2f}" for r in rows[-(1 + 3 * len(args.cases)):]),
                       flush=True)
@@ -154,7 +156,7 @@ def summary(rows: list[dict]) -> list[str]:
                 continue
             m = {v: statistics.mean(r["psnr"] for r in rs) for v, rs in got.items()}
             far = ""
-            if case == "pixels":
+            if case in ("pixels", "warm"):
                 far = f"{sum(r['far_off'] for r in got['corrected'])} / {sum(r['far_off'] for r in free)}"
             lines.append(f"| {s} | {cfa} | {gain:g} | {case} | {free_psnr:.2f} | {m['corrected']:.2f} | "
                          f"{m['oracle']:.2f} | {m['off']:.2f} | {m['corrected'] - m['oracle']:+.3f} | "
