@@ -41,6 +41,8 @@ import numpy as np
 import toolkit
 
 CASES = ("pixels", "warm", "dark", "shading", "prnu", "gainmap")
+PIXEL_CASES = ("pixels", "warm")
+"""The cases of defective pixels: their oracle is the true map, and they count the far-off pixels."""
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 """Rec. 709 luminance of linear sRGB."""
 SEED = 1
@@ -70,7 +72,7 @@ def variants(case: str, sim, gain, frames: int) -> dict[str, dict]:
     from clisp.sim import defects as sd
     d = defects_for(case)
     raw = sim.raw
-    if case in ("pixels", "warm"):
+    if case in PIXEL_CASES:
         return {"corrected": {}, "oracle": {"bad_pixels": sd.bad_sites(d, raw.shape)}, "off": {"bad_pixels": "off"}}
     if case == "dark":
         return {"corrected": {"dark": sd.frames(raw, d, "dark", frames, gain, 1000)},
@@ -111,7 +113,7 @@ def study(args: argparse.Namespace) -> list[dict]:
                     for name, options in variants(case, sim, gain, args.frames).items():
                         out = clisp.process(sim.raw, **options)
                         rows.append(dict(base, case=case, variant=name, psnr=psnr(out, clean.truth),
-                                         far_off=far_off(out, clean.truth) if case in ("pixels", "warm") else ""))
+                                         far_off=far_off(out, clean.truth) if case in PIXEL_CASES else ""))
                 print(f"{time.perf_counter() - start:7.0f} s  {set_name} {scene.name} {cfa} gain {gain:g}: "
                       + "  ".join(f"{r['case']}/{r['variant']} {r['psnr']:.2f}" for r in rows[-(1 + 3 * len(args.cases)):]),
                       flush=True)
@@ -156,7 +158,7 @@ def summary(rows: list[dict]) -> list[str]:
                 continue
             m = {v: statistics.mean(r["psnr"] for r in rs) for v, rs in got.items()}
             far = ""
-            if case in ("pixels", "warm"):
+            if case in PIXEL_CASES:
                 far = f"{sum(r['far_off'] for r in got['corrected'])} / {sum(r['far_off'] for r in free)}"
             lines.append(f"| {s} | {cfa} | {gain:g} | {case} | {free_psnr:.2f} | {m['corrected']:.2f} | "
                          f"{m['oracle']:.2f} | {m['off']:.2f} | {m['corrected'] - m['oracle']:+.3f} | "

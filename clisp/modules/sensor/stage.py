@@ -25,11 +25,11 @@ bilinear) after the highlight stage and the denoiser: they see the image as the 
 it, with its own clip level and noise, which is what "the clip level moves per pixel" and "the
 noise table follows the gain" mean.
 
-The auto test (``sensor_screen`` and ``sensor_fix``, constants K, K_COLD, ALPHA, GAMMA, RHO, KR; what each
-step does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad where its
-normalised value lies beyond every same-channel neighbour within RADIUS (above the highest for a
-hot pixel, below the lowest for a dead one) by K (hot) or K_COLD (dead) noise sigmas at that neighbour's level plus
-ALPHA times their spread, and then, if hot, its 4 nearest pixels carry less than GAMMA of its
+The auto test (``sensor_screen`` and ``sensor_fix``, constants K, K_COLD, ALPHA, GAMMA, RHO, KR;
+what each step does and its measurements: README.md and tools/bench_sensor.py): a pixel is bad
+where its normalised value lies beyond every same-channel neighbour within RADIUS (above the
+highest for a hot pixel by K noise sigmas, below the lowest for a dead one by K_COLD, at that
+neighbour's level) plus ALPHA times their spread, and then, if hot, its 4 nearest pixels carry less than GAMMA of its
 excess over the opposite same-channel pair that differs least; if dead, it reads below RHO times
 its lowest neighbour by KR sigmas (the lens keeps a live pixel near its neighbours; beside the
 image's edge, without a pair, it takes the support test instead). It is replaced by that pair's
@@ -67,8 +67,8 @@ RADIUS = 2
 """Radius of the same-channel neighbourhood."""
 
 K = 6.0
-"""Noise sigmas (at the neighbours' level) by which a bad pixel lies beyond every same-channel
-neighbour (tools/bench_sensor.py --tune; README.md)."""
+"""Noise sigmas (at the highest neighbour's level) by which a hot pixel lies above every same-channel
+neighbour (tools/bench_sensor.py --tune; README.md; a dead pixel's margin is K_COLD)."""
 
 K_COLD = 4.5
 """Noise sigmas (at the lowest neighbour's level) by which a dead pixel lies below every same-channel
