@@ -362,6 +362,26 @@ def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_a_map_alone_replaces_its_pixels_beside_the_edge(cfa):
+    """A map without the search (``--bad-pixels MAP``): its pixels within RADIUS of the image's edge
+    are replaced on the device as in the reference (the edges' list once came with the search only,
+    and the kernel left them as read)."""
+    rt = get_runtime()
+    h, w = 40, 48
+    x = np.full((h, w), 300, np.uint16)
+    mask = np.zeros((h, w), np.uint16)
+    for y, xx in ((0, 9), (1, 20), (h - 1, 30), (17, 0), (22, w - 2), (h - 2, w - 1), (20, 24)):
+        x[y, xx], mask[y, xx] = 1000, 1
+    stage = SensorCorrect(cfa, np.full(3, 64.0), 1023.0, None, mask)
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(x, origin[0], origin[1], h + 2 * HALO, w + 2 * HALO, cfa.period)
+    expected, _ = stage.correct(window, origin)
+    got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert_close(got, expected, f"sensor_correct {cfa.name}, a map alone")
+    assert got.max() < 0.5 * (1000 - 64) / (1023 - 64) + expected.min()
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
 def test_a_dead_pixel_in_the_shadows_is_found_within_its_noise(cfa):
     """A dead pixel on a ground at 0.05 of the range whose noise (a gain-16 sensor's) puts it 5.2
     sigmas below its neighbours: over K_COLD (the ratio test keeps texture out) though under K, the

@@ -628,7 +628,7 @@ class SensorCorrect(Stage):
                 flags=flags, list=candidates, count=count, cap=cap, width=width, height=height, groups=groups,
                 oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
             held.append(flags)
-        if self.test is not None:
+        if screening:                               # the search's edge pixels, or known bad ones there
             for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
                 rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(list=candidates, count=count, cap=cap,
                                 width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
