@@ -146,11 +146,11 @@ def _disc_radii(rng: np.random.Generator, n: int, rmin: float, rmax: float) -> n
 
 
 def dead_leaves(size: int = 256, seed: int = 0, rmin: float = 2.0, rmax: float = 64.0,
-                ss: int = 4, max_discs: int = 200_000) -> np.ndarray:
+                ss: int = 4, max_discs: int = 200_000, levels: tuple[float, float] = (0.05, 0.95)) -> np.ndarray:
     """Colour dead-leaves pattern, size x size x 3 linear sRGB, deterministic for ``seed``.
 
     Opaque discs (radius density ~ r^-3 on [rmin, rmax] px, centres uniform over the image grown by
-    rmax, colours uniform in sRGB-encoded [0.05, 0.95]^3, then decoded) are stacked front to back
+    rmax, colours uniform in sRGB-encoded ``levels``^3, then decoded) are stacked front to back
     until every sample is covered. Anti-aliased by ss x ss supersampling.
     """
     rng = np.random.default_rng(seed)
@@ -164,7 +164,7 @@ def dead_leaves(size: int = 256, seed: int = 0, rmin: float = 2.0, rmax: float =
     while left > 0 and drawn < max_discs:
         radii = _disc_radii(rng, batch, rmin, rmax)
         centres = rng.uniform(-rmax, size + rmax, size=(batch, 2))
-        colours = srgb_decode(rng.uniform(0.05, 0.95, size=(batch, 3)))
+        colours = srgb_decode(rng.uniform(levels[0], levels[1], size=(batch, 3)))
         for r, (cy, cx), col in zip(radii, centres, colours):
             left -= _paint_disc(out, free, t, cy, cx, r, col, ss)
             if left == 0:
@@ -173,6 +173,32 @@ def dead_leaves(size: int = 256, seed: int = 0, rmin: float = 2.0, rmax: float =
     if left > 0:
         out[free] = BACKGROUND
     return _downsample(out, ss)
+
+
+def textured_leaves(size: int = 256, seed: int = 0, contrast: float = 0.35, beta: float = 2.0,
+                    rmin: float = 0.4, rmax: float = 32.0) -> np.ndarray:
+    """Dead leaves (colours over the whole sRGB-encoded range 0.05..1) whose surfaces carry shading
+    and texture: each channel times exp(contrast n), n a Gaussian 1/f^(beta/2)-amplitude field (power
+    ~ f^-beta: smooth gradients and fine grain together, as natural surfaces have) with unit standard
+    deviation, one field for all channels. Clipped to [0, 1]; size x size x 3 linear sRGB.
+
+    Where a flat disc puts a pixel's same-channel neighbours at its own level, a textured surface
+    puts some above it (a gradient, a ridge): what a defect search meets in photos.
+
+    >>> textured_leaves(32, seed=1).shape
+    (32, 32, 3)
+    """
+    base = dead_leaves(size, seed=seed, rmin=rmin, rmax=rmax, levels=(0.05, 1.0))
+    rng = np.random.default_rng(seed + 10_000)
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.rfftfreq(size)[None, :]
+    f = np.hypot(fy, fx)
+    f[0, 0] = 1.0
+    spectrum = (rng.standard_normal(f.shape) + 1j * rng.standard_normal(f.shape)) * f ** (-beta / 2)
+    spectrum[0, 0] = 0.0
+    n = np.fft.irfft2(spectrum, s=(size, size))
+    n /= n.std()
+    return np.clip(base * np.exp(contrast * n)[..., None], 0.0, 1.0)
 
 
 def _paint_disc(out: np.ndarray, free: np.ndarray, t: np.ndarray, cy: float, cx: float,
