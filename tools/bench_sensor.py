@@ -1,11 +1,16 @@
 """The sensor corrections against their oracles (issue 44).
 
     python tools/bench_sensor.py [--sets kodak,mcmaster,deadleaves] [--cfa lms,bayer] [--gains 1,16]
-                                 [--cases pixels,dark,shading,prnu,gainmap] [--subset N] [--frames 16]
+                                 [--cases pixels,warm,dark,shading,prnu,gainmap] [--subset N] [--frames 16]
                                  [--csv PATH] [--results docs/RESULTS.md]
-    python tools/bench_sensor.py --tune --sets deadleaves [--rho 0.25,0.5 ...]   the auto test's
-                                                        constants on the pixels case, on scenes made in code
+    python tools/bench_sensor.py --tune --sets deadleaves [--cases pixels,warm] [--rho 0.25,0.5 ...]
+                                 [--hot-slope 1,2 --hot-cap 0.1,0.13 ...]   a grid of the auto test's
+                                 constants on the defective-pixel cases, on scenes made in code (sets
+                                 deadleaves, deadleaves-full, textured, textured-coarse, textured-smooth)
     python tools/bench_sensor.py --false-positives --gains 64   defect-free raws: auto against off
+
+A constant given once (``--hot-cap 0.1``) outside ``--tune`` replaces the stage's in the study and in
+``--false-positives``: a candidate judged without editing the stage.
     python tools/bench_sensor.py --gainmap-flatness [--seeds 8]   a grey field through a GainMap DNG, rawpy beside
 
 Every scene is simulated once without defects (``defect-free``, processed with the defaults) and
@@ -31,6 +36,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import itertools
 import statistics
 import sys
 import time
@@ -97,6 +103,7 @@ def study(args: argparse.Namespace) -> list[dict]:
     import clisp
     from clisp.metrics import psnr
     from clisp.sim.simulate import simulate
+    with_constants(given_constants(args))
     rows = []
     scenes = scene_list(args)
     start = time.perf_counter()
@@ -125,6 +132,18 @@ def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
     for set_name in args.sets:
         if set_name == "deadleaves":
             scenes = fine_dead_leaves(4)
+        elif set_name == "deadleaves-full":
+            scenes = fine_dead_leaves(4, levels=(0.05, 1.0))
+        elif set_name == "textured":
+            from clisp.sim.charts import textured_leaves
+            scenes = [toolkit.Scene(f"textured_leaves_{seed}", textured_leaves(384, seed=seed)) for seed in range(4)]
+        elif set_name == "textured-coarse":
+            from clisp.sim.charts import textured_leaves
+            scenes = [toolkit.Scene(f"textured_leaves_r3_{seed}", textured_leaves(384, seed=seed, rmin=3.0)) for seed in range(4)]
+        elif set_name == "textured-smooth":
+            from clisp.sim.charts import textured_leaves
+            scenes = [toolkit.Scene(f"textured_leaves_r8_{seed}", textured_leaves(384, seed=seed, rmin=8.0, rmax=128.0, contrast=0.1))
+                      for seed in range(4)]
         else:
             loader = toolkit.kodak if set_name == "kodak" else toolkit.mcmaster
             scenes = loader(args.data)
@@ -132,12 +151,16 @@ def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
     return out
 
 
-def fine_dead_leaves(count: int, size: int = 384) -> list[toolkit.Scene]:
+def fine_dead_leaves(count: int, size: int = 384, levels: tuple[float, float] = (0.05, 0.95)) -> list[toolkit.Scene]:
     """The tuning set, made in code: dead leaves down to discs of 0.4 px radius (clisp.sim.charts),
     whose points through the lens are the one-pixel details (bright and dark, in one channel or all)
-    that a defect search must leave alone; seeds 0..count - 1."""
+    that a defect search must leave alone; seeds 0..count - 1. ``levels``: the discs' sRGB-encoded
+    range; ``deadleaves-full`` takes it to 1.0, so that some of the ground a defect lies on clips (a
+    saturated colour, as photos of flowers and fabrics have: samples above 0.9 linear are none of the
+    default set's, 4 % of McMaster's)."""
     from clisp.sim.charts import dead_leaves
-    return [toolkit.Scene(f"dead_leaves_fine_{seed}", dead_leaves(size, seed=seed, rmin=0.4, rmax=32.0))
+    tag = "" if levels == (0.05, 0.95) else f"_{levels[0]:g}_{levels[1]:g}"
+    return [toolkit.Scene(f"dead_leaves_fine{tag}_{seed}", dead_leaves(size, seed=seed, rmin=0.4, rmax=32.0, levels=levels))
             for seed in range(count)]
 
 
@@ -166,58 +189,80 @@ def summary(rows: list[dict]) -> list[str]:
     return lines
 
 
+TUNED = ("k", "alpha", "gamma", "z", "rho", "kr", "k_cold", "hot_slope", "hot_cap")
+"""The auto test's constants --tune takes a grid of (DefectTest's fields; the stage's values by default)."""
+
+
+def given_constants(args: argparse.Namespace) -> dict[str, float]:
+    """The auto test's constants given on the command line (the first value of each), for a study or
+    --false-positives run with other constants than the stage's."""
+    return {name: getattr(args, name)[0] for name in TUNED if getattr(args, name)}
+
+
+def with_constants(constants: dict[str, float]) -> None:
+    """Have every later process run the auto test with ``constants`` in place of the stage's."""
+    import clisp.pipeline.corrections as corr
+    if constants:
+        original = corr.defect_test
+        corr.defect_test = lambda raw, noise=None: (dataclasses.replace(original(raw, noise)[0], **constants), "given")
+
+
 def tune(args: argparse.Namespace) -> None:
-    """PSNR of the pixels case (corrected, and the defect-free raw with the search on and off) for
-    a grid of the auto test's constants."""
+    """PSNR of the defective-pixel cases (``--cases``, of PIXEL_CASES: corrected, and the defect-free
+    raw with the search on and off) for a grid of the auto test's constants."""
     import clisp
     import clisp.pipeline.corrections as corr
     from clisp.metrics import psnr
+    from clisp.modules.sensor import stage
+    from clisp.sim.defects import bad_sites
     from clisp.sim.simulate import simulate
     original = corr.defect_test
-    from clisp.modules.sensor.stage import K_COLD, KR, RHO, Z
-    grid = [(k, a, g, z, rho, kr, kc) for k in args.k for a in args.alpha for g in args.gamma for z in (args.z or [Z])
-            for rho in (args.rho or [RHO]) for kr in (args.kr or [KR]) for kc in (args.k_cold or [K_COLD])]
-    results: dict = {p: [] for p in grid}
+    values = [getattr(args, name) or [getattr(stage, name.upper())] for name in TUNED]
+    grid = [dict(zip(TUNED, p)) for p in itertools.product(*values)]
+    cases = [c for c in args.cases if c in PIXEL_CASES] or ["pixels"]
+    results: dict = {i: [] for i in range(len(grid))}
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
             for gain in args.gains:
                 clean = simulate(scene.image, cfa=cfa, gain=gain, seed=SEED)
-                sim = simulate_case(scene.image, cfa, gain, "pixels")
+                sims = {case: simulate_case(scene.image, cfa, gain, case) for case in cases}
                 free_off = clisp.process(clean.raw, bad_pixels="off")
-                for p in grid:
-                    corr.defect_test = lambda raw, noise=None, p=p: (
-                        dataclasses.replace(original(raw, noise)[0], k=p[0], alpha=p[1], gamma=p[2], z=p[3],
-                                            rho=p[4], kr=p[5], k_cold=p[6]), "tuned")
-                    out = clisp.process(sim.raw)
+                offs = {case: psnr(clisp.process(sim.raw, bad_pixels="off"), clean.truth) for case, sim in sims.items()}
+                for i, p in enumerate(grid):
+                    corr.defect_test = lambda raw, noise=None, p=p: (dataclasses.replace(original(raw, noise)[0], **p), "tuned")
                     free = clisp.process(clean.raw)
-                    results[p].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
-                                       far_off(out, clean.truth), far_off(free_off, clean.truth), cfa, gain))
+                    for case, sim in sims.items():
+                        out = clisp.process(sim.raw)
+                        oracle = clisp.process(sim.raw, bad_pixels=bad_sites(defects_for(case), sim.raw.shape))
+                        results[i].append((psnr(out, clean.truth), psnr(free, clean.truth), psnr(free_off, clean.truth),
+                                           far_off(out, clean.truth), far_off(free_off, clean.truth), cfa, gain, case,
+                                           psnr(oracle, clean.truth), offs[case]))
                 corr.defect_test = original
         print(f"{scene.name} done", flush=True)
-    for p, res in results.items():
-        for cfa in args.cfa:
-            for gain in args.gains:
-                r = [x for x in res if x[5] == cfa and x[6] == gain]
-                if not r:
-                    continue
-                c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
-                print(f"k {p[0]:g} alpha {p[1]:g} gamma {p[2]:g} z {p[3]:g} rho {p[4]:g} kr {p[5]:g} k_cold {p[6]:g} {cfa} gain {gain:g}: "
-                      f"corrected - defect-free "
-                      f"(search off) {c - fo:+.3f} dB, search on the defect-free raw {f - fo:+.3f} dB, far off "
-                      f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
+    for i, res in results.items():
+        label = " ".join(f"{k} {v:g}" for k, v in grid[i].items())
+        for case in cases:
+            for cfa in args.cfa:
+                for gain in args.gains:
+                    r = [x for x in res if x[5] == cfa and x[6] == gain and x[7] == case]
+                    if not r:
+                        continue
+                    c, f, fo = (statistics.mean(x[i] for x in r) for i in range(3))
+                    oracle, off = (statistics.mean(x[i] for x in r) for i in (8, 9))
+                    print(f"{label} {case} {cfa} gain {gain:g}: corrected - defect-free (search off) {c - fo:+.3f} dB, "
+                          f"- oracle {c - oracle:+.3f}, - search off {c - off:+.3f}, "
+                          f"search on the defect-free raw {f - fo:+.3f} dB, far off "
+                          f"{sum(x[3] for x in r)} / {sum(x[4] for x in r)}")
 
 
 def false_positives(args: argparse.Namespace) -> None:
     """Defect-free raws: the search on against off, per image (pixels the test replaced, the largest
     output difference; the tolerance rule is 1e-5)."""
     import clisp
-    import clisp.pipeline.corrections as corr
     from clisp.pipeline import build_pipeline
     from clisp.modules.sensor.stage import FOUND
     from clisp.sim.simulate import simulate
-    original = corr.defect_test
-    if args.z is not None:                 # another z than the stage's (--z: the first value)
-        corr.defect_test = lambda raw, noise=None: (dataclasses.replace(original(raw, noise)[0], z=args.z[0]), "z")
+    with_constants(given_constants(args))
     total = changed = 0
     for set_name, scene in scene_list(args):
         for cfa in args.cfa:
@@ -332,7 +377,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     toolkit.add_data_option(p)
     p.add_argument("--sets", type=lambda s: s.split(","), default=["kodak", "mcmaster"],
-                   help="kodak, mcmaster (the judges), deadleaves (made in code: the set to tune on)")
+                   help="kodak, mcmaster (the judges), deadleaves, deadleaves-full and textured (made in code: the sets to tune on)")
     p.add_argument("--cfa", type=lambda s: s.split(","), default=["lms", "bayer"])
     p.add_argument("--gains", type=lambda s: [float(v) for v in s.split(",")], default=[1.0, 16.0])
     p.add_argument("--cases", type=lambda s: s.split(","), default=list(CASES))
@@ -341,9 +386,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--csv", type=Path, default=None)
     p.add_argument("--results", type=Path, default=None, help="rewrite the bench_sensor block of this Markdown file")
     p.add_argument("--tune", action="store_true")
-    p.add_argument("--k", type=lambda s: [float(v) for v in s.split(",")], default=[6.0])
-    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=[0.0])
-    p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=[0.08])
+    p.add_argument("--k", type=lambda s: [float(v) for v in s.split(",")], default=None)
+    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=None)
+    p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=None)
     p.add_argument("--z", type=lambda s: [float(v) for v in s.split(",")], default=None,
                    help="the support test's noise margin(s) (default: the stage's Z)")
     p.add_argument("--rho", type=lambda s: [float(v) for v in s.split(",")], default=None,
@@ -352,6 +397,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="noise sigmas of the ratio test (default: the stage's KR)")
     p.add_argument("--k-cold", type=lambda s: [float(v) for v in s.split(",")], default=None,
                    help="noise sigmas of a dead pixel's test (default: the stage's K_COLD)")
+    p.add_argument("--hot-slope", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="share of its highest neighbour's level a hot pixel must exceed it by (default: the stage's HOT_SLOPE)")
+    p.add_argument("--hot-cap", type=lambda s: [float(v) for v in s.split(",")], default=None,
+                   help="most that share adds, normalised units (default: the stage's HOT_CAP)")
     p.add_argument("--false-positives", action="store_true")
     p.add_argument("--gainmap-flatness", action="store_true")
     p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")

@@ -591,7 +591,8 @@ def only_isolated_clips(raw: RawImage, pre: SensorCorrect | None) -> bool:
 
 def _all_hot(raw: RawImage, pre: SensorCorrect, k: int, ys: np.ndarray, xs: np.ndarray) -> bool:
     """Whether the auto test of ``pre`` takes every sample (ys, xs) (of CFA phase k) for hot: beyond
-    every same-channel neighbour inside the image by K noise sigmas at its level plus FLOOR."""
+    every same-channel neighbour inside the image by its margin (the larger of K noise sigmas at that
+    neighbour's level and the level-following HOT_SLOPE share of it, at most HOT_CAP) plus FLOOR."""
     if pre.test is None:
         return False
     from ..modules.sensor.stage import FLOOR, neighbour_tables   # deferred: only raws that get a sensor correction load the stage (start-up)
@@ -609,4 +610,5 @@ def _all_hot(raw: RawImage, pre: SensorCorrect, k: int, ys: np.ndarray, xs: np.n
         v[inside] = (data[qy[inside], qx[inside]].astype(np.float64) - black) / span
         hi = np.maximum(hi, v)
     sigma = np.sqrt(t.noise_a[c] * np.maximum(hi, 0) + t.noise_b[c])
-    return bool(np.all(u - hi > t.k * sigma + FLOOR))
+    margin = np.maximum(t.k * sigma, np.minimum(t.hot_cap, t.hot_slope * np.maximum(hi, 0)))
+    return bool(np.all(u - hi > margin + FLOOR))

@@ -400,3 +400,31 @@ def test_a_dead_pixel_in_the_shadows_is_found_within_its_noise(cfa):
     got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
     assert found[20, 20] and found.sum() == 1
     assert_close(got, expected, f"sensor_correct {cfa.name}, a dead pixel in the shadows")
+
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_a_hot_pixels_margin_follows_its_ground(cfa):
+    """A quiet sensor (gain 1): a one-pixel detail at 1.3 times its brighter ground (0.3, excess
+    0.09: far over K noise sigmas, and no neighbour lit) is texture, left alone (HOT_SLOPE: it must be
+    twice the ground, at most HOT_CAP over it); a warm pixel of 0.05 over a ground of 0.02 and a hot
+    one of 0.3 over a bright ground (0.6) are found. Kernel equals reference."""
+    rt = get_runtime()
+    h, w = 48, 64
+    black, span = 64.0, 959.0
+    level = np.full((h, w), 0.3)
+    level[:, 32:] = 0.6
+    level[:16, :] = 0.02
+    level[8, 12] += 0.05                               # warm, on a dark ground
+    level[30, 12] *= 1.3                               # a texture's one-pixel detail
+    level[30, 44] += 0.3                               # hot, on a bright ground
+    x = np.round(black + span * level).astype(np.uint16)
+    quiet = DefectTest((1e-5,) * 3, (1e-7,) * 3, (1.0, 1.0, 1.0))
+    assert 0.09 > quiet.k * np.sqrt(1e-5 * 0.3 + 1e-7) and quiet.hot_slope * 0.3 > 0.09
+    stage = SensorCorrect(cfa, np.full(3, black), black + span, quiet)
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(x, origin[0], origin[1], h + 2 * HALO, w + 2 * HALO, cfa.period)
+    expected, found = stage.correct(window, origin)
+    got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert_close(got, expected, f"sensor_correct {cfa.name}, a margin that follows the ground")
+    assert found[8, 12] and found[30, 44] and not found[30, 12]
+    assert found.sum() == 2

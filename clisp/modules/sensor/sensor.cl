@@ -14,7 +14,8 @@
  *   SC_FLAT       1: a per-pixel flat-field gain
  *   SC_TERMS      number of opcode gain terms (GainMap, FixVignetteRadial of OpcodeLists 1, 2)
  *   SC_GRID       1: divide by the smooth gain G (applied after the chroma stage by sensor_shade)
- *   SC_K, SC_K_COLD, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's constants (float literals)
+ *   SC_K, SC_K_COLD, SC_HOT_SLOPE, SC_HOT_CAP, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's
+ *   constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
  *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
  */
@@ -76,7 +77,8 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
  * (a hot one: at their highest level; a dead one, SC_K_COLD: at their lowest where the lane table allows it,
  * stage.cold_at_level, else at 0) plus SC_FLOOR plus SC_ALPHA times their range, SC_SLACK looser:
- * sensor_fix's test restricted to a subset of its neighbours, so a pixel it would replace is never
+ * sensor_fix's test restricted to a subset of its neighbours (and without the hot side's level-following
+ * margin, SC_HOT_SLOPE, which only asks more), so a pixel it would replace is never
  * left out; and (SC_MASK and SC_DETECT) pixels with a known bad neighbour among those, which
  * sensor_fix leaves out of its test. The pixels within 2 of the image's edge, whose neighbours the
  * padding mirrors, are appended by sensor_edges instead. The 8 lanes are explicit float8 (PoCL's implicit
@@ -335,7 +337,8 @@ inline float y_near(__global const RAW_T *src, __constant const char *pattern, _
  *   assumes); without a pair, the good neighbours' mean.
  *   bad pixel: known (mask), or found (SC_DETECT) where u_p, the normalised w = raw g1 - off, lies
  *   beyond every same-channel neighbour by SC_K (hot) or SC_K_COLD (dead) noise sigmas (the sensor model at that neighbour's
- *   level) plus SC_FLOOR plus SC_ALPHA times their range, and then: a hot one where its 4 nearest
+ *   level; a hot one by SC_HOT_SLOPE times that level, at most SC_HOT_CAP, where that is more) plus SC_FLOOR plus
+ *   SC_ALPHA times their range, and then: a hot one where its 4 nearest
  *   pixels carry less than SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess:
  *   an optical detail lights its neighbours through the lens, a hot pixel does not; without a pair,
  *   beside the image's edge, the good neighbours' mean w and Y), a dead one where it also reads
@@ -391,7 +394,8 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             }
             const float up = w * s, uhi = hi * s, ulo = lo * s;
             const float spread = SC_ALPHA * (uhi - ulo) + SC_FLOOR;
-            const float hot = up - uhi - SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]) - spread;
+            const float hot = up - uhi - fmax(SC_K * sqrt(noise_a[c] * fmax(uhi, 0.0f) + noise_b[c]),
+                                              fmin(SC_HOT_CAP, SC_HOT_SLOPE * fmax(uhi, 0.0f))) - spread;
             /* a dead pixel also reads below SC_RHO times its lowest neighbour by SC_KR sigmas of the
              * difference: a live one darker than all of them stays near them (the lens) */
             const float lo_p = fmax(ulo, 0.0f);
