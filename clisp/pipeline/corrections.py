@@ -211,7 +211,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
                             mask.astype(np.uint16) if mask.any() else None,
                             None if dark_level is None else dark_level.astype(np.float32),
                             None if flat_gain is None else flat_gain.astype(np.float32),
-                            terms, pre_smooth)
+                            terms, pre_smooth, wb=tuple(float(v) for v in raw.pass1_gains()))
     return out
 
 

@@ -428,3 +428,24 @@ def test_a_hot_pixels_margin_follows_its_ground(cfa):
     assert_close(got, expected, f"sensor_correct {cfa.name}, a margin that follows the ground")
     assert found[8, 12] and found[30, 44] and not found[30, 12]
     assert found.sum() == 2
+
+
+@pytest.mark.parametrize("cfa", ["bayer", "lms"])
+def test_a_map_of_the_searchs_finds_replaces_them_alike(cfa):
+    """The pixels the search finds, given back as a map (no search): the same replacement, on the
+    device too. A map's replacement takes its colour difference in the raw's white-balanced units
+    as the search's does (it once took them unbalanced: the LMS camera's S pixels, whose raw level
+    is a third of L's, got L's detail three times over)."""
+    rt = get_runtime()
+    sim = simulate(scene(64, 96), cfa=cfa, gain=1, seed=3, defects=sd.SensorDefects(hot=0.004, dead=0.004, seed=5))
+    h, w = sim.raw.shape
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(sim.raw.data, -HALO, -HALO, h + 2 * HALO, w + 2 * HALO, sim.raw.cfa.period)
+    searched, found = sensor_corrections(sim.raw).pre.correct(window, origin)
+    assert found.sum() >= 20
+    given = sensor_corrections(sim.raw, bad_pixels=found).pre
+    assert given.test is None
+    expected, _ = given.correct(window, origin)
+    assert_close(expected, searched, f"a map of the search's finds, {cfa}")
+    got = rt.download(given.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert_close(got, expected, f"sensor_correct, a map alone, {cfa}")

@@ -353,6 +353,8 @@ class SensorCorrect(Stage):
     flat       H x W float32 flat-field gain (None: none)
     terms      OpcodeList1 / 2 gain opcodes (None: none)
     smooth     G, divided out here and applied by :class:`SensorShade` (None: none)
+    wb         (C,) the pass-1 white balance gains the replacement's colour difference is taken in
+               where there is no search (a map alone; the search's ``test.wb`` otherwise); None: 1
     """
 
     cfa: CFA
@@ -366,6 +368,7 @@ class SensorCorrect(Stage):
     smooth: SmoothGain | None = field(default=None, repr=False, compare=False)
     out_scale: np.ndarray | None = None
     out_offset: np.ndarray | None = None
+    wb: tuple[float, ...] | None = None
     name = "sensor"
     in_channels = 1
     out_channels = 1
@@ -442,7 +445,7 @@ class SensorCorrect(Stage):
             within = ~outside[np.ix_(rows, cols)]               # a pixel beyond the image is not tested
             bad = masked(0, 0) & within
             offs = [tuple(int(v) for v in nb[k, j]) for j in range(nb_n[k])]
-            t = self.test or DefectTest.noiseless(cfa.n_channels)
+            t = self.test or DefectTest.noiseless(cfa.n_channels, self.wb)
             wb = np.asarray(t.wb)
 
             def y_at(dy: int, dx: int) -> np.ndarray:            # Y: the 4 nearest pixels, white-balanced
@@ -576,7 +579,7 @@ class SensorCorrect(Stage):
         if state is not None:
             return state
         nb, nb_n, pairs, pairs_n = neighbour_tables(self.cfa)
-        t = self.test or DefectTest.noiseless(self.cfa.n_channels)
+        t = self.test or DefectTest.noiseless(self.cfa.n_channels, self.wb)
         state = {"nb": rt.constant(nb), "nb_n": rt.constant(nb_n), "pairs": rt.constant(pairs),
                  "pairs_n": rt.constant(pairs_n), "noise_a": rt.constant(as_f32(t.noise_a)),
                  "noise_b": rt.constant(as_f32(t.noise_b)), "wb": rt.constant(as_f32(t.wb))}
