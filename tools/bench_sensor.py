@@ -191,6 +191,13 @@ def summary(rows: list[dict]) -> list[str]:
 
 TUNED = ("k", "alpha", "gamma", "z", "rho", "kr", "k_cold", "hot_slope", "hot_cap")
 """The auto test's constants --tune takes a grid of (DefectTest's fields; the stage's values by default)."""
+CONSTANT_HELP = {"k": "noise sigmas of a hot pixel's test", "alpha": "share of the neighbours' range a bad pixel must also exceed",
+                 "gamma": "most a hot pixel's 4 nearest pixels may carry of its excess",
+                 "z": "the support test's noise margin", "rho": "the dead pixels' ratio to their lowest neighbour",
+                 "kr": "noise sigmas of the ratio test", "k_cold": "noise sigmas of a dead pixel's test",
+                 "hot_slope": "share of its highest neighbour's level a hot pixel must exceed it by",
+                 "hot_cap": "most that share asks, normalised units"}
+"""--<constant>'s help: what each of TUNED is."""
 
 
 def given_constants(args: argparse.Namespace) -> dict[str, float]:
@@ -386,21 +393,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--csv", type=Path, default=None)
     p.add_argument("--results", type=Path, default=None, help="rewrite the bench_sensor block of this Markdown file")
     p.add_argument("--tune", action="store_true")
-    p.add_argument("--k", type=lambda s: [float(v) for v in s.split(",")], default=None)
-    p.add_argument("--alpha", type=lambda s: [float(v) for v in s.split(",")], default=None)
-    p.add_argument("--gamma", type=lambda s: [float(v) for v in s.split(",")], default=None)
-    p.add_argument("--z", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="the support test's noise margin(s) (default: the stage's Z)")
-    p.add_argument("--rho", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="the dead pixels' ratio to their lowest neighbour(s) (default: the stage's RHO)")
-    p.add_argument("--kr", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="noise sigmas of the ratio test (default: the stage's KR)")
-    p.add_argument("--k-cold", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="noise sigmas of a dead pixel's test (default: the stage's K_COLD)")
-    p.add_argument("--hot-slope", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="share of its highest neighbour's level a hot pixel must exceed it by (default: the stage's HOT_SLOPE)")
-    p.add_argument("--hot-cap", type=lambda s: [float(v) for v in s.split(",")], default=None,
-                   help="most that share adds, normalised units (default: the stage's HOT_CAP)")
+    for name in TUNED:
+        p.add_argument("--" + name.replace("_", "-"), type=lambda s: [float(v) for v in s.split(",")], default=None,
+                       help=f"{CONSTANT_HELP[name]} (default: the stage's {name.upper()})")
     p.add_argument("--false-positives", action="store_true")
     p.add_argument("--gainmap-flatness", action="store_true")
     p.add_argument("--size", type=toolkit.parse_size, default=(1536, 1024), help="the grey field's WxH")
