@@ -131,19 +131,16 @@ EDGE_RUN = 64
 HOT_SLOPE = 1.0
 """A hot pixel's least excess over its highest same-channel neighbour follows that neighbour's level:
 HOT_SLOPE times it, at most HOT_CAP, where that is more than the noise margin (K sigmas). A hot or
-warm pixel's excess is its own (dark current), whatever the ground; a texture's one-pixel detail
-reads about 1.3 times its brightest neighbour (median, the ones the noise margin alone replaced at
-gain 1), so at gain 1 most of it was replaced. With slope 1 a pixel on a dark ground is hot from
-twice its brightest neighbour, so a warm pixel (0.05 of full scale) is still found where it shows,
-on grounds below 0.05 (tools/bench_sensor.py --tune --sets deadleaves,textured,textured-coarse,
-textured-smooth --hot-slope 1,2,4: within 0.03 dB of each other in every cell; README.md)."""
+warm pixel's excess is its own (dark current) whatever the ground, while a texture's one-pixel detail
+reads about 1.3 times its brightest neighbour: at gain 1, where the noise margin is small, the
+search replaced such details as often as it found defects. Slope 1 (twice the ground) still finds a
+warm pixel of 0.05 on grounds below 0.05; the tuning sets did not tell slopes 1, 2 and 4 apart
+(tools/bench_sensor.py --tune --hot-slope; README.md)."""
 
 HOT_CAP = 0.13
-"""Most the level-following margin asks (normalised units): a hot pixel on a bright or textured
-ground reads above its highest neighbour by less than its excess (the sim's hot pixels: 0.25-0.75)
-and a clipped one by less still (tools/bench_sensor.py --tune, the four sets made in code: the
-worst cell -0.085 dB at 0.13 against -0.10 at 0.115 and -0.108 at 0.15; README.md)."""
-
+"""Most the level-following margin asks (normalised units): on a bright or textured ground a hot
+pixel reads above its highest neighbour by less than its excess, a clipped one by less still
+(tools/bench_sensor.py --tune --hot-cap on four sets made in code; README.md)."""
 
 SLACK = 1e-6
 """How much looser sensor_screen's form of the test is than sensor_fix's (added to the excess,
