@@ -384,7 +384,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     toolkit.add_data_option(p)
     p.add_argument("--sets", type=lambda s: s.split(","), default=["kodak", "mcmaster"],
-                   help="kodak, mcmaster (the judges), deadleaves, deadleaves-full and textured (made in code: the sets to tune on)")
+                   help="kodak, mcmaster (the judges); deadleaves, deadleaves-full, textured, textured-coarse, textured-smooth (made in code: the sets to tune on)")
     p.add_argument("--cfa", type=lambda s: s.split(","), default=["lms", "bayer"])
     p.add_argument("--gains", type=lambda s: [float(v) for v in s.split(",")], default=[1.0, 16.0])
     p.add_argument("--cases", type=lambda s: s.split(","), default=list(CASES))
