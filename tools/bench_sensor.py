@@ -8,10 +8,10 @@
                                  constants on the defective-pixel cases, on scenes made in code (sets
                                  deadleaves, deadleaves-full, textured, textured-coarse, textured-smooth)
     python tools/bench_sensor.py --false-positives --gains 64   defect-free raws: auto against off
+    python tools/bench_sensor.py --gainmap-flatness [--seeds 8]   a grey field through a GainMap DNG, rawpy beside
 
 A constant given once (``--hot-cap 0.1``) outside ``--tune`` replaces the stage's in the study and in
 ``--false-positives``: a candidate judged without editing the stage.
-    python tools/bench_sensor.py --gainmap-flatness [--seeds 8]   a grey field through a GainMap DNG, rawpy beside
 
 Every scene is simulated once without defects (``defect-free``, processed with the defaults) and
 once per case with the sensor defects of that case (same scene, CFA, gain and noise seed; the
@@ -127,6 +127,12 @@ def study(args: argparse.Namespace) -> list[dict]:
     return rows
 
 
+TEXTURED_SETS = {"textured": {}, "textured-coarse": {"rmin": 3.0},
+                 "textured-smooth": {"rmin": 8.0, "rmax": 128.0, "contrast": 0.1}}
+"""Tuning sets of clisp.sim.charts.textured_leaves (its arguments): ``textured-smooth`` matches the
+photos' local statistics (sensor README)."""
+
+
 def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
     out = []
     for set_name in args.sets:
@@ -134,15 +140,9 @@ def scene_list(args: argparse.Namespace) -> list[tuple[str, object]]:
             scenes = fine_dead_leaves(4)
         elif set_name == "deadleaves-full":
             scenes = fine_dead_leaves(4, levels=(0.05, 1.0))
-        elif set_name == "textured":
+        elif set_name in TEXTURED_SETS:
             from clisp.sim.charts import textured_leaves
-            scenes = [toolkit.Scene(f"textured_leaves_{seed}", textured_leaves(384, seed=seed)) for seed in range(4)]
-        elif set_name == "textured-coarse":
-            from clisp.sim.charts import textured_leaves
-            scenes = [toolkit.Scene(f"textured_leaves_r3_{seed}", textured_leaves(384, seed=seed, rmin=3.0)) for seed in range(4)]
-        elif set_name == "textured-smooth":
-            from clisp.sim.charts import textured_leaves
-            scenes = [toolkit.Scene(f"textured_leaves_r8_{seed}", textured_leaves(384, seed=seed, rmin=8.0, rmax=128.0, contrast=0.1))
+            scenes = [toolkit.Scene(f"{set_name}_{seed}", textured_leaves(384, seed=seed, **TEXTURED_SETS[set_name]))
                       for seed in range(4)]
         else:
             loader = toolkit.kodak if set_name == "kodak" else toolkit.mcmaster
@@ -235,16 +235,17 @@ def tune(args: argparse.Namespace) -> None:
                 sims = {case: simulate_case(scene.image, cfa, gain, case) for case in cases}
                 free_off = clisp.process(clean.raw, bad_pixels="off")
                 offs = {case: psnr(clisp.process(sim.raw, bad_pixels="off"), clean.truth) for case, sim in sims.items()}
+                oracles = {case: psnr(clisp.process(sim.raw, bad_pixels=bad_sites(defects_for(case), sim.raw.shape)), clean.truth)
+                           for case, sim in sims.items()}           # a map alone: no search, the same for every setting
                 for i, p in enumerate(grid):
                     corr.defect_test = lambda raw, noise=None, p=p: (dataclasses.replace(original(raw, noise)[0], **p), "tuned")
                     free = clisp.process(clean.raw)
-                    changed = changed_beyond_tolerance(free, free_off)
+                    changed = output_change(free, free_off) > TOLERANCE
                     for case, sim in sims.items():
                         out = clisp.process(sim.raw)
-                        oracle = clisp.process(sim.raw, bad_pixels=bad_sites(defects_for(case), sim.raw.shape))
                         results[i].append({"cfa": cfa, "gain": gain, "case": case, "corrected": psnr(out, clean.truth),
                                            "free": psnr(free, clean.truth), "free_off": psnr(free_off, clean.truth),
-                                           "oracle": psnr(oracle, clean.truth), "off": offs[case], "changed": changed,
+                                           "oracle": oracles[case], "off": offs[case], "changed": changed,
                                            "far": far_off(out, clean.truth), "far_free": far_off(free_off, clean.truth)})
                 corr.defect_test = original
         print(f"{scene.name} done", flush=True)
@@ -264,10 +265,14 @@ def tune(args: argparse.Namespace) -> None:
                           f"{sum(x['far_free'] for x in r)}, defect-free raws changed {sum(x['changed'] for x in r)} of {len(r)}")
 
 
-def changed_beyond_tolerance(on: np.ndarray, off: np.ndarray) -> bool:
-    """Whether the search changed a defect-free raw's output beyond the tolerance rule (1e-5, relative
-    where the output exceeds 1): the acceptance's "no false corrections" at gain 64."""
-    return float(np.max(np.abs(on - off) / np.maximum(1.0, np.abs(off)))) > 1e-5
+TOLERANCE = 1e-5
+"""The tolerance rule: the largest output difference (relative where the output exceeds 1) by which a
+defect-free raw counts as unchanged by the search (the acceptance's "no false corrections")."""
+
+
+def output_change(on: np.ndarray, off: np.ndarray) -> float:
+    """The largest difference of two outputs, relative where they exceed 1 (the tolerance rule's measure)."""
+    return float(np.max(np.abs(on - off) / np.maximum(1.0, np.abs(off))))
 
 
 def false_positives(args: argparse.Namespace) -> None:
@@ -287,11 +292,11 @@ def false_positives(args: argparse.Namespace) -> None:
                 on = pipe.run(clean.raw.data)
                 found = pipe.stats.counts.get(FOUND)
                 off = clisp.process(clean.raw, bad_pixels="off")
-                err = float(np.max(np.abs(on - off) / np.maximum(1.0, np.abs(off))))
+                err = output_change(on, off)
                 total += 1
-                changed += changed_beyond_tolerance(on, off)
+                changed += err > TOLERANCE
                 print(f"{set_name} {scene.name} {cfa} gain {gain:g}: {found} pixels replaced, largest difference "
-                      f"{err:.2e}{' CHANGED' if err > 1e-5 else ''}", flush=True)
+                      f"{err:.2e}{' CHANGED' if err > TOLERANCE else ''}", flush=True)
     print(f"{changed} of {total} defect-free raws changed beyond the tolerance rule (1e-5)")
 
 
