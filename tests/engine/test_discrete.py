@@ -133,12 +133,12 @@ def test_whole_process_on_the_discrete_path(tmp_path: Path, discrete) -> None:
 
 
 def test_resident_policy() -> None:
-    """Shared memory: only a one-tile plan stages (the reader overlaps the device otherwise);
-    discrete: whenever the mosaic fits RESIDENT_SHARE of the device's memory."""
+    """Shared memory: never staged (the reader thread, or for one tile the calling thread, gathers
+    the windows); discrete: whenever the mosaic fits RESIDENT_SHARE of the device's memory."""
     from types import SimpleNamespace
     shared = SimpleNamespace(host_unified=True, device=SimpleNamespace(global_mem_size=2**34))
     gpu = SimpleNamespace(host_unified=False, device=SimpleNamespace(global_mem_size=2**34))
-    assert resident_policy(shared, 48 << 20, 1) and not resident_policy(shared, 48 << 20, 13)
+    assert not resident_policy(shared, 48 << 20, 1) and not resident_policy(shared, 48 << 20, 13)
     assert resident_policy(gpu, 48 << 20, 13) and not resident_policy(gpu, int(RESIDENT_SHARE * 2**34) + 1, 1)
 
 

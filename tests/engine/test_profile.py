@@ -54,7 +54,7 @@ def test_recording_in_process(demo_raw_small) -> None:
         out = clisp.process(demo_raw_small, preset="fast", output="srgb16")
     f = prof.summary()
     assert f["tiles"] >= 1 and 0 < f["device_busy"] <= 1.0 + 1e-9
-    assert f["launches_per_tile"] >= 2 and f["host_us_per_enqueue"] > 0
+    assert f["launches_per_tile"] >= 1 and f["host_us_per_enqueue"] > 0         # fast Bayer: one fused kernel
     assert f["bytes_upload"] + f["bytes_download"] + f["bytes_in_place"] >= out.nbytes
     assert profile.active() is before                                       # recording ends with the block
 

@@ -217,8 +217,8 @@ def test_metered_tiles_are_kept_per_pipeline_and_code(tmp_path: Path, monkeypatc
 def test_metering_run_counts_what_the_tile_creates(device_kind) -> None:
     """A metering run creates nothing and predicts the pool of a real tile exactly, with the
     buffers of the run's input: on a device sharing host memory the metering run reads the window
-    in place (not counted), the run gathers it into the pool from the mosaic where the mosaic is
-    read in place or staged; a discrete device's metering run counts the uploaded window, the run
+    in place (not counted), and the run's one window is gathered by the host (not pooled either);
+    a discrete device's metering run counts the uploaded window, the run
     gathers that window from the whole mosaic, copied to the device into a pooled buffer."""
     raw = make_raw("lms", shape=(301, 517))
     pipeline = build_pipeline(raw, preset="quality")
@@ -233,8 +233,8 @@ def test_metering_run_counts_what_the_tile_creates(device_kind) -> None:
     if not rt.host_unified:
         assert resident_policy(rt, raw.data.nbytes, tiles=1)
         expected += raw.data.nbytes                                     # the resident mosaic (pooled)
-    elif rt.host_source(raw.data) is not None or resident_policy(rt, raw.data.nbytes, tiles=1):
-        expected += window[0] * window[1] * raw.data.dtype.itemsize     # the gathered window (pooled)
+    else:                              # shared memory, one tile: the host gathers the window (not pooled)
+        assert not resident_policy(rt, raw.data.nbytes, tiles=1)
     assert expected == rt.pool.created - held
     assert 0 < largest <= created
 
