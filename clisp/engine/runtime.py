@@ -180,6 +180,9 @@ class Runtime:
         self._meter: BufferPool | None = None
         self._pool_for: Any = None               # trim_pool's ``keep`` of the last run
         self.host_unified = bool(self.device.host_unified_memory)
+        self.host_is_device = bool(self.device.type & cl.device_type.CPU)
+        """The device is the host's own CPU: a USE_HOST_PTR buffer it writes is the host's array
+        itself, readable once the writing command completes (settle_host_image)."""
         self._transfer_queue: Any = None
         self.staging = HostStaging(self)
         self._counters: dict[str, Any] = {}
@@ -590,9 +593,14 @@ class Runtime:
                            capacity=array.nbytes, host=array)
 
     def settle_host_image(self, image: DeviceImage) -> Any:
-        """Enqueue, without waiting, what makes a host image's pixels readable in its array: a map
-        for reading (no copy where the device uses the array itself) and its unmap. Returns the
-        event after which the host may read the array."""
+        """Enqueue, without waiting, what makes a host image's pixels readable in its array: on a
+        CPU device (:attr:`host_is_device`) a marker, after which the commands that wrote the array
+        are complete (the array is their storage: _wrap_host takes only aligned arrays, which PoCL
+        uses as they are); elsewhere a map for reading and its unmap (no copy where the device uses
+        the array itself). Returns the event after which the host may read the array. The marker
+        is one command where the map is two: 50 us less of a 1.1 ms call (0.26 MP, fast, PoCL)."""
+        if self.host_is_device:
+            return _record("download", self.cl.enqueue_marker(self.queue), image.nbytes, "in place")
         mapped, _ = self.cl.enqueue_map_buffer(self.queue, image.buffer, self.cl.map_flags.READ, 0,
                                                (image.nbytes,), np.uint8, is_blocking=False)
         return _record("download", mapped.base.release(self.queue), image.nbytes, "in place")
