@@ -180,9 +180,8 @@ class Runtime:
         self._meter: BufferPool | None = None
         self._pool_for: Any = None               # trim_pool's ``keep`` of the last run
         self.host_unified = bool(self.device.host_unified_memory)
+        # the host's own CPU: a USE_HOST_PTR buffer it writes is the array itself (settle_host_image)
         self.host_is_device = bool(self.device.type & cl.device_type.CPU)
-        """The device is the host's own CPU: a USE_HOST_PTR buffer it writes is the host's array
-        itself, readable once the writing command completes (settle_host_image)."""
         self._transfer_queue: Any = None
         self.staging = HostStaging(self)
         self._counters: dict[str, Any] = {}
