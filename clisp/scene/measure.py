@@ -46,11 +46,14 @@ class Scene:
     runtime: Any = None
     """The runtime whose device measures the statistics (None: the NumPy reference)."""
 
-    def measured(self, cells: bool = False) -> SceneStatistics:
+    def measured(self, cells: bool = False, table: bool = True) -> SceneStatistics:
         """The raw's statistics, measured now if no estimate needed them yet (then kept); ``cells``:
-        with the cell thumbnail read in the same pass (the estimates that read it ask for it)."""
-        if self.statistics is None:
-            self.statistics = scene_statistics(self.raw, self.runtime, cells)
+        with the cell thumbnail read in the same pass (the estimates that read it ask for it).
+        ``table`` False: the caller reads the thumbnail alone and no later estimate of the run will
+        ask for more, so the reference may read just that (clisp.scene.statistics.thumbnail_statistics);
+        should one ask after all, the whole pass runs then."""
+        if self.statistics is None or (table and not self.statistics.complete):
+            self.statistics = scene_statistics(self.raw, self.runtime, cells, table)
         return self.statistics
 
 
@@ -66,18 +69,19 @@ def measure_scene(raw: RawImage, wb: str = "camera", wb2: str = "metadata", nois
     scene = Scene(raw, None, np.ones(3), exposure, runtime=runtime)
     estimated = wb == "auto" or (wb == "camera" and not has_camera_wb(raw))
     thumbnail = estimated or auto_exposure or wb2 != "metadata"      # the estimates that read the cells
-    scene.raw = with_white_balance(raw, wb, scene.measured(thumbnail) if estimated else None)
+    table = noise and not has_noise_model(raw)                         # the noise estimate reads the strips
+    scene.raw = with_white_balance(raw, wb, scene.measured(thumbnail, table) if estimated else None)
     raw = scene.raw
     if noise:
         try:
             scene.noise = raw_noise(raw, statistics=None if has_noise_model(raw) else scene.measured(thumbnail))
         except NoiseEstimateError:
             scene.noise = None    # a raw too small to estimate its noise is processed without chroma denoise
-    scene.gains2 = wb2_gains(raw, wb2, None if wb2 == "metadata" else scene.measured(thumbnail))
+    scene.gains2 = wb2_gains(raw, wb2, None if wb2 == "metadata" else scene.measured(thumbnail, table))
     if auto_exposure:
         from .exposure import auto_exposure_ev      # deferred: only --auto-exposure estimates
-        scene.exposure = float(np.clip(exposure + auto_exposure_ev(raw, scene.gains2, limit, scene.measured(thumbnail)),
-                                       -limit, limit))
+        scene.exposure = float(np.clip(exposure + auto_exposure_ev(raw, scene.gains2, limit,
+                                                                   scene.measured(thumbnail, table)), -limit, limit))
     return scene
 
 

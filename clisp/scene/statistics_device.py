@@ -27,7 +27,7 @@ import numpy as np
 from ..engine.runtime import Runtime
 from ..engine.stage import as_f32
 from .statistics import (BLOCK, CELL, CLIP_FRACTION, MAX_CELLS, SceneStatistics, empty_table, noise_strips,
-                         clip_levels, reference_statistics, table_fits, thumbnail_step)
+                         clip_levels, reference_statistics, table_fits, thumbnail_statistics, thumbnail_step)
 
 DEVICE_DTYPES = (np.dtype(np.uint16), np.dtype(np.float32))
 """Raw sample types the kernels read (RAW_T); others take the reference."""
@@ -97,10 +97,14 @@ def statistics_runtime(rt: Any) -> Any:
     return rt
 
 
-def scene_statistics(raw: Any, rt: Any = None, cells: bool = False) -> SceneStatistics:
+def scene_statistics(raw: Any, rt: Any = None, cells: bool = False, table: bool = True) -> SceneStatistics:
     """The statistics of ``raw`` (a RawImage): on ``rt``'s device when given (:func:`device_statistics`),
     else the NumPy reference (clisp.scene.statistics.reference_statistics). ``cells``: an estimate
-    will read the cell thumbnail, so the reference fills it in the same read of the mosaic."""
+    will read the cell thumbnail, so the reference fills it in the same read of the mosaic.
+    ``table`` False: no estimate will read more than the thumbnail, so the reference reads that
+    alone (clisp.scene.statistics.thumbnail_statistics); the device's pass fills everything anyway."""
     if rt is not None:
         return device_statistics(raw, rt, cells=cells)
+    if not table:
+        return thumbnail_statistics(raw)
     return reference_statistics(raw, cells=cells)

@@ -12,6 +12,7 @@ from clisp.sim.simulate import simulate
 from clisp.scene.white_balance import gray_world_gains, grey_pixel_gains, reference_channel, with_white_balance
 from clisp.io.rawimage import NO_CAMERA_WB
 from clisp.scene.measure import measure_scene
+from clisp.scene.noise import has_noise_model
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa("GRBG"), lms_cfa()], ids=lambda c: c.name)
@@ -133,6 +134,23 @@ def test_a_raw_without_camera_white_balance_gets_its_grey_pixels_in_the_run() ->
     assert scene.raw.metadata["wb_source"] == "auto (grey pixels), file has no camera WB"
     assert scene.statistics is not None and _angle(scene.raw.wb, raw.wb) < 2.0
     assert with_white_balance(raw, "camera") is raw and measure_scene(raw).statistics is None
+
+
+def test_a_run_that_reads_the_thumbnail_alone_reads_nothing_more() -> None:
+    """Without a noise estimate to make (the fast preset), a raw without camera white balance has its
+    cell thumbnail read alone, the cells the whole pass reads, so the same gains; a noise estimate
+    (a raw without a sensor model) reads the whole pass, and an estimate asking for the table after
+    a thumbnail-only read gets the whole pass then."""
+    raw = simulate(_wood_and_steel(), "bayer", gain=4, optics="none", seed=3).raw
+    camera = {k: v for k, v in raw.metadata.items() if k not in ("noise", "gain")}   # a camera raw: no model
+    unknown = replace(raw, wb=np.ones(3), metadata={**camera, "wb_source": NO_CAMERA_WB})
+    assert not has_noise_model(unknown)
+    alone, whole = measure_scene(unknown), measure_scene(unknown, noise=True)
+    assert not alone.statistics.complete and alone.statistics.table is None and not alone.statistics.strips
+    assert whole.statistics.complete and whole.statistics.table is not None and whole.noise is not None
+    assert np.array_equal(alone.raw.wb, whole.raw.wb)
+    assert np.array_equal(alone.statistics.cells, whole.statistics.cells)
+    assert alone.measured().complete and alone.measured().table is not None
 
 
 @pytest.mark.parametrize("shape", [(37, 53), (4, 5), (1, 9)])
