@@ -355,6 +355,37 @@ def test_phase_filter_px8_equals_per_column(rt, monkeypatch, dense, encode, quan
                 assert_close(eight, ref, f"phase_filter_px8 {shape} {origin}")
 
 
+P4X8_CASES = [(False, 16), (True, 16), (True, 8)]
+
+
+@pytest.mark.parametrize("quantize, bits", P4X8_CASES, ids=["srgb", "srgb16", "srgb8"])
+def test_phase_filter_p4x8_equals_the_block_kernel(rt, monkeypatch, quantize, bits):
+    """On a CPU device an LMS (period 4) filter ending in the tone curve runs phase_filter_p4x8 (eight
+    columns per work-item, each phase once for two pixels, the curve in its store): it equals the
+    block kernel with the curve inside bit for bit and the reference under the rule (codes: one off
+    where the curve's error meets a half code), for every row and column phase (four origins) and a
+    last work-item that overlaps its neighbour (output width 68: 8 x 8 + 4)."""
+    cfa = cfa_from_name("lms")
+    chain = [normalize(cfa, BLACK, WHITE), white_balance1(cfa, np.array([1.0, 1.2, 3.1])), DemosaicBilinear(cfa),
+             ColourMatrix(np.array([[1.7, -0.5, -0.2], [-0.3, 1.6, -0.3], [0.05, -0.6, 1.55]]))]
+    f = replace(fuse_stages(chain)[0], encode=True, quantize=quantize, bits=bits, interleaved=True)
+    rng = np.random.default_rng(9)
+    halo = 2 * f.radius
+    for shape in ((16 + halo, 64 + halo), (16 + halo, 68 + halo)):
+        x = rng.integers(0, 1024, size=shape).astype(np.uint16)
+        for origin in ((0, 0), (1, 3), (2, 1), (3, 2)):
+            monkeypatch.setattr(linear_filter, "eight_per_item", lambda rt: True)
+            pairs = run_stage(rt, f, x, origin)
+            monkeypatch.setattr(linear_filter, "eight_per_item", lambda rt: False)
+            block = run_stage(rt, f, x, origin)
+            assert pairs.dtype == f.out_dtype and np.array_equal(pairs, block), (shape, origin)
+            ref = f.reference(x, origin)
+            if quantize:
+                assert np.abs(pairs.astype(np.int32) - ref).max() <= 1
+            else:
+                assert_close(pairs, ref, f"phase_filter_p4x8 {shape} {origin}")
+
+
 def test_linear_phase_filter_drops_factors_when_not_channel_pure():
     """A basis that mixes CFA channels cannot take per-channel scales into ``mix``: after an
     affine the filter is dense again (and still equals its definition)."""
@@ -510,7 +541,7 @@ def test_pipeline_fused_equals_unfused_reference(kind, output, wb2, dtype):
 
     fused = pipeline.schedule(fuse=True)
     assert isinstance(fused[0], LinearPhaseFilter)
-    if output == "linear" or raw.cfa.period == linear_filter.FUSE_TONE_CURVE_PERIOD:  # everything in one kernel
+    if output == "linear" or linear_filter.tone_in_store(raw.cfa.period):  # everything in one kernel
         assert len(fused) == 1 and fused[0].interleaved
         assert fused[0].encode == (output != "linear") and fused[0].quantize == (output == "srgb16")
     else:                                                        # the tone curve as its own kernel

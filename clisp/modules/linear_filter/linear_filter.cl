@@ -6,7 +6,8 @@
  * from the window v[(2R+1)^2], summing only the taps the filter can use (its support, fixed by the
  * CFA and demosaic), so structural zeros cost nothing and per-image weights stay arguments; and
  * row_apply(ky, px, v, o, w, bias), the same for CFA row ky with the column phase px a run-time
- * value (every column phase computed, the right one selected). */
+ * value (every column phase computed, the right one selected); for period 2 row_apply8, and for
+ * period 4 phase2_apply(k, v, o, w, bias), phase_apply for two pixels of phase k as float2. */
 #define SIDE (2 * RADIUS + 1)
 #define TAPS (SIDE * SIDE)
 
@@ -125,6 +126,52 @@ __kernel void phase_filter_px8(__global const RAW_T *restrict src, __global out_
         }
         row_apply8((i + PHASE_Y) % CFA_PERIOD, m1, v, o, w, bias);
         store_rgb8(dst + 3 * (y * out_w + x), o[0], o[1], o[2]);
+    }
+}
+#endif
+
+/* phase_filter_p4x8: the period-4 filter for eight neighbouring columns per work-item, writing H x W x 3
+ * (the host's layout) with the tone curve in its store, for CPU devices: the block kernel strides by
+ * the period and PoCL does not vectorise it, and with the curve inside it ran at a seventh of its
+ * speed (README.md). The eight columns start on a multiple of 4 (out_w is one), so columns j and
+ * j + 4 share the CFA phase j (with PHASE_X): per row and phase the generated phase2_apply computes
+ * the two as a float2, the phase a compile-time constant, every output once, then the eight are
+ * gathered per channel and stored by store_rgb8. Halo RADIUS. Launched over ceil(out_w / 8) x
+ * out_h / 4 work-items with a bounds check; the last of a row starts at out_w - 8. Needs NOUT 3,
+ * CFA_PERIOD 4, out_w >= 8 and out_w, out_h multiples of 4. */
+#if CFA_PERIOD == 4 && NOUT == 3
+__kernel void phase_filter_p4x8(__global const RAW_T *restrict src, __global out_t *restrict dst,
+                                const int in_w, const int out_w, const int out_h,
+                                __constant const float *restrict w, __constant const float *restrict bias)
+{
+    const int gx = (int)get_global_id(0) * 8;
+    const int by = get_global_id(1) * CFA_PERIOD;
+    if (gx >= out_w || by >= out_h) return;
+    const int x = gx < out_w - 8 ? gx : out_w - 8;
+    #pragma unroll
+    for (int i = 0; i < CFA_PERIOD; ++i) {
+        const int y = by + i;
+        float f[SIDE][8 + 2 * RADIUS];
+        #pragma unroll
+        for (int dy = 0; dy < SIDE; ++dy) {                 /* each sample of the rows read once */
+            __global const RAW_T *a = src + (y + dy) * in_w + x;
+            #pragma unroll
+            for (int k = 0; k < 8 + 2 * RADIUS; ++k)
+                f[dy][k] = (float)a[k];
+        }
+        float2 o[4][NOUT];
+        #pragma unroll
+        for (int j = 0; j < 4; ++j) {
+            float2 v[TAPS];
+            #pragma unroll
+            for (int t = 0; t < TAPS; ++t)
+                v[t] = (float2)(f[t / SIDE][j + t % SIDE], f[t / SIDE][j + 4 + t % SIDE]);
+            phase2_apply(((i + PHASE_Y) % CFA_PERIOD) * CFA_PERIOD + (j + PHASE_X) % CFA_PERIOD, v, o[j], w, bias);
+        }
+        store_rgb8(dst + 3 * (y * out_w + x),
+                   (float8)(o[0][0].s0, o[1][0].s0, o[2][0].s0, o[3][0].s0, o[0][0].s1, o[1][0].s1, o[2][0].s1, o[3][0].s1),
+                   (float8)(o[0][1].s0, o[1][1].s0, o[2][1].s0, o[3][1].s0, o[0][1].s1, o[1][1].s1, o[2][1].s1, o[3][1].s1),
+                   (float8)(o[0][2].s0, o[1][2].s0, o[2][2].s0, o[3][2].s0, o[0][2].s1, o[1][2].s1, o[2][2].s1, o[3][2].s1));
     }
 }
 #endif
