@@ -242,6 +242,38 @@ def test_clamp_mode_kernel_reference_and_fast_preset(rt):
     assert "HighlightClamp" in kinds["fast"] and "Highlights" in kinds["quality"]
 
 
+@pytest.mark.parametrize("eight", [True, False], ids=["eight-per-item", "per-pixel"])
+def test_clamp_takes_the_colour_matrix_and_tone_curve(rt, monkeypatch, eight):
+    """A raw with clipped samples keeps the clamp between the demosaic and the colour matrix, so the
+    fast preset's matrix, white balance pass 2 and tone curve fuse into the clamp: one kernel to the
+    host's layout (hl_clamp8 on a CPU device, hl_clamp elsewhere), the codes of the stages run one
+    after another (bit for bit on this device), and the reference of the fused stage equals theirs."""
+    import dataclasses
+    from clisp.engine.stage import fuse_stages
+    from clisp.modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
+    from clisp.modules.highlights import stage as hl
+    from clisp.modules.highlights.stage import HighlightClamp
+    monkeypatch.setattr(hl, "eight_per_item", lambda rt: eight)
+    chain = [HighlightClamp(STAGE.neutral, STAGE.white), ColourMatrix(np.array([[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3],
+                                                                                [0.0, -0.5, 1.5]])),
+             WhiteBalance2(np.array([1.0, 1.0101, 1.0753])), ToneCurve(quantize=True, bits=16)]
+    fused = fuse_stages(chain)
+    assert len(fused) == 1 and isinstance(fused[0], HighlightClamp) and fused[0].tone is not None
+    last = fused[0].with_interleaved_output()
+    assert last.interleaved and last.out_dtype == np.uint16
+    x = np.ascontiguousarray(stage_input(2, STAGE)[:, :37])   # a width that is no multiple of 8
+    ref = x
+    for stage in chain:
+        ref = stage.reference(ref, (0, 0))
+    assert np.array_equal(last.reference(x, (0, 0)), ref)
+    out = from_device(rt, last.enqueue(rt, to_device(rt, x), (0, 0)))
+    apart = to_device(rt, x)
+    for stage in fuse_stages(chain[:3]) + [dataclasses.replace(chain[3], interleaved=True)]:
+        apart = stage.enqueue(rt, apart, (0, 0))
+    assert out.dtype == np.uint16 and np.array_equal(out, from_device(rt, apart))
+    assert np.abs(out.astype(np.int32) - ref).max() <= 1
+
+
 def white_disc_scene(size: int = 128, level: float = 1.0) -> np.ndarray:
     """A white disc (radius size / 5) at ``level`` on saturated teal (left half) and yellow
     (right half): a clipped white beside saturated colour, as in photos (issue 25)."""

@@ -432,8 +432,11 @@ __kernel void hl_apply(__global const int *restrict list, __global const float *
 #endif /* HL_RADIUS */
 
 /* hl_clamp: dst_c = min(src_c, cap_c), cap = s n (HighlightClamp, preset fast); MATRIX 1 then
- * applies the 3 x 3 matrix m (the colour matrix that follows, fused). Halo 0. */
-__kernel void hl_clamp(__global const float *restrict src, __global float *restrict dst, const int width,
+ * applies the 3 x 3 matrix m (the colour matrix and white balance pass 2 that follow, fused).
+ * ENCODE_SRGB 1 (the tone curve fused too; the host then prepends clisp/modules/colour/srgb.h):
+ * stores STORE's codes (store.h: QUANTIZE, CODE_BITS), H x W x 3 where INTERLEAVED. Halo 0. */
+#include "store.h"
+__kernel void hl_clamp(__global const float *restrict src, __global out_t *restrict dst, const int width,
                        const int height, const float cap0, const float cap1, const float cap2,
                        __constant const float *restrict m)
 {
@@ -444,12 +447,48 @@ __kernel void hl_clamp(__global const float *restrict src, __global float *restr
     const float a0 = src[i], b0 = src[plane + i], c0 = src[2 * plane + i];
     const float a = a0 < cap0 ? a0 : cap0, b = b0 < cap1 ? b0 : cap1, c = c0 < cap2 ? c0 : cap2;   /* not fmin: PoCL does not vectorise it */
 #if MATRIX
-    dst[i]             = m[0] * a + m[1] * b + m[2] * c;
-    dst[plane + i]     = m[3] * a + m[4] * b + m[5] * c;
-    dst[2 * plane + i] = m[6] * a + m[7] * b + m[8] * c;
+    const float r = m[0] * a + m[1] * b + m[2] * c;
+    const float g = m[3] * a + m[4] * b + m[5] * c;
+    const float u = m[6] * a + m[7] * b + m[8] * c;
 #else
-    dst[i] = a;
-    dst[plane + i] = b;
-    dst[2 * plane + i] = c;
+    const float r = a, g = b, u = c;
+#endif
+#if INTERLEAVED
+    dst[3 * i] = STORE(r);
+    dst[3 * i + 1] = STORE(g);
+    dst[3 * i + 2] = STORE(u);
+#else
+    dst[i] = STORE(r);
+    dst[plane + i] = STORE(g);
+    dst[2 * plane + i] = STORE(u);
+#endif
+}
+
+/* hl_clamp8: hl_clamp for eight neighbouring pixels of a row per work-item, writing H x W x 3 (the
+ * host's layout) through store_rgb8, for CPU devices: the clamp, the matrix and the tone curve in
+ * one pass, where the curve's own kernel (srgb_encode8) read the planes again. Halo 0. Launched over
+ * ceil(width / 8) x height work-items with a bounds check; the last of a row starts at width - 8
+ * (it rewrites a few pixels with the same values), so width >= 8. */
+typedef float8 hl_float8_u __attribute__((aligned(4)));
+__kernel void hl_clamp8(__global const float *restrict src, __global out_t *restrict dst, const int width,
+                        const int height, const float cap0, const float cap1, const float cap2,
+                        __constant const float *restrict m)
+{
+    const int gx = (int)get_global_id(0) * 8;
+    const int y = get_global_id(1);
+    if (gx >= width || y >= height) return;
+    const int x = gx < width - 8 ? gx : width - 8;
+    const int plane = width * height;
+    const int i = y * width + x;
+    const float8 a0 = *(__global const hl_float8_u *)(src + i);
+    const float8 b0 = *(__global const hl_float8_u *)(src + plane + i);
+    const float8 c0 = *(__global const hl_float8_u *)(src + 2 * plane + i);
+    const float8 a = a0 < cap0 ? a0 : (float8)(cap0), b = b0 < cap1 ? b0 : (float8)(cap1);
+    const float8 c = c0 < cap2 ? c0 : (float8)(cap2);
+#if MATRIX
+    store_rgb8(dst + 3 * i, m[0] * a + m[1] * b + m[2] * c, m[3] * a + m[4] * b + m[5] * c,
+               m[6] * a + m[7] * b + m[8] * c);
+#else
+    store_rgb8(dst + 3 * i, a, b, c);
 #endif
 }

@@ -71,7 +71,7 @@ Measured figures: docs/RESULTS.md, "Highlights".
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
@@ -81,7 +81,8 @@ from ...scene.noise import CLIP_FRACTION, NoiseEstimateError, raw_noise
 from ...scene.statistics import PEAK, block_maxima
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
-from ..colour.stage import ColourMatrix, camera_neutral
+from ...sim.colorimetry import SRGB_ENCODING
+from ..colour.stage import ColourMatrix, ToneCurve, WhiteBalance2, camera_neutral, eight_per_item, srgb_source
 
 MODES = ("clip", "reconstruct", "clamp", "off")
 DEFAULT_MODE = "reconstruct"
@@ -1031,22 +1032,63 @@ class HighlightClamp(Stage):
         self.white = float(self.white)
 
     matrix: np.ndarray | None = None
-    """A 3 x 3 matrix applied after the clamp (the colour matrix fused in: :meth:`fuse`), or None."""
+    """A 3 x 3 matrix applied after the clamp (the colour matrix and white balance pass 2 fused
+    in: :meth:`fuse`), or None."""
+    tone: ToneCurve | None = None
+    """The tone curve fused in after the matrix (its codes, layout and bits), or None: a raw with
+    clipped samples keeps this stage between the demosaic and the colour matrix, so the curve
+    cannot join the demosaic's filter and joins the clamp instead (README.md)."""
+
+    @property
+    def out_dtype(self) -> np.dtype:
+        return self.tone.out_dtype if self.tone is not None else np.dtype(np.float32)
+
+    @property
+    def interleaved(self) -> bool:                 # type: ignore[override]
+        return self.tone is not None and self.tone.interleaved
+
+    @property
+    def writes_into(self) -> bool:                 # type: ignore[override]
+        return self.tone is not None
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = np.minimum(np.asarray(x, dtype=np.float64), self.white * self.neutral)
-        return out if self.matrix is None else out @ np.asarray(self.matrix, dtype=np.float64).T
+        out = out if self.matrix is None else out @ np.asarray(self.matrix, dtype=np.float64).T
+        return out if self.tone is None else self.tone.reference(out, origin)
 
     def fuse(self, following: Stage) -> Stage | None:
-        if self.matrix is None and type(following) is ColourMatrix:
-            return HighlightClamp(self.neutral, self.white, np.asarray(following.matrix, dtype=np.float64))
+        if self.tone is not None:
+            return None
+        if type(following) is ColourMatrix or (self.matrix is not None and type(following) is WhiteBalance2):
+            m = np.asarray(following.matrix, dtype=np.float64)
+            return replace(self, matrix=m if self.matrix is None else m @ self.matrix)
+        if isinstance(following, ToneCurve):
+            return replace(self, tone=following)
         return None
 
-    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
-        dst = rt.acquire(3, src.height, src.width)
+    def with_interleaved_output(self) -> "HighlightClamp | None":
+        return replace(self, tone=self.tone.with_interleaved_output()) if self.tone is not None else None
+
+    def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
+                out: DeviceImage | None = None) -> DeviceImage:
         cap = self.white * self.neutral
         m = np.eye(3) if self.matrix is None else self.matrix
-        rt.launch_named("highlights", "hl_clamp", src.width, src.height,
-                        dict(src=src, dst=dst, width=src.width, height=src.height, cap0=cap[0], cap1=cap[1],
-                             cap2=cap[2], m=rt.constant(as_f32(m))), {"MATRIX": int(self.matrix is not None)})
+        args = dict(src=src, width=src.width, height=src.height, cap0=cap[0], cap1=cap[1], cap2=cap[2],
+                    m=rt.constant(as_f32(m)))
+        defines = {"MATRIX": int(self.matrix is not None)}
+        if self.tone is None:
+            dst = rt.acquire(3, src.height, src.width)
+            rt.launch_named("highlights", "hl_clamp", src.width, src.height, dict(args, dst=dst), defines)
+            return dst
+        t = self.tone
+        defines.update(ENCODE_SRGB=1, QUANTIZE=int(t.quantize), CODE_BITS=t.bits, INTERLEAVED=int(t.interleaved),
+                       **SRGB_ENCODING)
+        dst = out if out is not None else rt.acquire(3, src.height, src.width, self.out_dtype)
+        if t.interleaved and src.width >= 8 and eight_per_item(rt):
+            rt.launch_named("highlights", "hl_clamp8", -(-src.width // 8), src.height, dict(args, dst=dst),
+                            defines, srgb_source(rt), exact=False)
+        else:
+            rt.launch_named("highlights", "hl_clamp", src.width, src.height, dict(args, dst=dst), defines,
+                            srgb_source(rt))
+        dst.interleaved = t.interleaved
         return dst
