@@ -249,6 +249,7 @@ def test_clamp_takes_the_colour_matrix_and_tone_curve(rt, monkeypatch, eight):
     host's layout (hl_clamp8 on a CPU device, hl_clamp elsewhere), the codes of the stages run one
     after another (bit for bit on this device), and the reference of the fused stage equals theirs."""
     import dataclasses
+
     from clisp.engine.stage import fuse_stages
     from clisp.modules.colour.stage import ColourMatrix, ToneCurve, WhiteBalance2
     from clisp.modules.highlights import stage as hl

@@ -1066,7 +1066,7 @@ class HighlightClamp(Stage):
             return replace(self, tone=following)
         return None
 
-    def with_interleaved_output(self) -> "HighlightClamp | None":
+    def with_interleaved_output(self) -> HighlightClamp | None:
         return replace(self, tone=self.tone.with_interleaved_output()) if self.tone is not None else None
 
     def enqueue(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int],
