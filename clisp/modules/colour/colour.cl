@@ -48,13 +48,12 @@ __kernel void srgb_encode(__global const float *restrict src, __global out_t *re
  * planar). Halo 0. Launched over ceil(width / 8) x height work-items with a bounds check; the last
  * work-item of a row starts at width - 8 (it rewrites a few pixels with the same values), so
  * width >= 8. QUANTIZE as srgb_encode. */
-typedef float8 float8_u __attribute__((aligned(4)));
 __kernel void srgb_encode8(__global const float *restrict src, __global out_t *restrict dst, const int width, const int height)
 {
     const int gx = (int)get_global_id(0) * 8;
     const int y = get_global_id(1);
     if (gx >= width || y >= height) return;
-    const int x = gx < width - 8 ? gx : width - 8;
+    const int x = eight_from(gx, width);
     const int plane = width * height;
     const int i = y * width + x;
     store_rgb8(dst + 3 * i, *(__global const float8_u *)(src + i), *(__global const float8_u *)(src + plane + i),

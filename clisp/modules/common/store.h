@@ -29,6 +29,15 @@ typedef float8 out8_u __attribute__((aligned(4)));
 #define CODE8(v) (v)
 #endif
 
+/* The kernels that handle eight pixels of a row per work-item (CPU devices): work-item gx covers
+ * columns eight_from(8 gx, width) .. + 7, the last of a row starting at width - 8 (it rewrites a few
+ * pixels with the same values, so width >= 8); float8_u reads eight floats of a plane unaligned. */
+inline int eight_from(const int gx, const int width)
+{
+    return gx < width - 8 ? gx : width - 8;
+}
+typedef float8 float8_u __attribute__((aligned(4)));
+
 /* store_rgb8: eight neighbouring pixels' channels (r, g, b, one float8 each, linear as STORE takes
  * them) written H x W x 3 from dst: encoded (ENCODE8), their 24 values then shuffled into three
  * consecutive vectors and stored as codes (CODE8), the values STORE gives each pixel. For kernels

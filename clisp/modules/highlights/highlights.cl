@@ -469,7 +469,6 @@ __kernel void hl_clamp(__global const float *restrict src, __global out_t *restr
  * one pass, where the curve's own kernel (srgb_encode8) read the planes again. Halo 0. Launched over
  * ceil(width / 8) x height work-items with a bounds check; the last of a row starts at width - 8
  * (it rewrites a few pixels with the same values), so width >= 8. */
-typedef float8 hl_float8_u __attribute__((aligned(4)));
 __kernel void hl_clamp8(__global const float *restrict src, __global out_t *restrict dst, const int width,
                         const int height, const float cap0, const float cap1, const float cap2,
                         __constant const float *restrict m)
@@ -477,12 +476,12 @@ __kernel void hl_clamp8(__global const float *restrict src, __global out_t *rest
     const int gx = (int)get_global_id(0) * 8;
     const int y = get_global_id(1);
     if (gx >= width || y >= height) return;
-    const int x = gx < width - 8 ? gx : width - 8;
+    const int x = eight_from(gx, width);
     const int plane = width * height;
     const int i = y * width + x;
-    const float8 a0 = *(__global const hl_float8_u *)(src + i);
-    const float8 b0 = *(__global const hl_float8_u *)(src + plane + i);
-    const float8 c0 = *(__global const hl_float8_u *)(src + 2 * plane + i);
+    const float8 a0 = *(__global const float8_u *)(src + i);
+    const float8 b0 = *(__global const float8_u *)(src + plane + i);
+    const float8 c0 = *(__global const float8_u *)(src + 2 * plane + i);
     const float8 a = a0 < cap0 ? a0 : (float8)(cap0), b = b0 < cap1 ? b0 : (float8)(cap1);
     const float8 c = c0 < cap2 ? c0 : (float8)(cap2);
 #if MATRIX

@@ -104,7 +104,7 @@ __kernel void phase_filter_px8(__global const RAW_T *restrict src, __global out_
     const int gx = (int)get_global_id(0) * 8;
     const int by = get_global_id(1) * CFA_PERIOD;
     if (gx >= out_w || by >= out_h) return;
-    const int x = gx < out_w - 8 ? gx : out_w - 8;
+    const int x = eight_from(gx, out_w);
     const int8 odd = (int8)(0, -1, 0, -1, 0, -1, 0, -1);
     const int8 m1 = ((x + PHASE_X) & 1) ? ~odd : odd;         /* the lanes of column phase 1 */
     #pragma unroll
@@ -147,7 +147,7 @@ __kernel void phase_filter_p4x8(__global const RAW_T *restrict src, __global out
     const int gx = (int)get_global_id(0) * 8;
     const int by = get_global_id(1) * CFA_PERIOD;
     if (gx >= out_w || by >= out_h) return;
-    const int x = gx < out_w - 8 ? gx : out_w - 8;
+    const int x = eight_from(gx, out_w);
     #pragma unroll
     for (int i = 0; i < CFA_PERIOD; ++i) {
         const int y = by + i;
