@@ -340,6 +340,26 @@ def test_dead_pixels_are_told_from_dark_texture_by_their_ratio(cfa):
 
 
 @pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
+def test_a_dead_pixel_reads_black(cfa):
+    """A live pixel far below RHO of its same-channel neighbours (0.05 of the range on a ground at 0.3:
+    the LMS S channel's dark details, whose neighbours lie 2-4 px away) but well above black in the
+    raw's floor noise is a detail, left alone; a pixel beside it that reads black is dead. Kernel
+    equals reference."""
+    rt = get_runtime()
+    h, w = 40, 48
+    x = np.full((h, w), 64 + int(0.3 * 959), np.uint16)
+    x[20, 20] = 64 + int(0.05 * 959)                   # live: 0.05, far above 4.5 floor sigmas (0.0055)
+    x[12, 28] = 65                                     # dead: black 64 and a DN of noise
+    stage = SensorCorrect(cfa, np.full(3, 64.0), 1023.0, DefectTest((1e-4,) * 3, (1e-6,) * 3, (1.0, 1.0, 1.0)))
+    assert 0.05 < stage.test.rho * 0.3                 # the ratio test alone took it for dead
+    origin = Origin(-HALO, -HALO, (h, w))
+    window = gather_window(x, origin[0], origin[1], h + 2 * HALO, w + 2 * HALO, cfa.period)
+    expected, found = stage.correct(window, origin)
+    got = rt.download(stage.enqueue(rt, rt.upload(window), origin)).reshape(expected.shape)
+    assert found[12, 28] and not found[20, 20] and found.sum() == 1
+    assert_close(got, expected, f"sensor_correct {cfa.name}, a dark detail and a dead pixel")
+
+@pytest.mark.parametrize("cfa", [bayer_cfa(), lms_cfa()], ids=lambda c: c.name)
 def test_kernel_equals_reference_beside_known_bad_pixels_and_past_the_edge(cfa):
     """A hot and a dead pixel 2 px from a brighter / darker known bad one (sensor_fix leaves that
     neighbour out, so the screen must pass them on), and a window 10-12 px past the image (its

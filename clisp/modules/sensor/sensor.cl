@@ -342,7 +342,8 @@ inline float y_near(__global const RAW_T *src, __constant const char *pattern, _
  *   pixels carry less than SC_GAMMA of its excess over the pair (Y(p) - Y(pair) against the excess:
  *   an optical detail lights its neighbours through the lens, a hot pixel does not; without a pair,
  *   beside the image's edge, the good neighbours' mean w and Y), a dead one where it also reads
- *   below SC_RHO times the lowest neighbour by SC_KR sigmas; its output is then rewritten.
+ *   below SC_RHO times the lowest neighbour by SC_KR sigmas and reads black (below SC_K_COLD floor
+ *   sigmas plus SC_FLOOR); its output is then rewritten.
  * Tables per CFA phase k = py CFA_PERIOD + px: nb_n[k] neighbours at nb[k][i] = (dy, dx), pairs_n[k]
  * opposite pairs pairs[k][j] = (i, i') (indices into nb[k]). */
 __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global const uint *restrict count,
@@ -402,7 +403,9 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
             const float dim = SC_RHO * lo_p - up - SC_KR * sqrt(noise_a[c] * (SC_RHO + SC_RHO * SC_RHO) * lo_p
                                                                 + (1.0f + SC_RHO * SC_RHO) * noise_b[c]);
             const float cold = fmin(ulo - up - SC_K_COLD * sqrt(noise_a[c] * lo_p + noise_b[c]), dim) - spread;
-            extreme = used && (hot > 0.0f || cold > 0.0f);
+            /* and it reads black (no photo-response): within SC_K_COLD floor sigmas plus SC_FLOOR */
+            const int black = up < SC_K_COLD * sqrt(noise_b[c]) + SC_FLOOR;
+            extreme = used && (hot > 0.0f || (cold > 0.0f && black));
             if (!extreme)
                 continue;
         }

@@ -77,7 +77,11 @@ neighbour: fewer than K, because a cold pixel must also pass the ratio test (bel
 neighbour by KR sigmas), which keeps texture out and, with this margin, noise; a hot pixel has no
 such second test. At gain 16 a dead pixel where its channel reads 0.05 is 4 to 5 sigmas off
 (tools/bench_sensor.py --tune --sets deadleaves --k-cold 6,5,4.5,4,3.5: Bayer gain 16 -0.096 /
--0.088 / -0.086 / -0.086 / -0.086 dB, every other cell within 0.003, gain 64 included; README.md)."""
+-0.088 / -0.086 / -0.086 / -0.086 dB, every other cell within 0.003, gain 64 included; README.md).
+A dead pixel has no photo-response, so it must also read black: below K_COLD sigmas of the raw's
+floor noise (the model's b: read noise and quantisation) plus FLOOR. A live pixel that dark beside
+its neighbours is a scene's dark detail where it reads above that (the LMS CFA's sparse S channel,
+whose same-channel neighbours lie 2-4 px away; README.md)."""
 
 ALPHA = 0.0
 """Times the same-channel neighbours' spread (their range) a bad pixel must also exceed (texture):
@@ -468,7 +472,8 @@ class SensorCorrect(Stage):
                 dim = t.rho * lo_p - up - t.kr * np.sqrt(t.noise_a[c] * (t.rho + t.rho ** 2) * lo_p
                                                          + (1 + t.rho ** 2) * t.noise_b[c])
                 cold = np.minimum(ulo - up - t.k_cold * np.sqrt(t.noise_a[c] * lo_p + t.noise_b[c]), dim) - spread
-                cand = ~bad & used & within & ((hot > 0) | (cold > 0))
+                black = up < t.k_cold * np.sqrt(t.noise_b[c]) + FLOOR          # a dead pixel reads black
+                cand = ~bad & used & within & ((hot > 0) | ((cold > 0) & black))
                 with np.errstate(all="ignore"):
                     excess = (w - w_bar) * inv_range[c] * wb[c]
                     var = wb[c] * t.noise_a[c] * np.maximum(np.nan_to_num(y_bar), 0) + wb[c] ** 2 * t.noise_b[c]
