@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 import time
 from functools import partial
@@ -42,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import toolkit  # before clisp: puts this checkout on sys.path
-from toolkit import REPO, cpu_model, git_rev, repo_env
+from toolkit import REPO, cpu_model, git_rev
 
 SMALL = (416, 624)
 BIG = (3000, 4000)
@@ -220,11 +219,7 @@ def device_line() -> str:
 
 def run_child(tree: Path, task: list[str]) -> dict:
     """This tool's ``_child`` subcommand with the clisp of ``tree``; its JSON."""
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "_child", "--tree", str(tree), *task],
-                          env=repo_env(tree), cwd=toolkit.NEUTRAL_CWD, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise SystemExit(f"bench_device: {tree}: {toolkit.last_line(proc.stderr)}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return toolkit.tree_child(__file__, tree, task)
 
 
 # ------------------------------------------------------------------------------------ reports

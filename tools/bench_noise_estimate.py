@@ -80,14 +80,6 @@ def child_errors(dngs: list[str]) -> list[list[float]]:
     return out
 
 
-def run_child(tree: Path, dngs: list[str]) -> list[list[float]]:
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "_child", "--tree", str(tree), *dngs],
-                          check=False, env=repo_env(tree), cwd=toolkit.NEUTRAL_CWD, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise SystemExit(f"bench_noise_estimate: {tree}: {toolkit.last_line(proc.stderr)}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 def numbers(text: str) -> list[int]:
     return [int(v) for v in text.split(",") if v]
 
@@ -118,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     with toolkit.work_folder(args.work, "clisp-noise-") as work:
         cases = simulated(args.data, work, {"kodak": args.kodak, "mcmaster": args.mcmaster},
                           args.cfas.split(","), args.gains)
-        errors = {name: run_child(tree, [c["dng"] for c in cases]) for name, tree in trees.items()}
+        errors = {name: toolkit.tree_child(__file__, tree, [c["dng"] for c in cases]) for name, tree in trees.items()}
     print(f"CPU: {toolkit.cpu_model()}; |sigma_est / sigma_model - 1| at each channel's median level, "
           f"mean over images and channels")
     print("| set | CFA | gain | " + " | ".join(trees) + " |")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import json
 import math
 import os
 import subprocess
@@ -419,6 +420,19 @@ def last_line(text: str, limit: int = 200) -> str:
     """The last non-empty line of ``text`` (a tool's error message, usually), cut to ``limit`` characters."""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     return lines[-1][:limit] if lines else "(no message)"
+
+
+def tree_child(script: str | Path, tree: Path, args: list[str]) -> object:
+    """Run ``script``'s ``_child --tree TREE ARGS...`` subcommand with the clisp of ``tree`` first on
+    PYTHONPATH (in NEUTRAL_CWD) and return the JSON its last stdout line holds; SystemExit naming
+    the tool and the tree with the child's last error line if it fails. The child puts ``tree`` first
+    on sys.path itself (toolkit put this checkout there)."""
+    script = Path(script).resolve()
+    proc = subprocess.run([sys.executable, str(script), "_child", "--tree", str(tree), *args], check=False,
+                          env=repo_env(tree), cwd=NEUTRAL_CWD, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{script.stem}: {tree}: {last_line(proc.stderr)}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def describe_output(path: Path) -> tuple[int, int, int, str]:
