@@ -294,8 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     if args.cmd == "_child":
-        sys.path.insert(0, str(args.tree.resolve()))      # that tree's clisp, not this checkout's (toolkit)
-        assert "clisp" not in sys.modules
+        toolkit.enter_tree(args.tree)
         task = args.task
         if task[0] == "host":
             result = child_host(int(task[1]))
@@ -303,8 +302,6 @@ def main(argv: list[str] | None = None) -> int:
             result = child_throughput((int(task[3]), int(task[2])), int(task[1]))
         else:
             result = child_stats()
-        import clisp
-        assert Path(clisp.__file__).resolve().is_relative_to(args.tree.resolve()), clisp.__file__
         print(json.dumps({"device": device_line(), "rows": result}))
         return 0
     if args.cmd == "profile":

@@ -91,8 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--tree", type=Path, required=True)
         ap.add_argument("dngs", nargs="+")
         args = ap.parse_args()
-        sys.path.insert(0, str(args.tree.resolve()))      # that tree's clisp, not this checkout's
-        assert "clisp" not in sys.modules
+        toolkit.enter_tree(args.tree)
         print(json.dumps(child_errors(args.dngs)))
         return 0
     toolkit.add_data_option(ap)

@@ -435,6 +435,18 @@ def tree_child(script: str | Path, tree: Path, args: list[str]) -> object:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def enter_tree(tree: Path) -> None:
+    """In a :func:`tree_child` child: put ``tree`` first on sys.path and import its clisp, so that the
+    child measures that tree and not this checkout (toolkit put it on sys.path); SystemExit where
+    ``tree`` holds no clisp of its own."""
+    tree = tree.resolve()
+    assert "clisp" not in sys.modules, "enter_tree must run before clisp is imported"
+    sys.path.insert(0, str(tree))
+    import clisp
+    if not Path(clisp.__file__).resolve().is_relative_to(tree):
+        raise SystemExit(f"{tree} holds no clisp (imported {clisp.__file__})")
+
+
 def describe_output(path: Path) -> tuple[int, int, int, str]:
     """(H, W, channels, pixel type) of an image file, from its header (OpenImageIO)."""
     import OpenImageIO as oiio
