@@ -136,21 +136,21 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         out.unapplied = unapplied(ops)
     if raw.metadata.get("opcodes_unreadable") and opcodes:
         out.unapplied.append(f"all ({raw.metadata['opcodes_unreadable']})")
-    mask = np.zeros(shape, dtype=bool)
+    mask: np.ndarray | None = None                          # the known bad pixels (none: no H x W pass)
     known: list[str] = []
     if isinstance(bad_pixels, np.ndarray):                  # a map given as an H x W bool array
-        mask |= np.asarray(bad_pixels, dtype=bool)
+        mask = _union(mask, bad_pixels, shape)
         known.append(f"{int(mask.sum())} from the map")
         bad_pixels = "map"
     elif bad_pixels not in BAD_PIXEL_MODES:
         listed = read_bad_pixel_map(bad_pixels, shape)
-        mask |= listed
+        mask = _union(mask, listed, shape)
         known.append(f"{int(listed.sum())} from {Path(bad_pixels).name}")
     if bad_pixels != "off" and ops:
         from ..io.opcodes import bad_pixel_mask   # deferred: only raws with DNG opcodes load clisp.io.opcodes (start-up)
         dng = bad_pixel_mask(ops, raw.data, shape)
         if dng is not None:
-            mask |= dng
+            mask = _union(mask, dng, shape)
             known.append(f"{int(dng.sum())} from the DNG's FixBadPixels opcodes")
     dark_level = None
     if dark:
@@ -159,7 +159,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         if bad_pixels != "off":
             hot = dark_level - raw.black_level[cfa.channel_map(*shape)] > DARK_BAD * (raw.white_level - raw.black_level.max())
             if hot.any():
-                mask |= hot
+                mask = _union(mask, hot, shape)
                 known.append(f"{int(hot.sum())} saturating in the dark frame")
         base = _noise_of(raw, noise)
         if base is not None:
@@ -170,7 +170,7 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         flat_gain, wild, flat_smooth, note = _once(flat_master, raw, list(flat), "flat")
         out.notes.append(note)
         if bad_pixels != "off" and wild.any():
-            mask |= wild
+            mask = _union(mask, wild, shape)
             known.append(f"{int(wild.sum())} dead or wild in the flat")
     gains: list[Any] = []
     if ops:
@@ -204,15 +204,28 @@ def sensor_corrections(raw: RawImage, bad_pixels: Any = "auto", dark: Sequence[A
         out.notes.insert(0, f"bad pixels auto, searched against the noise model ({how}); listed{known_text or ': none'}")
     elif bad_pixels != "off":
         out.notes.insert(0, f"bad pixels from the map, no search{known_text}")
-    if test is None and not mask.any() and dark_level is None and flat_gain is None and terms is None \
+    if mask is not None and not mask.any():
+        mask = None
+    if test is None and mask is None and dark_level is None and flat_gain is None and terms is None \
             and pre_smooth is None:
         return out
     out.pre = SensorCorrect(cfa, raw.black_level, raw.white_level, test,
-                            mask.astype(np.uint16) if mask.any() else None,
+                            None if mask is None else mask.astype(np.uint16),
                             None if dark_level is None else dark_level.astype(np.float32),
                             None if flat_gain is None else flat_gain.astype(np.float32),
                             terms, pre_smooth, wb=tuple(float(v) for v in raw.pass1_gains()))
     return out
+
+
+def _union(mask: np.ndarray | None, more: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``mask | more`` as a new H x W (``shape``) bool array, ``more`` alone where there is no mask
+    yet (a raw without maps, frames or opcodes makes no H x W array: 2 + 2 ms of host time at 24
+    MP). ClispError for a map of another shape."""
+    more = np.asarray(more, dtype=bool)
+    if more.shape != tuple(shape):
+        raise ClispError(f"a bad pixel map of {more.shape[-1]}x{more.shape[0]} for a raw of {shape[1]}x{shape[0]}"
+                         if more.ndim == 2 else f"a bad pixel map of shape {more.shape} for a raw of {shape[1]}x{shape[0]}")
+    return more.copy() if mask is None else mask | more
 
 
 def _applies_to_mosaic(op: Any) -> bool:

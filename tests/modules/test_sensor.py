@@ -258,6 +258,20 @@ def test_map_file_used_as_given(tmp_path, defective):
     assert corr.pre.test is None and int(corr.pre.mask.sum()) == int(truth.sum())
 
 
+def test_a_map_array_of_another_shape_is_refused(defective):
+    """A map given in memory (``bad_pixels=`` an H x W bool array) must match the raw; a raw with
+    no map, frame or opcode gets no mask at all (no H x W pass)."""
+    from clisp.errors import ClispError
+    _, sim, _ = defective
+    h, w = sim.raw.shape
+    with pytest.raises(ClispError, match=f"bad pixel map of {w - 1}x{h} for a raw of {w}x{h}"):
+        sensor_corrections(sim.raw, bad_pixels=np.zeros((h, w - 1), bool), opcodes=False)
+    given = np.zeros((h, w), bool)
+    given[3, 5] = True
+    assert int(sensor_corrections(sim.raw, bad_pixels=given, opcodes=False).pre.mask.sum()) == 1
+    assert sensor_corrections(sim.raw, opcodes=False).pre.mask is None
+
+
 def test_dark_frame_scaled_by_exposure_time(defective):
     d, sim, _ = defective
     half = sd.frames(sim.raw, dataclasses.replace(d, exposure_time=0.5), "dark", 1, 4.0, 30)[0]
