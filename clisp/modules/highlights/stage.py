@@ -79,6 +79,7 @@ import numpy as np
 from ...errors import ClispError
 from ...scene.noise import CLIP_FRACTION, NoiseEstimateError, raw_noise
 from ...scene.statistics import PEAK, block_maxima
+from ...engine import host_threads
 from ...engine.runtime import DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ...sim.colorimetry import SRGB_ENCODING
@@ -773,7 +774,7 @@ def clip_map(raw, noise=None, peaks: np.ndarray | None = None) -> ClipMap | None
         return None
     thr = clip_thresholds_dn(raw)
     if peaks is None or PEAK != TEST or peaks.shape != (-(-data.shape[0] // TEST), -(-data.shape[1] // TEST)):
-        if float(data.max()) < float(thr.min()):              # nothing clipped: no block maxima
+        if host_threads.maximum(data) < float(thr.min()):      # nothing clipped: no block maxima
             return None
         peaks = block_maxima(data, TEST)
     found = np.argwhere(peaks >= thr.min())
@@ -923,7 +924,7 @@ def has_clipped(raw) -> bool:
     if data.dtype != np.uint16:
         return False
     thresholds = clip_thresholds_dn(raw)
-    if float(data.max()) < float(thresholds.min()):
+    if host_threads.maximum(data) < float(thresholds.min()):
         return False
     p = raw.cfa.period
     pattern = np.asarray(raw.cfa.pattern)
