@@ -147,6 +147,7 @@ class DeviceImage:
     capacity: int = 0           # bytes of ``buffer`` (at least nbytes: pooled buffers are reused larger)
     host: np.ndarray | None = None   # the host array that is the buffer's storage (Runtime.host_image)
     staging: np.ndarray | None = None   # a staging buffer it was filled from (Runtime.resident_mosaic)
+    pooled: bool = True         # False: a buffer of its own (Runtime.upload on a CPU device), dropped on release
 
     @property
     def nbytes(self) -> int:
@@ -378,7 +379,7 @@ class Runtime:
         if image.staging is not None:
             self.staging.give(image.staging)
             image.staging = None
-        if image.host is not None:
+        if image.host is not None or not image.pooled:
             return
         pool = self._meter if self._meter is not None else self.pool
         if after is not None and self.transfer_queue is not self.queue:
@@ -455,12 +456,20 @@ class Runtime:
 
     def upload(self, array: np.ndarray) -> DeviceImage:
         """Copy a planar host array (C x H x W, or H x W for one plane) to a pooled device image
-        (while metering only its buffer is counted: a stage may upload a window's small tables)."""
+        (while metering only its buffer is counted: a stage may upload a window's small tables).
+        On a CPU device the copy is a buffer of its own, made from the array (COPY_HOST_PTR) and
+        dropped on release: PoCL's write into a buffer waits, holding the GIL, until every command
+        queued before it has run (a 4 KB write behind a 0.5 s kernel took 0.5 s; the highlight
+        stage's tables stalled a 24 MP quality run's host for 1.9 s of its 2.6 s, README.md)."""
         array = np.ascontiguousarray(array)
         if array.ndim not in (2, 3):
             raise ValueError(f"upload needs H x W or C x H x W, got shape {array.shape}")
         channels = 1 if array.ndim == 2 else array.shape[0]
         height, width = array.shape[-2:]
+        if self.host_is_device and self.host_unified and self._meter is None and array.size:
+            flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.COPY_HOST_PTR
+            return DeviceImage(self.cl.Buffer(self.context, flags, hostbuf=array), channels, height, width,
+                               array.dtype, capacity=array.nbytes, pooled=False)
         image = self.acquire(channels, height, width, array.dtype)
         if self._meter is None:
             event = _record_copy("upload", array.nbytes, self.cl.enqueue_copy(

@@ -303,7 +303,40 @@ def test_buffer_pool_reuses_released_buffers():
     assert d.buffer is not b.buffer and d.buffer is not a.buffer   # other size: new buffer
     fresh.release(b)
     e = fresh.upload(np.zeros((3, 17, 19), np.float32))
-    assert e.buffer is b.buffer                       # uploads draw from the pool too
+    assert e.buffer is not b.buffer and not e.pooled  # on a CPU device an upload is a buffer of its own
+    fresh.release(e)
+    assert fresh.acquire(3, 17, 19).buffer is b.buffer   # and is not pooled when released
+
+
+UPLOAD_BEHIND_A_HELD_QUEUE = """
+import numpy as np
+from clisp.engine.runtime import Runtime
+rt = Runtime("cpu")
+gate = rt.cl.UserEvent(rt.context)
+rt.cl.enqueue_marker(rt.queue, wait_for=[gate])
+image = rt.upload(np.arange(12, dtype=np.float32).reshape(3, 4))
+print("returned", flush=True)
+gate.set_status(rt.cl.command_execution_status.COMPLETE)
+rt.finish()
+assert (rt.download(image) == np.arange(12, dtype=np.float32).reshape(3, 4)).all()
+"""
+
+
+@needs_cpu_device
+def test_an_upload_does_not_wait_for_the_commands_queued_before_it():
+    """On a CPU device (PoCL) a write into a buffer waits until every command queued before it has
+    run, holding the GIL (no other thread of the process runs meanwhile); Runtime.upload makes a
+    buffer from the array instead. A child process holds its queue with a marker waiting on a
+    user event and uploads: the upload must return while the queue is held (the child would wait
+    forever; its 60 s limit only stops that, no time is measured)."""
+    import subprocess
+    import sys
+    try:
+        child = subprocess.run([sys.executable, "-c", UPLOAD_BEHIND_A_HELD_QUEUE], capture_output=True, text=True,
+                               timeout=60)
+    except subprocess.TimeoutExpired:
+        pytest.fail("Runtime.upload waited for the commands queued before it")
+    assert child.returncode == 0 and "returned" in child.stdout, child.stderr
 
 
 def test_constant_cache(rt):
