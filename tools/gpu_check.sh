@@ -83,6 +83,27 @@ export CLISP_DEVICE=${CLISP_DEVICE:-gpu} CLISP_CACHE_DIR=/tmp/clisp-cache
 PY="python3"
 CLISP="python3 -m clisp"
 
+step "does a write into a buffer wait for the queue? (PoCL: yes, holding the GIL; engine README)"
+timeout 60 $PY - <<'EOF' | tee "$OUT/write_wait.txt"
+import time, numpy as np
+from clisp.engine.runtime import get_runtime
+rt = get_runtime(); cl = rt.cl
+k = cl.Kernel(cl.Program(rt.context, "__kernel void slow(__global float *o, int n) { int i = get_global_id(0); "
+              "float a = o[i]; for (int j = 0; j < n; j++) a = a * 0.999f + 1.0f; o[i] = a; }").build(), "slow")
+big, small = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, 4 << 22), cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, 4096)
+host, n = np.ones(1024, np.float32), 200
+for _ in range(6):                                    # a kernel of 50-500 ms on this device
+    rt.queue.finish(); t = time.perf_counter(); k(rt.queue, (1 << 22,), None, big, np.int32(n)); rt.queue.finish()
+    if time.perf_counter() - t > 0.05:
+        break
+    n *= 10
+for how, write in (("enqueue_copy, non-blocking", lambda: cl.enqueue_copy(rt.queue, small, host, is_blocking=False)),
+                   ("a buffer made from the array", lambda: cl.Buffer(rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host))):
+    rt.queue.finish(); k(rt.queue, (1 << 22,), None, big, np.int32(n)); t0 = time.perf_counter()
+    write(); t1 = time.perf_counter(); rt.queue.finish(); t2 = time.perf_counter()
+    print(f"write wait: {how}: returned after {1e3 * (t1 - t0):.1f} ms of a kernel's {1e3 * (t2 - t0):.1f} ms")
+EOF
+
 step "in-process throughput, 24 MP, this tree and BASE ($BASE)"
 SIZE=${SIZE:-6000x4000}
 timeout $(cap 150) $PY tools/bench_device.py throughput --size $SIZE --repeat 5 --rounds 1 --baseline .gpu/base \
@@ -143,7 +164,7 @@ for key, n in (("cumulative", 70), ("tottime", 30)):
 EOF
     )
     step "table"
-    cat "$OUT/whole.txt" "$OUT/many.txt"
+    cat "$OUT/whole.txt" "$OUT/many.txt" "$OUT/write_wait.txt"
     grep -E "wall|busy|per launch|start-up|load kept|write output|read tile|copy out|stage the" "$OUT/profile.txt"
     echo "done in $((SECONDS - T0)) s"
     exit 0
@@ -201,6 +222,7 @@ if {"clisp", "base", "rawpy"} <= med.keys():
 if busy:
     print(f"  --profile: device busy {busy.group(1)} % of the tile loop")
 print("many files:", last("many.txt"))
+print("\n".join(text("write_wait.txt").strip().splitlines()) or "write wait: - (not run)")
 print("tests:", last("tests.txt"))
 print("stats:", last("stats.txt"))
 print(text("throughput.txt"))
