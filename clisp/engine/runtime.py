@@ -185,7 +185,7 @@ class Runtime:
         self.host_is_device = bool(self.device.type & cl.device_type.CPU)
         self._transfer_queue: Any = None
         self.staging = HostStaging(self)
-        self._counters: dict[str, Any] = {}
+        self._counters: dict[str, tuple[Any, np.ndarray | None]] = {}   # buffer, host storage (CPU)
 
     def enable_profiling(self) -> None:
         """Switch to a queue with event profiling (same context, so every buffer stays valid);
@@ -423,25 +423,42 @@ class Runtime:
         created zeroed on first use. The count belongs to the run, not to a stage object (the stages
         of a schedule are shared by every run of one camera and settings: executor.SCHEDULES):
         Pipeline.stream zeroes the counters before a run and reads them into RunStats.counts after
-        it; runs on one runtime do not overlap (pipeline.DEVICE_LOCK)."""
-        buf = self._counters.get(name)
-        if buf is None:
-            flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.COPY_HOST_PTR
-            buf = self._counters[name] = self.cl.Buffer(self.context, flags, hostbuf=np.zeros(1, np.uint32))
-        return buf
+        it; runs on one runtime do not overlap (pipeline.DEVICE_LOCK). On a CPU device
+        (:attr:`host_is_device`) the counter's storage is a host array the host zeroes and reads
+        itself: no fill command before a run and no blocking copy after it (0.07 and 0.12 ms of a
+        0.26 MP call on PoCL)."""
+        held = self._counters.get(name)
+        if held is None:
+            if self.host_is_device and self.host_unified:
+                host = aligned_empty(4).view(np.uint32)
+                host[0] = 0
+                flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.USE_HOST_PTR
+                held = self._counters[name] = (self.cl.Buffer(self.context, flags, hostbuf=host), host)
+            else:
+                flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.COPY_HOST_PTR
+                held = self._counters[name] = (self.cl.Buffer(self.context, flags, hostbuf=np.zeros(1, np.uint32)),
+                                               None)
+        return held[0]
 
     def reset_counters(self) -> None:
-        """Zero every counter (enqueued: the next run's kernels count from 0)."""
-        for buf in self._counters.values():
-            self.cl.enqueue_fill_buffer(self.queue, buf, np.uint32(0), 0, 4)
+        """Zero every counter before a run: written by the host where it is the counter's storage
+        (nothing of an earlier run is in flight: Pipeline.stream finishes its queue), else enqueued
+        (the run's kernels count from 0)."""
+        for buf, host in self._counters.values():
+            if host is not None:
+                host[0] = 0
+            else:
+                self.cl.enqueue_fill_buffer(self.queue, buf, np.uint32(0), 0, 4)
 
     def read_counters(self) -> dict[str, int]:
-        """Every counter's value (waits for the queue's commands before it)."""
+        """Every counter's value after a run whose queue has finished (Pipeline.stream); a device
+        buffer is copied back (the copy waits for the queue's commands before it)."""
         out = {}
-        for name, buf in self._counters.items():
-            count = np.zeros(1, np.uint32)
-            self.cl.enqueue_copy(self.queue, count, buf, is_blocking=True)
-            out[name] = int(count[0])
+        for name, (buf, host) in self._counters.items():
+            if host is None:
+                host = np.zeros(1, np.uint32)
+                self.cl.enqueue_copy(self.queue, host, buf, is_blocking=True)
+            out[name] = int(host[0])
         return out
 
     def constant(self, values: np.ndarray) -> Any:
