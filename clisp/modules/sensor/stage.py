@@ -381,6 +381,7 @@ class SensorCorrect(Stage):
         self.out_scale = np.ones(n) if self.out_scale is None else np.asarray(self.out_scale, dtype=np.float64)
         self.out_offset = self.black.copy() if self.out_offset is None else np.asarray(self.out_offset, dtype=np.float64)
         self._devices: dict[int, dict[str, Any]] = {}
+        self._host: dict[str, Any] = {}             # the launches' host-side constants, made once
 
     @property
     def halo(self) -> int:
@@ -631,7 +632,12 @@ class SensorCorrect(Stage):
                     noise_a=state["noise_a"], noise_b=state["noise_b"], mask=planes["mask"], dark=planes["dark"],
                     flat=planes["flat"], terms=state["terms"], maps=state["maps"], grid=state["grid"],
                     gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], img_h=extent[0], img_w=extent[1])
-        defines = self.defines(src.dtype)
+        defines = self._host.get(src.dtype.str)
+        if defines is None:                         # once per stage object (a schedule's are reused)
+            defines = self._host[src.dtype.str] = self.defines(src.dtype)
+        lanes = self._host.get("lanes")
+        if lanes is None:
+            lanes = self._host["lanes"] = self.lane_constants()
         screening = self.test is not None or self.mask is not None
         cap = width * height                        # every pixel may be a candidate
         fix_items = max(1024, cap // CANDIDATES)
@@ -648,7 +654,7 @@ class SensorCorrect(Stage):
         groups = -(-width // LANES)
         flags = rt.acquire(1, height, groups, np.uint8) if screening else None
         rt.launch_named("sensor", "sensor_screen", groups, height,
-                        dict(args, list=candidates, lanes8=rt.constant(self.lane_constants()),
+                        dict(args, list=candidates, lanes8=rt.constant(lanes),
                              flags=flags if flags is not None else rt.constant(np.zeros(1, np.uint8))),
                         defines, exact=False)
         if flags is not None:
