@@ -72,6 +72,11 @@ class Profile:
         if transfer:
             self.moved[transfer] += int(nbytes)
 
+    def moved_without_event(self, transfer: str, nbytes: int) -> None:
+        """Count ``nbytes`` under ``transfer`` for a copy that has no event (a buffer made from a host
+        array: Runtime.upload on a CPU device)."""
+        self.moved[transfer] += int(nbytes)
+
     def enqueued(self, seconds: float) -> None:
         """Count one kernel enqueue that took ``seconds`` of host time."""
         self.enqueues += 1

@@ -485,6 +485,9 @@ class Runtime:
         height, width = array.shape[-2:]
         if self.host_is_device and self.host_unified and self._meter is None and array.size:
             flags = self.cl.mem_flags.READ_WRITE | self.cl.mem_flags.COPY_HOST_PTR
+            active = profile.active()
+            if active is not None:
+                active.moved_without_event("upload", array.nbytes)
             return DeviceImage(self.cl.Buffer(self.context, flags, hostbuf=array), channels, height, width,
                                array.dtype, capacity=array.nbytes, pooled=False)
         image = self.acquire(channels, height, width, array.dtype)
