@@ -272,6 +272,22 @@ def test_a_map_array_of_another_shape_is_refused(defective):
     assert sensor_corrections(sim.raw, opcodes=False).pre.mask is None
 
 
+def test_the_schedule_pickles_after_a_run():
+    """The memo keys pickle a schedule's stages, which every call of one camera and settings reuses:
+    the device state a run leaves on the sensor stage must not stop them (the metering kept on disk
+    was skipped from the second call of a process on)."""
+    import pickle
+    from clisp.engine.executor import _kept_metering_name
+    raw = simulate(0.4 * scene(), cfa="bayer", gain=2, seed=1).raw
+    build_pipeline(raw, preset="quality").run(raw.data)
+    schedule = build_pipeline(raw, preset="quality").schedule()
+    stage = next(st for st in schedule if isinstance(st, SensorCorrect))
+    assert stage._devices                                     # the run left its state on the shared stage
+    assert _kept_metering_name(get_runtime(), schedule, raw.data.dtype) is not None
+    again = pickle.loads(pickle.dumps(stage))
+    assert again._devices == {} and again.test == stage.test
+
+
 def test_dark_frame_scaled_by_exposure_time(defective):
     d, sim, _ = defective
     half = sd.frames(sim.raw, dataclasses.replace(d, exposure_time=0.5), "dark", 1, 4.0, 30)[0]

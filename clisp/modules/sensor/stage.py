@@ -383,6 +383,16 @@ class SensorCorrect(Stage):
         self._devices: dict[int, dict[str, Any]] = {}
         self._host: dict[str, Any] = {}             # the launches' host-side constants, made once
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Its parameters, not what a run left on it (device buffers, which do not pickle): a
+        schedule's stages, reused by every call of one camera and settings, are pickled for the
+        memo keys (executor._kept_metering_name), which were None after a first run."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_devices", "_host")}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._devices, self._host = {}, {}
+
     @property
     def halo(self) -> int:
         return HALO
