@@ -223,9 +223,9 @@ def _union(mask: np.ndarray | None, more: np.ndarray, shape: tuple[int, int]) ->
     MP). ClispError for a map of another shape."""
     more = np.asarray(more, dtype=bool)
     if more.shape != tuple(shape):
-        raise ClispError(f"a bad pixel map of {more.shape[-1]}x{more.shape[0]} for a raw of {shape[1]}x{shape[0]}"
-                         if more.ndim == 2 else f"a bad pixel map of shape {more.shape} for a raw of {shape[1]}x{shape[0]}")
-    return more.copy() if mask is None else mask | more
+        size = f"{more.shape[1]}x{more.shape[0]}" if more.ndim == 2 else f"shape {more.shape}"
+        raise ClispError(f"a bad pixel map of {size} for a raw of {shape[1]}x{shape[0]}")
+    return more if mask is None else mask | more          # never changed in place: no copy
 
 
 def _applies_to_mosaic(op: Any) -> bool:
