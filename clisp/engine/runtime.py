@@ -321,10 +321,12 @@ class Runtime:
 
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
                      defines: Mapping[str, Any] | None = None, generated: str = "",
-                     group: tuple[int, int] | None = None, x0: int = 0, exact: bool = True) -> None:
+                     group: tuple[int, int] | None = None, x0: int = 0, exact: bool = True,
+                     inward: bool = False) -> None:
         """Enqueue ``kernel_name`` of the program ``<name>.cl`` over exactly width x height outputs
         (:func:`launch_exact`; ``exact`` False: rounded up to LOCAL_SIZE, :meth:`launch`, for kernels
-        that check their bounds) with its arguments by name: ``args`` maps every parameter's name to
+        that check their bounds; ``inward``: launch_exact's one launch, for kernels that take their
+        coordinates from common.h's inward_id) with its arguments by name: ``args`` maps every parameter's name to
         its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
         Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
         name is a ClispError naming them. For example (clisp/modules/highlights/stage.py)::
@@ -353,7 +355,7 @@ class Runtime:
             missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
             raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
         if exact:
-            launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0)
+            launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0, inward=inward)
         else:
             self.launch(kernel, width, height, *values)
         if recording is not None:
@@ -824,7 +826,7 @@ Wider along x gives each vectorised work-group longer rows; 4 rows share the ver
 hybrid at 24 MP on PoCL: 39 MP/s against 31-37 for (32, 4), (64, 2), (128, 1); README.md)."""
 
 def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
-                 group: tuple[int, int] = WORK_GROUP, x0: int = 0) -> None:
+                 group: tuple[int, int] = WORK_GROUP, x0: int = 0, inward: bool = False) -> None:
     """Enqueue ``kernel`` over exactly width x height outputs without bounds checks (global ids
     along x offset by ``x0``).
 
@@ -833,8 +835,17 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     outputs with identical values). A side shorter than the group gets the largest power of two that
     fits (few distinct shapes, so few work-group compilations on PoCL). Kernels thus carry no bounds
     check and PoCL vectorises them (6-15x, measured; see clisp/modules/demosaic_lms/demosaic_lms.cl).
+
+    ``inward``: the kernel takes its coordinates from common.h's inward_id (the last work-group
+    shifted inward to end at the edge, within the kernel): one launch over whole groups covers the
+    outputs, the same work-groups as the block and strips above in one command. On PoCL each
+    command costs 10-20 us of dispatch beside its enqueue, and a ragged window otherwise takes up
+    to four (engine README).
     """
     lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(group, (width, height)))
+    if inward:
+        kernel(rt.queue, (-(-width // lx) * lx, -(-height // ly) * ly), (lx, ly), *args, global_offset=(x0, 0))
+        return
     full_w, full_h = width // lx * lx, height // ly * ly
     xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
     ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])

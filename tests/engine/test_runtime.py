@@ -395,6 +395,47 @@ def test_launch_named_orders_checks_and_converts_arguments(rt):
         rt.launch_named("layout", "interleave", 7, 5, dict(src=src, dst=dst, width=7, hieght=5), {"NCH": 3})
 
 
+INWARD_PROBE = """
+__kernel void probe(__global int *out, const int w, const int h)
+{
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
+    atomic_inc(&out[w * h + y * w + x]);                /* how many work-items reached (y, x) */
+    out[y * w + x] = y * w + x + 1;
+}
+"""
+
+
+@pytest.mark.parametrize("w, h", [(1, 1), (3, 5), (64, 4), (65, 5), (130, 9), (200, 3), (127, 130)])
+def test_an_inward_launch_is_one_command_writing_every_output_and_nothing_past_it(rt, w, h):
+    """launch_exact(inward=True) with common.h's inward_id: one command over whole work-groups; every
+    output is written with its own value, the last work-group's ids stay inside (it recomputes
+    outputs of the group before: those are reached twice per axis, the rest once), nothing past w x h is
+    touched, and the work-items reached are exactly the rounded-up launch."""
+    import pyopencl as cl
+    from clisp.engine.programs import kernel_path
+    from clisp.engine.runtime import WORK_GROUP, launch_exact
+    program = cl.Program(rt.context, kernel_path("common.h").read_text() + INWARD_PROBE).build()
+    kernel = program.probe
+    kernel.set_scalar_arg_dtypes([None, np.int32, np.int32])
+    guard = 64
+    out = np.zeros(2 * w * h + guard, np.int32)
+    buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=out)
+    commands = []
+
+    def counted(*args, **kwargs):
+        commands.append(args[1])
+        return kernel(*args, **kwargs)
+
+    launch_exact(rt, counted, w, h, buf, w, h, inward=True)
+    assert len(commands) == 1
+    cl.enqueue_copy(rt.queue, out, buf)
+    np.testing.assert_array_equal(out[:w * h], np.arange(1, w * h + 1))
+    reached = out[w * h:2 * w * h].reshape(h, w)
+    assert reached.min() >= 1 and reached.max() <= 4 and not out[2 * w * h:].any()   # twice per axis at most
+    lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(WORK_GROUP, (w, h)))
+    assert reached.sum() == -(-w // lx) * lx * -(-h // ly) * ly
+
+
 @pytest.mark.parametrize("helper", ["/nonexistent/python", "/bin/false"])
 def test_parallel_build_survives_a_helper_that_fails(tmp_path, monkeypatch, helper):
     """A helper that cannot start, or exits without building, costs only time: the runtime builds

@@ -21,3 +21,16 @@ inline int cfa_channel(__constant const char *pattern, const int y, const int x)
 inline int at_l(const int y, const int x) { return ((x + y + L_PAR) & 1) == 0; }
 inline int at_s(const int y, const int x) { return ((y + S_Y) & 1) == 0 && ((x - y + S_D) & 3) == 0; }
 #endif
+
+/* The output coordinate along dimension dim of a kernel launched with whole work-groups past the
+ * edge (clisp.engine.runtime.launch_exact, inward=True): the global id, the last work-group shifted
+ * inward to end at last (its work-items past the edge recompute outputs of the group before and
+ * store the values it stores: Halide's ShiftInwards tail, within one launch). Local id plus a value
+ * uniform over the work-group, so the loads of neighbouring work-items stay consecutive and PoCL
+ * vectorises them (a per-item min(id, last) made them gathers: RI 2x slower). Needs at least one
+ * work-group of outputs (launch_exact's group rule). */
+inline int inward_id(const uint dim, const int last)
+{
+    const int size = (int)get_local_size(dim);
+    return (int)get_local_id(dim) + min((int)(get_global_offset(dim) + get_group_id(dim) * size), last + 1 - size);
+}

@@ -3,7 +3,8 @@
  * names); host side: stage.py; schedule and measurements: README.md.
  *
  * Conventions (the project's tiling contract: valid-only windows, no borders, no bounds checks):
- *  - Every kernel writes exactly the launched w x h (planar: plane p at p w h) and reads each input
+ *  - Every kernel writes exactly w x h outputs (planar: plane p at p w h), launched inward (one
+ *    launch over whole work-groups, the last shifted to end at the edge: common.h) and reads each input
  *    v through its pitch v_w (elements per row), its plane size v_plane where it has several
  *    planes, and its margin v_m: output pixel (y, x) lies at (y + v_m, x + v_m) of v.
  *  - The mosaic is read as RAW_T and multiplied by RI_SCALE (255) on load, so that the reference's
@@ -47,7 +48,7 @@ __kernel void ri_green_fit(__global const RAW_T *restrict raw, const int raw_w, 
                            __global float *restrict out, const int w, const int h, const int ry, const int rx,
                            const int along_x, const int swap, const int base)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int c = (y + raw_m) * raw_w + x + raw_m, s = along_x ? 1 : raw_w;
     /* G parity of the window's first pixel; it alternates along the line */
     const int green0 = along_x ? ri_is_green(y, x - RI_LINE_R, ry, rx) : ri_is_green(y - RI_LINE_R, x, ry, rx);
@@ -91,7 +92,7 @@ __kernel void ri_green_apply(__global const RAW_T *restrict raw, const int raw_w
                              const int ry, const int rx, const int along_x, const int swap, const int base,
                              const int out_plane)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int f = (y + fits_m) * fits_w + x + fits_m, sf = along_x ? 1 : fits_w;
     __global const float *aw = fits + base * fits_plane, *bw = aw + fits_plane, *ww = bw + fits_plane;
     float sa = 0.0f, sb = 0.0f, sw = 0.0f;
@@ -118,7 +119,7 @@ __kernel void ri_green_residual(__global const RAW_T *restrict raw, const int ra
                                 const int ry, const int rx, const int along_x, const int base,
                                 const int out_plane)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int c = (y + raw_m) * raw_w + x + raw_m, s = along_x ? 1 : raw_w;
     const int t = base * tent_plane + (y + tent_m) * tent_w + x + tent_m, st = along_x ? 1 : tent_w;
     const int g = ri_is_green(y, x, ry, rx);
@@ -153,7 +154,7 @@ __kernel void ri_green_merge(__global const RAW_T *restrict raw, const int raw_w
                              const int dif_m, __global float *restrict out, const int w, const int h,
                              const int ry, const int rx)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int a = (y + dif_m) * dif_w + x + dif_m;
     __global const float *dh = dif, *dv = dif + dif_plane;
     const float d_w = ri_gradient_sum(dh, a - 1, 1, dif_w), d_e = ri_gradient_sum(dh, a + 1, 1, dif_w);
@@ -183,7 +184,7 @@ __kernel void ri_chroma_laplacians(__global const RAW_T *restrict raw, const int
                                    __global float *restrict out, const int w, const int h, const int ry,
                                    const int rx)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int ga = (y + g_m) * g_w + x + g_m, ra = (y + raw_m) * raw_w + x + raw_m;
     out[y * w + x] = 4.0f * g[ga] - g[ga - 2] - g[ga + 2] - g[ga - 2 * g_w] - g[ga + 2 * g_w];
     out[w * h + y * w + x] = 4.0f * RAW(raw, ra) - RAW(raw, ra - 2) - RAW(raw, ra + 2) - RAW(raw, ra - 2 * raw_w)
@@ -196,7 +197,7 @@ __kernel void ri_chroma_apply(__global const float *restrict fits, const int fit
                               const int fits_m, __global const float *restrict g, const int g_w, const int g_m,
                               __global float *restrict out, const int w, const int h)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     /* scalar sums (an array indexed in the unrolled loop took PoCL 10 s to compile) */
     float ar = 0.0f, br = 0.0f, wr = 0.0f, ab = 0.0f, bb = 0.0f, wb = 0.0f;
     __global const float *f = fits + (y + fits_m) * fits_w + x + fits_m;
@@ -227,7 +228,7 @@ __kernel void ri_complete_rgb(__global const RAW_T *restrict raw, const int raw_
                               __global float *restrict out, const int w, const int h, const int ry,
                               const int rx, __constant float *m)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int t = (y + tent_m) * tent_w + x + tent_m, r = (y + raw_m) * raw_w + x + raw_m;
     float res_r = 0.0f, res_b = 0.0f;
 #pragma unroll

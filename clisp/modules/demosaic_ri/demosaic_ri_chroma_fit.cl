@@ -31,7 +31,7 @@ __kernel void ri_chroma_fit(__global const RAW_T *restrict raw, const int raw_w,
                             const int sy, const int sx, const int base, const float reg_shot,
                             const float reg_floor)
 {
-    const int x = 2 * get_global_id(0) + sx, y = 2 * get_global_id(1) + sy;
+    const int x = 2 * inward_id(0, (w - 1 - sx) / 2) + sx, y = 2 * inward_id(1, (h - 1 - sy) / 2) + sy;
     const int ra = (y + raw_m) * raw_w + x + raw_m;
     const float cx = RAW(raw, ra + RI_OFF_Y * raw_w + RI_OFF_X);     /* the colour's sample next to the centre */
     const float cg = g[(y + g_m) * g_w + x + g_m];

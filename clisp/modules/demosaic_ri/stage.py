@@ -145,7 +145,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
             args = {"out": out, "w": out.width, "h": out.height, **args}
             if mosaic:
                 args.update(raw=src, raw_w=src.width, raw_m=m, ry=ry, rx=rx)
-            rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines)
+            rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines, inward=True)
 
         def planes(name: str, img: DeviceImage, margin: int) -> dict[str, object]:
             """An input image's arguments: buffer, pitch, plane size and margin around the output."""
@@ -217,4 +217,4 @@ class DemosaicRI(FusedColourMatrix, Stage):
                         continue
                     defines = chroma_fit_defines(src.dtype, (sy + py) % 2, (sx + px) % 2)
                     rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", n_x, n_y,
-                                    {**args, "sy": sy, "sx": sx, "base": base}, defines)
+                                    {**args, "sy": sy, "sx": sx, "base": base}, defines, inward=True)
