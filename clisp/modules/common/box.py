@@ -39,13 +39,14 @@ def enqueue_box(rt: Runtime, src: DeviceImage, ry: int, rx: int, scale: float = 
     if rx:
         dst = rt.acquire(c, h, w - 2 * rx)
         rt.launch_named("box", "box_rows", w - 2 * rx, c * h,
-                        dict(src=cur, dst=dst, in_w=w, out_w=w - 2 * rx, scale=1.0 if ry else scale),
-                        {"BOX_R": int(rx)})
+                        dict(src=cur, dst=dst, in_w=w, out_w=w - 2 * rx, scale=1.0 if ry else scale, rows=c * h),
+                        {"BOX_R": int(rx)}, inward=True)
         cur, w = dst, w - 2 * rx
     if ry:
         dst = rt.acquire(c, h - 2 * ry, w)
         rt.launch_named("box", "box_cols", w, c * (h - 2 * ry),
-                        dict(src=cur, dst=dst, w=w, in_h=h, out_h=h - 2 * ry, scale=scale), {"BOX_R": int(ry)})
+                        dict(src=cur, dst=dst, w=w, in_h=h, out_h=h - 2 * ry, scale=scale, rows=c * (h - 2 * ry)),
+                        {"BOX_R": int(ry)}, inward=True)
         if cur is not src:
             rt.release(cur)
         cur = dst

@@ -54,8 +54,8 @@ __kernel void gf_ab_strip(__global const float *restrict guide, __global const f
                           const int oy, const int ox, const float eps0, const float shot, const float floor_,
                           const float shot2, const float floor2)
 {
-    const int x = get_global_id(0);
-    const int y_s = (int)get_global_id(1) * GF_STRIP, y0 = y_s < out_h - GF_STRIP ? y_s : out_h - GF_STRIP;
+    const int x = inward_id(0, out_w - 1);                 /* one command: common.h */
+    const int y_s = inward_id(1, (out_h - 1) / GF_STRIP) * GF_STRIP, y0 = y_s < out_h - GF_STRIP ? y_s : out_h - GF_STRIP;
     float rn[GF_FITS][GF_NR], r1[GF_FITS][GF_NR], r2[GF_FITS][GF_NR], rv[GF_FITS][GF_NR], rdv[GF_FITS][GF_NR];
     float rc[GF_NR];
     const int plane = out_w * out_h;
@@ -129,8 +129,8 @@ __kernel void gf_apply_strip(__global const float *restrict ab, __global const f
                              const int g_w, const int g_off, const int out_w, const int out_h, const int d_base,
                              const int d_base2)
 {
-    const int x = get_global_id(0);
-    const int y_s = (int)get_global_id(1) * GF_APPLY_STRIP;
+    const int x = inward_id(0, out_w - 1);                 /* one command: common.h */
+    const int y_s = inward_id(1, (out_h - 1) / GF_APPLY_STRIP) * GF_APPLY_STRIP;
     const int y0 = y_s < out_h - GF_APPLY_STRIP ? y_s : out_h - GF_APPLY_STRIP;
     const int plane = ab_w * ab_h;
     const float inv = 1.0f / (float)((2 * GF_R + 1) * (2 * GF_R + 1));

@@ -211,7 +211,7 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     rt.launch_named("guided_filter", "gf_ab_strip", ab_w, -(-ab_h // strip), dict(
         guide=guide, v=v, ab=ab, chi_rows=chi, chi_w=w, g_base=_plane_base(guide, g_plane), g_w=guide.width,
         g_off=g_off, v_w=v.width, v_off=v_off, out_w=ab_w, out_h=ab_h, oy=origin[0] + shift[0], ox=ox, eps0=eps0,
-        shot=noises[0][0], floor_=noises[0][1], shot2=n2[0], floor2=n2[1]), defines)
+        shot=noises[0][0], floor_=noises[0][1], shot2=n2[0], floor2=n2[1]), defines, inward=True)
     dsts = []
     for out in outs:
         dst, plane = (rt.acquire(1, q_h, q_w), 0) if out is None else out
@@ -223,6 +223,6 @@ def _enqueue_fits(rt: Runtime, own: tuple[int, int], origin: tuple[int, int], sh
     rt.launch_named("guided_filter", "gf_apply_strip", q_w, -(-q_h // apply_strip), dict(
         ab=ab, guide=guide, dst=d1, dst2=d2, ab_w=ab_w, ab_h=ab_h, g_base=_plane_base(guide, g_plane),
         g_w=guide.width, g_off=g_off, out_w=q_w, out_h=q_h, d_base=_plane_base(d1, p1), d_base2=_plane_base(d2, p2)),
-        defines)
+        defines, inward=True)
     rt.release(ab)
     return [d for d, _ in dsts]

@@ -68,10 +68,10 @@ __attribute__((always_inline)) inline float d_offcentre(__global const float *re
 /* l_guide: I0 = p at L sites; 2 sum_{t != 0} D[t] p(. + t) elsewhere (the off-centre taps of D land
  * on L sites only: the L quincunx interpolated); D's weights are D_SUM's literals (d is unread). R = 4. */
 __kernel void l_guide(__global const float *restrict p, __global float *restrict dst, const int in_w, const int out_w,
-                      const int oy, const int ox, __constant const float *restrict d)
+                      const int oy, const int ox, __constant const float *restrict d, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *c = p + (y + D_RADIUS) * in_w + (x + D_RADIUS);
     const float acc = d_offcentre(c, in_w);
     dst[y * out_w + x] = at_l(y + D_RADIUS + oy, x + D_RADIUS + ox) ? c[0] : 2.0f * acc;
@@ -80,10 +80,10 @@ __kernel void l_guide(__global const float *restrict p, __global float *restrict
 /* m_keep: dst = p on the kernel's window (p on a window larger by p_off): the L/M quincunx m outside
  * the S sites, which m_at_s_combine then fills in. R = 0. */
 __kernel void m_keep(__global const float *restrict p, __global float *restrict dst, const int p_w, const int p_off,
-                     const int out_w)
+                     const int out_w, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     dst[y * out_w + x] = p[(y + p_off) * p_w + x + p_off];
 }
 
@@ -225,10 +225,10 @@ __kernel void m_at_s_combine_dir(__global const float *restrict p, __global cons
 
 /* lum_lowpass: ylp = D * m (D: centre 1/2 plus the off-centre taps, D_SUM; d is unread). R = 4. */
 __kernel void lum_lowpass(__global const float *restrict m, __global float *restrict dst, const int in_w, const int out_w,
-                          const int oy, const int ox, __constant const float *restrict d)
+                          const int oy, const int ox, __constant const float *restrict d, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *c = m + (y + D_RADIUS) * in_w + (x + D_RADIUS);
     const float acc = d_offcentre(c, in_w);
     /* two bitwise-equal forms (scaling by 2 is exact) selected by the lattice: PoCL then vectorises
@@ -243,10 +243,10 @@ __kernel void lum_lowpass(__global const float *restrict m, __global float *rest
  * no lattice test per tap. R = 2. */
 __kernel void chroma_input(__global const float *restrict m, __global const float *restrict ylp, __global float *restrict dst,
                            const int in_w, const int m_w, const int out_w, const int oy, const int ox,
-                           __constant const float *restrict b5)
+                           __constant const float *restrict b5, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *mc = m + (y + D_RADIUS + PRE_RADIUS) * m_w + x + D_RADIUS + PRE_RADIUS;
     __global const float *lc = ylp + (y + PRE_RADIUS) * in_w + x + PRE_RADIUS;
 #define P(dy, dx) (mc[(dy) * m_w + (dx)] - lc[(dy) * in_w + (dx)])
@@ -258,20 +258,22 @@ __kernel void chroma_input(__global const float *restrict m, __global const floa
 /* chroma_guide: dst = ylp + lambda cin on cin's window (ylp's larger by PRE = 2): the chroma
  * filter's colour-aware guide (LMSGuidedParams.chroma_guide). R = 0. */
 __kernel void chroma_guide(__global const float *restrict ylp, __global const float *restrict cin,
-                           __global float *restrict dst, const int ylp_w, const int out_w, const float lambda)
+                           __global float *restrict dst, const int ylp_w, const int out_w, const float lambda,
+                           const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     dst[y * out_w + x] = ylp[(y + PRE_RADIUS) * ylp_w + x + PRE_RADIUS] + lambda * cin[y * out_w + x];
 }
 
 /* keep_luminance: y = m - c mod (every sample kept: L - c at L sites, M + c elsewhere); c on the
  * kernel's window, m on a window larger by m_off. R = 0. */
 __kernel void keep_luminance(__global const float *restrict m, __global const float *restrict c, __global float *restrict dst,
-                             const int m_w, const int m_off, const int out_w, const int oy, const int ox)
+                             const int m_w, const int m_off, const int out_w, const int oy, const int ox,
+                             const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     dst[y * out_w + x] = m[(y + m_off) * m_w + x + m_off] - c[y * out_w + x] * mod_f(y + oy, x + ox);
 }
 
@@ -286,8 +288,8 @@ __kernel void lm_energy(__global const float *restrict m, __global const float *
                         const int out_w, const int out_h, const int oy, const int ox,
                         const float chroma_neutral, __constant const float *restrict bp_w)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int i = y * out_w + x;
     __global const float *lc = ylp + (y + l_off) * l_w + x + l_off;
     const float lk = lc[0];
@@ -326,8 +328,8 @@ __kernel void lm_output(__global const float *restrict m, __global const float *
                         const float lum_shot, const float lum_floor, const float chroma_neutral,
                         const float alias_c, const float alias_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int yc = y + COMBINE_RADIUS, xc = x + COMBINE_RADIUS, ic = yc * in_w + xc;
     const int il = (yc + l_off) * l_w + xc + l_off;
     const int im = (yc + m_off) * m_w + xc + m_off;
@@ -368,10 +370,10 @@ __kernel void lm_output(__global const float *restrict m, __global const float *
  * window (width in_w; p on a window larger by p_off). One lattice test per pixel instead of one per
  * tap in s_output. R = 0. */
 __kernel void s_residual(__global const float *restrict p, __global const float *restrict g, __global float *restrict dst, const int in_w,
-                         const int p_w, const int p_off, const int oy, const int ox)
+                         const int p_w, const int p_off, const int oy, const int ox, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, in_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int i = y * in_w + x;
     dst[i] = at_s(y + oy, x + ox) ? p[(y + p_off) * p_w + x + p_off] - g[i] : 0.0f;
 }
@@ -388,8 +390,8 @@ __kernel void s_output(__global const float *restrict rs, __global const float *
                        const int lm_h, const int lm_off, const int out_w, const int out_h, const int oy,
                        __constant const float *restrict tent, const float shot_s, const float floor_s)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int yc = y + RI_RADIUS, xc = x + RI_RADIUS;
     __global const float *rc = rs + yc * in_w + xc;
     __global const float *lr = lat + ((yc + oy) & 3) * in_w + xc;
@@ -428,8 +430,8 @@ __kernel void s_output(__global const float *restrict rs, __global const float *
 __kernel void s_tone_energy(__global const float *restrict lms, __global float *restrict dst, const int in_w, const int in_h,
                             const int out_w, const int out_h, __constant const float *restrict hp)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int plane = in_w * in_h, ic = (y + COMBINE_RADIUS) * in_w + x + COMBINE_RADIUS;
     float hx = 0.0f, hy = 0.0f, mean = 0.0f;
     #pragma unroll
@@ -461,8 +463,8 @@ __kernel void s_alias(__global const float *restrict lms, __global const float *
                       const int lm_off, const int rows_w, const int rows_h, const int out_w, const int out_h,
                       const float s_from_m, const float alias_s, const float alias_st)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int plane = in_w * in_h, ic = (y + S_ALIAS_RADIUS) * in_w + x + S_ALIAS_RADIUS;
     float s2 = 0.0f;
     #pragma unroll

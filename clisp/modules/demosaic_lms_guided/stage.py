@@ -619,21 +619,22 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
 
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object) -> None:
         """Enqueue ``kernel_name`` of clisp/modules/demosaic_lms_guided/demosaic_lms_guided.cl over exactly width x height outputs
-        (``runtime.launch_exact``)."""
+        (``runtime.launch_exact``, one command: the kernels take their coordinates from common.h's inward_id
+        or check them)."""
         kernel = rt.kernel("demosaic_lms_guided", kernel_name, self.defines(), self.generated_source())
-        launch_exact(rt, kernel, width, height, *args)
+        launch_exact(rt, kernel, width, height, *args, inward=True)
 
     def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object]) -> None:
         """Enqueue ``kernel_name`` with its arguments by name (``Runtime.launch_named``)."""
         rt.launch_named("demosaic_lms_guided", kernel_name, width, height, args, self.defines(),
-                        self.generated_source())
+                        self.generated_source(), inward=True)
 
     def enqueue_l_guide(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int]) -> DeviceImage:
         """I0 on p's window shrunk by D_RADIUS."""
         h, w = p.height - 2 * D_RADIUS, p.width - 2 * D_RADIUS
         dst = rt.acquire(1, h, w)
         self._launch(rt, "l_guide", w, h, p.buffer, dst.buffer, i32(p.width), i32(w), *self._origin(origin),
-                     rt.constant(as_f32(_weights(D9, centre=False))))
+                     rt.constant(as_f32(_weights(D9, centre=False))), i32(h))
         return dst
 
     def enqueue_m_at_s(self, rt: Runtime, p: DeviceImage, origin: tuple[int, int], guide: DeviceImage,
@@ -649,7 +650,8 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         o_fit = o_guide + 2 * r
         h, w = fits[0].height - 2 * COMBINE_RADIUS, fits[0].width - 2 * COMBINE_RADIUS
         dst = rt.acquire(1, h, w)
-        self._launch(rt, "m_keep", w, h, p.buffer, dst.buffer, i32(p.width), i32(o_fit + COMBINE_RADIUS), i32(w))
+        self._launch(rt, "m_keep", w, h, p.buffer, dst.buffer, i32(p.width), i32(o_fit + COMBINE_RADIUS), i32(w),
+                     i32(h))
         oy, ox = self._origin((origin[0] + o_fit, origin[1] + o_fit))
         args = dict(p=p, mfit=fits[0], sfit=fits[1], dst=dst, in_w=fits[0].width, p_w=p.width, p_off=o_fit,
                     out_w=w, out_h=h, oy=oy, ox=ox, shot_m=noise.shot[self.ch_m], floor_m=noise.floor[self.ch_m],
@@ -680,18 +682,18 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         h, w = m.height - 2 * D_RADIUS, m.width - 2 * D_RADIUS
         ylp = rt.acquire(1, h, w)
         self._launch(rt, "lum_lowpass", w, h, m.buffer, ylp.buffer, i32(m.width), i32(w), *self._origin(m_origin),
-                     rt.constant(as_f32(_weights(D9, centre=False))))
+                     rt.constant(as_f32(_weights(D9, centre=False))), i32(h))
         y_origin = (m_origin[0] + D_RADIUS, m_origin[1] + D_RADIUS)
         hc, wc = h - 2 * PRE_RADIUS, w - 2 * PRE_RADIUS
         cin = rt.acquire(1, hc, wc)
         self._launch(rt, "chroma_input", wc, hc, m.buffer, ylp.buffer, cin.buffer, i32(w), i32(m.width), i32(wc),
-                     *self._origin(y_origin), rt.constant(as_f32(B5)))
+                     *self._origin(y_origin), rt.constant(as_f32(B5)), i32(hc))
         c_origin = (y_origin[0] + PRE_RADIUS, y_origin[1] + PRE_RADIUS)
         guide, g_off = ylp, PRE_RADIUS
         if self.guide_lambda:                             # ylp + lambda cin on cin's window
             guide, g_off = rt.acquire(1, hc, wc), 0
             self._launch(rt, "chroma_guide", wc, hc, ylp.buffer, cin.buffer, guide.buffer, i32(w), i32(wc),
-                         f32(self.guide_lambda))
+                         f32(self.guide_lambda), i32(hc))
         c = enqueue_guided_filter(rt, (hc, wc), c_origin, self.shift, guide, g_off, cin, 0, r, MASK_ALL,
                                   prm.chroma_eps, self._chroma_noise(self.pixel_noise), True)
         if guide is not ylp:
@@ -704,7 +706,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         """y = m - c mod on c's window (m's larger by m_off)."""
         dst = rt.acquire(1, c.height, c.width)
         self._launch(rt, "keep_luminance", c.width, c.height, m.buffer, c.buffer, dst.buffer, i32(m.width),
-                     i32(m_off), i32(c.width), *self._origin(c_origin))
+                     i32(m_off), i32(c.width), *self._origin(c_origin), i32(c.height))
         return dst
 
     def enqueue_s_output(self, rt: Runtime, src: DeviceImage, origin: tuple[int, int], g: DeviceImage, o_g: int,
@@ -717,7 +719,7 @@ class DemosaicLMSGuided(NoiseFromRaw, Stage):
         res = rt.acquire(1, g.height, g.width)
         oy_g, ox_g = self._origin((origin[0] + o_g, origin[1] + o_g))
         self._launch(rt, "s_residual", g.width, g.height, src.buffer, g.buffer, res.buffer, i32(g.width),
-                     i32(src.width), i32(o_g), oy_g, ox_g)
+                     i32(src.width), i32(o_g), oy_g, ox_g, i32(g.height))
         self._launch_named(rt, "s_output", out_w, out_h, dict(
             rs=res, g=g, lm=lm, dst=lms, lat=rt.constant(s_output_lattice(g.width, int(ox_g))), in_w=g.width,
             lm_w=lm.width, lm_h=lm.height, lm_off=lm_off, out_w=out_w, out_h=out_h, oy=oy_g,
