@@ -2,6 +2,8 @@
 in the kernels, ``LATTICE``)."""
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ...cfa import CFA
@@ -55,38 +57,58 @@ def diamond_halfband(radius: int = 4, exact_halfband: bool = True) -> np.ndarray
 def check_lms_structure(cfa: CFA, what: str = "LMS demosaic") -> tuple[int, int, int]:
     """(L, M, S) channel indices after checking the neighbourhood step A relies on (docs/model.md section 1):
     around every S site the 4-neighbours are L, the diagonals and (0, +-2), (+-2, 0) are M, the
-    (+-2, +-2) are S; L and M+S fill the two quincunxes."""
+    (+-2, +-2) are S; L and M+S fill the two quincunxes. The check is memoised per pattern (every
+    build of a pipeline asks it twice)."""
     if cfa.layout != "lms":     # the layout (clisp.cfa): channels 0, 1, 2 on 1/2, 3/8, 1/8 of the pixels
         raise ClispError(f"the {what} needs an LMS CFA, got {cfa.name}")
+    problem = _lms_structure_problem(cfa._pattern_bytes, cfa.period)
+    if problem:
+        raise ClispError(f"CFA {cfa.name}: {problem}")
+    return 0, 1, 2
+
+
+@lru_cache(maxsize=64)
+def _lms_structure_problem(pattern: bytes, p: int) -> str:
+    """What check_lms_structure finds wrong with the (p, p) int8 pattern (its bytes) whose channels
+    0, 1, 2 are L, M, S; '' when nothing."""
     ch_l, ch_m, ch_s = 0, 1, 2
-    p = cfa.period
-    pat = cfa.pattern
+    pat = np.frombuffer(pattern, dtype=np.int8).reshape(p, p)
     want = {ch_l: [(0, 1), (0, -1), (1, 0), (-1, 0)],
             ch_m: [(1, 1), (1, -1), (-1, 1), (-1, -1), (0, 2), (0, -2), (2, 0), (-2, 0)],
             ch_s: [(2, 2), (2, -2), (-2, 2), (-2, -2)]}
     for y, x in np.argwhere(pat == ch_s):
         for c, offsets in want.items():
             if any(pat[(y + dy) % p, (x + dx) % p] != c for dy, dx in offsets):
-                raise ClispError(f"CFA {cfa.name}: S-site neighbourhood differs from the paper's LMS CFA")
+                return "S-site neighbourhood differs from the paper's LMS CFA"
     yy, xx = np.mgrid[0:p, 0:p]
     is_l = pat == ch_l
     if not (np.all(is_l == ((yy + xx) % 2 == 0)) or np.all(is_l == ((yy + xx) % 2 == 1))):
-        raise ClispError(f"CFA {cfa.name}: L does not fill a quincunx")
-    return ch_l, ch_m, ch_s
+        return "L does not fill a quincunx"
+    return ""
 
 
 def lattice_shift(cfa: CFA, ch_l: int, ch_s: int) -> tuple[int, int]:
     """(ty, tx) with channel(y, x) = base tile at (y + ty, x + tx) for every pixel, where the base tile
     is LATTICE's; every CFA that passes check_lms_structure is such a translate (docs/model.md section 1, "Phase")."""
-    yy, xx = np.mgrid[0:cfa.period, 0:cfa.period]
+    shift = _lattice_shift(cfa._pattern_bytes, cfa.period, ch_l, ch_s)
+    if shift is None:
+        raise ClispError(f"CFA {cfa.name}: not a translate of the paper's LMS tile")
+    return shift
+
+
+@lru_cache(maxsize=64)
+def _lattice_shift(pattern: bytes, p: int, ch_l: int, ch_s: int) -> tuple[int, int] | None:
+    """lattice_shift of the (p, p) int8 pattern (its bytes); None when it is no translate."""
+    pat = np.frombuffer(pattern, dtype=np.int8).reshape(p, p)
+    yy, xx = np.mgrid[0:p, 0:p]
     for ty in range(4):
         for tx in range(4):
             y, x = yy + ty, xx + tx
             is_l = (x + y + LATTICE["L_PAR"]) % 2 == 0
             is_s = ((y + LATTICE["S_Y"]) % 2 == 0) & ((x - y + LATTICE["S_D"]) % 4 == 0)
-            if np.array_equal(is_l, cfa.pattern == ch_l) and np.array_equal(is_s, cfa.pattern == ch_s):
+            if np.array_equal(is_l, pat == ch_l) and np.array_equal(is_s, pat == ch_s):
                 return ty, tx
-    raise ClispError(f"CFA {cfa.name}: not a translate of the paper's LMS tile")
+    return None
 
 
 def valid(a: np.ndarray, r: int, dy: int = 0, dx: int = 0) -> np.ndarray:
