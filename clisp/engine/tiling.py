@@ -306,6 +306,8 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
     rows and columns) as one block copy, the padded border rows and columns by fancy indexing.
     Copying each border line as its own slice cost 19 ms for a 0.26 MP window with a 71 px halo
     (every mirrored row times every mirrored column a slice) against 1 ms with a 1 px halo.
+    A border row the window's interior already holds (a mirror of a row near the image's edge, when
+    the interior reaches it) is copied from the window, whole, its border columns included.
     ``out``: a len(rows) x len(cols) array of ``data``'s dtype to fill instead of a new one (a
     reused buffer spares the new pages' faults). ``runs``: the rows' and columns' longest runs
     (:func:`_longest_run`) where the caller has them."""
@@ -322,7 +324,12 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
     if edge_cols.size:
         window[dy:dy + ny, edge_cols] = data[sy:sy + ny, cols[edge_cols]]
     for a, b in ((0, dy), (dy + ny, shape[0])):            # the border rows above and below, whole
-        if b > a:
+        if b <= a:
+            continue
+        src = rows[a:b] - sy
+        if src.min() >= 0 and src.max() < ny:               # rows the window holds already: copied
+            window[a:b] = window[dy + src]                   # from it (0.26 MP, 67 px halo: 88 -> 14 us)
+        else:
             window[a:b] = data[rows[a:b]][:, cols]
     return window
 
