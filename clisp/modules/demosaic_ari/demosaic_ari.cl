@@ -6,8 +6,8 @@
  * Conventions (the project's tiling contract: valid-only windows, no borders, no bounds checks):
  *  - Data are in 8-bit units (the host scales the mosaic by 255 once, ari_scale), so the reference's
  *    constants apply unchanged (the defines ARI_EPS, ARI_RMSE_FLOOR, ARI_WEIGHT_REG, ARI_CRIT_REG).
- *  - Every kernel writes an image of exactly the launched w x h (planar: plane p at p w h; parameters
- *    out, w, h) and reads its inputs through "views": an input v is the parameters v (the buffer),
+ *  - Every kernel writes an image of exactly w x h (planar: plane p at p w h; parameters out, w, h),
+ *    launched in one command (its coordinates from common.h's inward_id), and reads its inputs through "views": an input v is the parameters v (the buffer),
  *    v_base (the element of v that lies at output pixel (0, 0)), v_pitch (elements per row) and, for
  *    several planes, v_plane (elements per plane), so input pixel (y + dy, x + dx) of plane p is
  *    v[v_base + p v_plane + (y + dy) v_pitch + x + dx]. The host launches every kernel by these names,
@@ -73,9 +73,9 @@ __attribute__((always_inline)) inline void ari_fit_values(const float a, const f
 /* ari_scale: out = src * scale (the mosaic in 8-bit units). Halo 0. */
 #ifdef ARI_WITH_ari_scale
 __kernel void ari_scale(__global const float *restrict src, const int src_base, const int src_pitch,
-                        __global float *restrict out, const int w, const float scale)
+                        __global float *restrict out, const int w, const int h, const float scale)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     out[y * w + x] = src[src_base + y * src_pitch + x] * scale;
 }
 #endif
@@ -87,7 +87,7 @@ __kernel void ari_green_start(__global const float *restrict raw, const int raw_
                               __global float *restrict out, const int w, const int h, const int sy, const int sx,
                               const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int at = raw_base + y * raw_pitch + x, s = sy * raw_pitch + sx;
     const float v = raw[at], m = 0.5f * raw[at - s] + 0.5f * raw[at + s];
     const int g = ari_is_green(y, x, py, px);
@@ -109,7 +109,7 @@ __kernel void ari_along_moments(__global const float *restrict xs, const int xs_
                                 __global const float *restrict ys, const int ys_base, const int ys_pitch,
                                 __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
 #if ARI_DIR == 0
     const int xs_step = 1, ys_step = 1;
 #else
@@ -233,7 +233,7 @@ __kernel void ari_across_coefficients(__global const float *restrict rows, const
                                       __global float *restrict out, const int out_base, const int w, const int h,
                                       const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const float cx = xs[xs_base + y * xs_pitch + x], cy = ys[ys_base + y * ys_pitch + x];
 #if ARI_DIR == 0
     const int line_step = rows_pitch, xstep = xs_pitch, ystep = ys_pitch;
@@ -349,7 +349,7 @@ __kernel void ari_box_apply(__global const float *restrict coef, const int coef_
                             __global const float *restrict ys, const int ys_base, const int ys_pitch,
                             __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
 #if ARI_DIR == 0
     const int step = coef_pitch;
 #else
@@ -397,7 +397,7 @@ __kernel void ari_green_residual(__global const float *restrict raw, const int r
                                  __global float *restrict out, const int w, const int h, const int sy, const int sx,
                                  const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int ra = raw_base + y * raw_pitch + x, ga = tg_base + y * tg_pitch + x;
     const int ca = tc_base + y * tc_pitch + x;
     const int rs = sy * raw_pitch + sx, gs = sy * tg_pitch + sx, cs = sy * tc_pitch + sx;
@@ -423,7 +423,7 @@ __kernel void ari_err_terms(__global const float *restrict u1, const int u1_base
                             __global const float *restrict t2, const int t2_base, const int t2_pitch,
                             __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     float e1[3], e2[3];
 #pragma unroll
     for (int k = -1; k <= 1; ++k) {
@@ -450,7 +450,7 @@ __kernel void ari_gauss_x(__global const float *restrict src, const int src_base
                           __global float *restrict out, const int w, const int h, const float k0, const float k1,
                           const float k2, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     __global const float *s0 = src + src_base + y * src_pitch + x, *s1 = s0 + src_plane;
     out[y * w + x] = k2 * (s0[-2] + s0[2]) + k1 * (s0[-1] + s0[1]) + k0 * s0[0];
     out[w * h + y * w + x] = k2 * (s1[-2] + s1[2]) + k1 * (s1[-1] + s1[1]) + k0 * s1[0];
@@ -472,7 +472,7 @@ __kernel void ari_gauss_y(__global const float *restrict src, const int src_base
                           __global float *restrict out, const int w, const int h, const float k0, const float k1,
                           const float k2, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     __global const float *s0 = src + src_base + y * src_pitch + x, *s1 = s0 + src_plane;
     float a0 = k2 * (s0[-2 * src_pitch] + s0[2 * src_pitch]) + k1 * (s0[-src_pitch] + s0[src_pitch]) + k0 * s0[0];
     float a1 = k2 * (s1[-2 * src_pitch] + s1[2 * src_pitch]) + k1 * (s1[-src_pitch] + s1[src_pitch]) + k0 * s1[0];
@@ -502,7 +502,7 @@ __kernel void ari_select(__global const float *restrict crit, const int crit_bas
                          const int prev_plane,
                          __global float *restrict out, const int w, const int h, const int first)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int ci = crit_base + y * crit_pitch + x;
     const float c = crit[ci], g = crit[crit_plane + ci];
     const float cr = fmax(c * c * g, ARI_CRIT_FLOOR);
@@ -540,9 +540,9 @@ __kernel void ari_select(__global const float *restrict crit, const int crit_bas
 #ifdef ARI_WITH_ari_green_merge
 __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_EST_ARGS(3),
                               __global const float *restrict raw, const int raw_base, const int raw_pitch,
-                              __global float *restrict out, const int w, const int py, const int px)
+                              __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     ARI_MEAN4(g, 0)
     out[y * w + x] = ari_is_green(y, x, py, px) ? raw[raw_base + y * raw_pitch + x] : g;
 }
@@ -552,10 +552,10 @@ __kernel void ari_green_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2),
  * ? src : 0; out = ARI_TARGET sites ? mean of v at the two neighbours along d : v. Halo 1 along d. */
 #ifdef ARI_WITH_ari_chroma_start
 __kernel void ari_chroma_start(__global const float *restrict src, const int src_base, const int src_pitch,
-                               __global float *restrict out, const int w, const int sy, const int sx, const int py,
-                               const int px)
+                               __global float *restrict out, const int w, const int h, const int sy, const int sx,
+                               const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int at = src_base + y * src_pitch + x, s = sy * src_pitch + sx;
     const float vm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * src[at - s];
     const float vp = ari_site(ARI_KNOWN, y + sy, x + sx, py, px) * src[at + s];
@@ -570,10 +570,10 @@ __kernel void ari_chroma_start(__global const float *restrict src, const int src
 #ifdef ARI_WITH_ari_chroma_residual
 __kernel void ari_chroma_residual(__global const float *restrict src, const int src_base, const int src_pitch,
                                   __global const float *restrict t, const int t_base, const int t_pitch,
-                                  __global float *restrict out, const int w, const int sy, const int sx, const int py,
-                                  const int px)
+                                  __global float *restrict out, const int w, const int h, const int sy, const int sx,
+                                  const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     const int at = src_base + y * src_pitch + x, s = sy * src_pitch + sx;
     const int ta = t_base + y * t_pitch + x, st = sy * t_pitch + sx;
     const float rm = ari_site(ARI_KNOWN, y - sy, x - sx, py, px) * (src[at - s] - t[ta - st]);
@@ -593,7 +593,7 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
                                     __global const float *restrict ys, const int ys_base, const int ys_pitch,
                                     __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     __global const float *xc = xs + xs_base + y * xs_pitch + x, *yc = ys + ys_base + y * ys_pitch + x;
     const float cx = xc[0], cy = yc[0];
     const float m = ari_site(SITE_C, y, x, py, px);
@@ -652,9 +652,9 @@ __kernel void ari_diag_coefficients(__global const float *restrict xs, const int
 __kernel void ari_diag_apply(__global const float *restrict coef, const int coef_base, const int coef_pitch,
                              const int coef_plane,
                              __global const float *restrict xs, const int xs_base, const int xs_pitch,
-                             __global float *restrict out, const int w)
+                             __global float *restrict out, const int w, const int h)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     __global const float *k = coef + coef_base + y * coef_pitch + x;
     float a = 0.0f, b = 0.0f, wt = 0.0f;
 #pragma unroll
@@ -678,7 +678,7 @@ __kernel void ari_rb_merge(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), AR
                            __global const float *restrict raw, const int raw_base, const int raw_pitch,
                            __global float *restrict out, const int w, const int h, const int py, const int px)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     ARI_MEAN4(r_at_b, 0)
     ARI_MEAN4(b_at_r, 1)
     const float v = raw[raw_base + y * raw_pitch + x];
@@ -700,7 +700,7 @@ __kernel void ari_final(ARI_EST_ARGS(0), ARI_EST_ARGS(1), ARI_EST_ARGS(2), ARI_E
                         __global float *restrict out, const int w, const int h, const int py, const int px,
                         const float scale, const int plane_r, const int plane_g, const int plane_b)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
+    const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
     ARI_MEAN4(r_at_g, 0)
     ARI_MEAN4(b_at_g, 1)
     const int g_site = ari_is_green(y, x, py, px);

@@ -178,9 +178,10 @@ def _estimates(ests: list[_View], my: int, mx: int) -> dict[str, object]:
     return args
 
 
-def _output(image: DeviceImage, height: bool = True) -> dict[str, object]:
-    """A kernel's output arguments: ``out``, its width ``w`` and (``height``) height ``h``."""
-    return {"out": image, "w": image.width, **({"h": image.height} if height else {})}
+def _output(image: DeviceImage) -> dict[str, object]:
+    """A kernel's output arguments: ``out``, its width ``w`` and height ``h`` (the kernels take their
+    coordinates from common.h's inward_id: one command per launch)."""
+    return {"out": image, "w": image.width, "h": image.height}
 
 
 class _Chain:
@@ -204,7 +205,7 @@ class _Chain:
         """Enqueue ``kernel_name`` of demosaic_ari.cl, compiled with ``modes``, over exactly the pixels
         of ``out`` (one plane), its arguments by name (Runtime.launch_named checks them)."""
         self.rt.launch_named("demosaic_ari", kernel_name, out.width, out.height, args,
-                             program_defines(kernel_name, modes))
+                             program_defines(kernel_name, modes), inward=True)
 
     def release(self, *images: DeviceImage | None) -> None:
         """Return the images (None: skipped) to the pool."""
@@ -276,7 +277,7 @@ class DemosaicARI(Stage):
         r_site = PHASES[phase]
         c = _Chain(rt, src.height, src.width, r_site)
         raw_img = c.new(1, 0, 0)
-        c.launch("ari_scale", raw_img, {**_View(src, 0, 0).named("src", 0, 0), **_output(raw_img, height=False),
+        c.launch("ari_scale", raw_img, {**_View(src, 0, 0).named("src", 0, 0), **_output(raw_img),
                                         "scale": SCALE})
         raw = _View(raw_img, 0, 0)
 
@@ -387,7 +388,7 @@ class DemosaicARI(Stage):
         m = max(my, mx)
         out = c.new(1, m, m)
         c.launch("ari_green_merge", out, {**_estimates(ests, m, m), **raw.named("raw", m, m),
-                                          **_output(out, height=False), **c.parity(m, m)})
+                                          **_output(out), **c.parity(m, m)})
         return _View(out, m, m)
 
     # -- steps 2 and 3 -----------------------------------------------------------------------
@@ -402,7 +403,7 @@ class DemosaicARI(Stage):
             my, mx = _margin([src], abs(sy), abs(sx))
             img = c.new(1, my, mx)
             c.launch("ari_chroma_start", img, {**src.named("src", my, mx, abs(sy), abs(sx)),
-                                               **_output(img, height=False), "sy": sy, "sx": sx,
+                                               **_output(img), "sy": sy, "sx": sx,
                                                **c.parity(my, mx)},
                      ARI_KNOWN=known, ARI_TARGET=target)
             cur.append(_View(img, my, mx))
@@ -416,7 +417,7 @@ class DemosaicARI(Stage):
                 new = c.new(1, ny, nx)
                 c.launch("ari_chroma_residual", new, {
                     **src.named("src", ny, nx, abs(sy), abs(sx)), **t.named("t", ny, nx, abs(sy), abs(sx)),
-                    **_output(new, height=False), "sy": sy, "sx": sx, **c.parity(ny, nx)},
+                    **_output(new), "sy": sy, "sx": sx, **c.parity(ny, nx)},
                     ARI_KNOWN=known, ARI_TARGET=target)
                 news.append(_View(new, ny, nx))
             crit = self._criterion(c, [(cur[0], ts[0]), (cur[1], ts[1])], d, diagonal)
@@ -443,7 +444,7 @@ class DemosaicARI(Stage):
         t = c.new(1, my + r, mx + r)
         cv = _View(coef, my, mx)
         c.launch("ari_diag_apply", t, {**cv.named("coef", my + r, mx + r, r, r, planes=True),
-                                       **guide.named("xs", my + r, mx + r), **_output(t, height=False)},
+                                       **guide.named("xs", my + r, mx + r), **_output(t)},
                  ARI_P=p, ARI_Q=q)
         c.release(coef)
         return _View(t, my + r, mx + r)

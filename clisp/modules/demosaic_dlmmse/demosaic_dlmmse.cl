@@ -37,8 +37,8 @@ __constant float smooth_weights[2 * SMOOTH_RADIUS + 1] = SMOOTH_WEIGHTS;
 __kernel void dlmmse_directional_differences(__global const RAW_T *restrict raw, __global float *restrict diff,
                                              const int raw_w, const int out_w, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const RAW_T *centre = raw + (y + INTERP_RADIUS) * raw_w + x + INTERP_RADIUS;
     float f_h = 0.0f, f_v = 0.0f;
     #pragma unroll
@@ -58,8 +58,8 @@ __kernel void dlmmse_directional_differences(__global const RAW_T *restrict raw,
 __kernel void dlmmse_smooth(__global const float *restrict diff, __global float *restrict smoothed,
                             const int in_w, const int in_h, const int out_w, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int at = (y + SMOOTH_RADIUS) * in_w + x + SMOOTH_RADIUS;
     __global const float *d_h = diff + at;
     __global const float *d_v = diff + in_w * in_h + at;
@@ -111,8 +111,8 @@ __kernel void dlmmse_lmmse_fuse(__global const float *restrict smoothed, __globa
                                 __global float *restrict delta, const int s_w, const int s_h,
                                 const int d_w, const int d_h, const int out_w, const int out_h)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int s_at = (y + WINDOW_RADIUS) * s_w + x + WINDOW_RADIUS;
     const int d_at = (y + 2 * WINDOW_RADIUS) * d_w + x + 2 * WINDOW_RADIUS;
     const float2 h = lmmse_direction(smoothed + s_at, diff + d_at, 1, 1);            /* (u_H, e_H) */
@@ -149,8 +149,8 @@ __kernel void dlmmse_complete_rgb(__global const RAW_T *restrict raw, __global c
                                   __global float *restrict out, const int raw_w, const int delta_w,
                                   const int out_w, const int out_h, __constant const float *restrict m)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int raw_offset = (raw_w - out_w) / 2;
     const float cfa = (float)raw[(y + raw_offset) * raw_w + x + raw_offset];
     const int w = delta_w, dy = y + FILL_RADIUS, dx = x + FILL_RADIUS;

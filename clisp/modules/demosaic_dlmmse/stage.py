@@ -244,20 +244,20 @@ class DemosaicDLMMSE(FusedColourMatrix, Stage):
         i32 = np.int32
         kernel, diff = step("directional_differences", src, 2)                # d_H, d_V
         launch_exact(rt, kernel, diff.width, diff.height,
-                  src.buffer, diff.buffer, i32(src.width), i32(diff.width), i32(diff.height))
+                  src.buffer, diff.buffer, i32(src.width), i32(diff.width), i32(diff.height), inward=True)
         kernel, smoothed = step("smooth", diff, 2)                             # s_H, s_V
         launch_exact(rt, kernel, smoothed.width, smoothed.height, diff.buffer, smoothed.buffer,
-                  i32(diff.width), i32(diff.height), i32(smoothed.width), i32(smoothed.height))
+                  i32(diff.width), i32(diff.height), i32(smoothed.width), i32(smoothed.height), inward=True)
         kernel, delta = step("lmmse_fuse", smoothed, 1)                        # G - X at R/B sites
         launch_exact(rt, kernel, delta.width, delta.height, smoothed.buffer, diff.buffer, delta.buffer,
                   i32(smoothed.width), i32(smoothed.height), i32(diff.width), i32(diff.height),
-                  i32(delta.width), i32(delta.height))
+                  i32(delta.width), i32(delta.height), inward=True)
         rt.release(smoothed)
         rt.release(diff)
         kernel, rgb = step("complete_rgb", delta, 3)
         launch_exact(rt, kernel, rgb.width, rgb.height, src.buffer, delta.buffer, rgb.buffer,
                   i32(src.width), i32(delta.width), i32(rgb.width), i32(rgb.height),
-                  rt.constant(as_f32(matrix)))
+                  rt.constant(as_f32(matrix)), inward=True)
         rt.release(delta)
         rgb.interleaved = self.interleaved
         return rgb

@@ -41,8 +41,8 @@ __kernel void m_at_s(__global const float *restrict p, __global float *restrict 
                      const float eps0, const float eps_sigma, const float s_detail,
                      const float shot_m, const float floor_m)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *c = p + (y + 2) * in_w + (x + 2);
     const float centre = c[0];
 #define P(dy, dx) c[(dy) * in_w + (dx)]
@@ -90,8 +90,8 @@ __kernel void m_at_s(__global const float *restrict p, __global float *restrict 
 __kernel void luma_lowpass(__global const float *restrict m, __global float *restrict lum, const int in_w, const int out_w,
                            const int out_h, __constant const float *restrict weight)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *c = m + (y + LUM_R) * in_w + (x + LUM_R);
     float acc = 0.0f;
 #define X(dy, dx, t) acc += weight[t] * c[(dy) * in_w + (dx)];
@@ -110,8 +110,8 @@ __kernel void chroma_demodulate_rows(__global const float *restrict m, __global 
                                      const int oy, const int ox, __constant const char *restrict pattern,
                                      __constant const float *restrict g)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int yy = y + at_y, xx = x + at_x;
     __global const float *lc = lum + yy * lum_w + xx;
     __global const float *mc = m + (yy + LUM_R) * m_w + (xx + LUM_R);
@@ -133,8 +133,8 @@ __kernel void lm_combine(__global const float *restrict lum, __global const floa
                          const int lum_w, const int rows_w, const int out_w, const int out_h,
                          const int at_y, const int at_x, __constant const float *restrict g)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     __global const float *rc = rows + (y + CHROMA_R) * rows_w + x;
     float chr = 0.0f;
     #pragma unroll
@@ -161,8 +161,8 @@ __kernel void s_joint_bilateral(__global const float *restrict lum, __global con
                                 const float sr_min, const float ratio_floor, const float lum_shot,
                                 const float lum_floor)
 {
-    const int x = get_global_id(0);
-    const int y = get_global_id(1);
+    const int x = inward_id(0, out_w - 1);
+    const int y = inward_id(1, out_h - 1);
     const int phase = cfa_phase(y + oy, x + ox);
     __constant const int2 *s = site + phase * MAX_SITES;
     __constant const float *sw = site_w + phase * MAX_SITES;

@@ -377,13 +377,15 @@ class DemosaicLMSHybrid(NoiseFromRaw, Stage):
 
     def _launch(self, rt: Runtime, kernel_name: str, width: int, height: int, *args: object) -> None:
         """Enqueue ``kernel_name`` of clisp/modules/demosaic_lms/demosaic_lms.cl over exactly width x height outputs
-        (``runtime.launch_exact``: no bounds checks in the kernels)."""
+        (``runtime.launch_exact``: no bounds checks in the kernels, one command: their coordinates from
+        common.h's inward_id)."""
         kernel = rt.kernel("demosaic_lms", kernel_name, self.defines(), self.generated_source())
-        launch_exact(rt, kernel, width, height, *args)
+        launch_exact(rt, kernel, width, height, *args, inward=True)
 
     def _launch_named(self, rt: Runtime, kernel_name: str, width: int, height: int, args: dict[str, object]) -> None:
         """Enqueue ``kernel_name`` with its arguments by name (``Runtime.launch_named``)."""
-        rt.launch_named("demosaic_lms", kernel_name, width, height, args, self.defines(), self.generated_source())
+        rt.launch_named("demosaic_lms", kernel_name, width, height, args, self.defines(), self.generated_source(),
+                        inward=True)
 
     def _noise_args(self, channel: int) -> tuple[np.float32, np.float32]:
         """(shot, floor) of ``channel`` as kernel arguments."""
