@@ -134,6 +134,19 @@ class Parameter:
         return value if scalar is None else scalar(value)
 
 
+def _conversions(params: tuple[Parameter, ...]) -> tuple[tuple[int, ...], tuple[tuple[int, Any, bool], ...]]:
+    """(indices of the pointer parameters, (index, NumPy type, whether a Python int passes as it is)
+    of the typed scalars): Parameter.convert's work split by kind, so that a launch by name does it
+    inline. An integer parameter takes a Python int as it is (the kernel's scalar types are set, so
+    pyopencl packs it as that type, with the range check NumPy's conversion makes); a float one
+    converts every value (a finite value beyond float32's range becomes inf there, where packing it
+    would raise)."""
+    pointers = tuple(i for i, p in enumerate(params) if p.pointer)
+    scalars = tuple((i, SCALARS[p.type_name], np.dtype(SCALARS[p.type_name]).kind in "iu")
+                    for i, p in enumerate(params) if not p.pointer and p.type_name in SCALARS)
+    return pointers, scalars
+
+
 @dataclass
 class DeviceImage:
     """A planar float32 (or raw-typed) image on the device: ``channels`` planes of ``height x width``."""
@@ -345,12 +358,19 @@ class Runtime:
         if launcher is None:                     # resolved once per program, defines and kernel
             params = self.signature(name, kernel_name, defines, generated)
             launcher = self._launchers[key] = (self.kernel(name, kernel_name, defines, generated),
-                                               tuple(p.name for p in params), tuple(p.convert for p in params))
-        kernel, names, converts = launcher
+                                               tuple(p.name for p in params), *_conversions(params))
+        kernel, names, pointers, scalars = launcher
         try:
-            values = [convert(args[n]) for n, convert in zip(names, converts)]
+            values = [args[n] for n in names]
         except KeyError:
             values = None
+        if values is not None:                   # Parameter.convert, inline (a quality call has 500 arguments)
+            for i in pointers:
+                if type(values[i]) is DeviceImage:
+                    values[i] = values[i].buffer
+            for i, scalar, takes_int in scalars:
+                if not (takes_int and type(values[i]) is int):
+                    values[i] = scalar(values[i])
         if values is None or len(args) != len(names):
             missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
             raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
@@ -842,7 +862,7 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     command costs 10-20 us of dispatch beside its enqueue, and a ragged window otherwise takes up
     to four (engine README).
     """
-    lx, ly = (min(g, 1 << (n.bit_length() - 1)) for g, n in zip(group, (width, height)))
+    lx, ly = min(group[0], 1 << (width.bit_length() - 1)), min(group[1], 1 << (height.bit_length() - 1))
     if inward:
         kernel(rt.queue, (-(-width // lx) * lx, -(-height // ly) * ly), (lx, ly), *args, global_offset=(x0, 0))
         return

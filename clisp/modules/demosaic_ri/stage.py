@@ -32,6 +32,9 @@ Example: a flat mosaic stays flat::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Mapping
+from functools import cached_property, lru_cache
+from types import MappingProxyType
 from itertools import accumulate
 
 import numpy as np
@@ -45,20 +48,25 @@ from ..demosaic_ari.reference import EPS, MLRI_FLOOR, RMSE_FLOOR, SCALE, WEIGHT_
 from ..demosaic_malvar.stage import channel_order, check_bayer
 from .reference import CHROMA_NOISE_K, CHROMA_RADIUS, HALO, LINE_RADIUS, MERGE_REG, STEP_RADII, demosaic, smooth_taps
 
-def program_defines(raw_dtype: np.dtype, interleaved: bool) -> dict[str, object]:
+
+@lru_cache(maxsize=16)
+def program_defines(raw_dtype: np.dtype, interleaved: bool) -> Mapping[str, object]:
     """The defines of demosaic_ri.cl: the reference's constants (8-bit units) and radii, the input
-    type and the output layout."""
+    type and the output layout (read-only; memoised: asked at every window)."""
     taps = "{" + ",".join(f"{float(v)!r}f" for v in smooth_taps()) + "}"
-    return {"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_EPS": EPS, "RI_RMSE_FLOOR": RMSE_FLOOR,
-            "RI_WEIGHT_REG": WEIGHT_REG, "RI_MERGE_REG": MERGE_REG, "RI_LINE_R": LINE_RADIUS,
-            "RI_CHROMA_R": CHROMA_RADIUS, "RI_SMOOTH": taps, "INTERLEAVED": int(interleaved)}
+    return MappingProxyType({"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_EPS": EPS,
+                             "RI_RMSE_FLOOR": RMSE_FLOOR, "RI_WEIGHT_REG": WEIGHT_REG, "RI_MERGE_REG": MERGE_REG,
+                             "RI_LINE_R": LINE_RADIUS, "RI_CHROMA_R": CHROMA_RADIUS, "RI_SMOOTH": taps,
+                             "INTERLEAVED": int(interleaved)})
 
 
-def chroma_fit_defines(raw_dtype: np.dtype, off_y: int, off_x: int) -> dict[str, object]:
+@lru_cache(maxsize=64)
+def chroma_fit_defines(raw_dtype: np.dtype, off_y: int, off_x: int) -> Mapping[str, object]:
     """The defines of demosaic_ri_chroma_fit.cl for one pixel class: its offsets (0 or 1) to the
-    fitted colour's rows and columns, the constants and the window radius."""
-    return {"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_RMSE_FLOOR": RMSE_FLOOR,
-            "RI_MLRI_FLOOR": MLRI_FLOOR, "RI_CHROMA_R": CHROMA_RADIUS, "RI_OFF_Y": off_y, "RI_OFF_X": off_x}
+    fitted colour's rows and columns, the constants and the window radius (read-only; memoised)."""
+    return MappingProxyType({"RAW_T": raw_type(raw_dtype), "RI_SCALE": SCALE, "RI_RMSE_FLOOR": RMSE_FLOOR,
+                             "RI_MLRI_FLOOR": MLRI_FLOOR, "RI_CHROMA_R": CHROMA_RADIUS, "RI_OFF_Y": off_y,
+                             "RI_OFF_X": off_x})
 
 
 def raw_type(dtype: np.dtype) -> str:
@@ -119,8 +127,13 @@ class DemosaicRI(FusedColourMatrix, Stage):
     def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
         pixel (y, x) is an R site when y + ry and x + rx are even."""
-        y0, x0 = self.cfa.first_site(self.cfa.bayer_roles[0])    # the R role (CFA.bayer_roles): R, L or M
+        y0, x0 = self.r_site
         return (origin[0] + margin - y0) % 2, (origin[1] + margin - x0) % 2
+
+    @cached_property
+    def r_site(self) -> tuple[int, int]:
+        """The first site of the R role (CFA.bayer_roles: R, L or M) in the CFA's tile (asked per launch)."""
+        return self.cfa.first_site(self.cfa.bayer_roles[0])
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
         out = demosaic(np.asarray(x, dtype=np.float64), self.cfa.role_cfa().channel_map(2, 2, (0, 0)), origin,
