@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from collections.abc import Mapping
-from functools import cached_property, lru_cache
+from functools import lru_cache
 from types import MappingProxyType
 from itertools import accumulate
 
@@ -124,15 +124,16 @@ class DemosaicRI(FusedColourMatrix, Stage):
         (test_device_memory_within_declared)."""
         return 4.0 * 24
 
-    def r_parity(self, origin: tuple[int, int], margin: int) -> tuple[int, int]:
+    def r_parity(self, origin: tuple[int, int], margin: int,
+                 site: tuple[int, int] | None = None) -> tuple[int, int]:
         """(ry, rx) of the kernels for an output grid ``margin`` inside a window at ``origin``: its
-        pixel (y, x) is an R site when y + ry and x + rx are even."""
-        y0, x0 = self.r_site
+        pixel (y, x) is an R site when y + ry and x + rx are even. ``site``: :meth:`r_site`, where the
+        caller has it (a window asks 15 times; kept off the stage, whose pickle is a memo key)."""
+        y0, x0 = self.r_site() if site is None else site
         return (origin[0] + margin - y0) % 2, (origin[1] + margin - x0) % 2
 
-    @cached_property
     def r_site(self) -> tuple[int, int]:
-        """The first site of the R role (CFA.bayer_roles: R, L or M) in the CFA's tile (asked per launch)."""
+        """The first site of the R role (CFA.bayer_roles: R, L or M) in the CFA's tile."""
         return self.cfa.first_site(self.cfa.bayer_roles[0])
 
     def reference(self, x: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
@@ -145,6 +146,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
         defines = program_defines(src.dtype, self.interleaved)
         matrix = self.output_matrix() @ self.cfa.role_matrix()       # roles to channel order, then the matrix
         margins = dict(zip(STEP_RADII, accumulate(STEP_RADII.values())))   # step -> its output's margin
+        site = self.r_site()
 
         def image(step: str, prev: DeviceImage, channels: int) -> DeviceImage:
             r = STEP_RADII[step]
@@ -154,7 +156,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
             """Launch ri_<step> over ``out`` with ``args``, the output and (``mosaic``) the mosaic
             and the site parities of the step's grid."""
             m = margins[step]
-            ry, rx = self.r_parity(origin, m)
+            ry, rx = self.r_parity(origin, m, site)
             args = {"out": out, "w": out.width, "h": out.height, **args}
             if mosaic:
                 args.update(raw=src, raw_w=src.width, raw_m=m, ry=ry, rx=rx)
@@ -214,7 +216,7 @@ class DemosaicRI(FusedColourMatrix, Stage):
         the output grid, R then B: a class's offsets to the colour's lattice are compile-time
         (RI_OFF_Y, RI_OFF_X: four small programs), one launch covers its pixels (2 gy + sy, 2 gx + sx)."""
         m = margins["chroma_fit"]
-        ry, rx = self.r_parity(origin, m)                # R rows: y + ry even
+        ry, rx = self.r_parity(origin, m, self.r_site())  # R rows: y + ry even
         shot, floor = self.green_noise()
         k = CHROMA_NOISE_K * 20.0
         args = {"reg_shot": k * shot * SCALE, "reg_floor": k * floor * SCALE * SCALE,
