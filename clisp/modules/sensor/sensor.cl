@@ -291,20 +291,35 @@ __kernel void sensor_compact(__global const uchar *restrict flags, __global uint
     }
 }
 
-/* sensor_edges: appends every output pixel of the rectangle (y0, x0, rows, cols) to ``list`` (the
- * window's pixels inside the image within 2 of its edge, stage.edge_strips: sensor_fix tests them
- * with the neighbours inside the image only; pixels beyond the image are not tested, sensor_mirror
- * pads them). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one atomic for them (an
- * atomic per pixel cost as much as the screen), bounds checked. */
-__kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
-                           const int width, const int y0, const int x0, const int rows, const int cols)
+/* The rectangle of a launch over stacked rectangles (stage.stacked): ``strips`` holds n of them as
+ * (y0, x0, rows, cols, first), their rows stacked along the launch's y from row ``first``. Row g of
+ * the launch is row *y of rectangle k (the return value); *y >= its rows past the last one. */
+inline int stacked_strip(__constant const int *strips, const int n, const int g, int *y)
 {
-    const int xs = get_global_id(0) * SC_EDGE_RUN, y = get_global_id(1);
-    if (xs >= cols || y >= rows)
+    int k = 0;
+    for (int s = 1; s < n; s++)
+        k += g >= strips[5 * s + 4];
+    *y = g - strips[5 * k + 4];
+    return k;
+}
+
+/* sensor_edges: appends every output pixel of the rectangles (stage.edge_strips, stacked:
+ * stacked_strip) to ``list`` (the window's pixels inside the image within 2 of its edge:
+ * sensor_fix tests them with the neighbours inside the image only; pixels beyond the image are not
+ * tested, sensor_mirror pads them). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
+ * atomic for them (an atomic per pixel cost as much as the screen), bounds checked; one launch for
+ * every rectangle (a launch per rectangle cost PoCL's dispatch four times). */
+__kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
+                           const int width, __constant const int *restrict strips, const int n_strips)
+{
+    int y;
+    const int r = stacked_strip(strips, n_strips, get_global_id(1), &y);
+    const int xs = get_global_id(0) * SC_EDGE_RUN, cols = strips[5 * r + 3];
+    if (xs >= cols || y >= strips[5 * r + 2])
         return;
     const int m = min(SC_EDGE_RUN, cols - xs);
     const uint k = atomic_add(count, (uint)m);
-    const uint p = (uint)((y0 + y) * width + x0 + xs);
+    const uint p = (uint)((strips[5 * r] + y) * width + strips[5 * r + 1] + xs);
     for (int j = 0; j < m; j++)
         if (k + j < cap)
             list[k + j] = p + j;
@@ -467,21 +482,23 @@ __kernel void sensor_fix(SC_ARGS, __global const uint *restrict list, __global c
     }
 }
 
-/* sensor_mirror: the window's output pixels beyond the image, the rectangle (y0, x0, rows, cols)
- * (stage.beyond_strips), take the output at their CFA-mirror source (cfa_mirror, as the tile
+/* sensor_mirror: the window's output pixels beyond the image, the rectangles of stage.beyond_strips
+ * of one width (stacked: stacked_strip), take the output at their CFA-mirror source (cfa_mirror, as the tile
  * windows are padded): the corrected image padded, which is what a later stage's halo reads of a
  * whole corrected image. A mirrored copy is never tested itself: with half its neighbours missing
  * it was taken for a defect across any edge near the image's border. A source outside the window
  * (a window less than a CFA period deep inside the image) leaves the pixel as it is. Halo 0; the
  * sources are inside the image, which no work-item writes. */
 __kernel void sensor_mirror(__global float *restrict dst, const int width, const int height, const int oy,
-                            const int ox, const int img_h, const int img_w, const int y0, const int x0,
-                            const int rows, const int cols)
+                            const int ox, const int img_h, const int img_w, __constant const int *restrict strips,
+                            const int n_strips)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= cols || y >= rows)
+    int y;
+    const int r = stacked_strip(strips, n_strips, get_global_id(1), &y);
+    const int x = get_global_id(0);
+    if (x >= strips[5 * r + 3] || y >= strips[5 * r + 2])
         return;
-    const int yo = y0 + y, xo = x0 + x;
+    const int yo = strips[5 * r] + y, xo = strips[5 * r + 1] + x;
     const int sy = cfa_mirror(yo + SC_HALO + oy, img_h, CFA_PERIOD) - SC_HALO - oy;
     const int sx = cfa_mirror(xo + SC_HALO + ox, img_w, CFA_PERIOD) - SC_HALO - ox;
     if (sy >= 0 && sy < height && sx >= 0 && sx < width)

@@ -673,19 +673,20 @@ class SensorCorrect(Stage):
                 oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
             held.append(flags)
         if screening:                               # the search's edge pixels, or known bad ones there
-            for y0, x0, rows, cols in edge_strips(origin, width, height, extent):
-                rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(list=candidates, count=count, cap=cap,
-                                width=width, y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
+            for table, cols, rows in stacked(edge_strips(origin, width, height, extent), by_width=False):
+                rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(
+                    list=candidates, count=count, cap=cap, width=width, strips=rt.constant(table),
+                    n_strips=len(table)), defines, exact=False)
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
                 pairs_n=state["pairs_n"], wb=state["wb"],
                 found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
-        for y0, x0, rows, cols in (beyond_strips(origin, width, height, extent)      # the corrected image, padded
-                                   if image_extent(origin) is not None else []):
+        beyond = beyond_strips(origin, width, height, extent) if image_extent(origin) is not None else []
+        for table, cols, rows in stacked(beyond, by_width=True):              # the corrected image, padded
             rt.launch_named("sensor", "sensor_mirror", cols, rows, dict(
                 dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0],
-                img_w=extent[1], y0=y0, x0=x0, rows=rows, cols=cols), defines, exact=False)
+                img_w=extent[1], strips=rt.constant(table), n_strips=len(table)), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
@@ -773,6 +774,30 @@ def beyond_strips(origin: tuple[int, int], width: int, height: int,
             out.append((top, 0, bottom - top, left))
         if right < width:
             out.append((top, right, bottom - top, width - right))
+    return out
+
+
+def stacked(strips: list[tuple[int, int, int, int]], by_width: bool) -> list[tuple[np.ndarray, int, int]]:
+    """The rectangles (y0, x0, rows, cols) as launches over their rows stacked along y (sensor.cl's
+    stacked_strip): per launch its table, n x 5 int32 (y0, x0, rows, cols, first stacked row), and
+    its extent (the widest cols, the rows summed). ``by_width``: one launch per run of rectangles of
+    one width (beyond_strips' rows, then its columns: a launch as wide as the widest would mostly
+    idle); else one launch for all (edge_strips, two pixels deep).
+
+    >>> [(t.tolist(), c, r) for t, c, r in stacked([(0, 0, 2, 10), (6, 0, 2, 10), (2, 0, 4, 2)], True)]
+    [([[0, 0, 2, 10, 0], [6, 0, 2, 10, 2]], 10, 4), ([[2, 0, 4, 2, 0]], 2, 4)]
+    """
+    groups: list[list[tuple[int, int, int, int]]] = []
+    for strip in strips:
+        if groups and (not by_width or groups[-1][-1][3] == strip[3]):
+            groups[-1].append(strip)
+        else:
+            groups.append([strip])
+    out = []
+    for group in groups:
+        firsts = np.cumsum([0] + [rows for _, _, rows, _ in group])
+        table = np.array([(*strip, first) for strip, first in zip(group, firsts[:-1])], dtype=np.int32)
+        out.append((table, max(cols for *_, cols in group), int(firsts[-1])))
     return out
 
 
