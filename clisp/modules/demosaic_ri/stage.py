@@ -31,11 +31,11 @@ Example: a flat mosaic stays flat::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from functools import lru_cache
-from types import MappingProxyType
 from itertools import accumulate
+from types import MappingProxyType
 
 import numpy as np
 
