@@ -157,6 +157,10 @@ LANE_ROWS = 7
 FOUND = "sensor_found"
 """The Runtime.counter sensor_fix counts the pixels the auto test finds into (RunStats.counts)."""
 
+STRIP_MEMO = 64
+"""Windows whose strip launches a sensor stage object keeps (SensorCorrect._strips): a 24 MP run has
+6-12 windows; past this many the memo starts over."""
+
 CANDIDATES = 8
 """sensor_fix runs one work-item per CANDIDATES pixels of a window, each taking every so-many-th
 entry of the candidates list (the screen passes about 1-5 % of a textured mosaic's pixels at gain
@@ -381,17 +385,18 @@ class SensorCorrect(Stage):
         self.out_scale = np.ones(n) if self.out_scale is None else np.asarray(self.out_scale, dtype=np.float64)
         self.out_offset = self.black.copy() if self.out_offset is None else np.asarray(self.out_offset, dtype=np.float64)
         self._devices: dict[int, dict[str, Any]] = {}
-        self._host: dict[str, Any] = {}             # the launches' host-side constants, made once
+        self._host: dict[Any, Any] = {}             # the launches' host-side constants, made once
+        self._strip_memo: dict[Any, Any] = {}        # per window: the strip launches (_strips)
 
     def __getstate__(self) -> dict[str, Any]:
         """Its parameters, not what a run left on it (device buffers, which do not pickle): a
         schedule's stages, reused by every call of one camera and settings, are pickled for the
         memo keys (executor._kept_metering_name), which were None after a first run."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_devices", "_host")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_devices", "_host", "_strip_memo")}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        self._devices, self._host = {}, {}
+        self._devices, self._host, self._strip_memo = {}, {}, {}
 
     @property
     def halo(self) -> int:
@@ -609,6 +614,52 @@ class SensorCorrect(Stage):
             self._devices[id(rt)] = state
         return state
 
+    def _constants(self, rt: Runtime, state: dict[str, Any]) -> dict[str, Any]:
+        """The kernels' arguments that no window changes (the channel constants, the tables), made
+        once per runtime and kept on this stage object (its out_scale and out_offset are its own: a
+        fused copy shares the device state, not these); not kept while metering."""
+        key = ("constants", id(rt))
+        constants = self._host.get(key)
+        if constants is None:
+            constants = dict(pattern=rt.constant(self.cfa.pattern), black=rt.constant(as_f32(self.black)),
+                             inv_range=rt.constant(as_f32(1.0 / (self.white - self.black))),
+                             out_scale=rt.constant(as_f32(self.out_scale)),
+                             out_offset=rt.constant(as_f32(self.out_offset)),
+                             **{k: state[k] for k in ("noise_a", "noise_b", "terms", "maps", "grid", "gh", "gw",
+                                                      "inv_cell")})
+            if not _metering(rt):
+                self._host[key] = constants
+        return constants
+
+    def _strips(self, rt: Runtime, origin: tuple[int, int], width: int, height: int,
+                extent: tuple[int, int]) -> tuple[list[tuple[Any, int, int, int]], list[tuple[Any, int, int, int]]]:
+        """The launches of sensor_edges and sensor_mirror for an output window of ``width`` x
+        ``height`` at ``origin`` in an image of ``extent``: per launch its strip table on the
+        device, the table's rows, the launch's columns and rows (:func:`stacked`). Kept per window
+        on this stage object (a run's windows repeat call after call; at most STRIP_MEMO of them)."""
+        key = (id(rt), origin[:2], width, height, extent)
+        launches = self._strip_memo.get(key)
+        if launches is None:
+            beyond = beyond_strips(origin, width, height, extent) if image_extent(origin) is not None else []
+            launches = tuple([(rt.constant(table), len(table), cols, rows) for table, cols, rows in stacked(strips, by_width)]
+                             for strips, by_width in ((edge_strips(origin, width, height, extent), False),
+                                                      (beyond, True)))
+            if not _metering(rt):
+                if len(self._strip_memo) >= STRIP_MEMO:
+                    self._strip_memo.clear()
+                self._strip_memo[key] = launches
+        return launches
+
+    def _lanes(self, rt: Runtime) -> Any:
+        """sensor_screen's lane constants (:meth:`lane_constants`) on the device, kept as :meth:`_constants`."""
+        key = ("lanes8", id(rt))
+        lanes = self._host.get(key)
+        if lanes is None:
+            lanes = rt.constant(self.lane_constants())
+            if not _metering(rt):
+                self._host[key] = lanes
+        return lanes
+
     def _window(self, rt: Runtime, state: dict[str, Any], key: str, origin: tuple[int, int], src: DeviceImage,
                 dtype: Any) -> tuple[Any, list[DeviceImage]]:
         """The window of plane ``key`` matching ``src`` (a device gather where the device reads the
@@ -635,27 +686,18 @@ class SensorCorrect(Stage):
         for key, dtype in (("mask", np.uint16), ("dark", np.float32), ("flat", np.float32)):
             planes[key], extra = self._window(rt, state, key, origin, src, dtype)
             held += extra
-        args = dict(src=src, dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]),
-                    pattern=rt.constant(self.cfa.pattern), black=rt.constant(as_f32(self.black)),
-                    inv_range=rt.constant(as_f32(1.0 / (self.white - self.black))),
-                    out_scale=rt.constant(as_f32(self.out_scale)), out_offset=rt.constant(as_f32(self.out_offset)),
-                    noise_a=state["noise_a"], noise_b=state["noise_b"], mask=planes["mask"], dark=planes["dark"],
-                    flat=planes["flat"], terms=state["terms"], maps=state["maps"], grid=state["grid"],
-                    gh=state["gh"], gw=state["gw"], inv_cell=state["inv_cell"], img_h=extent[0], img_w=extent[1])
+        args = dict(self._constants(rt, state), src=src, dst=dst, width=width, height=height, oy=int(origin[0]),
+                    ox=int(origin[1]), mask=planes["mask"], dark=planes["dark"], flat=planes["flat"],
+                    img_h=extent[0], img_w=extent[1])
         defines = self._host.get(src.dtype.str)
         if defines is None:                         # once per stage object (a schedule's are reused)
             defines = self._host[src.dtype.str] = self.defines(src.dtype)
-        lanes = self._host.get("lanes")
-        if lanes is None:
-            lanes = self._host["lanes"] = self.lane_constants()
         screening = self.test is not None or self.mask is not None
         cap = width * height                        # every pixel may be a candidate
         fix_items = max(1024, cap // CANDIDATES)
         if screening:
-            count = rt.acquire(1, 1, 1, np.uint32)
+            count = rt.zeroed(1)                    # on a CPU device no command: see Runtime.zeroed
             candidates = rt.acquire(1, 1, cap, np.uint32)
-            if not _metering(rt):
-                rt.cl.enqueue_fill_buffer(rt.queue, count.buffer, np.uint32(0), 0, 4)
             args.update(count=count, cap=cap)
             held += [count, candidates]
         else:
@@ -664,7 +706,7 @@ class SensorCorrect(Stage):
         groups = -(-width // LANES)
         flags = rt.acquire(1, height, groups, np.uint8) if screening else None
         rt.launch_named("sensor", "sensor_screen", groups, height,
-                        dict(args, list=candidates, lanes8=rt.constant(lanes),
+                        dict(args, list=candidates, lanes8=self._lanes(rt),
                              flags=flags if flags is not None else rt.constant(np.zeros(1, np.uint8))),
                         defines, exact=False)
         if flags is not None:
@@ -672,21 +714,21 @@ class SensorCorrect(Stage):
                 flags=flags, list=candidates, count=count, cap=cap, width=width, height=height, groups=groups,
                 oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
             held.append(flags)
+        edges, beyond = self._strips(rt, origin, width, height, extent)
         if screening:                               # the search's edge pixels, or known bad ones there
-            for table, cols, rows in stacked(edge_strips(origin, width, height, extent), by_width=False):
+            for table, n, cols, rows in edges:
                 rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(
-                    list=candidates, count=count, cap=cap, width=width, strips=rt.constant(table),
-                    n_strips=len(table)), defines, exact=False)
+                    list=candidates, count=count, cap=cap, width=width, strips=table, n_strips=n),
+                    defines, exact=False)
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
                 pairs_n=state["pairs_n"], wb=state["wb"],
                 found=rt.constant(np.zeros(1, np.uint32)) if _metering(rt) else rt.counter(FOUND)), defines, exact=False)
-        beyond = beyond_strips(origin, width, height, extent) if image_extent(origin) is not None else []
-        for table, cols, rows in stacked(beyond, by_width=True):              # the corrected image, padded
+        for table, n, cols, rows in beyond:        # the corrected image, padded
             rt.launch_named("sensor", "sensor_mirror", cols, rows, dict(
                 dst=dst, width=width, height=height, oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0],
-                img_w=extent[1], strips=rt.constant(table), n_strips=len(table)), defines, exact=False)
+                img_w=extent[1], strips=table, n_strips=n), defines, exact=False)
         for img in held:
             rt.release(img)
         return dst
