@@ -276,18 +276,138 @@ def window_indices(y0: int, x0: int, h: int, w: int, shape: tuple[int, int],
     """Source rows (h,) and columns (w,) of the window at (y0, x0) of an image of ``shape``,
     padded by :func:`cfa_mirror_index`; read-only arrays, memoised (a run asks for the same
     windows call after call, and the two mirror maps cost about 30 us of a 0.26 MP call)."""
-    return _window_layout(int(y0), int(x0), int(h), int(w), (int(shape[0]), int(shape[1])), int(period))[:2]
+    layout = _window_layout(int(y0), int(x0), int(h), int(w), (int(shape[0]), int(shape[1])), int(period))
+    return layout.rows, layout.cols
+
+
+Piece = tuple[slice, "slice | np.ndarray"]
+"""A border part of a window: (the window's lines, where they come from): a slice (a run read as a
+view, possibly reversed) or, where no few slices describe the mirror, an index array."""
+
+
+@dataclass(frozen=True)
+class WindowLayout:
+    """Where a window's rows and columns come from (:func:`window_indices`), in the shapes
+    :func:`gather` copies: the interior (the longest runs of consecutive rows and columns) and
+    the mirrored border lines as a few slices each.
+
+    rows, cols    the source index of every window row and column.
+    row_run       (window start, source start, length) of the rows' longest run; col_run the same.
+    col_pieces    the border columns, each (window columns, source columns).
+    row_pieces    the border rows, each (window rows, source rows); the source rows are the
+                  window's own (already copied, border columns included) where ``from_window``.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    row_run: tuple[int, int, int]
+    col_run: tuple[int, int, int]
+    col_pieces: tuple[Piece, ...]
+    row_pieces: tuple[Piece, ...]
+    from_window: tuple[bool, ...]
+
+    @classmethod
+    def of(cls, rows: np.ndarray, cols: np.ndarray, period: int) -> "WindowLayout":
+        row_run, col_run = _longest_run(rows), _longest_run(cols)
+        (dy, sy, ny), (dx, _, nx) = row_run, col_run
+        col_pieces = _border_pieces(cols, dx, nx, period)
+        row_pieces, from_window = [], []
+        for dst, src in _border_pieces(rows, dy, ny, period):
+            src_rows = rows[dst]
+            inside = src_rows.min() >= sy and src_rows.max() < sy + ny      # rows the window holds
+            if inside:
+                src = _shifted(src, dy - sy) if isinstance(src, slice) else src_rows - sy + dy
+            row_pieces.append((dst, src))
+            from_window.append(bool(inside))
+        return cls(rows, cols, row_run, col_run, tuple(col_pieces), tuple(row_pieces), tuple(from_window))
+
+
+def _border_pieces(idx: np.ndarray, start: int, length: int, period: int) -> list[Piece]:
+    """The window lines of ``idx`` before ``start`` and from ``start + length`` on, as pieces: each
+    side one slice where its sources step evenly (a plain mirror), else per phase of the CFA
+    ``period`` its runs of even steps (the phase-keeping mirror of a 4 x 4 pattern steps by -period
+    within a phase, but for a line or two at the image's edge), else, past MAX_PIECES slices, the
+    side's index array.
+
+    >>> [(d, s) for d, s in _border_pieces(np.array([2, 1, 0, 1, 2, 2, 1]), 2, 3, 1)]
+    [(slice(0, 2, None), slice(2, 0, -1)), (slice(5, 7, None), slice(2, 0, -1))]
+    """
+    pieces: list[Piece] = []
+    for a, b in ((0, start), (start + length, len(idx))):
+        if b <= a:
+            continue
+        side = _as_slice(idx[a:b])
+        if side is not None:
+            pieces.append((slice(a, b), side))
+            continue
+        runs = [run for r in range(min(period, b - a)) for run in _even_runs(idx, a + r, b, period)]
+        if len(runs) <= MAX_PIECES:
+            pieces += runs
+        else:
+            pieces.append((slice(a, b), idx[a:b].copy()))
+    return pieces
+
+
+MAX_PIECES = 16
+"""Slices per side of a window's border past which :func:`gather` indexes the side's lines instead."""
+
+
+def _even_runs(idx: np.ndarray, a: int, b: int, step: int) -> list[Piece]:
+    """The window lines a, a + step, ... (< b) as pieces of evenly stepping sources, longest first
+    from ``a`` (greedy)."""
+    lines = list(range(a, b, step))
+    pieces: list[Piece] = []
+    i = 0
+    while i < len(lines):
+        j = i + 1
+        if j < len(lines):
+            d = int(idx[lines[j]] - idx[lines[i]])
+            while j + 1 < len(lines) and int(idx[lines[j + 1]] - idx[lines[j]]) == d and d != 0:
+                j += 1
+            j += 1 if d != 0 else 0
+        src = _as_slice(idx[lines[i]:lines[j - 1] + 1:step])
+        pieces.append((slice(lines[i], lines[j - 1] + 1, step), src))
+        i = j
+    return pieces
+
+
+def _as_slice(values: np.ndarray) -> slice | None:
+    """``values`` (source indices, >= 0) as a slice when they step evenly, else None.
+
+    >>> _as_slice(np.array([3, 2, 1])), _as_slice(np.array([5, 7])), _as_slice(np.array([3, 2, 5]))
+    (slice(3, 0, -1), slice(5, 9, 2), None)
+    """
+    first = int(values[0])
+    if len(values) == 1:
+        return slice(first, first + 1, 1)
+    step = int(values[1] - values[0])
+    if step == 0 or np.any(np.diff(values) != step):
+        return None
+    stop = first + step * len(values)
+    return slice(first, stop if stop >= 0 else None, step)
+
+
+def _shifted(sl: slice, by: int) -> slice:
+    """The slice ``sl`` (of non-negative indices, as :func:`_as_slice` makes them) with every index
+    moved by ``by``.
+
+    >>> _shifted(slice(3, None, -1), 2), _shifted(slice(3, 0, -1), -1)
+    (slice(5, 1, -1), slice(2, None, -1))
+    """
+    n = len(range(sl.start, -1 if sl.stop is None else sl.stop, sl.step))
+    first = sl.start + by
+    stop = first + sl.step * n
+    return slice(first, stop if stop >= 0 else None, sl.step)
 
 
 @lru_cache(maxsize=256)
-def _window_layout(y0: int, x0: int, h: int, w: int, shape: tuple[int, int],
-                   period: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int], tuple[int, int, int]]:
-    """(rows, cols, rows' longest run, cols' longest run) of :func:`window_indices` (see :func:`gather`)."""
+def _window_layout(y0: int, x0: int, h: int, w: int, shape: tuple[int, int], period: int) -> WindowLayout:
+    """The :class:`WindowLayout` of :func:`window_indices` (see :func:`gather`), its arrays read-only."""
     rows = cfa_mirror_index(np.arange(y0, y0 + h), shape[0], period)
     cols = cfa_mirror_index(np.arange(x0, x0 + w), shape[1], period)
     rows.setflags(write=False)
     cols.setflags(write=False)
-    return rows, cols, _longest_run(rows), _longest_run(cols)
+    return WindowLayout.of(rows, cols, period)
 
 
 def _longest_run(idx: np.ndarray) -> tuple[int, int, int]:
@@ -301,16 +421,21 @@ def _longest_run(idx: np.ndarray) -> tuple[int, int, int]:
 
 
 def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray | None = None,
-           runs: tuple[tuple[int, int, int], tuple[int, int, int]] | None = None) -> np.ndarray:
+           layout: WindowLayout | None = None, period: int = 1) -> np.ndarray:
     """``data[rows][:, cols]`` as a contiguous copy: the interior (the longest runs of consecutive
-    rows and columns) as one block copy, the padded border rows and columns by fancy indexing.
-    Copying each border line as its own slice cost 19 ms for a 0.26 MP window with a 71 px halo
-    (every mirrored row times every mirrored column a slice) against 1 ms with a 1 px halo.
-    A border row the window's interior already holds (a mirror of a row near the image's edge, when
-    the interior reaches it) is copied from the window, whole, its border columns included.
-    ``out``: a len(rows) x len(cols) array of ``data``'s dtype to fill instead of a new one (a
-    reused buffer spares the new pages' faults). ``runs``: the rows' and columns' longest runs
-    (:func:`_longest_run`) where the caller has them."""
+    rows and columns) as one block copy on the host's cores, the mirrored border columns and rows as
+    a few slice copies (:class:`WindowLayout`; fancy indexing of the border lines cost 46 of a 0.26
+    MP window's 130 us with a 67 px halo, the slices 14). A border row the window's interior already
+    holds (a mirror of a row near the image's edge) is copied from the window, whole, its border
+    columns included. ``out``: a len(rows) x len(cols) array of ``data``'s dtype to fill instead of a
+    new one (a reused buffer spares the new pages' faults). ``layout``: the indices' layout where
+    the caller has it (:func:`gather_window` keeps them per window), else made from ``rows``,
+    ``cols`` and the CFA ``period`` (the mirror's phases).
+
+    >>> data = np.arange(12).reshape(3, 4)
+    >>> gather(data, np.array([1, 0, 1, 2, 1]), np.array([2, 1, 0, 1, 2, 3, 2])).tolist()[0]
+    [6, 5, 4, 5, 6, 7, 6]
+    """
     shape = (len(rows), len(cols))
     if out is None:
         window = np.empty(shape, dtype=data.dtype)
@@ -318,19 +443,14 @@ def gather(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, out: np.ndarray
         raise ValueError(f"gather target {out.shape} {out.dtype} does not fit window {shape} {data.dtype}")
     else:
         window = out
-    (dy, sy, ny), (dx, sx, nx) = runs or (_longest_run(rows), _longest_run(cols))
+    layout = layout or WindowLayout.of(rows, cols, period)
+    (dy, sy, ny), (dx, sx, nx) = layout.row_run, layout.col_run
     host_threads.copy(window[dy:dy + ny, dx:dx + nx], data[sy:sy + ny, sx:sx + nx])   # on the host's cores
-    edge_cols = np.r_[0:dx, dx + nx:shape[1]]
-    if edge_cols.size:
-        window[dy:dy + ny, edge_cols] = data[sy:sy + ny, cols[edge_cols]]
-    for a, b in ((0, dy), (dy + ny, shape[0])):            # the border rows above and below, whole
-        if b <= a:
-            continue
-        src = rows[a:b] - sy
-        if src.min() >= 0 and src.max() < ny:               # rows the window holds already: copied
-            window[a:b] = window[dy + src]                   # from it (0.26 MP, 67 px halo: 88 -> 14 us)
-        else:
-            window[a:b] = data[rows[a:b]][:, cols]
+    interior = data[sy:sy + ny]
+    for dst, src in layout.col_pieces:
+        window[dy:dy + ny, dst] = interior[:, src]
+    for (dst, src), inside in zip(layout.row_pieces, layout.from_window):
+        window[dst] = window[src] if inside else data[src][:, layout.cols]
     return window
 
 
@@ -339,6 +459,5 @@ def gather_window(data: np.ndarray, y0: int, x0: int, h: int, w: int, period: in
     """The h x w window of ``data`` starting at (y0, x0), padded outside the image by
     :func:`cfa_mirror_index`. Returns a contiguous copy with the dtype of ``data`` (``out``
     filled, when given)."""
-    rows, cols, row_run, col_run = _window_layout(int(y0), int(x0), int(h), int(w),
-                                                  (int(data.shape[0]), int(data.shape[1])), int(period))
-    return gather(data, rows, cols, out=out, runs=(row_run, col_run))
+    layout = _window_layout(int(y0), int(x0), int(h), int(w), (int(data.shape[0]), int(data.shape[1])), int(period))
+    return gather(data, layout.rows, layout.cols, out=out, layout=layout)

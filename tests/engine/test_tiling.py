@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from clisp.cfa import cfa_from_name
 from clisp.sim.colorimetry import B_BAYER, P_LMS, WB_BAYER, WB_LMS
 from clisp.pipeline import build_pipeline
 from clisp.io.rawimage import RawImage
-from clisp.engine.tiling import Tile, cfa_mirror_index, gather_window, plan_tiles
+from clisp.engine.tiling import Tile, cfa_mirror_index, gather, gather_window, plan_tiles
 from tolerance import TOL, assert_close
 
 """|a - b| <= TOL * max(1, |b|) for every output comparison in this file."""
@@ -116,6 +118,20 @@ def test_gather_window_equals_fancy_indexing(dtype, period):
         expected = data[np.ix_(rows, cols)]
         assert window.dtype == data.dtype and window.shape == (h, w) and window.flags.c_contiguous
         np.testing.assert_array_equal(window, expected, err_msg=str((y0, x0, h, w)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(period=st.sampled_from([1, 2, 3, 4, 6]), height=st.integers(6, 30), width=st.integers(6, 30),
+       y0=st.integers(-40, 35), x0=st.integers(-40, 35), h=st.integers(1, 90), w=st.integers(1, 90))
+def test_gather_copies_every_window_as_fancy_indexing_does(period, height, width, y0, x0, h, w):
+    """The interior, the border slices per mirror phase and the rows copied from the window itself
+    (tiling.WindowLayout) give data[rows][:, cols] for any window, far past the image included."""
+    data = np.arange(height * width, dtype=np.uint16).reshape(height, width)
+    rows = cfa_mirror_index(np.arange(y0, y0 + h), height, period)
+    cols = cfa_mirror_index(np.arange(x0, x0 + w), width, period)
+    expected = data[np.ix_(rows, cols)]
+    np.testing.assert_array_equal(gather_window(data, y0, x0, h, w, period), expected)
+    np.testing.assert_array_equal(gather(data, rows, cols, period=period), expected)
 
 
 def test_gather_window_preserves_cfa():
