@@ -427,11 +427,14 @@ class Pipeline:
         return None
 
     def _key(self, fuse: bool) -> bytes | None:
-        """:func:`_stages_key` of this pipeline's stages, pickled once per list of stage objects."""
+        """:func:`_stages_key` of this pipeline's stages, pickled once per list of stage objects (in
+        this process: :data:`KEYS`, so the pipelines that clisp.pipeline.build makes of the same
+        kept stages pickle none)."""
         ident = tuple(map(id, self.stages))
-        cached = self.__dict__.get("_keys")
-        if cached is None or cached[0] != ident:
-            cached = self.__dict__["_keys"] = (ident, {})
+        cached = KEYS.get(ident)
+        if cached is None or any(a is not b for a, b in zip(cached[0], self.stages)):
+            cached = (tuple(self.stages), {})
+            KEYS.put(ident, cached)
         if fuse not in cached[1]:
             cached[1][fuse] = _stages_key(self.stages, fuse)
         return cached[1][fuse]
@@ -647,6 +650,13 @@ class Memo:
         with self._lock:
             self._items.clear()
 
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+KEYS = Memo()
+"""Pipeline._key's pickled stages by the identities of the stage objects, with the objects themselves
+(held, so no other object takes one of their identities while the entry lives)."""
 
 SCHEDULES = Memo()
 """Pipeline.schedule's fused stages, by the pickled stages (:func:`_stages_key`)."""

@@ -5,16 +5,18 @@ work can drop or swap stages per image or per tile without touching it.
 """
 from __future__ import annotations
 
+import pickle
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from importlib import import_module
 from typing import Any, Sequence
 
 import numpy as np
 
-from .corrections import only_isolated_clips, sensor_corrections
+from .corrections import Corrections, only_isolated_clips, sensor_corrections
 from ..errors import ClispError
 from ..io.rawimage import RawImage, check_levels, check_samples
-from ..engine.executor import Pipeline
+from ..engine.executor import Memo, Pipeline
 from ..engine.runtime import get_runtime
 from ..engine.stage import Stage
 from ..modules.chroma_denoise.stage import (ChromaDenoise, ChromaDenoiseParams, calibrate_noise, is_noiseless,
@@ -23,10 +25,11 @@ from ..modules.colour.stage import ColourMatrix, WhiteBalance2, tone_curve_for
 from ..modules.half_size.stage import HalfSize
 from ..modules.highlights.stage import DEFAULT_MODE as DEFAULT_HIGHLIGHTS, highlight_stage
 from ..modules.raw_scale.stage import normalize, white_balance1
-from ..scene.noise import raw_noise
+from ..scene.noise import has_noise_model, raw_noise
 from .demosaic_choice import alternative_for, choose_demosaic
 from ..scene.measure import measure_scene
 from ..scene.statistics_device import statistics_runtime
+from ..scene.white_balance import has_camera_wb, with_white_balance
 
 
 class StageRegistry(Mapping[str, type[Stage]]):
@@ -208,14 +211,112 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
         raise ClispError(HALF_SIZE_NO_DENOISE)
     kind = HalfSize if half_size else (type(given) if given else DEMOSAICS[options["demosaic"]])
     adapt = bool(skip) and given is None and alternative_for(kind) is not None
-    # 2. the scene, measured once: pass 1's white balance, the noise, pass 2's gains, the exposure
-    scene = measure_scene(raw, wb, wb2, noise=params is not None or adapt, exposure=exposure,
-                          auto_exposure=auto_exposure, limit=EXPOSURE_LIMIT,
-                          runtime=statistics_runtime(calibration_runtime()))
-    raw, cfa = scene.raw, scene.raw.cfa
-    # 3. the decisions: the corrections, the demosaic the noise allows, the denoiser's table, highlights
     if bad_pixels is None:                                  # the preset's (fast: off), else auto
         bad_pixels = options.get("bad_pixels", "auto")
+    rt = calibration_runtime()
+    # 2-3. the scene and the decisions it allows, kept per camera and settings where only the metadata made them
+    key = decisions_key(raw, rt, options, params, output, wb, wb2, exposure, auto_exposure, skip, given,
+                        half_size, bad_pixels, dark, flat, opcodes)
+    decided = DECISIONS.get(key) if key is not None else None
+    if decided is None:
+        decided, scene = decide(raw, rt, options, params, output, wb, wb2, exposure, auto_exposure, adapt, given,
+                                half_size, bad_pixels, dark, flat, opcodes)
+        if key is not None and scene.statistics is None:   # nothing read the mosaic: a function of the key
+            DECISIONS.put(key, decided)
+        raw, statistics = scene.raw, scene.statistics
+    else:                                                   # (never with skip: its key is None)
+        raw, statistics, scene = with_white_balance(raw, wb), None, None   # as measure_scene gives it without estimates
+    # 4. what the mosaic itself decides: the highlight stage, where it has clipped samples
+    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), decided.gains2,
+                                noise=decided.noise, scale=2 if half_size else 1,
+                                peaks=statistics.peaks if statistics is not None else None)
+    if highlight is not None and only_isolated_clips(raw, decided.corrections.pre):
+        highlight = None                                    # a hot pixel is not a clipped light
+    stages = [*decided.head, *([highlight] if highlight is not None else []), *decided.tail]
+    pipeline = Pipeline(raw.cfa, stages, exposure_ev=decided.exposure, wb_source=decided.wb_source,
+                        wb_explain=decided.wb_explain, stage_choice=decided.choice)
+    pipeline.corrections = decided.corrections
+    pipeline.scene_statistics = statistics                  # None when no estimate read the mosaic
+    # 5. the skip plan, from the scene's block analysis
+    if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
+        from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
+        pipeline.skip_off = why_not_skip(rt, raw.cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
+        if not pipeline.skip_off:
+            from ..scene.block_analysis import analyse   # deferred with the skip planner: only skipping runs one
+            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip),
+                                                    analysis=analyse(raw, statistics=scene.measured()))
+            pipeline.scene_statistics = scene.statistics
+    return pipeline
+
+
+@dataclass(frozen=True)
+class Decisions:
+    """What :func:`build_pipeline` decides before it looks at the mosaic's clipped samples: the
+    scene's noise (the corrections' added), pass 2's gains and the exposure, the sensor
+    corrections, the demosaic choice, and the stages before and after the highlight stage's place."""
+
+    noise: Any
+    gains2: np.ndarray
+    exposure: float
+    corrections: Corrections
+    choice: Any
+    head: tuple[Stage, ...]
+    tail: tuple[Stage, ...]
+    wb_source: str
+    wb_explain: str
+
+
+DECISIONS = Memo(16)
+""":class:`Decisions` by :func:`decisions_key`: a process that builds pipelines for raws of one
+camera and settings (``clisp.process`` on a burst in memory, ``clisp process`` of a folder, a batch
+worker) decides once what only the metadata decides; the same stage objects come back, so the
+schedule and plan memos (clisp.engine.executor) find them by identity. Built without it, a 0.26 MP
+quality pipeline cost 0.65 ms of Python with warm caches and 1.2-2.2 ms between calls (README.md)."""
+
+
+def decisions_key(raw: RawImage, rt: Any, options: Mapping[str, Any], params: ChromaDenoiseParams | None,
+                  output: str, wb: str, wb2: str, exposure: float, auto_exposure: bool, skip: Any, given: Any,
+                  half_size: bool, bad_pixels: Any, dark: Sequence[str], flat: Sequence[str],
+                  opcodes: bool) -> tuple | None:
+    """The :data:`DECISIONS` key of a build: everything :func:`decide` reads (the raw's CFA, levels,
+    multipliers and matrix as their bytes, its metadata pickled, its shape and sample type, the
+    options, the runtime); None where a decision reads the mosaic or a file: a raw without a noise
+    model (its noise is estimated), an estimated white balance or exposure, pass 2 other than the
+    metadata's, the skip analysis, frames, a bad pixel map or DNG opcodes, a demosaic stage given as
+    an object. The raw's ``source`` is left out: only messages name it. Values, not one pickle of
+    them all: a pickle also records which of its objects are one object, so two raws of equal
+    values could differ in it."""
+    md = raw.metadata or {}
+    if given is not None or skip is not None or auto_exposure or dark or flat or wb2 != "metadata" \
+            or wb == "auto" or not has_noise_model(raw) or not has_camera_wb(raw) \
+            or not (isinstance(bad_pixels, str) and bad_pixels in ("auto", "off")) \
+            or (opcodes and (md.get("opcodes") or md.get("opcodes_unreadable"))):
+        return None
+    try:
+        key = (raw.cfa.name, raw.cfa.kind, tuple(raw.cfa.channels), raw.cfa._pattern_bytes,
+                *(np.asarray(a, dtype=np.float64).tobytes() for a in (raw.black_level, raw.wb, raw.colour_matrix,
+                                                                     raw.wb2)),
+                float(raw.white_level), float(raw.exposure), pickle.dumps(md, protocol=4), raw.data.shape,
+                raw.data.dtype.str, tuple(options.items()), pickle.dumps(params, protocol=4), output, wb,
+                float(exposure), half_size, bad_pixels, opcodes, id(rt))
+        hash(key)                                           # an option of an unhashable value: not kept
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+    return key
+
+
+def decide(raw: RawImage, rt: Any, options: Mapping[str, Any], params: ChromaDenoiseParams | None, output: str,
+           wb: str, wb2: str, exposure: float, auto_exposure: bool, adapt: bool, given: Stage | None,
+           half_size: bool, bad_pixels: Any, dark: Sequence[str], flat: Sequence[str],
+           opcodes: bool) -> tuple[Decisions, Any]:
+    """:func:`build_pipeline`'s decisions for ``raw`` (steps 2 and 3) and the measured scene
+    (clisp.scene.measure.Scene: the raw with pass 1's multipliers, the statistics where an estimate
+    read them)."""
+    # 2. the scene, measured once: pass 1's white balance, the noise, pass 2's gains, the exposure
+    scene = measure_scene(raw, wb, wb2, noise=params is not None or adapt, exposure=exposure,
+                          auto_exposure=auto_exposure, limit=EXPOSURE_LIMIT, runtime=statistics_runtime(rt))
+    raw, cfa = scene.raw, scene.raw.cfa
+    # 3. the decisions: the corrections, the demosaic the noise allows, the denoiser's table
     corrections = sensor_corrections(raw, bad_pixels, dark, flat, opcodes, scene.noise)
     noise = corrections.noise(scene.noise)                  # the dark frame's own noise added
     demosaic_stage = HalfSize.for_raw(raw) if half_size else (given or make_demosaic(options["demosaic"], raw))
@@ -224,44 +325,27 @@ def build_pipeline(raw: RawImage, preset: str | None = None, demosaic: str | Sta
         demosaic_stage, choice = choose_demosaic(demosaic_stage, raw, noise)
     colour: Stage = ColourMatrix(raw.colour_matrix)
     if params is not None and noise is not None:
-        colour = chroma_denoise_for(raw, demosaic_stage, params, noise, calibration_runtime())
-    highlight = highlight_stage(raw, highlights or options.get("highlights", DEFAULT_HIGHLIGHTS), scene.gains2,
-                                noise=noise, scale=2 if half_size else 1,
-                                peaks=scene.statistics.peaks if scene.statistics is not None else None)
-    if highlight is not None and only_isolated_clips(raw, corrections.pre):
-        highlight = None                                    # a hot pixel is not a clipped light
-    # 4. the stages, in the order they run
-    stages: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
-                                                              white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
+        colour = chroma_denoise_for(raw, demosaic_stage, params, noise, rt)
+    # the stages in the order they run, the highlight stage's place between head and tail
+    head: list[Stage] = [demosaic_stage] if half_size else [normalize(cfa, raw.black_level, raw.white_level),
+                                                            white_balance1(cfa, raw.pass1_gains()), demosaic_stage]
     if corrections.pre is not None:
-        stages.insert(0, corrections.pre)
-    if highlight is not None:
-        stages.append(highlight)
-    stages.append(colour)
+        head.insert(0, corrections.pre)
+    tail: list[Stage] = [colour]
     shade = corrections.shade(raw.colour_matrix, HALF_SIZE_DOWNSCALE if half_size else 1)
     if shade is not None:                                   # the smooth gain, after highlights and denoiser
-        stages.append(shade)
+        tail.append(shade)
     output_gains = scene.gains2 * 2.0 ** scene.exposure
     if np.any(output_gains != 1.0):                          # the identity is left out
-        stages.append(WhiteBalance2(output_gains))
+        tail.append(WhiteBalance2(output_gains))
     tone = tone_curve_for(output)
     if tone is not None:
-        stages.append(tone)
+        tail.append(tone)
     explain_wb = str(raw.metadata.get("wb_explain", "")) if wb in ("auto", "camera") else ""   # camera: a file without it
-    pipeline = Pipeline(cfa, stages, exposure_ev=scene.exposure, wb_source=str(raw.metadata.get("wb_source", "camera")),
-                        wb_explain=explain_wb, stage_choice=choice)
-    pipeline.corrections = corrections
-    pipeline.scene_statistics = scene.statistics            # None when no estimate read the mosaic
-    # 5. the skip plan, from the scene's block analysis
-    if skip is not None and any(isinstance(stage, ChromaDenoise) for stage in stages):
-        from .skip import Skipper, why_not_skip   # deferred (7 ms of start-up); nothing to skip without a chroma denoiser
-        pipeline.skip_off = why_not_skip(calibration_runtime(), cfa, stages) if skip == SKIP_WHERE_IT_PAYS else ""
-        if not pipeline.skip_off:
-            from ..scene.block_analysis import analyse   # deferred with the skip planner: only skipping runs one
-            pipeline.skipper = Skipper.for_pipeline(raw, stages, enabled=bool(skip),
-                                                    analysis=analyse(raw, statistics=scene.measured()))
-            pipeline.scene_statistics = scene.statistics
-    return pipeline
+    gains2 = np.array(scene.gains2, dtype=np.float64)
+    gains2.setflags(write=False)                            # shared by the pipelines of one key
+    return Decisions(noise, gains2, float(scene.exposure), corrections, choice, tuple(head), tuple(tail),
+                     str(raw.metadata.get("wb_source", "camera")), explain_wb), scene
 
 
 def chroma_denoise_for(raw: RawImage, demosaic: Stage, params: ChromaDenoiseParams | None = None,
