@@ -335,11 +335,13 @@ class Runtime:
     def launch_named(self, name: str, kernel_name: str, width: int, height: int, args: Mapping[str, Any],
                      defines: Mapping[str, Any] | None = None, generated: str = "",
                      group: tuple[int, int] | None = None, x0: int = 0, exact: bool = True,
-                     inward: bool = False) -> None:
+                     inward: bool = False, depth: int = 1) -> None:
         """Enqueue ``kernel_name`` of the program ``<name>.cl`` over exactly width x height outputs
         (:func:`launch_exact`; ``exact`` False: rounded up to LOCAL_SIZE, :meth:`launch`, for kernels
         that check their bounds; ``inward``: launch_exact's one launch, for kernels that take their
-        coordinates from common.h's inward_id) with its arguments by name: ``args`` maps every parameter's name to
+        coordinates from common.h's inward_id; ``depth``: with ``inward``, that many work-groups
+        along a third index, one each, for the steps of a kernel that runs several at once, the
+        step its get_group_id(2)) with its arguments by name: ``args`` maps every parameter's name to
         its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
         Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
         name is a ClispError naming them. For example (clisp/modules/highlights/stage.py)::
@@ -375,7 +377,10 @@ class Runtime:
             missing, unknown = [n for n in names if n not in args], [n for n in args if n not in names]
             raise ClispError(f"{name}.cl {kernel_name}: missing arguments {missing}, unknown {unknown}")
         if exact:
-            launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0, inward=inward)
+            launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0, inward=inward,
+                         depth=depth)
+        elif depth != 1:
+            raise ValueError(f"{name}.cl {kernel_name}: a launch of depth {depth} is an inward one")
         else:
             self.launch(kernel, width, height, *values)
         if recording is not None:
@@ -863,7 +868,7 @@ Wider along x gives each vectorised work-group longer rows; 4 rows share the ver
 hybrid at 24 MP on PoCL: 39 MP/s against 31-37 for (32, 4), (64, 2), (128, 1); README.md)."""
 
 def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
-                 group: tuple[int, int] = WORK_GROUP, x0: int = 0, inward: bool = False) -> None:
+                 group: tuple[int, int] = WORK_GROUP, x0: int = 0, inward: bool = False, depth: int = 1) -> None:
     """Enqueue ``kernel`` over exactly width x height outputs without bounds checks (global ids
     along x offset by ``x0``).
 
@@ -877,12 +882,19 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     shifted inward to end at the edge, within the kernel): one launch over whole groups covers the
     outputs, the same work-groups as the block and strips above in one command. On PoCL each
     command costs 10-20 us of dispatch beside its enqueue, and a ragged window otherwise takes up
-    to four (engine README).
+    to four (engine README). ``depth`` (inward launches only): the same over that many work-groups
+    along a third index (one deep), for a kernel doing several steps at once (RI's line directions).
     """
     lx, ly = min(group[0], 1 << (width.bit_length() - 1)), min(group[1], 1 << (height.bit_length() - 1))
     if inward:
-        kernel(rt.queue, (-(-width // lx) * lx, -(-height // ly) * ly), (lx, ly), *args, global_offset=(x0, 0))
+        size = (-(-width // lx) * lx, -(-height // ly) * ly)
+        if depth == 1:
+            kernel(rt.queue, size, (lx, ly), *args, global_offset=(x0, 0))
+        else:
+            kernel(rt.queue, (*size, depth), (lx, ly, 1), *args, global_offset=(x0, 0, 0))
         return
+    if depth != 1:
+        raise ValueError(f"a launch of depth {depth} is an inward one")
     full_w, full_h = width // lx * lx, height // ly * ly
     xs = [(0, full_w)] + ([(width - lx, lx)] if full_w < width else [])
     ys = [(0, full_h)] + ([(height - ly, ly)] if full_h < height else [])

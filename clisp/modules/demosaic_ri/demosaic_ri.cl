@@ -38,17 +38,24 @@ __attribute__((always_inline)) inline int ri_is_green(const int y, const int x, 
 
 #define LINE_N (2 * RI_LINE_R + 1)
 
+/* The fits and tentatives of the four line directions (RI_FITS: along_x 1 then 0, swap 0 then 1 for
+ * each) and the residuals of the two (along_x 1, 0) are one launch each, the direction k the
+ * work-group's third index (work-groups 1 deep along it, so k is uniform over a group). */
+#define RI_ALONG_X(k) (1 - ((k) >> 1))
+#define RI_SWAP(k) ((k) & 1)
+
 /* ri_green_fit: one weighted guided-filter fit of every window of LINE_N pixels along a line: the
  * G line g0 (G samples; the mean of the two neighbours along the line elsewhere) and the chroma line
- * c0 (the converse); along_x: along rows (1) or columns (0); swap 0: G from the chroma line, 1: the
- * chroma line from G. Writes (a w, b w, w) to planes base..base + 2 of the 12-plane image. One fit
- * per launch: two in one body are alike, LLVM's SLP vectoriser packs them, and PoCL then does not
- * vectorise across work-items (README.md). Halo 1 + RI_LINE_R along the line. */
+ * c0 (the converse); direction k = get_group_id(2) in 0..3: along_x (RI_ALONG_X): along rows (1) or
+ * columns (0); swap (RI_SWAP) 0: G from the chroma line, 1: the chroma line from G. Writes (a w, b w,
+ * w) to planes 3 k..3 k + 2 of the 12-plane image. One fit per work-item: two in one body are
+ * alike, LLVM's SLP vectoriser packs them, and PoCL then does not vectorise across work-items
+ * (README.md). Halo 1 + RI_LINE_R along the line. */
 __kernel void ri_green_fit(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
-                           __global float *restrict out, const int w, const int h, const int ry, const int rx,
-                           const int along_x, const int swap, const int base)
+                           __global float *restrict out, const int w, const int h, const int ry, const int rx)
 {
     const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
+    const int k_dir = (int)get_group_id(2), along_x = RI_ALONG_X(k_dir), swap = RI_SWAP(k_dir), base = 3 * k_dir;
     const int c = (y + raw_m) * raw_w + x + raw_m, s = along_x ? 1 : raw_w;
     /* G parity of the window's first pixel; it alternates along the line */
     const int green0 = along_x ? ri_is_green(y, x - RI_LINE_R, ry, rx) : ri_is_green(y - RI_LINE_R, x, ry, rx);
@@ -81,18 +88,19 @@ __kernel void ri_green_fit(__global const RAW_T *restrict raw, const int raw_w, 
     out[(base + 2) * p + i] = wt;
 }
 
-/* ri_green_apply: one tentative along a line (along_x: rows 1, columns 0), A q + B with A, B the
- * 1 / RMSE-weighted means of the fit's coefficients (planes base..base + 2 of fits) over the LINE_N
- * pixels along the line, q its guide at the pixel: the chroma line c0 (swap 0: t_g) or the G line
- * g0 (swap 1: t_c). Writes plane out_plane of the 4-plane image. Halo RI_LINE_R (the guide reads
- * 1 more of the mosaic). */
+/* ri_green_apply: one tentative along a line per direction k = get_group_id(2) in 0..3 (as
+ * ri_green_fit's), A q + B with A, B the 1 / RMSE-weighted means of the fit's coefficients (planes
+ * 3 k..3 k + 2 of fits) over the LINE_N pixels along the line, q its guide at the pixel: the chroma
+ * line c0 (swap 0: t_g) or the G line g0 (swap 1: t_c). Writes plane k of the 4-plane image. Halo
+ * RI_LINE_R (the guide reads 1 more of the mosaic). */
 __kernel void ri_green_apply(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
                              __global const float *restrict fits, const int fits_w, const int fits_plane,
                              const int fits_m, __global float *restrict out, const int w, const int h,
-                             const int ry, const int rx, const int along_x, const int swap, const int base,
-                             const int out_plane)
+                             const int ry, const int rx)
 {
     const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
+    const int k_dir = (int)get_group_id(2), along_x = RI_ALONG_X(k_dir), swap = RI_SWAP(k_dir);
+    const int base = 3 * k_dir, out_plane = k_dir;
     const int f = (y + fits_m) * fits_w + x + fits_m, sf = along_x ? 1 : fits_w;
     __global const float *aw = fits + base * fits_plane, *bw = aw + fits_plane, *ww = bw + fits_plane;
     float sa = 0.0f, sb = 0.0f, sw = 0.0f;
@@ -109,17 +117,17 @@ __kernel void ri_green_apply(__global const RAW_T *restrict raw, const int raw_w
     out[out_plane * w * h + y * w + x] = (sa * guide + sb) / (sw + RI_WEIGHT_REG);
 }
 
-/* ri_green_residual: the colour difference G - C along one line direction (along_x: rows 1,
- * columns 0; tent: planes t_g, t_c of it from plane base) written to plane out_plane: at a G site
- * raw - (t_c + the mean residual raw - t_c of the two neighbours along the line), at a chroma site
- * t_g + the mean residual raw - t_g of the two neighbours - raw. Halo 1. */
+/* ri_green_residual: the colour difference G - C along one line direction j = get_group_id(2)
+ * (along_x 1 - j: rows, then columns; tent: planes t_g, t_c of it from plane 2 j) written to plane
+ * j: at a G site raw - (t_c + the mean residual raw - t_c of the two neighbours along the line), at
+ * a chroma site t_g + the mean residual raw - t_g of the two neighbours - raw. Halo 1. */
 __kernel void ri_green_residual(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
                                 __global const float *restrict tent, const int tent_w, const int tent_plane,
                                 const int tent_m, __global float *restrict out, const int w, const int h,
-                                const int ry, const int rx, const int along_x, const int base,
-                                const int out_plane)
+                                const int ry, const int rx)
 {
     const int x = inward_id(0, w - 1), y = inward_id(1, h - 1);
+    const int j_dir = (int)get_group_id(2), along_x = 1 - j_dir, base = 2 * j_dir, out_plane = j_dir;
     const int c = (y + raw_m) * raw_w + x + raw_m, s = along_x ? 1 : raw_w;
     const int t = base * tent_plane + (y + tent_m) * tent_w + x + tent_m, st = along_x ? 1 : tent_w;
     const int g = ri_is_green(y, x, ry, rx);

@@ -152,15 +152,17 @@ class DemosaicRI(FusedColourMatrix, Stage):
             r = STEP_RADII[step]
             return rt.acquire(channels, prev.height - 2 * r, prev.width - 2 * r)
 
-        def run(step: str, out: DeviceImage, args: dict[str, object], mosaic: bool = True) -> None:
+        def run(step: str, out: DeviceImage, args: dict[str, object], mosaic: bool = True, depth: int = 1) -> None:
             """Launch ri_<step> over ``out`` with ``args``, the output and (``mosaic``) the mosaic
-            and the site parities of the step's grid."""
+            and the site parities of the step's grid; ``depth``: the line directions the launch
+            does at once (the work-groups' third index)."""
             m = margins[step]
             ry, rx = self.r_parity(origin, m, site)
             args = {"out": out, "w": out.width, "h": out.height, **args}
             if mosaic:
                 args.update(raw=src, raw_w=src.width, raw_m=m, ry=ry, rx=rx)
-            rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines, inward=True)
+            rt.launch_named("demosaic_ri", f"ri_{step}", out.width, out.height, args, defines, inward=True,
+                            depth=depth)
 
         def planes(name: str, img: DeviceImage, margin: int) -> dict[str, object]:
             """An input image's arguments: buffer, pitch, plane size and margin around the output."""
@@ -171,22 +173,15 @@ class DemosaicRI(FusedColourMatrix, Stage):
             return {name: img, f"{name}_w": img.width, f"{name}_m": margin}
 
         # G along rows (along_x 1: planes 0-5, 0-1, 0) and columns (0: planes 6-11, 2-3, 1);
-        # swap 0: G from the chroma line (t_g), 1: the chroma line from G (t_c)
+        # swap 0: G from the chroma line (t_g), 1: the chroma line from G (t_c): the four directions
+        # (and the two residuals) one launch each, the direction the work-groups' third index
         fits = image("green_fit", src, 12)
-        for along_x in (1, 0):
-            for swap in (0, 1):
-                run("green_fit", fits, {"along_x": along_x, "swap": swap, "base": 6 * (1 - along_x) + 3 * swap})
+        run("green_fit", fits, {}, depth=4)
         tent = image("green_apply", fits, 4)
-        for along_x in (1, 0):
-            for swap in (0, 1):
-                run("green_apply", tent, {**planes("fits", fits, STEP_RADII["green_apply"]), "along_x": along_x,
-                                          "swap": swap, "base": 6 * (1 - along_x) + 3 * swap,
-                                          "out_plane": 2 * (1 - along_x) + swap})
+        run("green_apply", tent, planes("fits", fits, STEP_RADII["green_apply"]), depth=4)
         rt.release(fits)
         dif = image("green_residual", tent, 2)
-        for along_x in (1, 0):
-            run("green_residual", dif, {**planes("tent", tent, STEP_RADII["green_residual"]), "along_x": along_x,
-                                        "base": 2 * (1 - along_x), "out_plane": 1 - along_x})
+        run("green_residual", dif, planes("tent", tent, STEP_RADII["green_residual"]), depth=2)
         rt.release(tent)
         green = image("green_merge", dif, 1)
         run("green_merge", green, planes("dif", dif, STEP_RADII["green_merge"]))
