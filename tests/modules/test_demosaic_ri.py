@@ -131,19 +131,21 @@ def test_noise_regularisation(rt):
     np.testing.assert_array_equal(plain[..., 1], ref[..., 1])        # G does not use it
 
 
-def test_odd_shapes_and_uint16_input(rt):
-    """Odd window sides (ri_chroma_fit's four pixel classes cover every pixel) and a uint16 mosaic as
-    the first stage (RAW_T ushort)."""
+@pytest.mark.parametrize("out_h, out_w", [(17, 22), (1, 1), (2, 5), (66, 3)])
+def test_odd_shapes_and_uint16_input(rt, out_h, out_w):
+    """Odd and tiny window sides (ri_chroma_fit's four pixel classes, R's and B's of one offset in
+    one launch with work-groups that fit the smaller, cover every pixel) and a uint16 mosaic as the
+    first stage (RAW_T ushort)."""
     stage = DemosaicRI(bayer_cfa("GBRG"))
     rng = np.random.default_rng(4)
-    mos16 = (ndimage.gaussian_filter(rng.random((2 * HALO + 17, 2 * HALO + 22)), 1.5) * 60000).astype(np.uint16)
+    mos16 = (ndimage.gaussian_filter(rng.random((2 * HALO + out_h, 2 * HALO + out_w)), 1.5) * 60000).astype(np.uint16)
     ref = stage.reference(mos16.astype(np.float64), (1, 0))
     src = rt.upload(mos16)
     out = stage.enqueue(rt, src, (1, 0))
     got = np.moveaxis(rt.download(out), 0, -1)
     rt.release(out)
     rt.release(src)
-    assert got.shape == ref.shape == (17, 22, 3)
+    assert got.shape == ref.shape == (out_h, out_w, 3)
     assert np.abs(got - ref).max() <= TOL_MAX * 60000
 
 

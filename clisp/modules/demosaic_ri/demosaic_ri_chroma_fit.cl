@@ -22,15 +22,20 @@
  * (laps: L g, L x), plus reg_shot mean g + reg_floor (the host's CHROMA_NOISE_K 20 sigma^2 of G's noise at
  * the window's mean G, 8-bit units; 0 when noiseless), b = mean x - a mean g, the weight from that
  * fit's RMSE; moments centred on the
- * centre's G and on the colour's sample next to the centre. One colour per launch (two are alike:
- * SLP). Halo RI_CHROMA_R. */
+ * centre's G and on the colour's sample next to the centre. One colour per work-item (two are alike:
+ * SLP); R's class (sy, sx) and B's (1 - sy, 1 - sx) have the same offsets, so one launch 2 deep
+ * does both (get_group_id(2): which). Halo RI_CHROMA_R. */
 __kernel void ri_chroma_fit(__global const RAW_T *restrict raw, const int raw_w, const int raw_m,
                             __global const float *restrict g, const int g_w, const int g_m,
                             __global const float *restrict laps, const int laps_w, const int laps_plane,
                             const int laps_m, __global float *restrict out, const int w, const int h,
-                            const int sy, const int sx, const int base, const float reg_shot,
+                            const int sy0, const int sx0, const int base0, const float reg_shot,
                             const float reg_floor)
 {
+    /* the class (sy0, sx0) of colour base0 (work-groups 0 along the third index), and with a launch
+     * 2 deep also the other colour's class of the same offsets, (1 - sy0, 1 - sx0) of 3 - base0 */
+    const int other = (int)get_group_id(2);
+    const int sy = other ? 1 - sy0 : sy0, sx = other ? 1 - sx0 : sx0, base = other ? 3 - base0 : base0;
     const int x = 2 * inward_id(0, (w - 1 - sx) / 2) + sx, y = 2 * inward_id(1, (h - 1 - sy) / 2) + sy;
     const int ra = (y + raw_m) * raw_w + x + raw_m;
     const float cx = RAW(raw, ra + RI_OFF_Y * raw_w + RI_OFF_X);     /* the colour's sample next to the centre */

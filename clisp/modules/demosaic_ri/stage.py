@@ -40,7 +40,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...cfa import CFA
-from ...engine.runtime import DeviceImage, Runtime
+from ...engine.runtime import WORK_GROUP, DeviceImage, Runtime
 from ...engine.stage import Stage, as_f32
 from ...sim.noise import ChannelNoise
 from ..common.fused_matrix import FusedColourMatrix
@@ -208,8 +208,9 @@ class DemosaicRI(FusedColourMatrix, Stage):
     def _chroma_fits(self, rt: Runtime, src: DeviceImage, green: DeviceImage, laps: DeviceImage,
                      out: DeviceImage, origin: tuple[int, int], margins: dict[str, int]) -> None:
         """ri_chroma_fit (its own program, demosaic_ri_chroma_fit.cl) over the four pixel classes of
-        the output grid, R then B: a class's offsets to the colour's lattice are compile-time
-        (RI_OFF_Y, RI_OFF_X: four small programs), one launch covers its pixels (2 gy + sy, 2 gx + sx)."""
+        the output grid, R and B: a class's offsets to the colour's lattice are compile-time
+        (RI_OFF_Y, RI_OFF_X: four small programs); a launch 2 deep covers the pixels (2 gy + sy,
+        2 gx + sx) of R's class (sy, sx) and B's class (1 - sy, 1 - sx), whose offsets are the same."""
         m = margins["chroma_fit"]
         ry, rx = self.r_parity(origin, m, self.r_site())  # R rows: y + ry even
         shot, floor = self.green_noise()
@@ -219,12 +220,20 @@ class DemosaicRI(FusedColourMatrix, Stage):
                 "g_m": m - margins["green_merge"], "laps": laps, "laps_w": laps.width,
                 "laps_plane": laps.width * laps.height, "laps_m": STEP_RADII["chroma_fit"], "out": out,
                 "w": out.width, "h": out.height}
-        for base, (py, px) in ((0, (ry, rx)), (3, (ry + 1, rx + 1))):
-            for sy in (0, 1):
-                for sx in (0, 1):
-                    n_y, n_x = (out.height - sy + 1) // 2, (out.width - sx + 1) // 2
-                    if n_y == 0 or n_x == 0:
-                        continue
-                    defines = chroma_fit_defines(src.dtype, (sy + py) % 2, (sx + px) % 2)
-                    rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", n_x, n_y,
-                                    {**args, "sy": sy, "sx": sx, "base": base}, defines, inward=True)
+        for sy in (0, 1):
+            for sx in (0, 1):                   # R's class (sy, sx) and B's (1 - sy, 1 - sx): the same offsets
+                defines = chroma_fit_defines(src.dtype, (sy + ry) % 2, (sx + rx) % 2)
+                classes = [(cy, cx, base, (out.height - cy + 1) // 2, (out.width - cx + 1) // 2)
+                           for cy, cx, base in ((sy, sx, 0), (1 - sy, 1 - sx, 3))]
+                n_y, n_x = [n for *_, n, _ in classes], [n for *_, n in classes]
+                if min(n_y) > 0 and min(n_x) > 0:       # one launch 2 deep, its groups within the smaller
+                    group = (min(WORK_GROUP[0], 1 << (min(n_x).bit_length() - 1)),
+                             min(WORK_GROUP[1], 1 << (min(n_y).bit_length() - 1)))
+                    rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", max(n_x), max(n_y),
+                                    {**args, "sy0": sy, "sx0": sx, "base0": 0}, defines, group=group,
+                                    inward=True, depth=2)
+                    continue
+                for cy, cx, base, ny, nx in classes:    # a window too small for one of them
+                    if ny > 0 and nx > 0:
+                        rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", nx, ny,
+                                        {**args, "sy0": cy, "sx0": cx, "base0": base}, defines, inward=True)
