@@ -339,9 +339,9 @@ class Runtime:
         """Enqueue ``kernel_name`` of the program ``<name>.cl`` over exactly width x height outputs
         (:func:`launch_exact`; ``exact`` False: rounded up to LOCAL_SIZE, :meth:`launch`, for kernels
         that check their bounds; ``inward``: launch_exact's one launch, for kernels that take their
-        coordinates from common.h's inward_id; ``depth``: with ``inward``, that many work-groups
-        along a third index, one each, for the steps of a kernel that runs several at once, the
-        step its get_group_id(2)) with its arguments by name: ``args`` maps every parameter's name to
+        coordinates from common.h's inward_id; ``depth``: that many work-groups along a third
+        index, one deep, for the steps of a kernel that runs several at once, the step its
+        get_group_id(2)) with its arguments by name: ``args`` maps every parameter's name to
         its value, a DeviceImage or buffer for a pointer (a DeviceImage passes its buffer), a
         Python or NumPy number for a scalar (converted to the declared type). A missing or unknown
         name is a ClispError naming them. For example (clisp/modules/highlights/stage.py)::
@@ -379,10 +379,8 @@ class Runtime:
         if exact:
             launch_exact(self, kernel, width, height, *values, group=group or WORK_GROUP, x0=x0, inward=inward,
                          depth=depth)
-        elif depth != 1:
-            raise ValueError(f"{name}.cl {kernel_name}: a launch of depth {depth} is an inward one")
         else:
-            self.launch(kernel, width, height, *values)
+            self.launch(kernel, width, height, *values, depth=depth)
         if recording is not None:
             recording.named(time.perf_counter() - start)
 
@@ -698,11 +696,16 @@ class Runtime:
         queue.flush()
         return event
 
-    def launch(self, kernel: Any, width: int, height: int, *args: Any) -> None:
-        """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE)."""
+    def launch(self, kernel: Any, width: int, height: int, *args: Any, depth: int = 1) -> None:
+        """Enqueue a 2-D kernel over ``width x height`` output pixels (rounded up to LOCAL_SIZE);
+        ``depth``: that many work-groups along a third index, one deep (a kernel doing several
+        steps at once, the step its get_group_id(2))."""
         lx, ly = LOCAL_SIZE
         gsize = ((width + lx - 1) // lx * lx, (height + ly - 1) // ly * ly)
-        kernel(self.queue, gsize, LOCAL_SIZE, *args)
+        if depth == 1:
+            kernel(self.queue, gsize, LOCAL_SIZE, *args)
+        else:
+            kernel(self.queue, (*gsize, depth), (lx, ly, 1), *args)
 
 
 def aligned_empty(nbytes: int, align: int = 4096) -> np.ndarray:

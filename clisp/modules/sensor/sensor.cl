@@ -17,7 +17,7 @@
  *   SC_K, SC_K_COLD, SC_HOT_SLOPE, SC_HOT_CAP, SC_ALPHA, SC_GAMMA, SC_Z, SC_RHO, SC_KR, SC_FLOOR   the auto test's
  *   constants (float literals)
  *   SC_TERM_SIZE  floats per packed gain term
- *   SC_EDGE_RUN   pixels of a row each work-item of sensor_edges appends
+ *   SC_EDGE_RUN   pixels of a row each work-item of sensor_list's edge part (edges_run) appends
  */
 
 #include "sensor.h"
@@ -71,7 +71,7 @@ inline float gain_after(__global const float *flat, __constant const float *term
 /* sensor_screen: 8 pixels of a row per work-item, over the window less the halo (2): the steps
  * without the bad-pixel replacement, out = (raw g1 - off) r out_scale_c + out_offset_c (off: the dark
  * frame or the black level; r: gain_after), and the candidates for sensor_fix flagged in ``flags``
- * (a byte per 8 pixels, listed by sensor_compact; the scalar path appends them to ``list`` itself,
+ * (a byte per 8 pixels, listed by sensor_list; the scalar path appends them to ``list`` itself,
  * ``count`` of them, at most ``cap`` kept): known bad pixels (mask) and (SC_DETECT) pixels beyond
  * their same-channel neighbours at (+-2, +-2) (the same channel in the Bayer and LMS CFAs; SC_DIAG 0:
  * every pixel) and, in a 2 x 2 CFA, at (0, +-2) and (+-2, 0) (the vector path) by SC_K sigmas
@@ -81,7 +81,7 @@ inline float gain_after(__global const float *flat, __constant const float *term
  * margin, SC_HOT_SLOPE, which only asks more), so a pixel it would replace is never
  * left out; and (SC_MASK and SC_DETECT) pixels with a known bad neighbour among those, which
  * sensor_fix leaves out of its test. The pixels within 2 of the image's edge, whose neighbours the
- * padding mirrors, are appended by sensor_edges instead. The 8 lanes are explicit float8 (PoCL's implicit
+ * padding mirrors, are appended by sensor_list (edges_run) instead. The 8 lanes are explicit float8 (PoCL's implicit
  * vectoriser gives up on the atomic append: 8 against 50 ms for 6 MP); the test is branch-free
  * (squares, not sqrt); only the rare candidates branch. Bounds checked; a row's last group of fewer
  * than 8 pixels takes the scalar path. */
@@ -233,7 +233,7 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     }
 #endif
 #endif
-    /* the lanes' candidates as the bits of one byte, listed by sensor_compact: an append here (an
+    /* the lanes' candidates as the bits of one byte, listed by sensor_list: an append here (an
      * atomic in a branch) would cost the kernel a third of its time */
     const int8 bits = cand & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
     flags[y * ((width + LANES - 1) / LANES) + xg] = (uchar)(bits.s0 | bits.s1 | bits.s2 | bits.s3 | bits.s4 | bits.s5 | bits.s6 | bits.s7);
@@ -245,14 +245,14 @@ __kernel void sensor_screen(SC_ARGS, __global uint *restrict list, __global uint
     vstore8(w * r * osc + oof, 0, dst + y * width + x0);
 }
 
-/* sensor_compact: appends the candidates sensor_screen flagged (bit k of flags[y groups + g]: output
- * pixel (y, 8 g + k)) to ``list``, but those within 2 of the image's edge (sensor_edges lists them).
- * Halo 0; one work-item per 64 groups of a row (``groups`` of them), bounds checked. */
-__kernel void sensor_compact(__global const uchar *restrict flags, __global uint *restrict list,
-                             __global uint *restrict count, const uint cap, const int width, const int height,
-                             const int groups, const int oy, const int ox, const int img_h, const int img_w)
+/* compact_run: appends the candidates sensor_screen flagged (bit k of flags[y groups + g]: output
+ * pixel (y, 8 g + k)) to ``list``, but those within 2 of the image's edge (edges_run lists them).
+ * Halo 0; one work-item (gx, y) per 64 groups of a row (``groups`` of them), bounds checked. */
+inline void compact_run(const int gx, const int y, __global const uchar *restrict flags, __global uint *restrict list,
+                        __global uint *restrict count, const uint cap, const int width, const int height,
+                        const int groups, const int oy, const int ox, const int img_h, const int img_w)
 {
-    const int g0 = get_global_id(0) * 64, y = get_global_id(1);
+    const int g0 = gx * 64;
     if (g0 >= groups || y >= height)
         return;
     const int gy = y + SC_HALO + oy;
@@ -303,18 +303,18 @@ inline int stacked_strip(__constant const int *strips, const int n, const int g,
     return k;
 }
 
-/* sensor_edges: appends every output pixel of the rectangles (stage.edge_strips, stacked:
+/* edges_run: appends every output pixel of the rectangles (stage.edge_strips, stacked:
  * stacked_strip) to ``list`` (the window's pixels inside the image within 2 of its edge:
  * sensor_fix tests them with the neighbours inside the image only; pixels beyond the image are not
- * tested, sensor_mirror pads them). Halo 0; one work-item per SC_EDGE_RUN pixels of a row, one
- * atomic for them (an atomic per pixel cost as much as the screen), bounds checked; one launch for
- * every rectangle (a launch per rectangle cost PoCL's dispatch four times). */
-__kernel void sensor_edges(__global uint *restrict list, __global uint *restrict count, const uint cap,
-                           const int width, __constant const int *restrict strips, const int n_strips)
+ * tested, sensor_mirror pads them). Halo 0; one work-item (gx, g) per SC_EDGE_RUN pixels of a
+ * stacked row g, one atomic for them (an atomic per pixel cost as much as the screen), bounds
+ * checked; one launch for every rectangle (a launch per rectangle cost PoCL's dispatch four times). */
+inline void edges_run(const int gx, const int g, __global uint *restrict list, __global uint *restrict count,
+                      const uint cap, const int width, __constant const int *restrict strips, const int n_strips)
 {
     int y;
-    const int r = stacked_strip(strips, n_strips, get_global_id(1), &y);
-    const int xs = get_global_id(0) * SC_EDGE_RUN, cols = strips[5 * r + 3];
+    const int r = stacked_strip(strips, n_strips, g, &y);
+    const int xs = gx * SC_EDGE_RUN, cols = strips[5 * r + 3];
     if (xs >= cols || y >= strips[5 * r + 2])
         return;
     const int m = min(SC_EDGE_RUN, cols - xs);
@@ -323,6 +323,22 @@ __kernel void sensor_edges(__global uint *restrict list, __global uint *restrict
     for (int j = 0; j < m; j++)
         if (k + j < cap)
             list[k + j] = p + j;
+}
+
+/* sensor_list: the candidates' list, from the screen's flags (compact_run, work-groups 0 along the
+ * third index) and, in a launch 2 deep, the window's pixels near the image's edge (edges_run, 1):
+ * both only append, in any order (sensor_fix's result does not depend on it), so one command does
+ * both. Halo 0. */
+__kernel void sensor_list(__global const uchar *restrict flags, __global uint *restrict list,
+                          __global uint *restrict count, const uint cap, const int width, const int height,
+                          const int groups, const int oy, const int ox, const int img_h, const int img_w,
+                          __constant const int *restrict strips, const int n_strips)
+{
+    if (get_group_id(2) == 0)
+        compact_run(get_global_id(0), get_global_id(1), flags, list, count, cap, width, height, groups, oy, ox,
+                    img_h, img_w);
+    else
+        edges_run(get_global_id(0), get_global_id(1), list, count, cap, width, strips, n_strips);
 }
 
 /* y_near: Y at window index q (image pixel (gy, gx)): the mean of its 4 nearest pixels, each

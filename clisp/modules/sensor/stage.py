@@ -7,8 +7,8 @@ Two stages, one at each end of the colour pipeline::
                                            the dark frame (or the black level), the flat field and
                                            OpcodeList2's gains less their smooth part G; candidates
                                            for the defect test flagged (a bit per pixel)
-    sensor_compact            0         1  the flagged pixels listed
-    sensor_edges              0       0-4  the window's pixels near the image's edge, listed
+    sensor_list               0         1  the flagged pixels listed, and (the launch 2 deep) the
+                                           window's pixels near the image's edge
     sensor_fix                3         1  each candidate: the defect test against the noise model
                                            (or the known bad pixels), and its replacement
     sensor_shade              0         1  after the chroma stage: G, per camera channel
@@ -130,7 +130,7 @@ FIX_ROW = 256
 """sensor_fix's list is launched as rows of this many work-items (a multiple of the work-group's width)."""
 
 EDGE_RUN = 64
-"""Pixels of a row each work-item of sensor_edges appends, with one atomic (sensor.cl's SC_EDGE_RUN)."""
+"""Pixels of a row each work-item of sensor_list's edge part appends, with one atomic (sensor.cl's SC_EDGE_RUN)."""
 
 HOT_SLOPE = 1.0
 """A hot pixel's least excess over its highest same-channel neighbour follows that neighbour's level:
@@ -633,7 +633,7 @@ class SensorCorrect(Stage):
 
     def _strips(self, rt: Runtime, origin: tuple[int, int], width: int, height: int,
                 extent: tuple[int, int]) -> tuple[list[tuple[Any, int, int, int]], list[tuple[Any, int, int, int]]]:
-        """The launches of sensor_edges and sensor_mirror for an output window of ``width`` x
+        """The launches of sensor_list's edge part and sensor_mirror for an output window of ``width`` x
         ``height`` at ``origin`` in an image of ``extent``: per launch its strip table on the
         device, the table's rows, the launch's columns and rows (:func:`stacked`). Kept per window
         on this stage object (a run's windows repeat call after call; at most STRIP_MEMO of them)."""
@@ -709,17 +709,15 @@ class SensorCorrect(Stage):
                         dict(args, list=candidates, lanes8=self._lanes(rt),
                              flags=flags if flags is not None else rt.constant(np.zeros(1, np.uint8))),
                         defines, exact=False)
-        if flags is not None:
-            rt.launch_named("sensor", "sensor_compact", -(-groups // 64), height, dict(
-                flags=flags, list=candidates, count=count, cap=cap, width=width, height=height, groups=groups,
-                oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0], img_w=extent[1]), defines, exact=False)
-            held.append(flags)
         edges, beyond = self._strips(rt, origin, width, height, extent)
-        if screening:                               # the search's edge pixels, or known bad ones there
-            for table, n, cols, rows in edges:
-                rt.launch_named("sensor", "sensor_edges", -(-cols // EDGE_RUN), rows, dict(
-                    list=candidates, count=count, cap=cap, width=width, strips=table, n_strips=n),
-                    defines, exact=False)
+        if flags is not None:                       # the flagged pixels and the search's edge pixels listed
+            table, n, cols, rows = edges[0] if edges else (rt.constant(np.zeros(5, np.int32)), 0, 0, 0)
+            rt.launch_named("sensor", "sensor_list", max(-(-groups // 64), -(-cols // EDGE_RUN)), max(height, rows),
+                            dict(flags=flags, list=candidates, count=count, cap=cap, width=width, height=height,
+                                 groups=groups, oy=int(origin[0]), ox=int(origin[1]), img_h=extent[0],
+                                 img_w=extent[1], strips=table, n_strips=n), defines, exact=False,
+                            depth=2 if n else 1)
+            held.append(flags)
         if screening:
             rt.launch_named("sensor", "sensor_fix", FIX_ROW, -(-fix_items // FIX_ROW), dict(
                 args, list=candidates, nb=state["nb"], nb_n=state["nb_n"], pairs=state["pairs"],
