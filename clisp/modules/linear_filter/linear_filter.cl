@@ -24,9 +24,12 @@ __kernel void phase_filter(__global const RAW_T *restrict src, __global out_t *r
                            const int in_w, const int out_w, const int out_h,
                            __constant const float *restrict w, __constant const float *restrict bias)
 {
+#if EXACT          /* blocks tile the output: one command, the last work-group shifted inward (common.h) */
+    const int bx = inward_id(0, out_w / CFA_PERIOD - 1) * CFA_PERIOD;
+    const int by = inward_id(1, out_h / CFA_PERIOD - 1) * CFA_PERIOD;
+#else
     const int bx = get_global_id(0) * CFA_PERIOD;
     const int by = get_global_id(1) * CFA_PERIOD;
-#if !EXACT
     if (bx >= out_w || by >= out_h) return;
 #endif
     const int plane = out_w * out_h;

@@ -320,7 +320,7 @@ class LinearPhaseFilter(Stage):
         elif per_column:
             launch_exact(rt, kernel, out_w, out_h // p, *args, group=PER_COLUMN_GROUP)
         elif exact:
-            launch_exact(rt, kernel, out_w // p, out_h // p, *args)
+            launch_exact(rt, kernel, out_w // p, out_h // p, *args, inward=True)
         else:
             rt.launch(kernel, -(-out_w // p), -(-out_h // p), *args)
         dst.interleaved = self.interleaved
