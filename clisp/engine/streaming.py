@@ -100,7 +100,7 @@ class FileWindows:
         rows, cols = window_indices(y0, x0, h, w, self.shape, period)
         r0, c0 = int(rows.min()), int(cols.min())
         block = self.read_block(r0, int(rows.max()) + 1, c0, int(cols.max()) + 1)
-        return gather(block, rows - r0, cols - c0, out)
+        return gather(block, rows - r0, cols - c0, out, period=period)
 
     def read_rows(self, r0: int, r1: int) -> np.ndarray:
         """Whole rows r0..r1 (inside the image) as a new native-endian (r1 - r0) x W array: one

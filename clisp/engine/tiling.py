@@ -353,20 +353,23 @@ MAX_PIECES = 16
 
 
 def _even_runs(idx: np.ndarray, a: int, b: int, step: int) -> list[Piece]:
-    """The window lines a, a + step, ... (< b) as pieces of evenly stepping sources, longest first
-    from ``a`` (greedy)."""
-    lines = list(range(a, b, step))
+    """The window lines a, a + step, ... (< b) as pieces of evenly stepping sources, each as long
+    as it goes from where the last ended (greedy).
+
+    >>> [(d, s) for d, s in _even_runs(np.array([5, 4, 3, 7, 6]), 0, 5, 1)]
+    [(slice(0, 3, 1), slice(5, 2, -1)), (slice(3, 5, 1), slice(7, 5, -1))]
+    """
+    values = idx[a:b:step]
     pieces: list[Piece] = []
     i = 0
-    while i < len(lines):
-        j = i + 1
-        if j < len(lines):
-            d = int(idx[lines[j]] - idx[lines[i]])
-            while j + 1 < len(lines) and int(idx[lines[j + 1]] - idx[lines[j]]) == d and d != 0:
+    while i < len(values):
+        j = i + 1                                   # the run is values[i:j]
+        if j < len(values) and values[j] != values[i]:
+            d = values[j] - values[i]
+            while j < len(values) and values[j] - values[j - 1] == d:
                 j += 1
-            j += 1 if d != 0 else 0
-        src = _as_slice(idx[lines[i]:lines[j - 1] + 1:step])
-        pieces.append((slice(lines[i], lines[j - 1] + 1, step), src))
+        src = _as_slice(values[i:j])
+        pieces.append((slice(a + i * step, a + (j - 1) * step + 1, step), src))
         i = j
     return pieces
 
