@@ -641,7 +641,8 @@ class SensorCorrect(Stage):
         launches = self._strip_memo.get(key)
         if launches is None:
             beyond = beyond_strips(origin, width, height, extent) if image_extent(origin) is not None else []
-            launches = tuple([(rt.constant(table), len(table), cols, rows) for table, cols, rows in stacked(strips, by_width)]
+            launches = tuple([(rt.constant(table), len(table), cols, rows)
+                              for table, cols, rows in stacked(strips, by_width)]
                              for strips, by_width in ((edge_strips(origin, width, height, extent), False),
                                                       (beyond, True)))
             if not _metering(rt):
