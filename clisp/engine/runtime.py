@@ -870,6 +870,17 @@ WORK_GROUP = (64, 4)
 Wider along x gives each vectorised work-group longer rows; 4 rows share the vertical taps (the LMS
 hybrid at 24 MP on PoCL: 39 MP/s against 31-37 for (32, 4), (64, 2), (128, 1); README.md)."""
 
+def group_within(width: int, height: int, group: tuple[int, int] = WORK_GROUP) -> tuple[int, int]:
+    """``group`` with each side cut to the largest power of two within ``width`` / ``height``
+    outputs (launch_exact's rule: few distinct shapes, so few work-group compilations on PoCL; an
+    inward launch needs at least one whole group of outputs).
+
+    >>> group_within(100, 3), group_within(1000, 1000)
+    ((64, 2), (64, 4))
+    """
+    return min(group[0], 1 << (width.bit_length() - 1)), min(group[1], 1 << (height.bit_length() - 1))
+
+
 def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: object,
                  group: tuple[int, int] = WORK_GROUP, x0: int = 0, inward: bool = False, depth: int = 1) -> None:
     """Enqueue ``kernel`` over exactly width x height outputs without bounds checks (global ids
@@ -888,7 +899,7 @@ def launch_exact(rt: "Runtime", kernel: object, width: int, height: int, *args: 
     to four (engine README). ``depth`` (inward launches only): the same over that many work-groups
     along a third index (one deep), for a kernel doing several steps at once (RI's line directions).
     """
-    lx, ly = min(group[0], 1 << (width.bit_length() - 1)), min(group[1], 1 << (height.bit_length() - 1))
+    lx, ly = group_within(width, height, group)
     if inward:
         size = (-(-width // lx) * lx, -(-height // ly) * ly)
         if depth == 1:

@@ -268,8 +268,9 @@ class Decisions:
 
 DECISIONS = Memo(16)
 """:class:`Decisions` by :func:`decisions_key`: a process that builds pipelines for raws of one
-camera and settings (``clisp.process`` on a burst in memory, ``clisp process`` of a folder, a batch
-worker) decides once what only the metadata decides; the same stage objects come back, so the
+camera and settings in memory (``clisp.process`` on a burst, a preview redrawn) decides once what
+only the metadata decides (not the command line's builds, whose ``--skip auto`` reads the mosaic:
+:func:`decisions_key` is None there); the same stage objects come back, so the
 schedule and plan memos (clisp.engine.executor) find them by identity. Built without it, a 0.26 MP
 quality pipeline cost 0.65 ms of Python with warm caches and 1.2-2.2 ms between calls (README.md)."""
 

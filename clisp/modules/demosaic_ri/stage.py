@@ -40,7 +40,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...cfa import CFA
-from ...engine.runtime import WORK_GROUP, DeviceImage, Runtime
+from ...engine.runtime import DeviceImage, Runtime, group_within
 from ...engine.stage import Stage, as_f32
 from ...sim.noise import ChannelNoise
 from ..common.fused_matrix import FusedColourMatrix
@@ -223,17 +223,10 @@ class DemosaicRI(FusedColourMatrix, Stage):
         for sy in (0, 1):
             for sx in (0, 1):                   # R's class (sy, sx) and B's (1 - sy, 1 - sx): the same offsets
                 defines = chroma_fit_defines(src.dtype, (sy + ry) % 2, (sx + rx) % 2)
-                classes = [(cy, cx, base, (out.height - cy + 1) // 2, (out.width - cx + 1) // 2)
-                           for cy, cx, base in ((sy, sx, 0), (1 - sy, 1 - sx, 3))]
-                n_y, n_x = [n for *_, n, _ in classes], [n for *_, n in classes]
-                if min(n_y) > 0 and min(n_x) > 0:       # one launch 2 deep, its groups within the smaller
-                    group = (min(WORK_GROUP[0], 1 << (min(n_x).bit_length() - 1)),
-                             min(WORK_GROUP[1], 1 << (min(n_y).bit_length() - 1)))
-                    rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", max(n_x), max(n_y),
-                                    {**args, "sy0": sy, "sx0": sx, "base0": 0}, defines, group=group,
-                                    inward=True, depth=2)
-                    continue
-                for cy, cx, base, ny, nx in classes:    # a window too small for one of them
-                    if ny > 0 and nx > 0:
-                        rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", nx, ny,
-                                        {**args, "sy0": cy, "sx0": cx, "base0": base}, defines, inward=True)
+                n_y = [(out.height - cy + 1) // 2 for cy in (sy, 1 - sy)]    # rows of R's class, of B's
+                n_x = [(out.width - cx + 1) // 2 for cx in (sx, 1 - sx)]
+                # one launch 2 deep, its groups within the smaller class (every class has pixels: the
+                # fits' image carries chroma_apply's and complete_rgb's halos, 3 px a side at least)
+                rt.launch_named("demosaic_ri_chroma_fit", "ri_chroma_fit", max(n_x), max(n_y),
+                                {**args, "sy0": sy, "sx0": sx, "base0": 0}, defines,
+                                group=group_within(min(n_x), min(n_y)), inward=True, depth=2)
